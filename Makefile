@@ -1,0 +1,26 @@
+# Two entry points: `make demo` and `make test`. Both install into .venv first; the
+# install re-runs only when pyproject.toml or the install script changes.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test test-fast install clean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml tools/install_venv.sh
+	PYTHON=$(PYTHON) VENV=$(VENV) bash tools/install_venv.sh
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(PY) -m robomorph.demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -m "not slow"
+
+clean:
+	rm -rf $(VENV) data results/runs .pytest_cache

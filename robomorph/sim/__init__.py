@@ -1,0 +1,1 @@
+"""Simulated robot domains: MJCF models, randomization, signals, controllers, rollouts."""
