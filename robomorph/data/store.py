@@ -1,0 +1,292 @@
+"""The one reader/writer of RoboMorph's Zarr v3 dataset schema.
+
+Layout (DESIGN.md)::
+
+    <name>.zarr/
+      u       float32 (N, T, n_u)
+      y       float32 (N, T, n_y)
+      params  float32 (N, P)
+      <extra> optional arrays with N as first axis (e.g. ``target``, ``task_index``)
+      attrs   schema_version, u_names, y_names, param_names, dt, domain, task, config,
+              seed, status, n, requested, attempted, rejected, package_version, ...
+
+Arrays are allocated at their final capacity and filled in row blocks; ``attrs['n']`` says
+how many leading rows are valid and ``attrs['status']`` is ``complete`` only after the last
+block and its counts are written. Readers refuse a store whose status is not complete
+unless asked to read its valid prefix, so an interrupted job never looks finished.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import zarr
+from zarr.codecs import BloscCodec
+from zarr.storage import LocalStore
+
+from robomorph import __version__
+
+SCHEMA_VERSION = 1
+SCHEMA_NAME = "robomorph.dataset"
+STATUS_IN_PROGRESS = "in_progress"
+STATUS_COMPLETE = "complete"
+# lz4 over zstd: simulated floats barely compress either way, lz4 writes 2.7x faster
+# (REFERENCE.md, measured on this machine kind).
+_COMPRESSORS = [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")]
+_REQUIRED_ATTRS = ("schema", "schema_version", "u_names", "y_names", "param_names", "dt", "status", "n")
+
+
+class SchemaError(ValueError):
+    """A path is not a RoboMorph dataset of the supported schema."""
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _check_names(kind: str, names: list[str], width: int) -> None:
+    if len(names) != width:
+        raise ValueError(f"{kind} has {width} channels but {len(names)} names were given")
+    if len(set(names)) != len(names):
+        raise ValueError(f"{kind} names must be unique, got {names}")
+
+
+def check_writable(path: str, overwrite: bool) -> None:
+    """Raises unless ``path`` may be (re)created: never a file or a store of another schema,
+    and an existing RoboMorph store only with ``overwrite``. Cheap: call it before long work."""
+    if not os.path.exists(path):
+        return
+    if os.path.isfile(path):
+        raise FileExistsError(f"{path} is a file, not a dataset directory; choose another --out")
+    if not os.listdir(path):
+        return
+    try:
+        attrs = dict(zarr.open_group(LocalStore(path), mode="r").attrs)
+    except Exception as exc:  # noqa: BLE001  (any unreadable directory is refused)
+        raise FileExistsError(
+            f"{path} exists and is not a Zarr store; refusing to overwrite it"
+        ) from exc
+    if attrs.get("schema") != SCHEMA_NAME:
+        raise SchemaError(
+            f"{path} is a Zarr store of another schema (schema={attrs.get('schema')!r}); "
+            "refusing to overwrite it: choose another output path"
+        )
+    if not overwrite:
+        raise FileExistsError(
+            f"{path} already holds a RoboMorph dataset (status={attrs.get('status')}, "
+            f"n={attrs.get('n')}); pass --overwrite to replace it, or choose another output path"
+        )
+
+
+def create_store(
+    path: str,
+    n: int,
+    steps: int,
+    u_names: list[str],
+    y_names: list[str],
+    param_names: list[str],
+    attrs: dict[str, Any],
+    extras: dict[str, tuple[tuple[int, ...], str]] | None = None,
+    chunk: int = 64,
+    overwrite: bool = False,
+) -> "DatasetWriter":
+    """Creates an empty store of capacity ``n`` trajectories of ``steps`` samples.
+
+    Args:
+        path: directory of the new store.
+        n: capacity (number of trajectories).
+        steps: samples per trajectory (T).
+        u_names, y_names, param_names: channel names (their lengths fix n_u, n_y, P).
+        attrs: descriptive attributes (dt, domain, task, config, seed, ...).
+        extras: optional arrays ``name -> (trailing shape, dtype)``.
+        chunk: trajectories per chunk along N.
+        overwrite: replace an existing RoboMorph store (never anything else).
+    """
+    if n < 1 or steps < 1:
+        raise ValueError(f"a dataset needs n >= 1 and steps >= 1, got n={n}, steps={steps}")
+    if "dt" not in attrs or not float(attrs["dt"]) > 0:
+        raise ValueError("attrs must carry a positive sample time 'dt' in seconds")
+    check_writable(path, overwrite)
+    group = zarr.open_group(LocalStore(path), mode="w")
+    chunk = max(1, min(chunk, n))
+    for name, width in (("u", len(u_names)), ("y", len(y_names))):
+        group.create_array(name, shape=(n, steps, width), chunks=(chunk, steps, width),
+                           dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
+    group.create_array("params", shape=(n, len(param_names)), chunks=(chunk, max(1, len(param_names))),
+                       dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
+    for name, (tail, dtype) in (extras or {}).items():
+        group.create_array(name, shape=(n, *tail), chunks=(chunk, *tail), dtype=dtype,
+                           compressors=_COMPRESSORS)
+    meta = {
+        **attrs,
+        "schema": SCHEMA_NAME,
+        "schema_version": SCHEMA_VERSION,
+        "u_names": list(u_names),
+        "y_names": list(y_names),
+        "param_names": list(param_names),
+        "dt": float(attrs["dt"]),
+        "steps": int(steps),
+        "capacity": int(n),
+        "n": 0,
+        "status": STATUS_IN_PROGRESS,
+        "package_version": __version__,
+        "created": _now(),
+    }
+    group.attrs.update(meta)
+    return DatasetWriter(path, group)
+
+
+class DatasetWriter:
+    """Fills a store created by :func:`create_store` (or reopened to resume)."""
+
+    def __init__(self, path: str, group: zarr.Group):
+        self.path = path
+        self.group = group
+        self.capacity = int(group.attrs["capacity"])
+        self.n = int(group.attrs["n"])
+
+    @classmethod
+    def reopen(cls, path: str) -> "DatasetWriter":
+        """Reopens an in-progress store to append more rows (resume)."""
+        group = _open_group(path, mode="r+")
+        if group.attrs["status"] == STATUS_COMPLETE:
+            raise ValueError(f"{path} is already complete; nothing to resume")
+        return cls(path, group)
+
+    @property
+    def attrs(self) -> dict[str, Any]:
+        return dict(self.group.attrs)
+
+    def append(self, u: np.ndarray, y: np.ndarray, params: np.ndarray,
+               extras: dict[str, np.ndarray] | None = None, progress: dict[str, Any] | None = None) -> None:
+        """Writes rows ``[n, n + len(u))`` then, only after the data, advances ``n``.
+
+        ``progress`` (counts, resume cursor) goes into the same attrs update as ``n``, so
+        the attrs never claim rows or counts that are not on disk.
+        """
+        k = len(u)
+        if not (len(y) == len(params) == k):
+            raise ValueError(f"row counts differ: u {len(u)}, y {len(y)}, params {len(params)}")
+        if self.n + k > self.capacity:
+            raise ValueError(f"appending {k} rows would exceed capacity {self.capacity} (n={self.n})")
+        for name, arr in (("u", u), ("y", y), ("params", params), *(extras or {}).items()):
+            target = self.group[name]
+            if tuple(arr.shape[1:]) != tuple(target.shape[1:]):
+                raise ValueError(f"{name} rows have shape {arr.shape[1:]}, the store expects {target.shape[1:]}")
+            if k:
+                target[self.n:self.n + k] = arr
+        self.n += k
+        self.group.attrs.update({"n": self.n, **(progress or {})})
+
+    def set_attrs(self, **attrs: Any) -> None:
+        self.group.attrs.update(attrs)
+
+    def finalize(self, **attrs: Any) -> None:
+        """Marks the store complete (the last write of a job)."""
+        if self.n != self.capacity:
+            raise ValueError(f"cannot finalize {self.path}: {self.n} of {self.capacity} rows written")
+        self.group.attrs.update({**attrs, "status": STATUS_COMPLETE, "finished": _now()})
+
+
+def _open_group(path: str, mode: str = "r") -> zarr.Group:
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"dataset not found: {path}")
+    if not os.path.isdir(path):
+        raise SchemaError(f"{path} is a file, not a Zarr dataset directory")
+    try:
+        group = zarr.open_group(LocalStore(path, read_only=(mode == "r")), mode=mode)
+    except Exception as exc:  # noqa: BLE001
+        raise SchemaError(f"{path} is not a readable Zarr v3 group: {exc}") from exc
+    attrs = dict(group.attrs)
+    if attrs.get("schema") != SCHEMA_NAME:
+        raise SchemaError(
+            f"{path} is not a RoboMorph dataset (schema={attrs.get('schema')!r}); create one with "
+            "`python -m robomorph.generate` or `python -m robomorph.ingest`"
+        )
+    if attrs.get("schema_version") != SCHEMA_VERSION:
+        raise SchemaError(
+            f"{path} has schema_version {attrs.get('schema_version')}, this robomorph reads "
+            f"{SCHEMA_VERSION}; regenerate it with this version"
+        )
+    missing = [a for a in _REQUIRED_ATTRS if a not in attrs]
+    missing += [a for a in ("u", "y", "params") if a not in group]
+    if missing:
+        raise SchemaError(f"{path} lacks {missing}: the store is damaged or of another schema")
+    return group
+
+
+@dataclass
+class Dataset:
+    """A read-only view of a store: lazy arrays, names and attributes."""
+
+    path: str
+    group: zarr.Group
+    n: int
+
+    @property
+    def attrs(self) -> dict[str, Any]:
+        return dict(self.group.attrs)
+
+    @property
+    def u_names(self) -> list[str]:
+        return list(self.group.attrs["u_names"])
+
+    @property
+    def y_names(self) -> list[str]:
+        return list(self.group.attrs["y_names"])
+
+    @property
+    def param_names(self) -> list[str]:
+        return list(self.group.attrs["param_names"])
+
+    @property
+    def dt(self) -> float:
+        return float(self.group.attrs["dt"])
+
+    @property
+    def steps(self) -> int:
+        return int(self.group["u"].shape[1])
+
+    @property
+    def chunk(self) -> int:
+        """Trajectories per chunk along N (read whole chunks for speed)."""
+        return int(self.group["u"].chunks[0])
+
+    @property
+    def arrays(self) -> list[str]:
+        return sorted(self.group.array_keys())
+
+    def read(self, name: str, rows: slice | np.ndarray | None = None) -> np.ndarray:
+        """Reads the valid rows of one array (all of them by default) into memory."""
+        arr = self.group[name]
+        if rows is None:
+            return np.asarray(arr[: self.n])
+        if isinstance(rows, slice):
+            start, stop, step = rows.indices(self.n)
+            return np.asarray(arr[start:stop:step])
+        rows = np.asarray(rows)
+        if rows.size and (rows.min() < 0 or rows.max() >= self.n):
+            raise IndexError(f"rows out of range for {self.n} trajectories")
+        return np.asarray(arr.get_orthogonal_selection((rows,)))
+
+
+def open_store(path: str, allow_incomplete: bool = False) -> Dataset:
+    """Opens a dataset for reading, refusing other schemas and unfinished stores.
+
+    Args:
+        path: the store directory.
+        allow_incomplete: read the valid prefix of an interrupted job instead of failing.
+    """
+    group = _open_group(path, mode="r")
+    attrs = dict(group.attrs)
+    if attrs["status"] != STATUS_COMPLETE and not allow_incomplete:
+        raise SchemaError(
+            f"{path} is incomplete (status={attrs['status']}, {attrs['n']} of "
+            f"{attrs.get('capacity')} trajectories): resume the job that wrote it "
+            "(re-run the same generate command) or open it with allow_incomplete=True"
+        )
+    return Dataset(path=path, group=group, n=int(attrs["n"]))

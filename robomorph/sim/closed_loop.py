@@ -1,0 +1,90 @@
+"""Closed-loop rollouts: a Python controller updates the torque once per recorded frame.
+
+The recording convention is the open-loop one (:mod:`robomorph.sim.open_loop`): row ``t``
+holds the sensor data MuJoCo computes in the forward pass at the start of frame ``t``,
+that is the state at the frame start and the torque applied from it. The command is held
+for the ``substeps`` physics steps of the frame (zero-order hold).
+
+Each frame runs ``mj_step1`` (position and velocity stages for the current state),
+asks the controller for the command, then ``mj_step2`` (actuation, acceleration,
+integration). For the Euler and implicit integrators this is bit-for-bit ``mj_step``
+with the command set first, and the controller sees up-to-date kinematics, Jacobian
+inputs, the factorized mass matrix and the bias forces of the frame-start state instead of
+those left over from the previous physics step.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import mujoco
+import numpy as np
+
+Controller = Callable[[mujoco.MjData, int], np.ndarray]
+"""``controller(data, t) -> (nu,)`` torque command for frame ``t``.
+
+When it is called, ``data`` holds the frame-start state with the position- and
+velocity-dependent quantities already computed (``site_xpos``, ``qLD`` for
+``mj_solveM``, ``qfrc_bias``, ...). It may return a buffer it reuses; the values are
+copied into ``data.ctrl`` at once.
+"""
+
+# MuJoCo resets the data (to finite values) when it meets a bad qpos/qvel/qacc and zeroes
+# a non-finite ctrl; the warning counters are the only trace left of the divergence.
+_BAD_STATE_WARNINGS = np.array([
+    int(mujoco.mjtWarning.mjWARN_BADQPOS),
+    int(mujoco.mjtWarning.mjWARN_BADQVEL),
+    int(mujoco.mjtWarning.mjWARN_BADQACC),
+    int(mujoco.mjtWarning.mjWARN_BADCTRL),
+])
+
+
+def diverged(data: mujoco.MjData) -> bool:
+    """Whether MuJoCo met a non-finite (or beyond ``mjMAXVAL``) state or command since reset."""
+    return bool(data.warning.number[_BAD_STATE_WARNINGS].any())
+
+
+def reset_to(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.ndarray) -> None:
+    """Resets ``data`` to rest at joint configuration ``qpos0`` and runs the forward pass."""
+    mujoco.mj_resetData(model, data)
+    data.qpos[: len(qpos0)] = qpos0
+    data.qvel[:] = 0.0
+    mujoco.mj_forward(model, data)
+
+
+def simulate_closed_loop(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.ndarray,
+                         steps: int, substeps: int, controller: Controller) -> np.ndarray:
+    """Simulates ``steps`` frames with one controller update per frame.
+
+    Args:
+        model: the (possibly randomized) model; its timestep is the physics step.
+        data: scratch data for ``model``; it is reset here.
+        qpos0: (nq,) or shorter initial joint positions; the robot starts at rest.
+        steps: recorded frames T.
+        substeps: physics steps per frame (the command is held over them).
+        controller: ``(data, t) -> (nu,)`` torque command, see :data:`Controller`.
+
+    Returns:
+        (T, nsensordata) float64 sensor data at the start of each frame. If the
+        simulation diverges (MuJoCo flags a bad state or command) the rows from the frame
+        where it was detected on are NaN, which the filters reject as ``"nan"``.
+    """
+    if steps < 1 or substeps < 1:
+        raise ValueError(f"steps and substeps must be >= 1, got {steps}, {substeps}")
+    out = np.empty((steps, model.nsensordata))
+    reset_to(model, data, qpos0)
+    sens, ctrl = data.sensordata, data.ctrl
+    rest = substeps - 1
+    for t in range(steps):
+        mujoco.mj_step1(model, data)
+        ctrl[:] = controller(data, t)
+        mujoco.mj_step2(model, data)
+        out[t] = sens
+        if rest:
+            mujoco.mj_step(model, data, nstep=rest)
+        # One counter check per frame: the row of a frame that diverged in its later
+        # substeps is kept out too, which errs on the side of rejecting.
+        if diverged(data):
+            out[t:] = np.nan
+            break
+    return out

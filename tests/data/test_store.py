@@ -1,0 +1,89 @@
+import os
+
+import numpy as np
+import pytest
+import zarr
+
+from robomorph.data.store import SchemaError, create_store, open_store
+
+
+def _make(path, n=5, steps=7, **kw):
+    return create_store(str(path), n, steps, ["u0", "u1"], ["y0"], ["p0", "p1", "p2"],
+                        {"dt": 0.1, "domain": "test"}, **kw)
+
+
+def _rows(k, steps=7, seed=0):
+    rng = np.random.default_rng(seed)
+    return (rng.normal(size=(k, steps, 2)).astype(np.float32), rng.normal(size=(k, steps, 1)).astype(np.float32),
+            rng.normal(size=(k, 3)).astype(np.float32))
+
+
+def test_round_trip(tmp_path):
+    w = _make(tmp_path / "a.zarr", extras={"tag": ((), "int16")})
+    u, y, p = _rows(5)
+    w.append(u[:3], y[:3], p[:3], extras={"tag": np.arange(3, dtype=np.int16)})
+    w.append(u[3:], y[3:], p[3:], extras={"tag": np.arange(3, 5, dtype=np.int16)})
+    w.finalize(note="done")
+    ds = open_store(str(tmp_path / "a.zarr"))
+    np.testing.assert_array_equal(ds.read("u"), u)
+    np.testing.assert_array_equal(ds.read("y"), y)
+    np.testing.assert_array_equal(ds.read("params"), p)
+    np.testing.assert_array_equal(ds.read("tag"), np.arange(5))
+    np.testing.assert_array_equal(ds.read("u", np.array([4, 1])), u[[4, 1]])
+    assert ds.u_names == ["u0", "u1"] and ds.y_names == ["y0"] and ds.dt == 0.1
+    assert ds.attrs["note"] == "done" and ds.attrs["schema_version"] == 1
+
+
+def test_incomplete_store_is_refused_unless_asked(tmp_path):
+    w = _make(tmp_path / "a.zarr")
+    u, y, p = _rows(2)
+    w.append(u, y, p)
+    with pytest.raises(SchemaError, match="incomplete"):
+        open_store(str(tmp_path / "a.zarr"))
+    ds = open_store(str(tmp_path / "a.zarr"), allow_incomplete=True)
+    assert ds.n == 2 and ds.read("u").shape == (2, 7, 2)
+    with pytest.raises(ValueError, match="cannot finalize"):
+        w.finalize()
+
+
+def test_wrong_shapes_are_refused(tmp_path):
+    w = _make(tmp_path / "a.zarr")
+    u, y, p = _rows(2)
+    with pytest.raises(ValueError, match="u rows have shape"):
+        w.append(u[:, :, :1], y, p)
+    with pytest.raises(ValueError, match="row counts"):
+        w.append(u, y[:1], p)
+    with pytest.raises(ValueError, match="capacity"):
+        w.append(*_rows(6))
+
+
+def test_other_schema_and_files_are_never_overwritten(tmp_path):
+    other = tmp_path / "other.zarr"
+    g = zarr.open_group(str(other), mode="w")
+    g.attrs["schema"] = "something.else"
+    g.create_array("x", shape=(3,), dtype="f4")
+    before = sorted(os.listdir(other))
+    with pytest.raises(SchemaError, match="another schema"):
+        _make(other, overwrite=True)
+    assert sorted(os.listdir(other)) == before
+    with pytest.raises(SchemaError, match="not a RoboMorph dataset"):
+        open_store(str(other))
+
+    f = tmp_path / "file.zarr"
+    f.write_text("precious")
+    with pytest.raises(FileExistsError, match="is a file"):
+        _make(f)
+    assert f.read_text() == "precious"
+
+    with pytest.raises(FileNotFoundError):
+        open_store(str(tmp_path / "missing.zarr"))
+
+
+def test_existing_store_needs_overwrite(tmp_path):
+    w = _make(tmp_path / "a.zarr")
+    w.append(*_rows(5))
+    w.finalize()
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        _make(tmp_path / "a.zarr")
+    _make(tmp_path / "a.zarr", overwrite=True)
+    assert open_store(str(tmp_path / "a.zarr"), allow_incomplete=True).n == 0
