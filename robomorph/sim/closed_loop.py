@@ -31,12 +31,9 @@ copied into ``data.ctrl`` at once.
 
 # MuJoCo resets the data (to finite values) when it meets a bad qpos/qvel/qacc and zeroes
 # a non-finite ctrl; the warning counters are the only trace left of the divergence.
-_BAD_STATE_WARNINGS = np.array([
-    int(mujoco.mjtWarning.mjWARN_BADQPOS),
-    int(mujoco.mjtWarning.mjWARN_BADQVEL),
-    int(mujoco.mjtWarning.mjWARN_BADQACC),
-    int(mujoco.mjtWarning.mjWARN_BADCTRL),
-])
+# BADQPOS, BADQVEL, BADQACC and BADCTRL are consecutive: a slice reads them without copying.
+_BAD_STATE_WARNINGS = slice(int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADCTRL) + 1)
+assert _BAD_STATE_WARNINGS.stop - _BAD_STATE_WARNINGS.start == 4
 
 
 def diverged(data: mujoco.MjData) -> bool:

@@ -8,7 +8,7 @@ Control law (Khatib's OSC; the paper's equation with the task inertia made expli
 
 over the 6-D task (EE position and orientation; the orientation target is the initial
 one). The gains act on unit-mass error dynamics (``kd = 2 sqrt(kp)`` is critical
-damping), which is the paper's ``Kp`` times ``Lambda``. ``C_ee xd_d`` of the paper is
+damping): the paper's ``Kp`` is ``Lambda Kp`` here. ``C_ee xd_d`` of the paper is
 taken exactly: ``c`` is the joint-space Coriolis/centrifugal torque and ``-Jdot qd`` the
 velocity-product acceleration of the EE, which together give
 ``J^T (Lambda J M^-1 c - Lambda Jdot qd) + N^T c``. ``tau0`` is a joint PD toward the
@@ -251,7 +251,7 @@ PATHS = {"circle": circle_path, "spiral": spiral_path}
 class OSCController:
     """Tracks a Cartesian path with the EE site, holding its orientation (controller protocol).
 
-    Buffers are allocated once; a call costs a few tens of microseconds.
+    Buffers are allocated once; a call costs about 30 us on one core.
     """
 
     def __init__(self, model: mujoco.MjModel, path_pos: np.ndarray, path_vel: np.ndarray,

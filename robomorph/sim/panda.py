@@ -93,6 +93,10 @@ def _build_mjcf(timestep: float, gravity_compensation: bool):
     hand = root.find("body", "panda_link8").add("body", name="hand", euler=[0, 0, -np.pi / 4])
     hand.add("inertial", pos=[-0.01, 0, 0.03], mass=0.73, diaginertia=[1e-3, 2.5e-3, 1.7e-3])
     hand.add("geom", name="hand", type="mesh", mesh=hand_mesh)
+    # The closed fingers (gripper held) as one collision box, so a fingertip touching the
+    # floor or the arm counts as a contact; the TCP sits between the fingertips.
+    hand.add("geom", name="fingers", type="box", pos=[0, 0, 0.0834], size=[0.012, 0.03, 0.025],
+             mass=0.03, rgba=[0.9, 0.9, 0.9, 1])
     hand.add("site", name="ee", pos=[0, 0, 0.1034], size=[0.01])
 
     for body in root.find_all("body"):

@@ -17,6 +17,11 @@ def _pd_to_home(data, t):
     return -20.0 * (data.qpos[:7] - panda.HOME_QPOS) - 2.0 * data.qvel[:7] + np.sin(0.1 * t)
 
 
+def _sim(model, steps, substeps, controller, qpos0=panda.HOME_QPOS, data=None):
+    data = data if data is not None else mujoco.MjData(model)
+    return simulate_closed_loop(model, data, qpos0, steps, substeps, controller)
+
+
 def _reference_loop(model, qpos0, steps, substeps, controller):
     """The documented semantics, written out with plain mj_step calls."""
     data = mujoco.MjData(model)
@@ -36,15 +41,14 @@ def _reference_loop(model, qpos0, steps, substeps, controller):
 @pytest.mark.parametrize("controller", [lambda d, t: np.zeros(7), _pd_to_home], ids=["zero", "pd"])
 def test_rows_equal_a_hand_written_mj_step_loop(nominal_model, controller):
     qpos0 = panda.HOME_QPOS + 0.05
-    sens = simulate_closed_loop(nominal_model, mujoco.MjData(nominal_model), qpos0, 60, 8, controller)
+    sens = _sim(nominal_model, 60, 8, controller, qpos0)
     ref = _reference_loop(nominal_model, qpos0, 60, 8, controller)
     assert sens.shape == (60, nominal_model.nsensordata) and sens.dtype == np.float64
     np.testing.assert_array_equal(sens, ref)
 
 
 def test_constant_torque_matches_the_open_loop_engine(nominal_model):
-    sens = simulate_closed_loop(nominal_model, mujoco.MjData(nominal_model), panda.HOME_QPOS, 40, 8,
-                                lambda d, t: U_CONST)
+    sens = _sim(nominal_model, 40, 8, lambda d, t: U_CONST)
     with OpenLoopEngine(nominal_model, 1, 1, 8) as eng:
         ref = eng.run(1, panda.HOME_QPOS[None], np.tile(U_CONST, (1, 40, 1)))[0][::8]
     np.testing.assert_allclose(sens, ref, rtol=0, atol=1e-12)
@@ -53,7 +57,7 @@ def test_constant_torque_matches_the_open_loop_engine(nominal_model):
 def test_first_row_is_the_initial_state_and_its_torque(nominal_model):
     data = mujoco.MjData(nominal_model)
     data.qvel[:] = 3.0  # leftovers from an earlier use must not leak in
-    sens = simulate_closed_loop(nominal_model, data, panda.HOME_QPOS, 5, 4, lambda d, t: U_CONST)
+    sens = _sim(nominal_model, 5, 4, lambda d, t: U_CONST, data=data)
     np.testing.assert_allclose(sens[0, panda.SENS_QPOS], panda.HOME_QPOS, atol=1e-12)
     # The recorded torque is the command plus the simulator's gravity compensation.
     probe = mujoco.MjData(nominal_model)
@@ -63,7 +67,7 @@ def test_first_row_is_the_initial_state_and_its_torque(nominal_model):
 
 
 def test_substeps_one_records_every_physics_step(nominal_model):
-    a = simulate_closed_loop(nominal_model, mujoco.MjData(nominal_model), panda.HOME_QPOS, 16, 1, _pd_to_home)
+    a = _sim(nominal_model, 16, 1, _pd_to_home)
     b = _reference_loop(nominal_model, panda.HOME_QPOS, 16, 1, _pd_to_home)
     np.testing.assert_array_equal(a, b)
 
@@ -75,7 +79,7 @@ def test_controller_sees_the_frame_start_kinematics(nominal_model):
         seen.append(np.array(data.site_xpos[nominal_model.site("ee").id]))
         return U_CONST
 
-    sens = simulate_closed_loop(nominal_model, mujoco.MjData(nominal_model), panda.HOME_QPOS, 10, 8, controller)
+    sens = _sim(nominal_model, 10, 8, controller)
     np.testing.assert_allclose(np.array(seen), sens[:, panda.SENS_EE_POS], atol=1e-12)
 
 
@@ -84,9 +88,8 @@ def test_non_finite_command_gives_nan_rows_from_that_frame(nominal_model):
         return U_CONST * (np.nan if t >= 20 else 1.0)
 
     data = mujoco.MjData(nominal_model)
-    sens = simulate_closed_loop(nominal_model, data, panda.HOME_QPOS, 50, 8, controller)
-    ref = simulate_closed_loop(nominal_model, mujoco.MjData(nominal_model), panda.HOME_QPOS, 20, 8,
-                               lambda d, t: U_CONST)
+    sens = _sim(nominal_model, 50, 8, controller, data=data)
+    ref = _sim(nominal_model, 20, 8, lambda d, t: U_CONST)
     np.testing.assert_array_equal(sens[:20], ref)
     assert np.isnan(sens[20:]).all()
     assert diverged(data)
@@ -96,13 +99,13 @@ def test_non_finite_command_gives_nan_rows_from_that_frame(nominal_model):
 def test_unstable_physics_gives_nan_rows(nominal_model):
     model = copy.deepcopy(nominal_model)
     model.dof_damping[:] = -20.0  # the implicit integrator's matrix is no longer positive
-    sens = simulate_closed_loop(model, mujoco.MjData(model), panda.HOME_QPOS, 30, 8, lambda d, t: np.zeros(7))
+    sens = _sim(model, 30, 8, lambda d, t: np.zeros(7))
     assert np.isnan(sens[-1]).all()
     assert check(sens, model.jnt_range[:7], FilterConfig()) == "nan"
 
 
 def test_rejects_empty_runs(nominal_model):
     with pytest.raises(ValueError, match="steps"):
-        simulate_closed_loop(nominal_model, mujoco.MjData(nominal_model), panda.HOME_QPOS, 0, 8, _pd_to_home)
+        _sim(nominal_model, 0, 8, _pd_to_home)
     with pytest.raises(ValueError, match="substeps"):
-        simulate_closed_loop(nominal_model, mujoco.MjData(nominal_model), panda.HOME_QPOS, 5, 0, _pd_to_home)
+        _sim(nominal_model, 5, 0, _pd_to_home)

@@ -170,7 +170,8 @@ def test_no_command_at_rest_on_target(nominal_model):
 
 
 def test_commands_are_clipped_and_extra_torque_added(nominal_model):
-    ctrl, data = _controller_at_rest(nominal_model, osc.OSCConfig(kp=1e6), path_offset=np.array([0.0, 0.0, 0.3]))
+    far = np.array([0.0, 0.0, 0.3])
+    ctrl, data = _controller_at_rest(nominal_model, osc.OSCConfig(kp=1e6), path_offset=far)
     u = ctrl(data, 0)
     assert np.all(np.abs(u) <= panda.TORQUE_LIMITS) and np.isclose(np.abs(u).max(), 87.0)
     extra = np.arange(7) * 0.1
