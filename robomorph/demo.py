@@ -12,9 +12,9 @@ import os
 import sys
 import time
 
+from robomorph.data.store import open_store
 from robomorph.generate import generate
 from robomorph.inspect import plot, summarize
-from robomorph.data.store import open_store
 from robomorph.recipe import load_recipe
 
 TASKS = ("multisine", "chirp", "circle", "spiral")

@@ -162,13 +162,12 @@ class _Engines:
     def open_loop(self, indices: list[int]) -> list:
         r = self.recipe
         if self._open is None:
-            self._open = OpenLoopEngine(self.model, r.chunk, self.workers, r.substeps)
+            self._open = OpenLoopEngine(self.model, self.workers, r.substeps)
         draws = [episode.draw(r, self.randomizer, i) for i in indices]
-        for model, d in zip(self._open.models, draws):
-            self.randomizer.apply(model, d.params)
-        sens = self._open.run(len(draws), np.stack([d.qpos0 for d in draws]), np.stack([d.ctrl for d in draws]))
-        return [episode.finish(r, d, s, m.jnt_range[: panda.N_JOINT], r.substeps)
-                for d, s, m in zip(draws, sens, self._open.models)]
+        sens, ranges = self._open.run(lambda model, i: self.randomizer.apply(model, draws[i].params),
+                                      np.stack([d.qpos0 for d in draws]), np.stack([d.ctrl for d in draws]))
+        return [episode.finish(r, d, s, jr[: panda.N_JOINT], r.substeps)
+                for d, s, jr in zip(draws, sens, ranges)]
 
     def closed_loop(self, indices: list[int]) -> list:
         if self.workers == 1:

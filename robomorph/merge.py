@@ -10,8 +10,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-import numpy as np
-
 from robomorph.data.store import SchemaError, create_store, open_store
 
 

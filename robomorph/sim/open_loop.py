@@ -10,6 +10,7 @@ convention as :mod:`robomorph.sim.closed_loop`). The filters see every physics s
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 
 import mujoco
 import numpy as np
@@ -19,19 +20,25 @@ _STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
 class OpenLoopEngine:
-    """Reusable models, datas, thread pool and output buffers for batches of rollouts."""
+    """Reusable models, datas, thread pool and buffers for batches of open-loop rollouts.
 
-    def __init__(self, model: mujoco.MjModel, batch: int, nthread: int, substeps: int):
-        if batch < 1 or nthread < 1 or substeps < 1:
-            raise ValueError(f"batch, nthread and substeps must be >= 1, got {batch}, {nthread}, {substeps}")
-        # deepcopy costs ~27 ms a model (meshes); models are kept and overwritten in place.
-        self.models = [copy.deepcopy(model) for _ in range(batch)]
+    A compiled Panda holds ~28 MB of mesh data, so the engine keeps only ``group`` model
+    copies (two per thread by default) and rolls a batch out group by group, randomizing
+    the copies in place before each group. Memory stays flat whatever the batch size.
+    """
+
+    def __init__(self, model: mujoco.MjModel, nthread: int, substeps: int, group: int | None = None):
+        if nthread < 1 or substeps < 1:
+            raise ValueError(f"nthread and substeps must be >= 1, got {nthread}, {substeps}")
+        group = group or 2 * nthread
+        self.models = [copy.deepcopy(model) for _ in range(group)]
         self.datas = [mujoco.MjData(model) for _ in range(nthread)]
         self._scratch = mujoco.MjData(model)
         self.substeps = substeps
         self.nthread = nthread
         self._pool = rollout.Rollout(nthread=nthread) if nthread > 1 else None
-        self._buffers: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._state = np.empty(0)
+        self._sens = np.empty(0)
 
     def close(self) -> None:
         if self._pool is not None:
@@ -53,37 +60,40 @@ class OpenLoopEngine:
         mujoco.mj_getState(model, d, state, _STATE_SPEC)
         return state
 
-    def _outputs(self, nbatch: int, nstep: int) -> tuple[np.ndarray, np.ndarray]:
-        key = nstep
-        if key not in self._buffers or self._buffers[key][0].shape[0] < nbatch:
-            m = self.models[0]
-            nstate = mujoco.mj_stateSize(m, _STATE_SPEC)
-            batch = len(self.models)
-            self._buffers = {key: (np.empty((batch, nstep, nstate)), np.empty((batch, nstep, m.nsensordata)))}
-        state, sens = self._buffers[key]
-        return state[:nbatch], sens[:nbatch]
+    def _buffers(self, n: int, nstep: int) -> tuple[np.ndarray, np.ndarray]:
+        m, g = self.models[0], len(self.models)
+        if self._sens.shape[:2] != (max(n, len(self._sens)), nstep) or len(self._sens) < n:
+            self._state = np.empty((g, nstep, mujoco.mj_stateSize(m, _STATE_SPEC)))
+            self._sens = np.empty((n, nstep, m.nsensordata))
+        return self._state, self._sens[:n]
 
-    def run(self, n: int, qpos0: np.ndarray, ctrl: np.ndarray) -> np.ndarray:
-        """Rolls out the first ``n`` models (already randomized by the caller).
+    def run(self, randomize: Callable[[mujoco.MjModel, int], None], qpos0: np.ndarray,
+            ctrl: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Rolls out ``len(ctrl)`` randomized robots.
 
         Args:
-            n: number of trajectories (<= batch).
+            randomize: ``randomize(model, i)`` writes robot ``i``'s parameters into a copy.
             qpos0: (n, nq) initial joint positions, at rest.
             ctrl: (n, T, nu) torque commands per recorded frame.
 
         Returns:
-            (n, T * substeps, nsensordata) sensor data at every physics step; a view of
-            a reused buffer, valid until the next call.
+            Sensor data (n, T * substeps, nsensordata) at every physics step (a view of a
+            reused buffer, valid until the next call) and each robot's joint ranges.
         """
-        if not 1 <= n <= len(self.models):
-            raise ValueError(f"n must be in [1, {len(self.models)}], got {n}")
-        models = self.models[:n]
-        x0 = np.stack([self.initial_state(m, q) for m, q in zip(models, qpos0)])
-        control = np.repeat(np.asarray(ctrl, dtype=np.float64), self.substeps, axis=1)
-        nstep = control.shape[1]
-        state, sens = self._outputs(n, nstep)
-        if self._pool is None:
-            rollout.rollout(models, self.datas[0], x0, control, state=state, sensordata=sens)
-        else:
-            self._pool.rollout(models, self.datas, x0, control, state=state, sensordata=sens)
-        return sens
+        n, frames = len(ctrl), np.shape(ctrl)[1]
+        state, sens = self._buffers(n, frames * self.substeps)
+        ranges = []
+        for start in range(0, n, len(self.models)):
+            rows = range(start, min(start + len(self.models), n))
+            models = self.models[: len(rows)]
+            for model, i in zip(models, rows):
+                randomize(model, i)
+                ranges.append(model.jnt_range.copy())
+            x0 = np.stack([self.initial_state(m, qpos0[i]) for m, i in zip(models, rows)])
+            control = np.repeat(np.asarray(ctrl[rows.start:rows.stop], dtype=np.float64), self.substeps, axis=1)
+            out = dict(state=state[: len(rows)], sensordata=sens[rows.start:rows.stop])
+            if self._pool is None:
+                rollout.rollout(models, self.datas[0], x0, control, **out)
+            else:
+                self._pool.rollout(models, self.datas, x0, control, **out)
+        return sens, ranges

@@ -49,8 +49,9 @@ def test_rows_equal_a_hand_written_mj_step_loop(nominal_model, controller):
 
 def test_constant_torque_matches_the_open_loop_engine(nominal_model):
     sens = _sim(nominal_model, 40, 8, lambda d, t: U_CONST)
-    with OpenLoopEngine(nominal_model, 1, 1, 8) as eng:
-        ref = eng.run(1, panda.HOME_QPOS[None], np.tile(U_CONST, (1, 40, 1)))[0][::8]
+    with OpenLoopEngine(nominal_model, 1, 8) as eng:
+        sens_ol, _ = eng.run(lambda m, i: None, panda.HOME_QPOS[None], np.tile(U_CONST, (1, 40, 1)))
+        ref = sens_ol[0][::8]
     np.testing.assert_allclose(sens, ref, rtol=0, atol=1e-12)
 
 

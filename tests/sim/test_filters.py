@@ -9,9 +9,9 @@ CFG = FilterConfig()
 
 
 def _rollout(model, ctrl, frames, qpos0=panda.HOME_QPOS):
-    with OpenLoopEngine(model, 1, 1, 8) as eng:
-        sens = eng.run(1, qpos0[None], np.tile(ctrl, (1, frames, 1)))[0].copy()
-    return sens
+    with OpenLoopEngine(model, 1, 8) as eng:
+        sens, _ = eng.run(lambda m, i: None, qpos0[None], np.tile(ctrl, (1, frames, 1)))
+    return sens[0].copy()
 
 
 def test_quiet_rollout_is_valid(nominal_model):
