@@ -1,0 +1,146 @@
+"""Training throughput: the LightningModule against a plain PyTorch loop, same model and batches.
+
+Both run in this process on identical pre-built batches (batch 16, context 200, horizon
+800 by default): the plain loop does normalize -> forward -> Huber loss -> backward ->
+clip -> AdamW -> scheduler step by hand; Lightning runs ``MetaModule.training_step`` under
+a ``Trainer`` (logging on, checkpointing and validation off). Then trajectories/s for the
+default CPU config, the paper's config (d_model 192, 12+12 layers, 12 heads) and the
+token-reduction option; on a GPU, the same in bf16.
+
+    python benchmarks/train.py [--steps 30] [--threads 2]
+
+The last line is ``lightning_vs_plain_ratio=<float>`` (Lightning time / plain time; goal <= 1.05).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import lightning.pytorch as L
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from robomorph.data.normalize import Normalizer, Stats
+from robomorph.module import MetaModule
+
+N_U, N_Y = 7, 14
+
+
+def make_batches(n: int, batch: int, ctx: int, hor: int, seed: int = 0) -> list[dict]:
+    g = torch.Generator().manual_seed(seed)
+    t = ctx + hor
+    out = []
+    for _ in range(n):
+        u = torch.randn(batch, t, N_U, generator=g)
+        y = torch.cumsum(torch.randn(batch, t, N_Y, generator=g), dim=1) * 0.05
+        out.append({"u_ctx": u[:, :ctx], "y_ctx": y[:, :ctx], "u_query": u[:, ctx:], "y_query": y[:, ctx:]})
+    return out
+
+
+def _stats(batches) -> Stats:
+    u = torch.cat([torch.cat([b["u_ctx"], b["u_query"]], 1) for b in batches]).numpy()
+    y = torch.cat([torch.cat([b["y_ctx"], b["y_query"]], 1) for b in batches]).numpy()
+    return Stats.from_arrays(u, y)
+
+
+def _module(cfg: dict, stats: Stats, device: str) -> MetaModule:
+    torch.manual_seed(0)
+    m = MetaModule(n_u=N_U, n_y=N_Y, max_context=1024, max_horizon=1024, **cfg)
+    m.normalizer.set_stats(stats)
+    m.stats_ready.fill_(True)
+    return m.to(device)
+
+
+def plain_loop(module: MetaModule, batches: list[dict], device: str, bf16: bool) -> float:
+    net, norm = module.net, module.normalizer
+    opt = torch.optim.AdamW(net.parameters(), lr=1e-3, betas=(0.9, 0.95))
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 1.0)
+    _sync(device)
+    t0 = time.perf_counter()
+    for b in batches:
+        b = {k: v.to(device, non_blocking=True) for k, v in b.items()}
+        with torch.autocast(device_type=device, dtype=torch.bfloat16, enabled=bf16):
+            uc, yc, uq = norm.encode(b["u_ctx"], b["y_ctx"], b["u_query"])
+            loss = F.huber_loss(net(uc, yc, uq), norm.encode_target(b["y_query"], b["y_ctx"]), delta=1.0)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+        opt.step()
+        sched.step()
+    _sync(device)
+    return time.perf_counter() - t0
+
+
+class _Timer(L.Callback):
+    def on_train_batch_start(self, trainer, *args):
+        if trainer.global_step == 1:  # skip the first step (lazy init) as the plain loop's warm-up does
+            _sync(trainer.strategy.root_device.type)
+            self.t0 = time.perf_counter()
+
+    def on_train_end(self, trainer, *args):
+        _sync(trainer.strategy.root_device.type)
+        self.elapsed = time.perf_counter() - self.t0
+
+
+def lightning_loop(module: MetaModule, batches: list[dict], device: str, bf16: bool) -> float:
+    timer = _Timer()
+    trainer = L.Trainer(max_steps=len(batches), accelerator="gpu" if device == "cuda" else "cpu", devices=1,
+                        precision="bf16-mixed" if bf16 else "32-true", logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
+                        gradient_clip_val=1.0, callbacks=[timer])
+    module.hparams.warmup_steps = 0
+    trainer.fit(module, train_dataloaders=torch.utils.data.DataLoader(batches, batch_size=None))
+    return timer.elapsed
+
+
+def _sync(device: str) -> None:
+    if device == "cuda":
+        torch.cuda.synchronize()
+
+
+def compare(cfg: dict, steps: int, batch: int, ctx: int, hor: int, device: str, bf16: bool, repeats: int = 2):
+    batches = make_batches(steps + 1, batch, ctx, hor)
+    stats = _stats(batches[:4])
+    plain, light = [], []
+    for _ in range(repeats):  # alternate so drift in machine speed hits both alike
+        m = _module(cfg, stats, device)
+        plain_loop(m, batches[:1], device, bf16)  # warm-up
+        plain.append(plain_loop(m, batches[1:], device, bf16) / steps)
+        light.append(lightning_loop(_module(cfg, stats, device), batches, device, bf16) / (steps - 1))
+    return float(np.median(plain)), float(np.median(light))
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--steps", type=int, default=30)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--batch", type=int, default=16)
+    p.add_argument("--context", type=int, default=200)
+    p.add_argument("--horizon", type=int, default=800)
+    args = p.parse_args()
+    torch.set_num_threads(args.threads)
+    device = "cuda" if torch.cuda.is_available() else "cpu"
+    default = {"d_model": 128, "n_head": 4, "n_layer": 4, "patch": 10}
+    configs = {
+        "default (d128, 4+4, patch 10)": (default, args.steps),
+        "token reduction off (d128, 4+4, patch 1)": ({**default, "patch": 1}, max(4, args.steps // 6)),
+        "token reduction patch 20": ({**default, "patch": 20}, args.steps),
+        "paper (d192, 12+12, 12 heads, patch 1)": ({"d_model": 192, "n_head": 12, "n_layer": 12, "patch": 1}, 4),
+    }
+    print(f"device={device} threads={args.threads} batch={args.batch} context={args.context} horizon={args.horizon}")
+    ratio = None
+    for bf16 in ([False, True] if device == "cuda" else [False]):
+        for name, (cfg, steps) in configs.items():
+            plain, light = compare(cfg, steps, args.batch, args.context, args.horizon, device, bf16)
+            tag = " bf16" if bf16 else ""
+            print(f"{name}{tag}: plain {plain * 1e3:.1f} ms/it, lightning {light * 1e3:.1f} ms/it, "
+                  f"{args.batch / light:.1f} traj/s (lightning), ratio {light / plain:.3f}")
+            if ratio is None:
+                ratio = light / plain
+    print(f"lightning_vs_plain_ratio={ratio:.3f}")
+
+
+if __name__ == "__main__":
+    main()

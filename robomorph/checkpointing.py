@@ -1,0 +1,68 @@
+"""Checkpoints that are never half-written: write to a temporary file, then rename."""
+
+from __future__ import annotations
+
+import csv
+import os
+from typing import Any
+
+import torch
+from lightning.pytorch.loggers import CSVLogger
+from lightning.pytorch.plugins.io import TorchCheckpointIO
+
+
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """``torch.save`` into ``<path>.tmp`` then ``os.replace``: a crash mid-save leaves
+    the previous checkpoint intact instead of a truncated file."""
+
+    def save_checkpoint(self, checkpoint: dict[str, Any], path: str, storage_options: Any | None = None) -> None:
+        path = str(path)
+        os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+        tmp = f"{path}.tmp"
+        with open(tmp, "wb") as f:
+            torch.save(checkpoint, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+
+
+class ResumableCSVLogger(CSVLogger):
+    """A CSV log that a resumed run extends instead of rewriting.
+
+    Lightning's writer deletes an existing ``metrics.csv`` when it starts and rebuilds the
+    header from the keys logged since; a resumed run would lose its history. This keeps
+    the rows and the header, and the writer appends after them.
+    """
+
+    @property
+    def experiment(self):
+        if self._experiment is not None:
+            return self._experiment
+        path = os.path.join(self.log_dir, "metrics.csv")
+        kept = open(path, "rb").read() if os.path.isfile(path) else b""
+        exp = super().experiment
+        if kept:
+            with open(exp.metrics_file_path, "wb") as f:
+                f.write(kept)
+            with open(exp.metrics_file_path, newline="") as f:
+                exp.metrics_keys = sorted(next(csv.reader(f), []))
+        return exp
+
+
+def prune_log(path: str, from_step: int) -> None:
+    """Drops rows logged at ``step >= from_step`` (a killed run may have logged past its
+    last checkpoint; the resumed run logs those steps again)."""
+    if not os.path.isfile(path):
+        return
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        fields, rows = reader.fieldnames or [], list(reader)
+    kept = [r for r in rows if not r.get("step") or int(float(r["step"])) < from_step]
+    if len(kept) == len(rows):
+        return
+    tmp = f"{path}.tmp"
+    with open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(kept)
+    os.replace(tmp, path)
