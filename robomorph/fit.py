@@ -60,6 +60,8 @@ TRAINER_DEFAULTS: dict[str, Any] = {
 class RoboMorphCLI(LightningCLI):
     """LightningCLI with a run directory, automatic resume, loggers and checkpoints."""
 
+    extra_callbacks: tuple = ()  # callback objects from Python callers (benchmarks, sweeps)
+
     def add_arguments_to_parser(self, parser) -> None:
         parser.add_argument("--run", type=str | None, default=None,
                             help="run name: outputs go to <runs_dir>/<run>/ (default: a timestamp)")
@@ -91,7 +93,7 @@ class RoboMorphCLI(LightningCLI):
             LearningRateMonitor(logging_interval="step"),
         ]
         existing = self._get(self.config_init, "trainer", default={}).get("callbacks") or []
-        kwargs["callbacks"] = list(existing) + callbacks
+        kwargs["callbacks"] = list(existing) + callbacks + list(self.extra_callbacks)
         kwargs["default_root_dir"] = run_dir
         kwargs["logger"] = _loggers(run_dir, cfg)
         kwargs["plugins"] = [AtomicCheckpointIO()]
@@ -136,23 +138,25 @@ def _resume_path(cli: RoboMorphCLI, run_dir: str) -> str | None:
     return asked
 
 
-def build_cli(args: list[str] | dict | None = None) -> RoboMorphCLI:
+def build_cli(args: list[str] | dict | None = None, callbacks: list | None = None) -> RoboMorphCLI:
     """Parses arguments (list, dict or sys.argv) and instantiates data, model and trainer."""
-    return RoboMorphCLI(
+    cls = type("RoboMorphCLIWithCallbacks", (RoboMorphCLI,), {"extra_callbacks": tuple(callbacks or ())})
+    return cls(
         MetaModule, RoboMorphDataModule, run=False, args=args, trainer_defaults=TRAINER_DEFAULTS,
         save_config_callback=None, seed_everything_default=0,
         parser_kwargs={"prog": "python -m robomorph.fit", "description": __doc__.split("\n")[0]},
     )
 
 
-def fit(args: list[str] | dict | None = None) -> FitResult:
+def fit(args: list[str] | dict | None = None, callbacks: list | None = None) -> FitResult:
     """Trains (or resumes) one run; the function sweeps and tests call.
 
     Args:
         args: CLI arguments as a list (``["--data.stores", "x.zarr"]``) or a nested dict
             (``{"data": {"stores": "x.zarr"}, "trainer": {"max_steps": 10}}``).
+        callbacks: extra Lightning callback objects (e.g. a sweep's pruning callback).
     """
-    cli = build_cli(args)
+    cli = build_cli(args, callbacks)
     run_dir, trainer, module = cli._run_dir, cli.trainer, cli.model
     ckpt = _resume_path(cli, run_dir)
     module.resuming = ckpt is not None
