@@ -163,3 +163,15 @@ def test_ddp_with_two_cpu_processes(store, tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     ckpt = load_checkpoint_file(str(tmp_path / "ddp" / "checkpoints" / "last.ckpt"))
     assert ckpt["global_step"] == 6
+
+
+def test_shipped_training_config_parses():
+    proc = subprocess.run([sys.executable, "-m", "robomorph.fit", "--config", "datamodules/train_cpu.yaml",
+                           "--print_config"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "patch: 10" in proc.stdout and "recenter: true" in proc.stdout
+
+
+def test_invalid_model_config_is_refused(store, tmp_path):
+    with pytest.raises(ValueError, match="n_head"):
+        fit(_args(store, tmp_path, "bad", steps=1, model={"d_model": 18, "n_head": 4}))
