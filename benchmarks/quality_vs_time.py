@@ -87,22 +87,24 @@ def main() -> None:
     p.add_argument("--sec-per-step", type=float, default=0.17,
                    help="expected seconds per step, sizes the cosine schedule (measured: benchmarks/train.py)")
     p.add_argument("--batch", type=int, default=32)
+    p.add_argument("--patch", type=int, default=10, help="steps per token (1 = token reduction off)")
+    p.add_argument("--name", default="quality_vs_time", help="run name and output file stem")
     args = p.parse_args()
     torch.set_num_threads(os.cpu_count() or 2)
     os.makedirs(args.out, exist_ok=True)
     train, test = _data(args.out, args.robots, args.held_out)
-    log = os.path.join(args.out, "quality_vs_time.csv")
+    log = os.path.join(args.out, f"{args.name}.csv")
     steps = int(args.minutes * 60 / args.sec_per_step)
     result = fit({
         "data": {"stores": train, "test_store": test, "split": [0.95, 0.05, 0.0], "context_len": 200,
                  "horizon": 800, "batch_size": args.batch, "val_subset": 200, "recenter": True},
-        "model": {"decay_steps": steps, "warmup_steps": 500},
-        "trainer": {"max_steps": 10 * steps, "max_time": {"seconds": int(args.minutes * 60)}, "val_check_interval": 500,
+        "model": {"decay_steps": steps, "warmup_steps": min(500, steps // 10), "patch": args.patch},
+        "trainer": {"max_steps": 10 * steps, "max_time": {"seconds": int(args.minutes * 60)}, "val_check_interval": max(20, min(500, steps // 12)),
                     "enable_progress_bar": False},
-        "run": "quality_vs_time", "runs_dir": os.path.join(args.out, "runs"), "wandb": "disabled",
+        "run": args.name, "runs_dir": os.path.join(args.out, "runs"), "wandb": "disabled",
     }, callbacks=[QualityLog(log)])
     print(f"run: {result.run_dir}  steps: {result.global_step}")
-    _plot(log, os.path.join(args.out, "quality_vs_time.png"))
+    _plot(log, os.path.join(args.out, f"{args.name}.png"))
     trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False)
     from robomorph.data.datamodule import RoboMorphDataModule  # noqa: PLC0415
     from robomorph.module import MetaModule  # noqa: PLC0415

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from robomorph.data.normalize import Normalizer, Stats
+from robomorph.data.normalize import Stats
 from robomorph.module import MetaModule
 
 N_U, N_Y = 7, 14

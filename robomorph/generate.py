@@ -27,7 +27,7 @@ from robomorph.recipe import Recipe, load_recipe
 from robomorph.sim import episode, panda
 from robomorph.sim.filters import REASONS
 from robomorph.sim.open_loop import OpenLoopEngine
-from robomorph.sim.randomize import Randomizer
+from robomorph.sim.randomize import Randomizer, param_names
 
 # Below this kept rate (after MIN_ATTEMPTS_FOR_RATE attempts) the bound on attempts can
 # never be met, so the run stops early instead of burning hours.
@@ -141,8 +141,6 @@ def _open_writer(recipe: Recipe, out: str, shard: Shard, overwrite: bool) -> Dat
         "gravity_compensation": recipe.gravity_compensation,
         "cursor": 0, "attempted": 0, "kept": 0, "rejected": {r: 0 for r in REASONS},
     }
-    from robomorph.sim.randomize import param_names  # noqa: PLC0415
-
     return create_store(out, target, recipe.steps, list(panda.U_NAMES), list(panda.Y_NAMES),
                         param_names(), attrs, extras=_extras(recipe), chunk=recipe.chunk,
                         overwrite=overwrite)
