@@ -16,10 +16,13 @@ $(STAMP): pyproject.toml tools/install_venv.sh
 demo: $(STAMP)
 	$(PY) -m robomorph.demo
 
+# The report test renders the dashboard in Debian's chromium (installed when missing).
 test: $(STAMP)
+	bash tools/ensure_chromium.sh
 	$(PY) -m pytest -q
 
 test-fast: $(STAMP)
+	bash tools/ensure_chromium.sh
 	$(PY) -m pytest -q -m "not slow"
 
 clean:

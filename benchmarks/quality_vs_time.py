@@ -88,6 +88,7 @@ def main() -> None:
                    help="expected seconds per step, sizes the cosine schedule (measured: benchmarks/train.py)")
     p.add_argument("--batch", type=int, default=32)
     p.add_argument("--patch", type=int, default=10, help="steps per token (1 = token reduction off)")
+    p.add_argument("--anchor", action="store_true", help="predict the deviation from the last context output")
     p.add_argument("--name", default="quality_vs_time", help="run name and output file stem")
     args = p.parse_args()
     torch.set_num_threads(os.cpu_count() or 2)
@@ -98,8 +99,9 @@ def main() -> None:
     result = fit({
         "data": {"stores": train, "test_store": test, "split": [0.95, 0.05, 0.0], "context_len": 200,
                  "horizon": 800, "batch_size": args.batch, "val_subset": 200, "recenter": True},
-        "model": {"decay_steps": steps, "warmup_steps": min(500, steps // 10), "patch": args.patch},
-        "trainer": {"max_steps": 10 * steps, "max_time": {"seconds": int(args.minutes * 60)}, "val_check_interval": max(20, min(500, steps // 12)),
+        "model": {"decay_steps": steps, "warmup_steps": min(500, steps // 10), "patch": args.patch, "anchor": args.anchor},
+        "trainer": {"max_steps": 10 * steps, "max_time": {"seconds": int(args.minutes * 60)},
+                    "val_check_interval": max(20, min(500, steps // 12)),
                     "enable_progress_bar": False},
         "run": args.name, "runs_dir": os.path.join(args.out, "runs"), "wandb": "disabled",
     }, callbacks=[QualityLog(log)])

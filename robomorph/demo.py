@@ -3,8 +3,9 @@
 1. Generates a small dataset of every task (multi-sine, chirp, OSC circle and spiral) with
    the recipes in ``datamodules/``, prints each summary and draws its trajectories.
 2. Trains the CPU-sized meta-model briefly on a multi-sine training set.
-3. Predicts held-out robots it never saw from their context alone (the Predictor API)
-   and prints R^2 / FIT per output channel.
+3. Evaluates it on held-out robots it never saw (context alone), beside the baselines,
+   with the horizon and context sweeps, and prints the per-channel table.
+4. Writes the HTML report of all runs (``results/report.html``) and prints its path.
 
 Re-running skips datasets that are complete and resumes the training run.
 """
@@ -16,9 +17,6 @@ import os
 import sys
 import time
 
-import numpy as np
-
-from robomorph import metrics
 from robomorph.data.store import open_store
 from robomorph.generate import generate
 from robomorph.inspect import plot, summarize
@@ -58,28 +56,30 @@ def _stale(path: str, recipe) -> bool:
         return False
 
 
-def train_and_predict(out_dir: str, robots: int, minutes: float, runs_dir: str) -> str:
-    """Trains on ``robots`` multi-sine robots, then predicts unseen ones; returns the run dir."""
+def train(out_dir: str, robots: int, minutes: float, runs_dir: str) -> tuple[str, str, str]:
+    """Trains on ``robots`` multi-sine robots; returns (run dir, best checkpoint, held-out store)."""
     from robomorph.fit import fit  # noqa: PLC0415  (torch/lightning only when training)
-    from robomorph.predictor import Predictor  # noqa: PLC0415
 
     train = _generate("multisine", os.path.join(out_dir, "ms_train.zarr"), {"robots": robots, "seed": 0}, None)
     test = _generate("multisine", os.path.join(out_dir, "ms_heldout.zarr"), {"robots": 64, "seed": 1}, None)
     result = fit(["--config", "datamodules/train_cpu.yaml", "--data.stores", train, "--data.test_store", test,
                   "--data.split", "[0.95, 0.05, 0.0]", "--trainer.max_time", _ddhhmmss(minutes * 60),
                   "--trainer.val_check_interval", "200", "--run", "demo", "--runs_dir", runs_dir])
-    ds = open_store(test)
-    u, y = ds.read("u"), ds.read("y")
-    pred = Predictor.from_checkpoint(result.best_ckpt, device="cpu")
-    yhat = pred.simulate(u[:, :200], y[:, :200], u[:, 200:1000])
-    r2 = metrics.r2(y[:, 200:1000].astype(np.float64), yhat.astype(np.float64))  # (N, C)
-    fit_ = metrics.fit_index(y[:, 200:1000].astype(np.float64), yhat.astype(np.float64))
-    print(f"\n{len(u)} held-out robots, context 200 steps, horizon 800 steps (approach 1):")
-    print(f"  {'channel':8s} {'R2':>8s} {'FIT %':>8s}")
-    for i, name in enumerate(ds.y_names):
-        print(f"  {name:8s} {r2[:, i].mean():8.3f} {fit_[:, i].mean():8.1f}")
-    print(f"  {'mean':8s} {r2.mean():8.3f} {fit_.mean():8.1f}")
-    return result.run_dir
+    return result.run_dir, result.best_ckpt, test
+
+
+def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str]:
+    """Scores held-out robots (model and baselines, both sweeps) and builds the HTML report."""
+    from robomorph.evaluate import default_out, evaluate, summary_text  # noqa: PLC0415
+    from robomorph.report import build_report  # noqa: PLC0415
+
+    out = default_out(ckpt, test)
+    res = evaluate(ckpt, test, out, sweep_horizon_spec="100:800:100", sweep_context_spec="25:200:25")
+    with open(os.path.join(out, "table.md")) as f:
+        print("\n" + f.read())
+    print(summary_text(res, out))
+    report = build_report(runs_dir, os.path.join(os.path.dirname(os.path.abspath(runs_dir)), "report.html"))
+    return out, report
 
 
 def _ddhhmmss(seconds: float) -> str:
@@ -99,9 +99,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workers", type=int, default=None)
     args = p.parse_args(argv)
     paths = make_data(args.out_dir, args.robots, args.steps, args.workers)
-    run_dir = train_and_predict(args.out_dir, args.train_robots, args.minutes, args.runs_dir)
+    run_dir, ckpt, test = train(args.out_dir, args.train_robots, args.minutes, args.runs_dir)
+    eval_dir, report = evaluate_and_report(ckpt, test, args.runs_dir)
     print(f"\ndatasets: {', '.join(paths)}")
     print(f"training run: {run_dir} (config.yaml, checkpoints/best.ckpt, logs/metrics.csv, wandb/)")
+    print(f"evaluation: {eval_dir} (metrics.json, metrics.csv, table.md, plots)")
+    print(f"report: {report}  (open it in a browser; it works offline)")
     return 0
 
 

@@ -25,6 +25,15 @@ TEST_LOSS, TEST_R2, TEST_FIT = "test/loss", "test/r2", "test/fit"
 FREEZE_MODES = ("none", "encoder", "all_but_head")
 # Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
 IO_LAYERS = ("encoder.embed", "decoder.embed", "head")
+# Checkpoint entry holding what the model was trained on (see ``data_info``).
+DATA_INFO_KEY = "robomorph_data"
+
+
+def data_info(dm) -> dict:
+    """Channel names, sample time and window lengths of a set-up DataModule (JSON-able)."""
+    return {"u_names": list(dm.u_names), "y_names": list(dm.y_names), "dt": float(dm.dt),
+            "context_len": int(dm.context_len), "horizon": int(dm.horizon),
+            "stores": [str(s) for s in dm.stores]}
 
 
 class CheckpointError(RuntimeError):
@@ -62,6 +71,9 @@ class MetaModule(L.LightningModule):
         weight_decay: AdamW weight decay on matrices (not on biases, norms, embeddings).
         betas: AdamW betas.
         recenter: subtract the context mean of each trajectory (context-only statistics).
+        anchor: the network predicts the deviation from the last context output, which
+            is added back (a context value: nothing of the query leaks). The prediction
+            then starts where the robot is instead of having to locate it first.
         init_ckpt: start from this checkpoint's weights and normalization (transfer).
         freeze: ``none``, ``encoder`` or ``all_but_head``.
         reinit_io: when the checkpoint's n_u / n_y differ, re-initialize the input
@@ -90,6 +102,7 @@ class MetaModule(L.LightningModule):
         weight_decay: float = 0.0,
         betas: tuple[float, float] = (0.9, 0.95),
         recenter: bool = False,
+        anchor: bool = False,
         init_ckpt: str | None = None,
         freeze: Literal["none", "encoder", "all_but_head"] = "none",
         reinit_io: bool = False,
@@ -107,6 +120,9 @@ class MetaModule(L.LightningModule):
         # Set by robomorph.fit when it resumes a run: the checkpoint then supplies the
         # weights, so init_ckpt (possibly gone by now) must not be read again.
         self.resuming = False
+        # What the model was trained on (channel names, dt, window lengths): saved in the
+        # checkpoint so evaluation can check a store against it and take its defaults.
+        self.data_info: dict | None = None
         if n_u is not None and n_y is not None:
             self._build(n_u, n_y)
 
@@ -136,6 +152,8 @@ class MetaModule(L.LightningModule):
                 f"the data has n_u={dm.n_u}, n_y={dm.n_y} but the model was built for "
                 f"n_u={self.hparams.n_u}, n_y={self.hparams.n_y}"
             )
+        if stage == "fit" or self.data_info is None:
+            self.data_info = data_info(dm)
         if stage == "fit" and self.hparams.init_ckpt and not self.resuming and not getattr(self, "_transferred", False):
             self._transfer(self.hparams.init_ckpt)
             self._transferred = True
@@ -175,16 +193,28 @@ class MetaModule(L.LightningModule):
             elif mode == "all_but_head":
                 p.requires_grad = name.startswith("head")
 
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        if self.data_info is not None:
+            checkpoint[DATA_INFO_KEY] = self.data_info
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        self.data_info = checkpoint.get(DATA_INFO_KEY, self.data_info)
+
     # --------------------------------------------------------------------- forward
     def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor) -> torch.Tensor:
         """Predicts y over the query horizon, in physical units."""
         uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, u_query)
-        return self.normalizer.decode(self.net(uc, yc, uq), y_ctx)
+        return self.normalizer.decode(self._predict(uc, yc, uq), y_ctx)
+
+    def _predict(self, uc: torch.Tensor, yc: torch.Tensor, uq: torch.Tensor) -> torch.Tensor:
+        """Normalized prediction (B, Th, n_y) from normalized inputs."""
+        pred = self.net(uc, yc, uq)
+        return pred + yc[:, -1:] if self.hparams.get("anchor", False) else pred
 
     def _step(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"])
         target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"])
-        pred = self.net(uc, yc, uq)
+        pred = self._predict(uc, yc, uq)
         if self.hparams.loss == "mse":
             loss = F.mse_loss(pred, target)
         else:

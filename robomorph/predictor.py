@@ -34,6 +34,8 @@ class Predictor:
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         self.module = module.to(self.device).eval()
         self.n_u, self.n_y = int(module.hparams.n_u), int(module.hparams.n_y)
+        # Channel names, dt and the training window (None for checkpoints that predate it).
+        self.data_info: dict | None = module.data_info
 
     @classmethod
     def from_checkpoint(cls, path: str, device: str | torch.device | None = None) -> "Predictor":
@@ -44,6 +46,7 @@ class Predictor:
             raise CheckpointError(f"{path} lacks n_u/n_y: it was not written by robomorph.fit")
         accepted = inspect.signature(MetaModule.__init__).parameters
         module = MetaModule(**{k: v for k, v in hp.items() if k in accepted and k != "init_ckpt"})
+        module.on_load_checkpoint(ckpt)
         try:
             module.load_state_dict(ckpt["state_dict"])
         except RuntimeError as exc:

@@ -41,22 +41,27 @@ def diverged(data: mujoco.MjData) -> bool:
     return bool(data.warning.number[_BAD_STATE_WARNINGS].any())
 
 
-def reset_to(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.ndarray) -> None:
-    """Resets ``data`` to rest at joint configuration ``qpos0`` and runs the forward pass."""
+def reset_to(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.ndarray,
+             qvel0: np.ndarray | None = None) -> None:
+    """Resets ``data`` to joint configuration ``qpos0`` (at rest unless ``qvel0``), runs the forward pass."""
     mujoco.mj_resetData(model, data)
     data.qpos[: len(qpos0)] = qpos0
     data.qvel[:] = 0.0
+    if qvel0 is not None:
+        data.qvel[: len(qvel0)] = qvel0
     mujoco.mj_forward(model, data)
 
 
 def simulate_closed_loop(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.ndarray,
-                         steps: int, substeps: int, controller: Controller) -> np.ndarray:
+                         steps: int, substeps: int, controller: Controller,
+                         qvel0: np.ndarray | None = None) -> np.ndarray:
     """Simulates ``steps`` frames with one controller update per frame.
 
     Args:
         model: the (possibly randomized) model; its timestep is the physics step.
         data: scratch data for ``model``; it is reset here.
-        qpos0: (nq,) or shorter initial joint positions; the robot starts at rest.
+        qpos0: (nq,) or shorter initial joint positions; the robot starts at rest
+            unless ``qvel0`` gives initial joint velocities.
         steps: recorded frames T.
         substeps: physics steps per frame (the command is held over them).
         controller: ``(data, t) -> (nu,)`` torque command, see :data:`Controller`.
@@ -69,7 +74,7 @@ def simulate_closed_loop(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.n
     if steps < 1 or substeps < 1:
         raise ValueError(f"steps and substeps must be >= 1, got {steps}, {substeps}")
     out = np.empty((steps, model.nsensordata))
-    reset_to(model, data, qpos0)
+    reset_to(model, data, qpos0, qvel0)
     sens, ctrl = data.sensordata, data.ctrl
     rest = substeps - 1
     for t in range(steps):

@@ -1,0 +1,116 @@
+"""Baselines every evaluation reports beside the meta-model, so users see what it adds.
+
+Each baseline predicts ``y_query (B, H, n_y)`` from the same information the meta-model
+gets: the context ``u_ctx (B, Tc, n_u)``, ``y_ctx (B, Tc, n_y)`` and the query inputs
+``u_query (B, H, n_u)``. None of them sees ``y_query``.
+
+- ``hold``: the last context output held over the horizon.
+- ``arx``: a linear ARX model fitted by least squares on each trajectory's own context,
+  then simulated freely over the horizon (its own outputs fed back).
+- ``nominal_physics``: the catalogue Panda (no randomization) simulated in MuJoCo from
+  the state at the end of the context, driven by the recorded torques.
+- ``true_physics`` (opt-in): the same with each robot's *true* stored parameters, which
+  no predictor gets: how far the dynamics themselves stay predictable from the estimated
+  state (the randomized arm is chaotic: tiny state errors grow about tenfold per second).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+BASELINES = ("hold", "arx", "nominal_physics")
+# Not a competitor (it reads the parameters the model never sees) but the ceiling of
+# physics itself: each robot's own parameters, from the same estimated state. Opt-in.
+CEILINGS = ("true_physics",)
+# An ARX simulation whose outputs leave this band around the context is called diverged
+# and replaced by ``hold``: one exploding trajectory would otherwise swamp every mean.
+_ARX_BLOWUP = 1e3
+
+
+def hold(u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
+    """The last context output, held for every query step."""
+    return np.repeat(y_ctx[:, -1:], u_query.shape[1], axis=1)
+
+
+@dataclass
+class ARX:
+    """MIMO ARX ``y[t] = sum_i A_i y[t-i] + sum_j B_j u[t-j] + c``, one fit per trajectory.
+
+    The inputs act with one step of delay (``j >= 1``): row ``t`` of a store is the state
+    at the start of frame ``t`` and ``u[t]`` is applied from there, so it cannot move
+    ``y[t]``. Regressors are scaled per trajectory for a well-conditioned fit; ``ridge``
+    is a small Tikhonov term relative to the regressors' energy.
+
+    Attributes:
+        na: output lags; nb: input lags; ridge: relative regularization.
+        diverged: trajectories of the last call whose simulation blew up (held instead).
+    """
+
+    na: int = 2
+    nb: int = 2
+    ridge: float = 1e-8
+    diverged: int = field(default=0, init=False)
+
+    def __post_init__(self) -> None:
+        if self.na < 1 or self.nb < 1:
+            raise ValueError(f"ARX orders must be >= 1, got na={self.na}, nb={self.nb}")
+
+    def __call__(self, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
+        lag = max(self.na, self.nb)
+        n_reg = self.na * y_ctx.shape[-1] + self.nb * u_ctx.shape[-1] + 1
+        if u_ctx.shape[1] - lag < n_reg:
+            raise ValueError(f"ARX({self.na},{self.nb}) has {n_reg} coefficients per output but the context "
+                             f"gives only {u_ctx.shape[1] - lag} equations: use a longer context or lower orders")
+        out = np.empty(y_ctx.shape[:1] + u_query.shape[1:2] + y_ctx.shape[2:])
+        self.diverged = 0
+        for b in range(len(u_ctx)):
+            out[b] = self._one(u_ctx[b].astype(np.float64), y_ctx[b].astype(np.float64),
+                               u_query[b].astype(np.float64))
+        return out
+
+    def _one(self, u: np.ndarray, y: np.ndarray, uq: np.ndarray) -> np.ndarray:
+        # Per-trajectory scaling from the context only.
+        ym, ys = y.mean(0), np.maximum(y.std(0), 1e-9)
+        um, us = u.mean(0), np.maximum(u.std(0), 1e-9)
+        yn, un, uqn = (y - ym) / ys, (u - um) / us, (uq - um) / us
+        lag, t = max(self.na, self.nb), len(y)
+        rows = [self._regressor(yn, un, k) for k in range(lag, t)]
+        phi, target = np.stack(rows), yn[lag:]
+        gram = phi.T @ phi
+        gram[np.diag_indices_from(gram)] += self.ridge * np.trace(gram) / len(gram)
+        theta = np.linalg.solve(gram, phi.T @ target)  # (n_reg, n_y)
+        y_all = np.concatenate([yn, np.empty((len(uqn), yn.shape[1]))])
+        u_all = np.concatenate([un, uqn])
+        for k in range(t, t + len(uqn)):
+            y_all[k] = self._regressor(y_all, u_all, k) @ theta
+        pred = y_all[t:] * ys + ym
+        span = np.abs(y - ym).max() + 1e-9
+        if not np.isfinite(pred).all() or np.abs(pred - ym).max() > _ARX_BLOWUP * span:
+            self.diverged += 1
+            return np.repeat(y[-1:], len(uq), axis=0)
+        return pred
+
+    def _regressor(self, y: np.ndarray, u: np.ndarray, k: int) -> np.ndarray:
+        return np.concatenate([y[k - self.na:k][::-1].ravel(), u[k - self.nb:k][::-1].ravel(), [1.0]])
+
+
+def estimate_velocity(q: np.ndarray, dt: float, points: int = 6) -> np.ndarray:
+    """Velocity at the last sample from a cubic fitted to the last ``points`` samples.
+
+    Args:
+        q: (B, T, n) positions sampled every ``dt``; T >= 2.
+
+    Returns:
+        (B, n) velocity estimates (a backward difference when T < 4).
+    """
+    t = q.shape[1]
+    if t < 2:
+        raise ValueError("velocity estimation needs at least 2 context samples")
+    k = min(points, t)
+    deg = min(3, k - 1)
+    times = (np.arange(k) - (k - 1)) * dt  # the last sample at time 0
+    basis = np.vander(times, deg + 1, increasing=True)  # columns 1, t, t^2, ...
+    coef, *_ = np.linalg.lstsq(basis, q[:, -k:].transpose(1, 0, 2).reshape(k, -1), rcond=None)
+    return coef[1].reshape(q.shape[0], q.shape[2])  # d/dt at t = 0
