@@ -101,20 +101,26 @@ def plot_r2_distribution(path: str, y_true: np.ndarray, preds: dict[str, np.ndar
 
 
 def plot_sweep(path: str, rows: list[dict], key: str) -> str:
-    """Mean R^2 and FIT (approach 1) against ``key`` (``horizon`` or ``context_len``)."""
+    """Mean R^2 and FIT, approaches 1 and 2, against ``key`` (``horizon`` or ``context_len``).
+
+    R^2 is drawn from -1 and FIT from -100 up: far worse values (a baseline that drifts
+    away) sit on the floor instead of squashing every other curve into a line.
+    """
     plt = _plt()
     x = [r[key] for r in rows]
-    fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
+    fig, axes = plt.subplots(1, 4, figsize=(15, 3.4))
     sources = [s for s in rows[0] if isinstance(rows[0][s], dict)]
-    for src in sources:
-        ax[0].plot(x, [r[src]["r2"] for r in rows], marker="o", ms=3, label=src, **_STYLE.get(src, {}))
-        ax[1].plot(x, [r[src]["fit"] for r in rows], marker="o", ms=3, label=src, **_STYLE.get(src, {}))
-    label = "prediction horizon [steps]" if key == "horizon" else "context length [steps]"
-    ax[0].set(xlabel=label, ylabel="mean R² (approach 1)")
-    ax[1].set(xlabel=label, ylabel="mean FIT [%] (approach 1)")
-    for a in ax:
-        a.grid(alpha=0.3)
-    ax[0].legend(fontsize=8)
+    panels = (("r2", "mean R² (approach 1)", -1.0), ("fit", "mean FIT % (approach 1)", -100.0),
+              ("r2_a2", "R² (approach 2)", -1.0), ("fit_a2", "FIT % (approach 2)", -100.0))
+    for ax, (metric, label, floor) in zip(axes, panels):
+        for src in sources:
+            values = np.maximum([r[src].get(metric, np.nan) for r in rows], floor)
+            ax.plot(x, values, marker="o", ms=3, label=src, **_STYLE.get(src, {}))
+        top = 1.0 if metric.startswith("r2") else 100.0
+        ax.set(xlabel="prediction horizon [steps]" if key == "horizon" else "context length [steps]",
+               ylabel=label, ylim=(floor - 0.05 * (top - floor), top + 0.05 * (top - floor)))
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -138,7 +138,11 @@ def _batched(fn, u_ctx, y_ctx, u_q, desc: str, size: int = 16, params=None) -> n
 
 
 def _summary(y, yhat) -> dict:
-    return {"r2": float(metrics.approach1_mean(y, yhat, "r2")), "fit": float(metrics.approach1_mean(y, yhat, "fit"))}
+    """Channel-mean R^2 and FIT: ``r2``/``fit`` by approach 1, ``r2_a2``/``fit_a2`` by approach 2."""
+    a2 = [np.asarray(f(y.reshape(1, -1, y.shape[-1]), yhat.reshape(1, -1, y.shape[-1])))[0].mean()
+          for f in (metrics.r2, metrics.fit_index)]
+    return {"r2": float(metrics.approach1_mean(y, yhat, "r2")), "fit": float(metrics.approach1_mean(y, yhat, "fit")),
+            "r2_a2": float(a2[0]), "fit_a2": float(a2[1])}
 
 
 def sweep_horizon(predictor, w: Window, horizons: list[int], baselines: dict, batch_size: int) -> list[dict]:
@@ -217,7 +221,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
               "baselines": {b: {"approach1": metrics.approach1(y_q, p, names), "approach2": metrics.approach2(y_q, p, names)}
                             for b, p in base.items()},
               "skipped_baselines": skipped,
-              "meta": {"ckpt": os.path.abspath(ckpt), "data": os.path.abspath(data), "context_len": w.context_len,
+              "meta": {"ckpt": ckpt, "data": data, "context_len": w.context_len,
                        "horizon": w.horizon, "n": len(w.u), "dt": w.dt, "y_names": names, "u_names": w.u_names,
                        "device": str(predictor.device), "baseline_notes": notes,
                        "domain": w.attrs.get("domain"), "task": w.attrs.get("task")}}
