@@ -16,13 +16,16 @@ $(STAMP): pyproject.toml tools/install_venv.sh
 demo: $(STAMP)
 	$(PY) -m robomorph.demo
 
-# The report test renders the dashboard in Debian's chromium (installed when missing).
+# The report test renders the dashboard in Debian's chromium and the sweep test runs a
+# throw-away PostgreSQL server: both Debian packages are installed when missing.
 test: $(STAMP)
 	bash tools/ensure_chromium.sh
+	bash tools/ensure_postgres.sh
 	$(PY) -m pytest -q
 
 test-fast: $(STAMP)
 	bash tools/ensure_chromium.sh
+	bash tools/ensure_postgres.sh
 	$(PY) -m pytest -q -m "not slow"
 
 clean:

@@ -208,6 +208,11 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     w = load_window(data, int(context_len), int(horizon), n, info, predictor.n_u, predictor.n_y)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
     contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")
+    patch = int(predictor.module.hparams.get("patch", 1))
+    odd = [c for c in [w.context_len, *contexts] if c % patch]
+    if odd:
+        raise ValueError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "
+                         f"{odd} are not (--context-len / --sweep-context)")
     os.makedirs(out, exist_ok=True)
 
     u_ctx, y_ctx, u_q, y_q = w.split()

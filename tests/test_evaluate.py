@@ -153,6 +153,8 @@ def test_bad_input_gives_clear_errors(setup, tmp_path):
             evaluate(ckpt, store, str(tmp_path / "bad"), samples=0)
     with pytest.raises(ValueError, match="must fit"):
         evaluate(ckpt, test, str(tmp_path / "bad"), horizon=500, samples=0)
+    with pytest.raises(ValueError, match=r"multiples of the model's patch \(5 steps per token\): \[12\]"):
+        evaluate(ckpt, test, str(tmp_path / "bad"), sweep_context_spec="10,12", samples=0)
     with pytest.raises(ValueError, match="unknown baseline"):
         evaluate(ckpt, test, str(tmp_path / "bad"), baselines=("oracle",))
     with pytest.raises(SystemExit, match="error: .*must fit"):
