@@ -18,9 +18,9 @@ import sys
 import time
 
 from robomorph.data.store import open_store
-from robomorph.generate import generate
 from robomorph.inspect import plot, summarize
 from robomorph.recipe import load_recipe
+from robomorph.resume import ensure_store
 
 TASKS = ("multisine", "chirp", "circle", "spiral")
 
@@ -43,17 +43,10 @@ def make_data(out_dir: str, robots: int, steps: int, workers: int | None = None)
 def _generate(task: str, path: str, overrides: dict, workers: int | None) -> str:
     recipe = load_recipe(f"datamodules/{task}.yaml", overrides)
     t0 = time.time()
-    generate(recipe, path, workers=workers, overwrite=_stale(path, recipe))
+    # A demo store from another recipe (e.g. an older version) is replaced, not refused.
+    ensure_store(recipe, path, workers=workers)
     print(f"=== {path}: {time.time() - t0:.1f} s ===")
     return path
-
-
-def _stale(path: str, recipe) -> bool:
-    """A demo store from another recipe (e.g. an older version) is replaced, not refused."""
-    try:
-        return open_store(path, allow_incomplete=True).attrs.get("config") != recipe.to_dict()
-    except Exception:  # noqa: BLE001  (missing or unreadable: nothing to keep)
-        return False
 
 
 def train(out_dir: str, robots: int, minutes: float, runs_dir: str) -> tuple[str, str, str]:
@@ -74,7 +67,7 @@ def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str]:
     from robomorph.report import build_report  # noqa: PLC0415
 
     out = default_out(ckpt, test)
-    res = evaluate(ckpt, test, out, sweep_horizon_spec="100:800:100", sweep_context_spec="25:200:25")
+    res = evaluate(ckpt, test, out, sweep_horizon_spec="100:800:100", sweep_context_spec="20:200:20")
     with open(os.path.join(out, "table.md")) as f:
         print("\n" + f.read())
     print(summary_text(res, out))

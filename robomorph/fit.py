@@ -16,6 +16,7 @@ import dataclasses
 import os
 import sys
 import time
+import warnings
 from typing import Any
 
 import torch
@@ -141,6 +142,9 @@ def _resume_path(cli: RoboMorphCLI, run_dir: str) -> str | None:
 def build_cli(args: list[str] | dict | None = None, callbacks: list | None = None) -> RoboMorphCLI:
     """Parses arguments (list, dict or sys.argv) and instantiates data, model and trainer."""
     cls = type("RoboMorphCLIWithCallbacks", (RoboMorphCLI,), {"extra_callbacks": tuple(callbacks or ())})
+    if args is not None:
+        # Called as a function (tests, sweeps, demo): the caller's own command line is not ours.
+        warnings.filterwarnings("ignore", message="LightningCLI's args parameter is intended")
     return cls(
         MetaModule, RoboMorphDataModule, run=False, args=args, trainer_defaults=TRAINER_DEFAULTS,
         save_config_callback=None, seed_everything_default=0,

@@ -16,6 +16,16 @@ class Band(NamedTuple):
     mark: str  # the markdown tables' symbol
     label: str
 
+    @property
+    def latex(self) -> str:
+        """The paper's ``\\cellcolor`` argument, e.g. ``lightgreen!80`` (see :data:`LATEX_COLORS`)."""
+        return f"{_LATEX_NAMES[self.rgb]}!{self.strength}"
+
+
+# A property, not a sixth field: callers unpack the five fields of a Band.
+_LATEX_NAMES = {(144, 238, 144): "lightgreen", (255, 255, 0): "yellow", (255, 165, 0): "orange", (255, 0, 0): "red"}
+# The paper's preamble for these names (with ``\\usepackage{colortbl}``).
+LATEX_COLORS = "\n".join(f"\\definecolor{{{name}}}{{RGB}}{{{r},{g},{b}}}" for (r, g, b), name in _LATEX_NAMES.items())
 
 FIT_BANDS: tuple[Band, ...] = (
     Band(90.0, (144, 238, 144), 80, "🟩", "FIT ≥ 90"),

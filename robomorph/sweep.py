@@ -155,17 +155,14 @@ def _regime_args(space: Space, values: dict, regime: str | None, run: str, runs_
         return args
     from robomorph.transfer import regime_overrides  # noqa: PLC0415
 
+    from robomorph.transfer import merge  # noqa: PLC0415
+
+    # Learning rate and freezing are the fine-tuning's own settings; scratch keeps the base's.
+    tuned = regime == "finetune"
     over = regime_overrides(regime, space.transfer.get("init_ckpt"), int(space.transfer.get("steps", 1000)),
-                            lr=values.get("transfer.lr", space.transfer.get("lr")),
-                            freeze=values.get("transfer.freeze", space.transfer.get("freeze", "none")))
-    if over is None:
-        return None
-    for section, sub in over.items():
-        if isinstance(sub, dict):
-            args.setdefault(section, {}).update(sub)
-        else:
-            args[section] = sub
-    return args
+                            lr=values.get("transfer.lr", space.transfer.get("lr")) if tuned else None,
+                            freeze=values.get("transfer.freeze", space.transfer.get("freeze", "none")) if tuned else "none")
+    return None if over is None else merge(args, over)
 
 
 def _evaluate(trial: optuna.Trial, space: Space, ckpt: str | None, out: str) -> float:

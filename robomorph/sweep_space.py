@@ -187,6 +187,9 @@ def parse_space(data: dict, where: str = "space") -> Space:
         bad = set(regime.choices or ()) - set(REGIMES)
         if regime.choices is None or bad:
             raise SpaceError(f"{where}: transfer.regime takes choices from {REGIMES}")
+        if set(regime.choices) & {"zero_shot", "finetune"} and not (data.get("transfer") or {}).get("init_ckpt"):
+            raise SpaceError(f"{where}: zero_shot and finetune start from transfer.init_ckpt; name the "
+                             "pre-trained checkpoint there")
     return Space(name=str(data.get("name") or "sweep"), metric=metric, direction=direction, params=parsed,
                  base=data.get("base") or {}, budget=data.get("budget") or {}, sampler=sampler, pruner=pruner,
                  eval_data=objective.get("data"), transfer=data.get("transfer") or {})

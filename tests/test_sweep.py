@@ -50,9 +50,9 @@ def test_two_trial_study_then_continue(store, tmp_path):
     assert trials[0].state == TS.COMPLETE and trials[1].state in (TS.COMPLETE, TS.PRUNED)
     for t in trials:
         assert os.path.isfile(os.path.join(t.user_attrs["run_dir"], "config.yaml"))
-        assert "val/loss" in t.user_attrs["metrics"]
+        assert "val/r2" in t.user_attrs["metrics"]
     first = trials[0]
-    assert first.value == pytest.approx(min(first.intermediate_values.values()))
+    assert first.value == pytest.approx(max(first.intermediate_values.values()))  # maximize val/r2
     assert sorted(first.intermediate_values) == [5, 10, 15, 20]  # reported per validation step
     # Re-running continues the same study up to the new total, then does nothing.
     assert len(run_sweep(_space(store), 3, storage, "two", runs, wandb="disabled").trials) == 3
@@ -186,3 +186,27 @@ def test_every_shipped_space_parses():
     for path in sorted(glob.glob(os.path.join(ROOT, "sweeps", "*.yaml"))):
         space = load_space(path)
         assert space.params and space.direction in ("minimize", "maximize"), path
+
+
+def test_transfer_regimes_as_a_study(store, tmp_path):
+    from robomorph.fit import fit
+
+    base = load_space(CI_SPACE).base
+    pre = fit({**base, "data": {**base["data"], "stores": store}, "trainer": {**base["trainer"], "max_steps": 10, "val_check_interval": 5},
+               "run": "pre", "runs_dir": str(tmp_path / "runs"), "wandb": "disabled"})
+    space = parse_space({
+        "name": "tr", "objective": {"metric": "fit", "direction": "maximize", "data": store},
+        "budget": {"val_check_interval": 5}, "sampler": {"name": "grid"}, "pruner": {"name": "none"},
+        "base": {**base, "data": {**base["data"], "stores": store}},
+        "transfer": {"init_ckpt": pre.best_ckpt, "steps": 10, "freeze": "encoder"},
+        "params": {"transfer.regime": {"choices": ["zero_shot", "finetune", "scratch"]}}})
+    study = run_sweep(space, 3, open_storage(_sqlite(tmp_path)), "tr", str(tmp_path / "runs"), wandb="disabled")
+    trials = {t.params["transfer.regime"]: t for t in study.get_trials()}
+    assert set(trials) == {"zero_shot", "finetune", "scratch"}
+    assert all(t.state == TS.COMPLETE and t.value == pytest.approx(t.user_attrs["eval"]["fit"]) for t in trials.values())
+    assert "global_step" not in trials["zero_shot"].user_attrs  # evaluated, never trained
+    assert trials["finetune"].user_attrs["global_step"] == trials["scratch"].user_attrs["global_step"] == 10
+    config = open(os.path.join(trials["finetune"].user_attrs["run_dir"], "config.yaml")).read()
+    assert pre.best_ckpt in config and "freeze: encoder" in config
+    scratch = open(os.path.join(trials["scratch"].user_attrs["run_dir"], "config.yaml")).read()
+    assert "init_ckpt" not in scratch and "freeze: none" in scratch
