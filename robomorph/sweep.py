@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import csv
 import os
 import sys
 import time
@@ -52,9 +53,7 @@ class StepPruning(L.Callback):
             trainer.should_stop = True
 
     def best(self) -> float | None:
-        if not self.values:
-            return None
-        return max(self.values) if self.direction == "maximize" else min(self.values)
+        return _best(self.values, self.direction)
 
 
 def open_storage(url: str | None, heartbeat: int = 60, grace: int = 180):
@@ -138,7 +137,10 @@ def make_objective(space: Space, study_name: str, runs_dir: str, wandb: str = "o
             ckpt = result.best_ckpt
         if space.eval_data:
             return _evaluate(trial, space, ckpt, os.path.join(runs_dir, run, "eval", "sweep"))
-        best = pruning.best()
+        # A retried trial resumes the dead worker's run, whose validations are in the run's
+        # CSV log; a resume that was already at its budget validates no more, so the log
+        # (pruned to the resumed step) is the record of what the run reached.
+        best = _best(pruning.values + logged_values(os.path.join(runs_dir, run), space.metric), space.direction)
         if best is None:
             raise RuntimeError(f"trial {trial.number} logged no {space.metric!r}: validate at least once "
                                "(trainer.val_check_interval below the step budget)")
@@ -147,15 +149,28 @@ def make_objective(space: Space, study_name: str, runs_dir: str, wandb: str = "o
     return objective
 
 
+def logged_values(run_dir: str, metric: str) -> list[float]:
+    """The values of ``metric`` in a run's ``logs/metrics.csv`` (empty when none were logged)."""
+    path = os.path.join(run_dir, "logs", "metrics.csv")
+    if not os.path.isfile(path):
+        return []
+    with open(path, newline="") as f:
+        return [float(r[metric]) for r in csv.DictReader(f) if r.get(metric) not in (None, "")]
+
+
+def _best(values: list[float], direction: str) -> float | None:
+    if not values:
+        return None
+    return max(values) if direction == "maximize" else min(values)
+
+
 def _regime_args(space: Space, values: dict, regime: str | None, run: str, runs_dir: str, wandb: str,
                  group: str) -> dict | None:
     args = space.fit_args(values, run, runs_dir)
     args.update(wandb=wandb, group=group)
     if regime is None:
         return args
-    from robomorph.transfer import regime_overrides  # noqa: PLC0415
-
-    from robomorph.transfer import merge  # noqa: PLC0415
+    from robomorph.transfer import merge, regime_overrides  # noqa: PLC0415
 
     # Learning rate and freezing are the fine-tuning's own settings; scratch keeps the base's.
     tuned = regime == "finetune"

@@ -15,7 +15,7 @@ import pytest
 
 from robomorph.generate import generate
 from robomorph.recipe import load_recipe
-from robomorph.sweep import main, open_storage, open_study, run_sweep, with_overrides
+from robomorph.sweep import logged_values, main, open_storage, open_study, run_sweep, with_overrides
 from robomorph.sweep_space import SpaceError, load_space, parse_space
 from robomorph.sweep_summary import summarize
 
@@ -158,6 +158,10 @@ def test_killed_workers_trial_is_failed_and_retried(store, tmp_path):
     assert retry.state == TS.COMPLETE and retry.params == first.params
     assert retry.system_attrs.get("failed_trial") == 0
     assert retry.user_attrs["run_dir"] == first.user_attrs["run_dir"]  # resumed, not restarted
+    # The dead worker may have trained past the retry's 20-step budget (then the resume
+    # validates no more): the value is the best val/r2 the run's log holds either way.
+    logged = logged_values(retry.user_attrs["run_dir"], "val/r2")
+    assert logged and retry.value == pytest.approx(max(logged))
 
 
 def test_bad_spaces_and_storage_give_clear_errors(tmp_path, capsys):
@@ -210,3 +214,15 @@ def test_transfer_regimes_as_a_study(store, tmp_path):
     assert pre.best_ckpt in config and "freeze: encoder" in config
     scratch = open(os.path.join(trials["scratch"].user_attrs["run_dir"], "config.yaml")).read()
     assert "init_ckpt" not in scratch and "freeze: none" in scratch
+
+
+def test_a_trial_resumed_past_its_budget_takes_its_value_from_the_run_log(store, tmp_path):
+    # Two storages, one runs folder: the second study's trial 0 finds run "p-t0000" already
+    # at step 20 and its budget is 10, so fit() resumes and stops without validating.
+    runs = str(tmp_path / "runs")
+    first = run_sweep(_space(store), 1, open_storage(_sqlite(tmp_path, "a.db")), "p", runs, wandb="disabled")
+    again = run_sweep(_space(store, max_steps=10), 1, open_storage(_sqlite(tmp_path, "b.db")), "p", runs,
+                      wandb="disabled")
+    t0, t1 = first.get_trials()[0], again.get_trials()[0]
+    assert t1.state == TS.COMPLETE and t1.user_attrs["global_step"] == 20 and not t1.intermediate_values
+    assert t1.value == pytest.approx(t0.value) == pytest.approx(max(logged_values(t0.user_attrs["run_dir"], "val/r2")))
