@@ -175,3 +175,85 @@ def test_shipped_training_config_parses():
 def test_invalid_model_config_is_refused(store, tmp_path):
     with pytest.raises(ValueError, match="n_head"):
         fit(_args(store, tmp_path, "bad", steps=1, model={"d_model": 18, "n_head": 4}))
+
+
+def test_freeze_encoder_trains_only_the_rest(trained, store, tmp_path):
+    base, _ = trained
+    tuned = fit(_args(store, tmp_path, "fe", steps=10, model={"init_ckpt": base.best_ckpt, "freeze": "encoder", "lr": 1e-2}))
+    src = load_checkpoint_file(base.best_ckpt)["state_dict"]
+    dst = load_checkpoint_file(tuned.last_ckpt)["state_dict"]
+    enc = [k for k in src if k.startswith("net.enc")]
+    dec = [k for k in src if k.startswith("net.dec")]
+    assert enc and dec and all(torch.equal(src[k], dst[k]) for k in enc)
+    assert any(not torch.equal(src[k], dst[k]) for k in dec)
+
+
+def test_training_step_predictions_never_see_the_query_outputs(store, tmp_path):
+    # End to end through the LightningModule, with per-trajectory recentring on: changing
+    # y_query changes the target and the loss, never the prediction.
+    result = fit(_args(store, tmp_path, "rc", steps=5, data={"recenter": True}))
+    module = Predictor.from_checkpoint(result.last_ckpt, device="cpu").module
+    assert module.hparams.recenter
+    from robomorph.data.store import open_store
+
+    ds = open_store(store)
+    u, y = torch.as_tensor(ds.read("u", slice(0, 4))), torch.as_tensor(ds.read("y", slice(0, 4)))
+    batch = {"u_ctx": u[:, :20], "y_ctx": y[:, :20], "u_query": u[:, 20:60], "y_query": y[:, 20:60]}
+    poisoned = {**batch, "y_query": batch["y_query"] * 10 + 5}
+    with torch.no_grad():
+        loss, pred, target = module._step(batch)
+        loss2, pred2, target2 = module._step(poisoned)
+    assert torch.equal(pred, pred2)
+    assert not torch.allclose(target, target2) and loss2 > loss
+
+
+def test_ckpt_path_last_resumes_a_named_run(store, tmp_path):
+    fit(_args(store, tmp_path, "named", steps=10))
+    args = _args(store, tmp_path, "named", steps=20)
+    args["ckpt_path"] = "last"
+    assert fit(args).global_step == 20
+
+
+def test_an_interrupted_checkpoint_write_keeps_the_previous_checkpoint(tmp_path, monkeypatch):
+    from robomorph.checkpointing import AtomicCheckpointIO
+
+    path = tmp_path / "last.ckpt"
+    io = AtomicCheckpointIO()
+    io.save_checkpoint({"global_step": 1, "w": torch.ones(3)}, str(path))
+    before = path.read_bytes()
+
+    def dies_mid_write(obj, f, *a, **k):
+        f.write(b"half a checkpoint")
+        raise KeyboardInterrupt  # the job is killed while writing
+
+    monkeypatch.setattr(torch, "save", dies_mid_write)
+    with pytest.raises(KeyboardInterrupt):
+        io.save_checkpoint({"global_step": 2, "w": torch.zeros(3)}, str(path))
+    assert path.read_bytes() == before
+    assert torch.load(path, weights_only=False)["global_step"] == 1
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_gpu_fit_uses_bf16_and_matches_the_cpu_predictor(store, tmp_path):
+    args = _args(store, tmp_path, "gpu", steps=20)
+    args["trainer"].update(accelerator="gpu")
+    import lightning.pytorch as L
+
+    class Seen(L.Callback):
+        def on_train_batch_end(self, trainer, module, outputs, batch, batch_idx):
+            self.precision, self.dtype = trainer.precision, outputs["loss"].dtype
+
+    seen = Seen()
+    result = fit(args, callbacks=[seen])
+    assert result.global_step == 20
+    if torch.cuda.is_bf16_supported():  # the default precision on such a GPU
+        assert seen.precision == "bf16-mixed"
+    from robomorph.data.store import open_store
+
+    ds = open_store(store)
+    u, y = ds.read("u", slice(0, 4)), ds.read("y", slice(0, 4))
+    on_gpu = Predictor.from_checkpoint(result.best_ckpt, device="cuda").simulate(u[:, :20], y[:, :20], u[:, 20:60])
+    on_cpu = Predictor.from_checkpoint(result.best_ckpt, device="cpu").simulate(u[:, :20], y[:, :20], u[:, 20:60])
+    assert np.isfinite(on_gpu).all()
+    np.testing.assert_allclose(on_gpu, on_cpu, atol=1e-3 * max(1.0, float(np.abs(on_cpu).max())))

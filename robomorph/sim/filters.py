@@ -35,8 +35,8 @@ def continuous_quaternion(quat: np.ndarray) -> np.ndarray:
 
     ``q`` and ``-q`` are the same rotation; the sign a simulator reports may flip from one
     sample to the next, which a learner would see as a jump of size 2. The first sample
-    is made to have a non-negative scalar part, then each sample keeps the sign closest
-    to its predecessor.
+    keeps the sign it was given (the component order is not known here, so no scalar
+    part can be singled out), then each sample keeps the sign closest to its predecessor.
 
     Args:
         quat: (..., T, 4) quaternions in any component order.
