@@ -15,9 +15,10 @@ Targets:
   Table 1's middle model.
 - ``all``: the three in order, sharing data and models.
 
-Generated stores, training runs and evaluation folders go to ``--work`` (default
-``data/reproduce/<scale>``, not committed); the tables and the figure go to ``--out``
-(default ``results/paper/<scale>``). Every step whose output exists is skipped (complete
+Generated stores and training runs (each with its evaluations in ``<run>/eval/``) go to
+``--work`` (default ``data/reproduce/<scale>``, not committed), with a dashboard of them all
+in ``<work>/report.html``; the tables and the figure go to ``--out`` (default
+``results/paper/<scale>``). Every step whose output exists is skipped (complete
 stores, runs that reached their budget, evaluations newer than their checkpoint), and an
 interrupted run resumes from its last checkpoint: re-run the same command.
 
@@ -142,11 +143,15 @@ def train(plan: Plan, target: str, args: dict, what: str) -> str:
 
 
 def score(plan: Plan, target: str, ckpt: str, data: str, name: str, sweeps: bool = False) -> dict:
-    """Evaluates ``ckpt`` on ``data`` into ``<work>/evals/<run>/<name>`` unless a fresh result is there."""
+    """Evaluates ``ckpt`` on ``data`` into ``<run>/eval/<name>`` unless a fresh result is there.
+
+    That is where ``python -m robomorph.evaluate`` puts an evaluation by default, so the
+    reproduction's dashboard (:func:`report`) shows every score beside its training run.
+    """
     from robomorph.evaluate import evaluate  # noqa: PLC0415
 
-    run = os.path.basename(os.path.dirname(os.path.dirname(os.path.abspath(ckpt))))
-    out = plan.path("evals", run, name)
+    run_dir = os.path.dirname(os.path.dirname(os.path.abspath(ckpt)))
+    run, out = os.path.basename(run_dir), os.path.join(run_dir, "eval", name)
     if resume.eval_fresh(out, ckpt):
         say(target, f"evaluation {run} on {name}: up to date, kept")
         return resume.read_json(os.path.join(out, "metrics.json"))
@@ -248,7 +253,19 @@ def reproduce(target: str, scale: Scale, out: str | None = None, work: str | Non
     os.makedirs(plan.out, exist_ok=True)
     steps = {"table1": table1, "table2": table2, "context": context}
     chosen = list(steps) if target == "all" else [target]
-    return {name: steps[name](plan) for name in chosen}
+    done = {name: steps[name](plan) for name in chosen}
+    report(plan)
+    return done
+
+
+def report(plan: Plan) -> str:
+    """The dashboard of every run and evaluation so far: ``<work>/report.html`` (loss curves, tables, plots)."""
+    from robomorph.report import build_report  # noqa: PLC0415
+
+    path = build_report(plan.path("runs"), plan.path("report.html"),
+                        title=f"RoboMorph reproduction, scale {plan.scale.name}")
+    say("report", f"written {path} (open it in a browser, offline)")
+    return path
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -94,7 +94,7 @@ def test_rerun_skips_finished_work_and_redoes_only_what_is_missing(table1_run):
     assert calls == {"fit": [], "evaluate": []}
     assert json.load(open(root / "out" / "table1.json"))["rows"] == before
 
-    os.remove(root / "work" / "evals" / f"table1-L2-s{SCALES['ci'].train_steps}" / "test1" / "metrics.json")
+    os.remove(root / "work" / "runs" / f"table1-L2-s{SCALES['ci'].train_steps}" / "eval" / "test1" / "metrics.json")
     with spied() as calls:
         reproduce.main(_argv("table1", root))
     assert calls["fit"] == [] and len(calls["evaluate"]) == 1 and calls["evaluate"][0].endswith("test1")
@@ -132,6 +132,8 @@ def test_all_reuses_table1_and_writes_table2_and_the_context_figure(table1_run):
         sweeps = {(r["sweep"], r["source"]) for r in csv.DictReader(f)}
     assert {("horizon", "model"), ("context", "model"), ("horizon", "hold")} <= sweeps
     assert os.path.getsize(out / "context_horizon.png") > 10_000
+    html = open(work / "report.html").read()  # the dashboard shows every run with its evaluations
+    assert all(r in html for r in calls["fit"]) and "spiral_test" in html and "test0-sweeps" in html
 
 
 @pytest.mark.parametrize("argv, message", [(["table3"], "invalid choice: 'table3'"),

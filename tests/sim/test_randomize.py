@@ -22,6 +22,9 @@ def test_values_within_ranges(rnd):
         assert np.all((p["damping"] >= 5) & (p["damping"] <= 10))
         assert np.all((p["stiffness"] >= 0.01) & (p["stiffness"] <= 0.05))
         assert np.all((p["armature"] >= 0.05) & (p["armature"] <= 0.15))
+        lo_f, hi_f = cfg.frictionloss_scale
+        assert np.all(rnd.friction0 > 0)  # else the bounds below say nothing
+        assert np.all((p["frictionloss"] >= lo_f * rnd.friction0 - 1e-12) & (p["frictionloss"] <= hi_f * rnd.friction0 + 1e-12))
         lo, hi = rnd.index.joint_range.T
         assert np.all((p["qinit"] > lo) & (p["qinit"] < hi))
 
