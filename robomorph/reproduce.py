@@ -23,8 +23,8 @@ stores, runs that reached their budget, evaluations newer than their checkpoint)
 interrupted run resumes from its last checkpoint: re-run the same command.
 
 Run times of ``all``: ``ci`` about 25 s on 2 CPU cores (measured); ``small`` about 80
-minutes on 2 CPU cores and ``paper`` about 72 hours on one RTX 4090-class GPU (estimates,
-not measured). Sizes, budgets and how the estimates were made: :mod:`robomorph.scales`.
+minutes on 2 CPU cores, and ``paper`` about 38 hours of training on one H100 (from
+measured step times). Sizes, budgets and how the estimates were made: :mod:`robomorph.scales`.
 """
 
 from __future__ import annotations

@@ -24,16 +24,17 @@ decoder). The estimate, from ~27 open-loop and ~15 OSC trajectories/s of generat
   comparison when B is this short): ~35 min;
 - evaluations and sweeps (256 robots each): ~3 min.
 
-``paper`` (a GPU; about 72 GPU-hours on one RTX 4090-class card, estimated): the paper's
-model (d_model 192, 12 heads, patch 1, batch 16, lr 6e-4, 10k warmup steps) at 10, 12 and
-16 layers on 40 000 training robots per store (the paper used millions; 40 000 x 1000 x 21
-float32 still fits the 4 GiB in-memory budget of the DataModule). Steps from the paper's
-5.66 it/s for 12 layers on an RTX 4090 (REFERENCE.md), time taken proportional to depth:
+``paper`` (a GPU; about 38 hours of training on one H100, from measured step times): the
+paper's model (d_model 192, 12 heads, patch 1, batch 16, lr 6e-4, 10k warmup steps) at 10,
+12 and 16 layers on 40 000 training robots per store (the paper used millions; 40 000 x
+1000 x 21 float32 still fits the 4 GiB in-memory budget of the DataModule). Step times
+measured on an H100 in bf16-mixed (README, "Training performance"): 79, 98 and 113 ms at
+10, 12 and 16 layers (host-bound: about ±15 % between runs). The paper's 5.66 it/s on an
+RTX 4090 (REFERENCE.md) would make it about 72 hours there.
 
-- table 1: 287 000 steps per depth (the paper's base model, ~14 h at 12 layers):
-  ~12 + 14 + 19 h;
-- table 2: pre-training 326 000 steps (the paper's 16 h), fine-tuning 51 000 steps (2.5 h)
-  and scratch 183 000 steps (9 h: ``scratch_ratio`` 3.6 as in the paper): ~27.5 h;
+- table 1: 287 000 steps per depth (the paper's base model): ~6.3 + 7.8 + 9.0 h;
+- table 2: pre-training 326 000 steps, fine-tuning 51 000 steps and scratch 183 600 steps
+  (``scratch_ratio`` 3.6 as in the paper), at 12 layers: ~15.3 h;
 - data (about 94 000 open-loop and 11 000 spiral robots): ~10 min on 16 cores.
 """
 

@@ -232,28 +232,3 @@ def test_an_interrupted_checkpoint_write_keeps_the_previous_checkpoint(tmp_path,
     assert path.read_bytes() == before
     assert torch.load(path, weights_only=False)["global_step"] == 1
 
-
-@pytest.mark.gpu
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
-def test_gpu_fit_uses_bf16_and_matches_the_cpu_predictor(store, tmp_path):
-    args = _args(store, tmp_path, "gpu", steps=20)
-    args["trainer"].update(accelerator="gpu")
-    import lightning.pytorch as L
-
-    class Seen(L.Callback):
-        def on_train_batch_end(self, trainer, module, outputs, batch, batch_idx):
-            self.precision, self.dtype = trainer.precision, outputs["loss"].dtype
-
-    seen = Seen()
-    result = fit(args, callbacks=[seen])
-    assert result.global_step == 20
-    if torch.cuda.is_bf16_supported():  # the default precision on such a GPU
-        assert seen.precision == "bf16-mixed"
-    from robomorph.data.store import open_store
-
-    ds = open_store(store)
-    u, y = ds.read("u", slice(0, 4)), ds.read("y", slice(0, 4))
-    on_gpu = Predictor.from_checkpoint(result.best_ckpt, device="cuda").simulate(u[:, :20], y[:, :20], u[:, 20:60])
-    on_cpu = Predictor.from_checkpoint(result.best_ckpt, device="cpu").simulate(u[:, :20], y[:, :20], u[:, 20:60])
-    assert np.isfinite(on_gpu).all()
-    np.testing.assert_allclose(on_gpu, on_cpu, atol=1e-3 * max(1.0, float(np.abs(on_cpu).max())))
