@@ -37,6 +37,12 @@ def test_flat_channel_is_defined_not_nan():
     assert metrics.r2(y, off)[0] == 0.0 and metrics.fit_index(y, off)[0] == 0.0
     assert np.isfinite(metrics.nrmse(y, off)).all()
     assert metrics.r2(y, off)[1] == pytest.approx(1.0)
+    # torch tensors follow the same rule
+    import torch
+
+    ty, toff = torch.as_tensor(y), torch.as_tensor(off)
+    assert metrics.r2(ty, ty.clone())[0].item() == 1.0 and metrics.fit_index(ty, toff)[0].item() == 0.0
+    assert torch.isfinite(metrics.nrmse(ty, toff)).all() and metrics.r2(ty, toff)[0].item() == 0.0
 
 
 def test_approaches_differ_as_defined():

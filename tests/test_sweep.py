@@ -62,6 +62,21 @@ def test_two_trial_study_then_continue(store, tmp_path):
     assert os.path.isfile(tmp_path / "summary" / "trials.csv")
 
 
+
+def test_summary_command_prints_and_writes_the_table(store, tmp_path, capsys):
+    url = _sqlite(tmp_path)
+    run_sweep(_space(store), 1, open_storage(url), "sum", str(tmp_path / "runs"), wandb="disabled")
+    out = tmp_path / "table"
+    assert main(["summary", "--study-name", "sum", "--storage", url, "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "| " in printed and "**best**: trial 0" in printed
+    assert (out / "summary.md").read_text() == printed.rstrip("\n") + "\n"
+    with open(out / "trials.csv") as f:
+        assert len(f.read().strip().splitlines()) == 2  # header + the one trial
+    with pytest.raises(SystemExit, match="no study 'nope' in this storage; it holds \\['sum'\\]"):
+        main(["summary", "--study-name", "nope", "--storage", url])
+
+
 def test_pruning_stops_a_clearly_worse_trial(store, tmp_path):
     storage = open_storage(_sqlite(tmp_path))
     space = _space(store)
