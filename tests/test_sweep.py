@@ -49,7 +49,8 @@ def test_two_trial_study_then_continue(store, tmp_path):
     trials = study.get_trials()
     assert trials[0].state == TS.COMPLETE and trials[1].state in (TS.COMPLETE, TS.PRUNED)
     for t in trials:
-        assert os.path.isfile(os.path.join(t.user_attrs["run_dir"], "config.yaml"))
+        config = open(os.path.join(t.user_attrs["run_dir"], "config.yaml")).read()
+        assert "group: two" in config  # the wandb group is the study
         assert "val/r2" in t.user_attrs["metrics"]
     first = trials[0]
     assert first.value == pytest.approx(max(first.intermediate_values.values()))  # maximize val/r2
