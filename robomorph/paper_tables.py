@@ -24,8 +24,9 @@ _TEX_NAMES = {"ee_x": "$x$", "ee_y": "$y$", "ee_z": "$z$", "ee_qx": "$X$", "ee_q
 def header_markdown(info: dict) -> str:
     """The provenance line every table starts with."""
     budgets = ", ".join(f"{k} {v}" for k, v in info["budgets"].items() if v is not None)
-    return (f"Scale `{info['scale']}`; command `{info['command']}`; {info['date']}; machine: {info['machine']}; "
-            f"budgets: {budgets}.")
+    elapsed = f" ({info['elapsed_min']} min into the command)" if info.get("elapsed_min") is not None else ""
+    return (f"Scale `{info['scale']}`; command `{info['command']}`; {info['date']}{elapsed}; "
+            f"machine: {info['machine']}; budgets: {budgets}.")
 
 
 def _layers(n: int) -> str:

@@ -30,10 +30,12 @@ measured step times). Sizes, budgets and how the estimates were made: :mod:`robo
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import os
 import platform
 import sys
+import time
 import warnings
 from dataclasses import dataclass
 
@@ -65,6 +67,7 @@ class Plan:
     workers: int | None = None
     device: str | None = None
     wandb: str = "offline"
+    started: float = dataclasses.field(default_factory=time.time)  # for the tables' elapsed time
 
     def path(self, *parts: str) -> str:
         """A path inside the work folder."""
@@ -220,9 +223,11 @@ def context(plan: Plan) -> dict:
 
 
 def run_info(plan: Plan) -> dict:
-    """Provenance for the table headers: scale, command, date, machine, budgets."""
+    """Provenance for the table headers: scale, command, date, minutes since the command
+    started (steps skipped as done cost nothing), machine, budgets."""
     return {"scale": plan.scale.name, "command": plan.command,
             "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+            "elapsed_min": round((time.time() - plan.started) / 60, 1),
             "machine": machine(), "budgets": plan.scale.budgets()}
 
 

@@ -80,6 +80,7 @@ def test_table1_has_the_papers_rows_and_columns(table1_run):
         assert float(md[2]) == pytest.approx(js["r2"], abs=1e-3) and float(md[4]) == pytest.approx(js["rmse"], abs=1e-4)
     text = open(out / "table1.md").read()
     assert "Scale `ci`" in text and "python -m robomorph.reproduce table1 --scale ci" in text and "CPUs" in text
+    assert re.search(r"UTC \(\d+\.\d min into the command\)", text) and doc["info"]["elapsed_min"] >= 0
 
     tex = open(out / "table1.tex").read()
     assert tex.count(r"\multicolumn{5}{c}") == 3 and r"\textbf{2 Layers}" in tex
