@@ -1,6 +1,7 @@
 import contextlib
 import csv
 import dataclasses
+import glob
 import json
 import math
 import os
@@ -116,6 +117,12 @@ def test_all_reuses_table1_and_writes_table2_and_the_context_figure(table1_run):
         for regime in doc["regimes"]:
             c = cells[regime]
             assert math.isfinite(c["r2"]) and math.isfinite(c["fit"]) and c["mark"] == FIT_BANDS[c["band"]].mark
+    # The cells are the paper's second approach (it scores OSC tasks so); the first is kept beside.
+    ft_eval = glob.glob(str(root / "work" / "runs" / "table2-finetune-*" / "eval" / "spiral_test" / "metrics.json"))
+    res = json.load(open(ft_eval[0]))
+    assert doc["approach"] == 2 and doc["rows"]["q1"]["finetune"]["r2"] == res["approach2"]["channels"]["q1"]["r2"]
+    assert doc["rows"]["mean"]["finetune"]["fit_a1"] == res["approach1"]["mean"]["fit"]["mean"]
+    assert doc["hold"]["r2"] == res["baselines"]["hold"]["approach2"]["mean"]["r2"]
 
     head, rows = _md_table(out / "table2.md")
     assert len(head) == 7 and head[1].startswith("Zero-shot") and "Scratch" in head[5]
