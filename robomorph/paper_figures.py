@@ -9,8 +9,10 @@ solid lines approach 1, dashed approach 2; the hold baseline for reference.
 from __future__ import annotations
 
 import csv
-import json
+import io
 import os
+
+from robomorph.atomic import write_json, write_text
 
 SWEEPS = (("horizon", "horizon", "prediction horizon [steps] (context fixed)"),
           ("context", "context_len", "context length [steps] (predicted window fixed)"))
@@ -42,12 +44,12 @@ def write_context_figure(out: str, sweeps: dict[str, list[dict]], meta: dict, in
     rows = sweep_rows(sweeps)
     doc = {"info": info, "meta": {k: meta.get(k) for k in ("ckpt", "data", "context_len", "horizon", "n")},
            "sweeps": sweeps}
-    with open(os.path.join(out, "context_horizon.json"), "w") as f:
-        json.dump(doc, f, indent=1)
-    with open(os.path.join(out, "context_horizon.csv"), "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=["sweep", "x", "source", *METRICS])
-        w.writeheader()
-        w.writerows(rows)
+    write_json(os.path.join(out, "context_horizon.json"), doc)
+    table = io.StringIO()
+    w = csv.DictWriter(table, fieldnames=["sweep", "x", "source", *METRICS])
+    w.writeheader()
+    w.writerows(rows)
+    write_text(os.path.join(out, "context_horizon.csv"), table.getvalue())
     _plot(os.path.join(out, "context_horizon.png"), sweeps, meta, info)
     return doc
 

@@ -7,10 +7,10 @@ and an ``info`` dict (scale, command, date, machine, budgets) for the header, an
 
 from __future__ import annotations
 
-import json
 import math
 import os
 
+from robomorph.atomic import write_json, write_text
 from robomorph.fit_bands import FIT_BANDS, LATEX_COLORS, fit_band
 
 TABLE1_COLUMNS = ("r2", "r2_std", "rmse", "rmse_std")
@@ -64,9 +64,9 @@ def write_table1(out: str, rows: list[dict], info: dict) -> dict:
     holds = [f"{r['test']} {r['hold_r2']:.3f}" for r in rows if r["n_layer"] == rows[0]["n_layer"] and r["hold_r2"] is not None]
     if holds:
         lines.append("For scale: the hold baseline (last context output held) scores R² " + ", ".join(holds) + ".")
-    _write(os.path.join(out, "table1.md"), "\n".join(lines) + "\n")
-    _write(os.path.join(out, "table1.tex"), table1_tex(rows, info))
-    _write(os.path.join(out, "table1.json"), json.dumps(doc, indent=1) + "\n")
+    write_text(os.path.join(out, "table1.md"), "\n".join(lines) + "\n")
+    write_text(os.path.join(out, "table1.tex"), table1_tex(rows, info))
+    write_json(os.path.join(out, "table1.json"), doc)
     return doc
 
 
@@ -107,10 +107,10 @@ def table2_data(results: dict[str, dict]) -> dict:
             fit = a2["fit"]
             rows[ch][regime] = {"r2": a2["r2"], "fit": fit, "r2_a1": a1["r2"]["mean"], "fit_a1": a1["fit"]["mean"],
                                 "band": fit_band(fit), "mark": FIT_BANDS[fit_band(fit)].mark}
-    hold = {regime: res["baselines"]["hold"]["approach2"]["mean"] for regime, res in results.items()
-            if "hold" in res.get("baselines", {})}
+    # Every regime is scored on the same test store, so the hold baseline is the same for all.
+    hold = first.get("baselines", {}).get("hold")
     return {"regimes": list(results), "channels": names, "rows": rows, "approach": 2,
-            "hold": next(iter(hold.values()), None)}
+            "hold": hold["approach2"]["mean"] if hold else None}
 
 
 def write_table2(out: str, data: dict, titles: dict[str, str], info: dict) -> dict:
@@ -138,9 +138,9 @@ def write_table2(out: str, data: dict, titles: dict[str, str], info: dict) -> di
     if data.get("hold"):
         lines.append(f"For scale: the hold baseline (last context output held) scores R² {data['hold']['r2']:.3f}, "
                      f"FIT {data['hold']['fit']:.2f} (approach 2 mean).")
-    _write(os.path.join(out, "table2.md"), "\n".join(lines) + "\n")
-    _write(os.path.join(out, "table2.tex"), table2_tex(data, titles, info))
-    _write(os.path.join(out, "table2.json"), json.dumps(doc, indent=1) + "\n")
+    write_text(os.path.join(out, "table2.md"), "\n".join(lines) + "\n")
+    write_text(os.path.join(out, "table2.tex"), table2_tex(data, titles, info))
+    write_json(os.path.join(out, "table2.json"), doc)
     return doc
 
 
@@ -175,9 +175,3 @@ def _multicol(title: str, vline: bool) -> str:
 def _num(v: float, digits: int) -> str:
     return f"{v:.{digits}f}" if math.isfinite(v) else "--"
 
-
-def _write(path: str, text: str) -> None:
-    tmp = f"{path}.tmp"
-    with open(tmp, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)

@@ -13,6 +13,7 @@ import json
 import os
 from typing import Any, Literal
 
+from robomorph.atomic import write_json
 from robomorph.data.store import STATUS_COMPLETE, open_store
 from robomorph.generate import generate
 from robomorph.recipe import Recipe
@@ -63,7 +64,7 @@ def run_finished(run_dir: str, budget: dict[str, Any]) -> bool:
 
 def mark_finished(run_dir: str, budget: dict[str, Any], ckpt: str, global_step: int) -> None:
     """Records that the run reached its budget and which checkpoint stands for it."""
-    _write_json(os.path.join(run_dir, DONE_FILE), {"budget": _plain(budget), "ckpt": ckpt, "global_step": global_step})
+    write_json(os.path.join(run_dir, DONE_FILE), {"budget": _plain(budget), "ckpt": ckpt, "global_step": global_step})
 
 
 def finished_ckpt(run_dir: str) -> str:
@@ -97,9 +98,3 @@ def _plain(obj: Any) -> Any:
     """JSON's view of ``obj`` (tuples become lists) so that a budget compares equal after a round trip."""
     return json.loads(json.dumps(obj))
 
-
-def _write_json(path: str, obj: Any) -> None:
-    tmp = f"{path}.tmp"
-    with open(tmp, "w") as f:
-        json.dump(obj, f, indent=1)
-    os.replace(tmp, path)

@@ -8,21 +8,19 @@ estimates, not measurements, unless marked "measured".
 of 90 steps, context 30 + horizon 60), d_model 16 models of 1, 2 and 3 layers, 10-20
 steps. It checks the pipeline end to end; its numbers mean nothing.
 
-``small`` (about 80 minutes for ``all`` on 2 CPU cores, estimated): the CPU-sized model of
+``small`` (1 h 59 min for ``all`` on 2 CPU cores, measured on 2026-11-22 with the first
+half hour shared with other jobs; ``results/paper/small/``): the CPU-sized model of
 ``datamodules/train_cpu.yaml`` (d_model 128, 4 heads, patches of 10 steps, batch 32) on the
 paper's window (context 200 + horizon 800 of 1000 steps), at depths 2, 4 and 6 (encoder =
-decoder). The estimate, from ~27 open-loop and ~15 OSC trajectories/s of generation and
-~0.17 s per training step of the 4-layer model on 2 cores (0.16-0.19 s measured by
-``benchmarks/quality_vs_time.py``; taken proportional to depth):
+decoder):
 
-- data: 4096 + 3 x 256 multi-sine, 4096 mixture, 1024 + 256 spiral robots: ~7 min
+- data: 4096 + 3 x 256 multi-sine, 4096 mixture, 1024 + 256 spiral robots
   (4096 training robots: with fewer, 4000 steps of 32 would pass over each robot often
   enough to memorize it, see the README's quality-against-time figures);
-- table 1: 4000 steps per depth (2, 4, 6 layers: ~6 + 11 + 17 min): ~34 min;
-- table 2: pre-training 8000 steps (~23 min), fine-tuning B = 2000 steps (~6 min), scratch
-  2000 steps (~6 min; ``scratch_ratio`` 1: the same budget as the fine-tuning, the fair
-  comparison when B is this short): ~35 min;
-- evaluations and sweeps (256 robots each): ~3 min.
+- table 1: 4000 steps per depth; data, training and the nine evaluations took 62 min;
+- table 2: pre-training 8000 steps, fine-tuning B = 2000 steps and scratch 2000 steps
+  (``scratch_ratio`` 1: the same budget as the fine-tuning, the fair comparison when B is
+  this short), about 0.22 s per step of the 4-layer model; then the context figure's sweeps.
 
 ``paper`` (a GPU; about 38 hours of training on one H100, from measured step times): the
 paper's model (d_model 192, 12 heads, patch 1, batch 16, lr 6e-4, 10k warmup steps) at 10,

@@ -36,8 +36,8 @@ STATES_DONE = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
 class StepPruning(L.Callback):
     """Reports ``metric`` at every validation with ``trainer.global_step`` as the step."""
 
-    def __init__(self, trial: optuna.Trial, metric: str, direction: str):
-        self.trial, self.metric, self.direction = trial, metric, direction
+    def __init__(self, trial: optuna.Trial, metric: str):
+        self.trial, self.metric = trial, metric
         self.values: list[float] = []
         self.pruned_at: int | None = None
 
@@ -51,9 +51,6 @@ class StepPruning(L.Callback):
             # Stop cleanly (checkpoints and logs stay consistent), raise after fit returns.
             self.pruned_at = trainer.global_step
             trainer.should_stop = True
-
-    def best(self) -> float | None:
-        return _best(self.values, self.direction)
 
 
 def open_storage(url: str | None, heartbeat: int = 60, grace: int = 180):
@@ -126,7 +123,7 @@ def make_objective(space: Space, study_name: str, runs_dir: str, wandb: str = "o
         trial.set_user_attr("run_dir", os.path.join(runs_dir, run))
         regime = values.get("transfer.regime")
         args = _regime_args(space, values, regime, run, runs_dir, wandb, study_name)
-        pruning = StepPruning(trial, space.metric, space.direction)
+        pruning = StepPruning(trial, space.metric)
         ckpt = space.transfer.get("init_ckpt")
         if args is not None:
             result = fit(args, callbacks=[pruning])
@@ -137,10 +134,10 @@ def make_objective(space: Space, study_name: str, runs_dir: str, wandb: str = "o
             ckpt = result.best_ckpt
         if space.eval_data:
             return _evaluate(trial, space, ckpt, os.path.join(runs_dir, run, "eval", "sweep"))
-        # A retried trial resumes the dead worker's run, whose validations are in the run's
-        # CSV log; a resume that was already at its budget validates no more, so the log
-        # (pruned to the resumed step) is the record of what the run reached.
-        best = _best(pruning.values + logged_values(os.path.join(runs_dir, run), space.metric), space.direction)
+        # The run's CSV log (pruned to the resumed step) records every validation, also those
+        # of a dead worker whose trial this retry resumed: a resume already at its budget
+        # validates no more. This process's own reports stand in when there is no log.
+        best = _best(logged_values(os.path.join(runs_dir, run), space.metric) or pruning.values, space.direction)
         if best is None:
             raise RuntimeError(f"trial {trial.number} logged no {space.metric!r}: validate at least once "
                                "(trainer.val_check_interval below the step budget)")
