@@ -16,7 +16,7 @@ import time
 import torch
 import torch.nn.functional as F
 
-from robomorph.model import MetaModel, ModelConfig
+from robomorph.model.transformer import MetaModel, ModelConfig
 
 BATCH, CONTEXT, HORIZON = 16, 200, 800
 

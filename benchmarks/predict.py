@@ -16,9 +16,9 @@ import time
 import numpy as np
 import torch
 
-from robomorph.data.normalize import Stats
-from robomorph.module import MetaModule
+from robomorph.data.statistics import Stats
 from robomorph.predictor import Predictor
+from robomorph.training.module import MetaModule
 
 CONFIGS = {
     "default CPU (d128, 4+4, patch 10)": {"d_model": 128, "n_head": 4, "n_layer": 4, "patch": 10},

@@ -22,9 +22,9 @@ import time
 import lightning.pytorch as L
 import torch
 
-from robomorph.fit import fit
-from robomorph.generate import generate
-from robomorph.recipe import load_recipe
+from robomorph.sim.generation import generate
+from robomorph.sim.recipe import load_recipe
+from robomorph.training.fitting import fit
 
 
 class QualityLog(L.Callback):
@@ -109,7 +109,7 @@ def main() -> None:
     _plot(log, os.path.join(args.out, f"{args.name}.png"))
     trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False)
     from robomorph.data.datamodule import RoboMorphDataModule  # noqa: PLC0415
-    from robomorph.module import MetaModule  # noqa: PLC0415
+    from robomorph.training.module import MetaModule  # noqa: PLC0415
 
     dm = RoboMorphDataModule(stores=train, test_store=test, split=(0.95, 0.05, 0.0), context_len=200, horizon=800,
                              batch_size=64, recenter=True)

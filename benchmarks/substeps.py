@@ -15,10 +15,10 @@ import time
 
 import numpy as np
 
-from robomorph.recipe import load_recipe, replace
 from robomorph.sim import episode, filters, panda
 from robomorph.sim.open_loop import OpenLoopEngine
 from robomorph.sim.randomize import Randomizer
+from robomorph.sim.recipe import load_recipe, replace
 
 
 def simulate(recipe, robots: int) -> tuple[np.ndarray, list, float]:

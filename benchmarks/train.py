@@ -22,8 +22,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from robomorph.data.normalize import Stats
-from robomorph.module import MetaModule
+from robomorph.data.statistics import Stats
+from robomorph.training.module import MetaModule
 
 N_U, N_Y = 7, 14
 

@@ -18,9 +18,9 @@ import sys
 import time
 
 from robomorph.data.store import open_store
-from robomorph.inspect import plot, summarize
-from robomorph.recipe import load_recipe
-from robomorph.resume import ensure_store
+from robomorph.data.summary import plot, summarize
+from robomorph.reproduction.skip import ensure_store
+from robomorph.sim.recipe import load_recipe
 
 TASKS = ("multisine", "chirp", "circle", "spiral")
 
@@ -51,7 +51,7 @@ def _generate(task: str, path: str, overrides: dict, workers: int | None) -> str
 
 def train(out_dir: str, robots: int, minutes: float, runs_dir: str) -> tuple[str, str, str]:
     """Trains on ``robots`` multi-sine robots; returns (run dir, best checkpoint, held-out store)."""
-    from robomorph.fit import fit  # noqa: PLC0415  (torch/lightning only when training)
+    from robomorph.training.fitting import fit  # noqa: PLC0415  (torch/lightning only when training)
 
     train = _generate("multisine", os.path.join(out_dir, "ms_train.zarr"), {"robots": robots, "seed": 0}, None)
     test = _generate("multisine", os.path.join(out_dir, "ms_heldout.zarr"), {"robots": 64, "seed": 1}, None)
@@ -63,8 +63,8 @@ def train(out_dir: str, robots: int, minutes: float, runs_dir: str) -> tuple[str
 
 def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str]:
     """Scores held-out robots (model and baselines, both sweeps) and builds the HTML report."""
-    from robomorph.evaluate import default_out, evaluate, summary_text  # noqa: PLC0415
-    from robomorph.report import build_report  # noqa: PLC0415
+    from robomorph.evaluation.evaluator import default_out, evaluate, summary_text  # noqa: PLC0415
+    from robomorph.reporting.dashboard import build_report  # noqa: PLC0415
 
     out = default_out(ckpt, test)
     res = evaluate(ckpt, test, out, sweep_horizon_spec="100:800:100", sweep_context_spec="20:200:20")

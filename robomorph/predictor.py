@@ -16,7 +16,7 @@ import inspect
 import numpy as np
 import torch
 
-from robomorph.module import CheckpointError, MetaModule, load_checkpoint_file
+from robomorph.training.module import CheckpointError, MetaModule, load_checkpoint_file
 
 
 class Predictor:

@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from robomorph.data.store import create_store, open_store
-from robomorph.fit import fit
 from robomorph.predictor import Predictor
+from robomorph.training.fitting import fit
 
 pytestmark = [pytest.mark.gpu, pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")]
 

@@ -1,4 +1,4 @@
-"""Datasets: the Zarr store schema (``store``), and later the training DataModule."""
+"""Data: the Zarr store schema (one reader/writer), training statistics, the DataModule, ingest, merging, summaries."""
 
 from robomorph.data.store import (
     SCHEMA_VERSION,

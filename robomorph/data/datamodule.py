@@ -4,7 +4,7 @@ Batches are dicts of float32 tensors in physical units::
 
     u_ctx (B, Tc, n_u), y_ctx (B, Tc, n_y), u_query (B, Th, n_u), y_query (B, Th, n_y)
 
-Normalization belongs to the model (:class:`robomorph.data.normalize.Normalizer`), fed with
+Normalization belongs to the model (:class:`robomorph.model.normalization.Normalizer`), fed with
 ``datamodule.stats``: statistics of the training split only.
 
 Randomness comes from one ``seed`` through ``numpy.random.SeedSequence`` streams (splits,
@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
-from robomorph.data.normalize import Stats, StatsAccumulator
+from robomorph.data.statistics import Stats, StatsAccumulator
 from robomorph.data.store import open_store
 
 # Stores whose u and y together fit in this many bytes are read into memory once (a random

@@ -1,1 +1,1 @@
-"""Simulated robot domains: MJCF models, randomization, signals, controllers, rollouts."""
+"""Simulation: the Panda domain, randomization, signals, OSC, engines, filters, episodes, recipes, generation."""

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from robomorph.recipe import OPEN_LOOP_TASKS, Recipe
 from robomorph.sim import filters, osc, panda
 from robomorph.sim.closed_loop import simulate_closed_loop
 from robomorph.sim.randomize import Randomizer
+from robomorph.sim.recipe import OPEN_LOOP_TASKS, Recipe
 from robomorph.sim.signals import SIGNALS
 
 

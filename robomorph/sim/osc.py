@@ -30,7 +30,7 @@ from typing import Callable
 import mujoco
 import numpy as np
 
-from robomorph.config import check_range
+from robomorph.core.config import check_range
 from robomorph.sim.closed_loop import reset_to, simulate_closed_loop
 from robomorph.sim.panda import TORQUE_LIMITS
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from robomorph.config import check_range
+from robomorph.core.config import check_range
 from robomorph.sim import panda
 
 _AXES = ("x", "y", "z")

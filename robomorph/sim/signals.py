@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robomorph.config import check_range
+from robomorph.core.config import check_range
 from robomorph.sim.panda import N_JOINT
 
 

@@ -7,7 +7,7 @@ import zarr
 from zarr.storage import LocalStore
 
 from robomorph.data.datamodule import RoboMorphDataModule
-from robomorph.data.normalize import Stats
+from robomorph.data.statistics import Stats
 from robomorph.data.store import SchemaError, create_store, open_store
 
 U_NAMES, Y_NAMES = ["u0", "u1"], ["y0", "y1", "y2"]

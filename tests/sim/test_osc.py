@@ -2,7 +2,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from robomorph.config import from_dict
+from robomorph.core.config import from_dict
 from robomorph.sim import osc, panda
 from robomorph.sim.filters import FilterConfig, check, continuous_quaternion
 

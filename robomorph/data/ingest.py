@@ -1,0 +1,378 @@
+"""``python -m robomorph.ingest``: real robot logs into the RoboMorph dataset schema.
+
+Each input file is one recording: a table of named columns sampled at a uniform rate.
+Every recording is cut into windows of ``--steps`` samples, ``--stride`` samples apart
+(default: non-overlapping), and the windows become the trajectories of one store with the
+same layout as a simulated one (``params`` is empty, P = 0). Two extra arrays trace each
+window back to its source: ``recording_index`` (position of the file on the command line,
+also the index into ``attrs['sources']``) and ``window_start`` (its first sample in that
+recording).
+
+Input formats (``--format auto`` picks by extension):
+
+* CSV (``.csv``): a header row with the column names, then one numeric row per sample.
+  Empty cells and ``nan`` count as missing values and are refused.
+* NPZ (``.npz``): one array per column, named after the column, of shape (L,) or (L, 1).
+  Alternatively a 2-D array ``data`` of shape (L, C) plus a 1-D string array ``names`` of
+  its C column names; that pair takes precedence when both are present.
+* MAT (``.mat``, read with ``scipy.io.loadmat``): one variable per column, a row or column
+  vector named after the column.
+
+All inputs are read and checked (columns, missing values, sample time) before the store
+is created, so a bad log never leaves a half-written dataset behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import sys
+import warnings
+import zipfile
+from typing import Any, Mapping
+
+import numpy as np
+
+from robomorph.data.store import Dataset, check_writable, create_store, open_store
+
+FORMATS = ("csv", "npz", "mat")
+_EXTENSIONS = {".csv": "csv", ".npz": "npz", ".mat": "mat"}
+# Windows written per append: bounds memory when overlapping windows repeat samples.
+_WRITE_BLOCK = 64
+
+
+class IngestError(ValueError):
+    """A log cannot be turned into a dataset as asked (the message says what to change)."""
+
+
+class ShortRecordingWarning(UserWarning):
+    """A recording holds fewer samples than one window and was skipped."""
+
+
+def _detect_format(path: str, fmt: str) -> str:
+    if fmt != "auto":
+        if fmt not in FORMATS:
+            raise IngestError(f"unknown format {fmt!r}; choose one of auto, {', '.join(FORMATS)}")
+        return fmt
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in _EXTENSIONS:
+        raise IngestError(
+            f"cannot tell the format of {path} from its extension {ext!r}; rename it to "
+            f".csv/.npz/.mat or pass --format {'|'.join(FORMATS)}"
+        )
+    return _EXTENSIONS[ext]
+
+
+def _float_cell(text: str) -> float:
+    # Empty cells are missing samples: they become NaN and the NaN check names them.
+    return float(text) if text.strip() else np.nan
+
+
+def _read_csv(path: str) -> dict[str, np.ndarray]:
+    # utf-8-sig: spreadsheet exports often start with a byte-order mark.
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        header = next(csv.reader(f), None)
+    if not header:
+        raise IngestError(f"{path} is empty: a CSV log needs a header row of column names")
+    names = [h.strip() for h in header]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise IngestError(f"{path}: the header names {dup} more than once; column names must be unique")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a header-only log is reported below as too short
+            data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64, encoding="utf-8-sig")
+    except ValueError:
+        # loadtxt's message is vague; re-read slowly to name the bad cell.
+        data = _read_csv_slowly(path, names)
+    if data.size == 0:
+        data = np.empty((0, len(names)))
+    if data.shape[1] != len(names):
+        raise IngestError(f"{path}: the header names {len(names)} columns but rows hold {data.shape[1]} values")
+    return {name: data[:, j] for j, name in enumerate(names)}
+
+
+def _read_csv_slowly(path: str, names: list[str]) -> np.ndarray:
+    rows = []
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        reader = csv.reader(f)
+        next(reader)
+        for line, row in enumerate(reader, start=2):
+            if not row:
+                continue  # blank lines, as loadtxt skips them
+            if len(row) != len(names):
+                raise IngestError(f"{path} line {line}: {len(row)} values but the header names {len(names)} columns")
+            try:
+                rows.append([_float_cell(c) for c in row])
+            except ValueError:
+                bad = next(j for j, c in enumerate(row) if not _is_number(c))
+                raise IngestError(
+                    f"{path} line {line}, column {names[bad]!r}: {row[bad]!r} is not a number"
+                ) from None
+    return np.asarray(rows, dtype=np.float64).reshape(-1, len(names))
+
+
+def _is_number(text: str) -> bool:
+    try:
+        _float_cell(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _columns_of(mapping: Mapping[str, Any], path: str) -> dict[str, np.ndarray]:
+    """Named arrays of an NPZ/MAT file -> its columns (see the module docstring)."""
+    if "data" in mapping and "names" in mapping:
+        data, names = np.asarray(mapping["data"]), np.asarray(mapping["names"]).reshape(-1)
+        if data.ndim != 2 or data.shape[1] != len(names):
+            raise IngestError(f"{path}: 'data' has shape {data.shape} but 'names' lists {len(names)} columns")
+        return {str(n).strip(): data[:, j] for j, n in enumerate(names)}
+    cols = {}
+    for key, value in mapping.items():
+        arr = np.asarray(value)
+        if key.startswith("__") or arr.dtype.kind not in "biuf":
+            continue  # loadmat headers and non-numeric variables are not columns
+        if arr.ndim == 1 or (arr.ndim == 2 and 1 in arr.shape):
+            cols[key] = arr.reshape(-1)
+    return cols
+
+
+def read_log(path: str, fmt: str = "auto") -> dict[str, np.ndarray]:
+    """Reads one log file into ``column name -> 1-D float64 array``.
+
+    Args:
+        path: the log file.
+        fmt: ``auto`` (by extension), ``csv``, ``npz`` or ``mat``.
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        IngestError: unknown format, unreadable file or unparsable values.
+    """
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"log file not found: {path}")
+    kind = _detect_format(path, fmt)
+    try:
+        if kind == "csv":
+            cols = _read_csv(path)
+        elif kind == "npz":
+            if not zipfile.is_zipfile(path):  # else np.load guesses "pickle" and says so
+                raise IngestError(f"{path} is not an NPZ archive (write it with numpy.savez)")
+            with np.load(path, allow_pickle=False) as npz:
+                cols = _columns_of({k: npz[k] for k in npz.files}, path)
+        else:
+            from scipy.io import loadmat  # noqa: PLC0415  (scipy only when MAT logs are read)
+
+            cols = _columns_of(loadmat(path), path)
+    except IngestError:
+        raise
+    except NotImplementedError as exc:  # loadmat on MATLAB v7.3 (HDF5) files
+        raise IngestError(f"cannot read {path}: {exc}; save it with save(..., '-v7') instead") from exc
+    except Exception as exc:  # noqa: BLE001  (any parser failure means: not a readable log)
+        raise IngestError(f"cannot read {path} as {kind.upper()}: {exc}") from exc
+    lengths = {len(v) for v in cols.values()}
+    if len(lengths) > 1:
+        raise IngestError(f"{path}: columns have different lengths {sorted(lengths)}; one recording needs one length")
+    return {k: np.asarray(v, dtype=np.float64) for k, v in cols.items()}
+
+
+def _check_columns(cols: dict[str, np.ndarray], wanted: list[str], path: str) -> None:
+    """Refuses unknown columns (listing the available ones) and non-finite values."""
+    missing = [c for c in wanted if c not in cols]
+    if missing:
+        available = ", ".join(cols) or "(none: NPZ/MAT logs need one vector per column, or 'data' plus 'names')"
+        raise IngestError(f"{path} has no column {', '.join(map(repr, missing))}; available columns: {available}")
+    for c in wanted:
+        bad = np.flatnonzero(~np.isfinite(cols[c]))
+        if bad.size:
+            raise IngestError(
+                f"column {c!r} in {path} holds NaN/inf (first bad row: sample {bad[0]} counting from 0, {bad.size} in all); "
+                "fill or cut the missing samples before ingesting"
+            )
+
+
+def _sample_time(t: np.ndarray, path: str, tol: float) -> float:
+    """The uniform sample time of a time column, or an error asking to resample."""
+    if len(t) < 2:
+        raise IngestError(f"{path}: the time column needs at least 2 samples to give a sample time")
+    steps = np.diff(t)
+    dt = (t[-1] - t[0]) / (len(t) - 1)
+    if dt <= 0 or np.any(steps <= 0):
+        raise IngestError(f"{path}: the time column is not strictly increasing (first at sample "
+                          f"{int(np.argmax(steps <= 0)) + 1}); sort the log or fix its clock")
+    worst = int(np.argmax(np.abs(steps - dt)))
+    if abs(steps[worst] - dt) > tol * dt:
+        raise IngestError(
+            f"{path}: non-uniform sampling: the step at sample {worst + 1} is {steps[worst]:.6g} s but the "
+            f"mean is {dt:.6g} s (tolerance {tol:.1%}); the log must be resampled to a uniform rate first"
+        )
+    return float(dt)
+
+
+def _window_starts(length: int, steps: int, stride: int) -> np.ndarray:
+    if length < steps:
+        return np.empty(0, dtype=np.int64)
+    return np.arange(0, length - steps + 1, stride, dtype=np.int64)
+
+
+def _check_args(files: list[str], u_cols: list[str], y_cols: list[str], steps: int,
+                dt: float | None, time_col: str | None, stride: int, time_tol: float) -> None:
+    if not files:
+        raise IngestError("give at least one log file")
+    for kind, cols in (("--u-cols", u_cols), ("--y-cols", y_cols)):
+        if not cols:
+            raise IngestError(f"{kind} must name at least one column")
+        dup = sorted({c for c in cols if cols.count(c) > 1})
+        if dup:
+            raise IngestError(f"{kind} names {dup} more than once")
+    if steps < 1 or stride < 1:
+        raise IngestError(f"--steps and --stride must be >= 1, got steps={steps}, stride={stride}")
+    if (dt is None) == (time_col is None):
+        raise IngestError("give exactly one of --dt (seconds) or --time-col (a column of timestamps in seconds)")
+    if dt is not None and not dt > 0:
+        raise IngestError(f"--dt must be positive, got {dt}")
+    if not time_tol >= 0:
+        raise IngestError(f"--time-tol must be >= 0, got {time_tol}")
+
+
+def _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol):
+    """Reads and checks every log; returns (recordings, sample times, skipped names)."""
+    recs, dts, skipped = [], [], []
+    for index, path in enumerate(files):
+        cols = read_log(path, fmt)
+        # Checked even for recordings skipped below: a wrong name is wrong in every file.
+        _check_columns(cols, [*u_cols, *y_cols, *([time_col] if time_col else [])], path)
+        length = len(cols[u_cols[0]])
+        if length < steps:
+            warnings.warn(f"skipping {path}: {length} samples, fewer than --steps {steps}",
+                          ShortRecordingWarning, stacklevel=3)
+            skipped.append(os.path.basename(path))
+            continue
+        if time_col:
+            dts.append((path, _sample_time(cols[time_col], path, time_tol)))
+        u = np.stack([cols[c] for c in u_cols], axis=1).astype(np.float32)  # (L, n_u)
+        y = np.stack([cols[c] for c in y_cols], axis=1).astype(np.float32)  # (L, n_y)
+        recs.append((index, u, y, _window_starts(length, steps, stride)))
+    return recs, dts, skipped
+
+
+def _common_dt(dts: list[tuple[str, float]], tol: float) -> float:
+    values = np.array([d for _, d in dts])
+    mean = float(values.mean())
+    worst = int(np.argmax(np.abs(values - mean)))
+    if abs(values[worst] - mean) > tol * mean:
+        raise IngestError(
+            f"recordings differ in sample time ({dts[0][0]}: {dts[0][1]:.6g} s, {dts[worst][0]}: "
+            f"{dts[worst][1]:.6g} s); one dataset has one dt: resample the logs to a common rate"
+        )
+    return mean
+
+
+def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, steps: int,
+           dt: float | None = None, time_col: str | None = None, stride: int | None = None,
+           fmt: str = "auto", overwrite: bool = False, name: str | None = None,
+           time_tol: float = 0.01) -> Dataset:
+    """Cuts recorded logs into windows and writes them as a RoboMorph dataset.
+
+    Args:
+        files: log files, one recording each (CSV, NPZ or MAT; see the module docstring).
+        u_cols: input columns, in the order of the store's ``u`` channels.
+        y_cols: output columns, in the order of the store's ``y`` channels.
+        out: the store directory to create.
+        steps: samples per window (T).
+        dt: sample time in seconds; give this or ``time_col``.
+        time_col: column of timestamps in seconds from which dt is derived.
+        stride: samples between window starts (default ``steps``: no overlap).
+        fmt: ``auto`` (by extension), ``csv``, ``npz`` or ``mat``, for all files.
+        overwrite: replace an existing RoboMorph store at ``out`` (never anything else).
+        name: the store's ``domain`` attribute (default ``real``).
+        time_tol: largest relative deviation of a time step from the mean sample time.
+
+    Returns:
+        The finished dataset, opened for reading.
+
+    Raises:
+        IngestError: a log or an argument cannot be used (the message says how to fix it).
+        FileNotFoundError: a log file is missing.
+        FileExistsError, SchemaError: ``out`` is a file, another store, or (without
+            ``overwrite``) an existing dataset.
+    """
+    dt_arg, stride = dt, (steps if stride is None else stride)
+    _check_args(files, u_cols, y_cols, steps, dt, time_col, stride, time_tol)
+    check_writable(out, overwrite)  # refuse a bad --out before reading large logs
+    recs, dts, skipped = _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol)
+    total = sum(len(starts) for _, _, _, starts in recs)
+    if total == 0:
+        raise IngestError(f"no windows: every recording is shorter than --steps {steps}; lower --steps")
+    dt = _common_dt(dts, time_tol) if time_col else float(dt)
+    config = {"files": list(files), "u_cols": list(u_cols), "y_cols": list(y_cols), "steps": steps,
+              "stride": stride, "dt": dt_arg, "time_col": time_col, "fmt": fmt,
+              "name": name, "time_tol": time_tol}
+    attrs = {"dt": dt, "domain": name or "real", "task": "ingested", "config": config, "seed": None,
+             "sources": [os.path.basename(f) for f in files], "skipped_recordings": skipped,
+             "requested": total, "attempted": total, "kept": total, "rejected": {}}
+    writer = create_store(out, total, steps, list(u_cols), list(y_cols), [], attrs,
+                          extras={"recording_index": ((), "int32"), "window_start": ((), "int64")},
+                          overwrite=overwrite)
+    for index, u, y, starts in recs:
+        for b in range(0, len(starts), _WRITE_BLOCK):
+            block = starts[b:b + _WRITE_BLOCK]
+            rows = block[:, None] + np.arange(steps)  # (k, T) sample indices
+            writer.append(u[rows], y[rows], np.zeros((len(block), 0), np.float32),
+                          extras={"recording_index": np.full(len(block), index, np.int32),
+                                  "window_start": block})
+    writer.finalize()
+    return open_store(out)
+
+
+def _names(text: str) -> list[str]:
+    return [c.strip() for c in text.split(",") if c.strip()]
+
+
+def _parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m robomorph.ingest", description=__doc__.split("\n")[0])
+    p.add_argument("files", nargs="+", help="log files, one recording each (.csv, .npz, .mat)")
+    p.add_argument("--u-cols", required=True, type=_names, help="input columns, comma-separated")
+    p.add_argument("--y-cols", required=True, type=_names, help="output columns, comma-separated")
+    p.add_argument("--steps", required=True, type=int, help="samples per window (T)")
+    p.add_argument("--stride", type=int, help="samples between window starts (default: --steps)")
+    p.add_argument("--dt", type=float, help="sample time in seconds")
+    p.add_argument("--time-col", help="timestamp column (seconds) to derive dt from; must be uniform")
+    p.add_argument("--time-tol", type=float, default=0.01,
+                   help="largest relative deviation of a time step from the mean (default: 0.01)")
+    p.add_argument("--format", dest="fmt", default="auto", help="auto | csv | npz | mat (default: auto)")
+    p.add_argument("--out", required=True, help="output store directory (e.g. data/real.zarr)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing RoboMorph store")
+    p.add_argument("--name", help="domain name recorded in the store (default: real)")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse_args(argv)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ShortRecordingWarning)
+        try:
+            ds = ingest(args.files, args.u_cols, args.y_cols, args.out, args.steps, dt=args.dt,
+                        time_col=args.time_col, stride=args.stride, fmt=args.fmt,
+                        overwrite=args.overwrite, name=args.name, time_tol=args.time_tol)
+        except (ValueError, OSError) as exc:  # IngestError, SchemaError, FileExistsError, ...
+            _print_warnings(caught)
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+    _print_warnings(caught)
+    used = len(args.files) - len(ds.attrs["skipped_recordings"])
+    print(f"{args.out}: {ds.n} windows x {ds.steps} steps (dt={ds.dt:.6g} s, n_u={len(ds.u_names)}, "
+          f"n_y={len(ds.y_names)}) from {used} of {len(args.files)} recordings")
+    return 0
+
+
+def _print_warnings(caught: list[warnings.WarningMessage]) -> None:
+    for w in caught:
+        if issubclass(w.category, ShortRecordingWarning):
+            print(f"warning: {w.message}", file=sys.stderr)
+        else:  # warnings of other libraries keep their usual form
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,71 @@
+"""``python -m robomorph.merge``: combine the shards of a generate run into one store.
+
+Shards made with ``--shard i/n`` of one recipe hold disjoint attempts; merging concatenates
+them in shard order (streamed chunk by chunk) and sums the counts. The merged store
+records the shard stores it came from.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from robomorph.data.store import SchemaError, create_store, open_store
+
+
+def merge(parts: list[str], out: str, overwrite: bool = False, chunk: int = 64) -> dict:
+    """Concatenates complete shard stores of one recipe into ``out``."""
+    if not parts:
+        raise ValueError("give at least one shard store to merge")
+    stores = [open_store(p) for p in parts]
+    first = stores[0].attrs
+    shards = sorted(tuple(s.attrs.get("shard", [0, 1])) for s in stores)
+    for s in stores[1:]:
+        a = s.attrs
+        for key in ("config", "u_names", "y_names", "param_names", "dt"):
+            if a.get(key) != first.get(key):
+                raise ValueError(f"{s.path} differs from {stores[0].path} in {key}: shards must share one recipe")
+    if len(set(shards)) != len(shards):
+        raise ValueError(f"duplicate shards among the parts: {shards}")
+    total = sum(s.n for s in stores)
+    extras = {k: (tuple(stores[0].group[k].shape[1:]), str(stores[0].group[k].dtype))
+              for k in stores[0].arrays if k not in ("u", "y", "params")}
+    rejected: dict[str, int] = {}
+    for s in stores:
+        for k, v in s.attrs.get("rejected", {}).items():
+            rejected[k] = rejected.get(k, 0) + v
+    keep = {k: v for k, v in first.items() if k not in (
+        "schema", "schema_version", "u_names", "y_names", "param_names", "status", "n", "capacity",
+        "created", "finished", "shard", "cursor")}
+    keep.update(requested=sum(s.attrs.get("requested", s.n) for s in stores),
+                attempted=sum(s.attrs.get("attempted", s.n) for s in stores),
+                kept=total, rejected=rejected, merged_from=[list(x) for x in shards],
+                merged_paths=list(parts))
+    writer = create_store(out, total, stores[0].steps, stores[0].u_names, stores[0].y_names,
+                          stores[0].param_names, keep, extras=extras, chunk=chunk, overwrite=overwrite)
+    for s in stores:
+        for start in range(0, s.n, chunk):
+            rows = slice(start, min(start + chunk, s.n))
+            writer.append(s.read("u", rows), s.read("y", rows), s.read("params", rows),
+                          extras={k: s.read(k, rows) for k in extras})
+    writer.finalize()
+    return open_store(out).attrs
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m robomorph.merge", description=__doc__.split("\n")[0])
+    p.add_argument("parts", nargs="+", help="shard stores (complete)")
+    p.add_argument("--out", required=True)
+    p.add_argument("--overwrite", action="store_true")
+    args = p.parse_args(argv)
+    try:
+        attrs = merge(args.parts, args.out, args.overwrite)
+    except (ValueError, SchemaError, FileExistsError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{args.out}: {attrs['n']} trajectories from {len(args.parts)} shards")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Evaluation: metrics, FIT bands, baselines, physics baselines, plots, tables, evaluate()."""

@@ -1,0 +1,115 @@
+"""The ``nominal_physics`` baseline: the catalogue Panda simulated from the end of the context.
+
+What knowing the robot's catalogue model already gives, without learning anything: the
+un-randomized Panda (nominal masses and centres of mass, damping, stiffness and armature
+at the middle of the recipe's ranges, nominal friction) starts from the last context
+state and is driven by the recorded torques. The joint velocity at that state is not
+in ``y``; it is estimated from the context positions (a cubic through the last samples),
+so even on an un-randomized store the prediction differs from the truth by what that
+estimate misses.
+
+The recorded ``u`` is the full torque at the joints at the start of each frame. When the
+recipe compensated gravity through the actuators (``true_model``), that compensation
+followed the state through the frame's physics substeps; the baseline does the same with
+the nominal model's gravity (command = u - g_nominal(q) at the frame start), so on an
+un-randomized robot it reproduces the recorded torques. Otherwise ``u`` is held over the
+frame as recorded.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from robomorph.evaluation.baselines import estimate_velocity
+
+
+class NotApplicable(ValueError):
+    """The baseline cannot run on this store; the message says why."""
+
+
+def check_params(attrs: dict) -> None:
+    """Raises :class:`NotApplicable` unless the store records the randomizer's parameters."""
+    from robomorph.sim.randomize import param_names  # noqa: PLC0415
+
+    if list(attrs.get("param_names", [])) != param_names():
+        raise NotApplicable("needs the per-robot parameters the generator records (params of this store "
+                            "are missing or named differently)")
+
+
+class NominalPhysics:
+    """Callable ``(u_ctx, y_ctx, u_query) -> y_query`` for stores of the simulated Panda.
+
+    Args:
+        attrs: the store's attributes (domain, channel names and generator config).
+
+    Raises:
+        NotApplicable: the store is not a simulated Panda store (imported real logs,
+            other domains, another channel layout).
+    """
+
+    def __init__(self, attrs: dict):
+        import mujoco  # noqa: PLC0415
+
+        from robomorph.core.config import from_dict  # noqa: PLC0415  (MuJoCo only when used)
+        from robomorph.sim import panda  # noqa: PLC0415
+        from robomorph.sim.randomize import Randomizer  # noqa: PLC0415
+        from robomorph.sim.recipe import Recipe  # noqa: PLC0415
+
+        if attrs.get("domain") != "panda" or not isinstance(attrs.get("config"), dict):
+            raise NotApplicable(f"needs a simulated Panda store with its generator config "
+                                f"(this store's domain is {attrs.get('domain')!r})")
+        if tuple(attrs.get("u_names", ())) != panda.U_NAMES or tuple(attrs.get("y_names", ())) != panda.Y_NAMES:
+            raise NotApplicable("needs the Panda channel layout (u = tau0..tau6, y = EE pose and q0..q6)")
+        recipe = from_dict(Recipe, attrs["config"], "store config")
+        self.dt, self.substeps = float(recipe.dt), int(recipe.substeps)
+        self.gravity_in_actuators = recipe.gravity_compensation == "true_model"
+        self.model = panda.build_model(recipe.substeps, recipe.dt, self.gravity_in_actuators)
+        self.data = mujoco.MjData(self.model)
+        self._randomizer = Randomizer(self.model, recipe.randomization)
+        self._nominal = self._nominal_params(recipe.randomization)
+        self._nj = panda.N_JOINT
+        self._q = slice(7, 14)
+        self._quat = slice(3, 7)
+
+    def _nominal_params(self, cfg) -> dict[str, np.ndarray]:
+        r, nj = self._randomizer, len(self._randomizer.friction0)
+        mid = {k: np.full(nj, float(np.mean(getattr(cfg, k)))) for k in ("damping", "stiffness", "armature")}
+        return {"mass": r.mass0, "com": r.ipos0, **mid,
+                "frictionloss": r.friction0 * float(np.mean(cfg.frictionloss_scale))}
+
+    def params(self, qinit: np.ndarray) -> np.ndarray:
+        """The nominal parameter vector (in ``params`` order) with the spring anchored at ``qinit``."""
+        p = self._nominal
+        return np.concatenate([p["mass"], p["com"].ravel(), p["damping"], p["stiffness"], p["armature"],
+                               p["frictionloss"], qinit])
+
+    def __call__(self, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray,
+                 params: np.ndarray | None = None) -> np.ndarray:
+        """Predicts ``y_query``; with ``params`` (B, P), each robot's own stored parameters
+        replace the nominal ones (the ``true_physics`` ceiling)."""
+        q_ctx = y_ctx[..., self._q].astype(np.float64)
+        qvel0 = estimate_velocity(q_ctx, self.dt)
+        # Frames c-1 .. c+H-1: from the last context state, under u[c-1] then the query.
+        torque = np.concatenate([u_ctx[:, -1:], u_query], axis=1).astype(np.float64)
+        return np.stack([self._one(q_ctx[b], qvel0[b], torque[b], y_ctx[b, -1, self._quat],
+                                   None if params is None else np.asarray(params[b], dtype=np.float64))
+                         for b in range(len(torque))])
+
+    def _one(self, q_ctx: np.ndarray, qvel0: np.ndarray, torque: np.ndarray, quat_last: np.ndarray,
+             params: np.ndarray | None) -> np.ndarray:
+        from robomorph.sim.closed_loop import simulate_closed_loop  # noqa: PLC0415
+        from robomorph.sim.filters import to_outputs  # noqa: PLC0415
+
+        # The stiffness springs pull toward where the robot started: the first context
+        # sample when the context opens the trajectory (stiffness is small either way).
+        self._randomizer.apply(self.model, self.params(q_ctx[0]) if params is None else params)
+        nj, gravity = self._nj, self.gravity_in_actuators
+
+        def command(data, t):
+            return torque[t] - data.qfrc_gravcomp[:nj] if gravity else torque[t]
+
+        sens = simulate_closed_loop(self.model, self.data, q_ctx[-1], len(torque), self.substeps, command, qvel0)
+        _, y = to_outputs(sens)  # row f: the start of frame c-1+f
+        if np.dot(y[0, self._quat], quat_last) < 0:  # the context's sign convention
+            y[:, self._quat] *= -1.0
+        return y[1:]

@@ -1,0 +1,138 @@
+"""The figures ``robomorph.evaluate`` writes: samples, error growth, R^2 spread, sweeps.
+
+Every function takes arrays in physical units (predictions keyed by source: ``model``
+and the baselines) and writes one PNG, returning its path.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from robomorph.evaluation import metrics
+
+_STYLE = {"model": dict(color="C0", lw=1.4), "hold": dict(color="C7", ls=":"),
+          "arx": dict(color="C2", ls="--", lw=1.0), "nominal_physics": dict(color="C3", ls="-.", lw=1.0),
+          "true_physics": dict(color="C4", ls=(0, (1, 1)), lw=1.0)}
+
+
+def _plt():
+    import matplotlib  # noqa: PLC0415  (plotting is optional at import time)
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    return plt
+
+
+def _grid(n: int) -> tuple[int, int]:
+    cols = min(4, n)
+    return (n + cols - 1) // cols, cols
+
+
+def plot_samples(path: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[str, np.ndarray],
+                 names: list[str], dt: float, index: int) -> str:
+    """Context, truth and every source's prediction of trajectory ``index``, all channels."""
+    plt = _plt()
+    rows, cols = _grid(len(names))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.2 * rows), sharex=True, squeeze=False)
+    tc, th = y_ctx.shape[1], y_true.shape[1]
+    t_ctx, t_q = np.arange(tc) * dt, (tc + np.arange(th)) * dt
+    for i, (ax, name) in enumerate(zip(axes.flat, names)):
+        ax.axvspan(0, tc * dt, color="0.92", lw=0)
+        ax.plot(t_ctx, y_ctx[index, :, i], color="k", lw=1.0)
+        ax.plot(t_q, y_true[index, :, i], color="k", lw=1.0, label="truth")
+        for src, y in preds.items():
+            ax.plot(t_q, y[index, :, i], label=src, **_STYLE.get(src, {}))
+        ax.set_title(name, fontsize=9)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[len(names):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=7, loc="best")
+    fig.supxlabel("time [s] (grey: context)", fontsize=9)
+    fig.suptitle(f"trajectory {index}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray], dt: float) -> str:
+    """RMSE over trajectories at each query step, divided by each channel's std, channel mean."""
+    plt = _plt()
+    scale = np.maximum(y_true.reshape(-1, y_true.shape[-1]).std(0), metrics.EPS)
+    steps = np.arange(1, y_true.shape[1] + 1) * dt
+    fig, ax = plt.subplots(figsize=(6.5, 3.6))
+    for src, y in preds.items():
+        err = np.sqrt(((y - y_true) ** 2).mean(0)) / scale  # (H, C)
+        ax.plot(steps, err.mean(-1), label=src, **_STYLE.get(src, {}))
+    ax.set(xlabel="time into the horizon [s]", ylabel="RMSE / std(y), mean over channels", yscale="log",
+           title="error growth over the prediction horizon")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_r2_distribution(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray], names: list[str]) -> str:
+    """Per-channel spread of per-trajectory R^2 (approach 1) for every source, clipped at -1."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(max(7.0, 0.8 * len(names) * max(1, len(preds)) / 2), 4))
+    width = 0.8 / len(preds)
+    for k, (src, y) in enumerate(preds.items()):
+        r2 = np.clip(np.asarray(metrics.r2(y_true, y)), -1.0, 1.0)  # (N, C)
+        pos = np.arange(len(names)) + (k - (len(preds) - 1) / 2) * width
+        box = ax.boxplot(r2, positions=pos, widths=width * 0.9, showfliers=False, patch_artist=True)
+        color = _STYLE.get(src, {}).get("color", f"C{k}")
+        for b in box["boxes"]:
+            b.set(facecolor=color, alpha=0.5)
+        ax.plot([], [], color=color, lw=6, alpha=0.5, label=src)
+    ax.set_xticks(np.arange(len(names)), names, rotation=45, fontsize=8)
+    ax.set(ylabel="R² per trajectory (clipped at -1)", ylim=(-1.05, 1.05), title="R² distribution per channel")
+    ax.axhline(0, color="0.5", lw=0.6)
+    ax.legend(fontsize=8, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_sweep(path: str, rows: list[dict], key: str) -> str:
+    """Mean R^2 and FIT, approaches 1 and 2, against ``key`` (``horizon`` or ``context_len``).
+
+    R^2 is drawn from -1 and FIT from -100 up: far worse values (a baseline that drifts
+    away) sit on the floor instead of squashing every other curve into a line.
+    """
+    plt = _plt()
+    x = [r[key] for r in rows]
+    fig, axes = plt.subplots(1, 4, figsize=(15, 3.4))
+    sources = [s for s in rows[0] if isinstance(rows[0][s], dict)]
+    panels = (("r2", "mean R² (approach 1)", -1.0), ("fit", "mean FIT % (approach 1)", -100.0),
+              ("r2_a2", "R² (approach 2)", -1.0), ("fit_a2", "FIT % (approach 2)", -100.0))
+    for ax, (metric, label, floor) in zip(axes, panels):
+        for src in sources:
+            values = np.maximum([r[src].get(metric, np.nan) for r in rows], floor)
+            ax.plot(x, values, marker="o", ms=3, label=src, **_STYLE.get(src, {}))
+        top = 1.0 if metric.startswith("r2") else 100.0
+        ax.set(xlabel="prediction horizon [steps]" if key == "horizon" else "context length [steps]",
+               ylabel=label, ylim=(floor - 0.05 * (top - floor), top + 0.05 * (top - floor)))
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def write_all(out: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[str, np.ndarray],
+              names: list[str], dt: float, samples: int, seed: int = 0) -> list[str]:
+    """The standard set: ``samples`` sample trajectories, error growth, R^2 distribution."""
+    rng = np.random.default_rng(seed)
+    picks = sorted(rng.choice(len(y_true), size=min(samples, len(y_true)), replace=False).tolist())
+    paths = [plot_samples(os.path.join(out, f"sample_{i}.png"), y_ctx, y_true, preds, names, dt, i) for i in picks]
+    paths.append(plot_error_growth(os.path.join(out, "error_growth.png"), y_true, preds, dt))
+    paths.append(plot_r2_distribution(os.path.join(out, "r2_distribution.png"), y_true, preds, names))
+    return paths

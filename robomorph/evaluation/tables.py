@@ -1,0 +1,76 @@
+"""``metrics.csv`` and ``table.md`` from an evaluation's ``metrics.json`` content."""
+
+from __future__ import annotations
+
+import csv
+import os
+
+from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
+
+
+def _sources(result: dict):
+    yield "model", {"approach1": result["approach1"], "approach2": result["approach2"]}
+    yield from result.get("baselines", {}).items()
+
+
+def csv_rows(result: dict) -> list[dict]:
+    """One row per source, approach, channel (or ``mean``) and metric."""
+    rows = []
+    for src, res in _sources(result):
+        a1, a2 = res["approach1"], res["approach2"]
+        for ch, vals in [*a1["channels"].items(), ("mean", a1["mean"])]:
+            rows += [{"source": src, "approach": 1, "channel": ch, "metric": m, "value": v["mean"], "std": v["std"]}
+                     for m, v in vals.items()]
+        for ch, vals in [*a2["channels"].items(), ("mean", a2["mean"])]:
+            rows += [{"source": src, "approach": 2, "channel": ch, "metric": m, "value": v, "std": ""}
+                     for m, v in vals.items()]
+    return rows
+
+
+def write_csv(path: str, result: dict) -> None:
+    tmp = f"{path}.tmp"
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["source", "approach", "channel", "metric", "value", "std"])
+        w.writeheader()
+        w.writerows(csv_rows(result))
+    os.replace(tmp, path)
+
+
+def _fit(v: float) -> str:
+    return f"{FIT_BANDS[fit_band(v)].mark} {v:.1f}"
+
+
+def table_markdown(result: dict) -> str:
+    """Per-channel R^2 and FIT (approaches 1 and 2) of the model, FIT of each baseline."""
+    meta, a1, a2 = result["meta"], result["approach1"], result["approach2"]
+    base = result.get("baselines", {})
+    head = ["channel", "R² (1)", "FIT (1)", "R² (2)", "FIT (2)"] + [f"{b} FIT (1)" for b in base]
+    lines = [f"Model `{os.path.basename(meta['ckpt'])}` on `{meta['data']}`: {meta['n']} trajectories, "
+             f"context {meta['context_len']}, horizon {meta['horizon']} steps. (1): approach 1, mean ± std over "
+             "trajectories; (2): approach 2, trajectories concatenated.", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for ch in a1["channels"]:
+        r, f = a1["channels"][ch]["r2"], a1["channels"][ch]["fit"]
+        cells = [ch, f"{r['mean']:.3f} ± {r['std']:.3f}", f"{_fit(f['mean'])} ± {f['std']:.1f}",
+                 f"{a2['channels'][ch]['r2']:.3f}", _fit(a2["channels"][ch]["fit"])]
+        cells += [_fit(b["approach1"]["channels"][ch]["fit"]["mean"]) for b in base.values()]
+        lines.append("| " + " | ".join(cells) + " |")
+    m = a1["mean"]
+    cells = ["**mean**", f"{m['r2']['mean']:.3f} ± {m['r2']['std']:.3f}", f"{_fit(m['fit']['mean'])} ± {m['fit']['std']:.1f}",
+             f"{a2['mean']['r2']:.3f}", _fit(a2["mean"]["fit"])]
+    cells += [_fit(b["approach1"]["mean"]["fit"]["mean"]) for b in base.values()]
+    lines.append("| " + " | ".join(cells) + " |")
+    legend = ", ".join(f"{b.mark} {b.label}" for b in FIT_BANDS)
+    lines += ["", f"FIT colour convention (the paper's Table 3): {legend}."]
+    for b, why in result.get("skipped_baselines", {}).items():
+        lines.append(f"Skipped baseline `{b}`: {why}")
+    return "\n".join(lines) + "\n"
+
+
+def write_table(path: str, result: dict) -> None:
+    tmp = f"{path}.tmp"
+    with open(tmp, "w") as f:
+        f.write(table_markdown(result))
+    os.replace(tmp, path)
+
+

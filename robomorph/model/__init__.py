@@ -1,0 +1,1 @@
+"""The network: the encoder-decoder transformer and the normalization it carries in checkpoints."""

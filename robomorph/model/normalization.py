@@ -1,0 +1,122 @@
+"""The normalization a model carries: z-scores with training statistics, decodes predictions.
+
+An ``nn.Module`` with the statistics as buffers, so a checkpoint restores it without the data.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from robomorph.data.statistics import Stats
+
+
+class Normalizer(nn.Module):
+    """z-scores model inputs and targets with training statistics; decodes predictions.
+
+    The statistics are persistent buffers, so a checkpoint of a model holding a Normalizer
+    carries them and a loaded model predicts in physical units without the datamodule.
+
+    With ``recenter=True`` the normalized context mean of each trajectory and channel is
+    subtracted as well (from u_ctx and u_query with the u context mean; from y_ctx and the
+    target with the y context mean) and added back by :meth:`decode`. Only the context window
+    enters these means, so nothing derived from the query outputs reaches the prediction.
+
+    Args:
+        stats: training statistics; if None, identity statistics of width ``n_u``/``n_y``
+            (to be filled by :meth:`set_stats` or ``load_state_dict``).
+        n_u: input channels (needed without ``stats``; checked against it otherwise).
+        n_y: output channels (as ``n_u``).
+        recenter: also subtract the per-trajectory context mean.
+    """
+
+    def __init__(self, stats: Stats | None = None, n_u: int | None = None, n_y: int | None = None,
+                 recenter: bool = False):
+        super().__init__()
+        if stats is not None:
+            for name, given, actual in (("n_u", n_u, stats.n_u), ("n_y", n_y, stats.n_y)):
+                if given is not None and given != actual:
+                    raise ValueError(f"{name}={given} disagrees with the statistics ({actual} channels)")
+            n_u, n_y = stats.n_u, stats.n_y
+        if n_u is None or n_y is None or n_u < 1 or n_y < 1:
+            raise ValueError(f"Normalizer needs stats or positive n_u and n_y, got n_u={n_u}, n_y={n_y}")
+        self.recenter = bool(recenter)
+        self.register_buffer("u_mean", torch.zeros(n_u))
+        self.register_buffer("u_std", torch.ones(n_u))
+        self.register_buffer("y_mean", torch.zeros(n_y))
+        self.register_buffer("y_std", torch.ones(n_y))
+        if stats is not None:
+            self.set_stats(stats)
+
+    @property
+    def n_u(self) -> int:
+        return int(self.u_mean.shape[0])
+
+    @property
+    def n_y(self) -> int:
+        return int(self.y_mean.shape[0])
+
+    def set_stats(self, stats: Stats) -> None:
+        """Copies ``stats`` into the buffers (keeping their device and dtype)."""
+        if (stats.n_u, stats.n_y) != (self.n_u, self.n_y):
+            raise ValueError(f"statistics have n_u={stats.n_u}, n_y={stats.n_y}; "
+                             f"this Normalizer has n_u={self.n_u}, n_y={self.n_y}")
+        with torch.no_grad():
+            for name in ("u_mean", "u_std", "y_mean", "y_std"):
+                buf = getattr(self, name)
+                buf.copy_(torch.as_tensor(getattr(stats, name), dtype=buf.dtype, device=buf.device))
+
+    @property
+    def stats(self) -> Stats:
+        """The current statistics as a :class:`Stats` (float64 numpy)."""
+        return Stats(*(getattr(self, k).detach().cpu().double().numpy()
+                       for k in ("u_mean", "u_std", "y_mean", "y_std")))
+
+    def _check(self, name: str, x: torch.Tensor, width: int) -> None:
+        if x.dim() != 3 or x.shape[-1] != width:
+            raise ValueError(f"{name} must be (B, T, {width}), got {tuple(x.shape)}")
+
+    def _y_center(self, y_ctx: torch.Tensor) -> torch.Tensor | float:
+        """Per-trajectory mean of the normalized context outputs, (B, 1, n_y); 0 without recenter."""
+        if not self.recenter:
+            return 0.0
+        self._check("y_ctx", y_ctx, self.n_y)
+        return ((y_ctx - self.y_mean) / self.y_std).mean(dim=1, keepdim=True)
+
+    def encode(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Normalizes the model inputs.
+
+        Args:
+            u_ctx: (B, Tc, n_u) context inputs, physical units.
+            y_ctx: (B, Tc, n_y) context outputs, physical units.
+            u_query: (B, Th, n_u) query inputs, physical units.
+
+        Returns:
+            ``(u_ctx_n, y_ctx_n, u_query_n)`` with the same shapes.
+        """
+        self._check("u_ctx", u_ctx, self.n_u)
+        self._check("y_ctx", y_ctx, self.n_y)
+        self._check("u_query", u_query, self.n_u)
+        u_ctx_n = (u_ctx - self.u_mean) / self.u_std
+        u_query_n = (u_query - self.u_mean) / self.u_std
+        y_ctx_n = (y_ctx - self.y_mean) / self.y_std
+        if self.recenter:
+            # Context-only means: the query window never feeds the statistics.
+            u_c = u_ctx_n.mean(dim=1, keepdim=True)  # (B, 1, n_u)
+            y_c = y_ctx_n.mean(dim=1, keepdim=True)  # (B, 1, n_y)
+            u_ctx_n, u_query_n, y_ctx_n = u_ctx_n - u_c, u_query_n - u_c, y_ctx_n - y_c
+        return u_ctx_n, y_ctx_n, u_query_n
+
+    def encode_target(self, y_query: torch.Tensor, y_ctx: torch.Tensor) -> torch.Tensor:
+        """Normalizes target outputs with the transform applied to ``y_ctx`` (for the loss)."""
+        self._check("y_query", y_query, self.n_y)
+        return (y_query - self.y_mean) / self.y_std - self._y_center(y_ctx)
+
+    def decode(self, y_query_n: torch.Tensor, y_ctx: torch.Tensor) -> torch.Tensor:
+        """Maps normalized predictions (B, Th, n_y) back to physical units."""
+        self._check("y_query_n", y_query_n, self.n_y)
+        return (y_query_n + self._y_center(y_ctx)) * self.y_std + self.y_mean
+
+    def extra_repr(self) -> str:
+        return f"n_u={self.n_u}, n_y={self.n_y}, recenter={self.recenter}"

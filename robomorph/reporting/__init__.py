@@ -1,0 +1,1 @@
+"""Reporting: the static HTML dashboard over runs and their evaluations."""

@@ -1,0 +1,294 @@
+"""``python -m robomorph.reproduce``: the paper's tables and context figure, end to end.
+
+    python -m robomorph.reproduce table1 --scale ci
+    python -m robomorph.reproduce all --scale small --out results/paper/small
+    python -m robomorph.reproduce table2 --scale paper --steps-factor 0.1
+
+Targets:
+
+- ``table1``: Table 1, three depths trained on in-distribution multi-sine robots, each
+  scored on three in-distribution test stores (test0..test2): R², σ(R²), RMSE, σ(RMSE).
+- ``table2``: Table 2, the spiral task: a model pre-trained on a multi-sine + chirp mixture
+  scored zero-shot, fine-tuned for B steps, and a model trained from scratch for
+  ``scratch_ratio * B`` steps; per-channel R² and FIT in the paper's colour convention.
+- ``context``: R² and FIT against the predicted horizon and the context length, for
+  Table 1's middle model.
+- ``all``: the three in order, sharing data and models.
+
+Generated stores and training runs (each with its evaluations in ``<run>/eval/``) go to
+``--work`` (default ``data/reproduce/<scale>``, not committed), with a dashboard of them all
+in ``<work>/report.html``; the tables and the figure go to ``--out`` (default
+``results/paper/<scale>``). Every step whose output exists is skipped (complete
+stores, runs that reached their budget, evaluations newer than their checkpoint), and an
+interrupted run resumes from its last checkpoint: re-run the same command.
+
+Run times of ``all``: ``ci`` about 25 s on 2 CPU cores and ``small`` 1 h 59 min on 2 CPU
+cores (both measured), ``paper`` about 38 hours of training on one H100 (from measured
+step times). Sizes, budgets and how the estimates were made: :mod:`robomorph.reproduction.scales`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import os
+import platform
+import sys
+import time
+from dataclasses import dataclass
+
+from robomorph.reproduction import skip as resume
+from robomorph.reproduction.scales import SCALES, Scale
+from robomorph.sim.recipe import load_recipe
+from robomorph.training.transfer import REGIMES, merge, regime_overrides
+
+TARGETS = ("table1", "table2", "context", "all")
+# (recipe, robots field of the scale, seed): disjoint seeds, so no test robot is a training robot.
+STORES = {
+    "ms_train": ("multisine", "train_robots", 0),
+    **{f"ms_test{i}": ("multisine", "test_robots", 101 + i) for i in range(3)},
+    "mixture_train": ("mixture", "mixture_robots", 200),
+    "spiral_train": ("spiral", "spiral_robots", 300),
+    "spiral_test": ("spiral", "test_robots", 301),
+}
+TESTS = ("test0", "test1", "test2")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Where a reproduction reads and writes, and how it runs."""
+
+    scale: Scale
+    work: str
+    out: str
+    command: str
+    workers: int | None = None
+    device: str | None = None
+    wandb: str = "offline"
+    started: float = dataclasses.field(default_factory=time.time)  # for the tables' elapsed time
+
+    def path(self, *parts: str) -> str:
+        """A path inside the work folder."""
+        return os.path.join(self.work, *parts)
+
+
+def say(target: str, message: str) -> None:
+    """A progress line (stdout, flushed: long steps follow)."""
+    print(f"[{target}] {message}", flush=True)
+
+
+def store(plan: Plan, key: str, target: str) -> str:
+    """The path of store ``key``, generated or resumed first when it is not complete."""
+    task, robots_field, seed = STORES[key]
+    s = plan.scale
+    recipe = load_recipe(recipe_path(task), {"robots": getattr(s, robots_field), "steps": s.steps, "seed": seed})
+    path = plan.path("data", f"{key}.zarr")
+    state = resume.store_state(path, recipe)
+    if state == "complete":
+        say(target, f"data {key}: complete ({recipe.robots} robots x {s.steps} steps), kept")
+    else:
+        say(target, f"data {key}: generating {recipe.robots} {recipe.task_label} robots x {s.steps} steps ({state}) ...")
+        resume.ensure_store(recipe, path, workers=plan.workers, progress=sys.stderr.isatty())
+    return path
+
+
+def recipe_path(name: str) -> str:
+    """``datamodules/<name>.yaml`` of the working directory, else of the repository holding the package."""
+    for root in (os.getcwd(), os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))):
+        path = os.path.join(root, "datamodules", f"{name}.yaml")
+        if os.path.isfile(path):
+            return path
+    raise FileNotFoundError(f"datamodules/{name}.yaml not found: run from the repository root")
+
+
+def base_args(plan: Plan, depth: int, stores: list[str], run: str, steps: int) -> dict:
+    """The :func:`robomorph.training.fitting.fit` arguments of a run at this scale."""
+    s = plan.scale
+    return {
+        "data": {"stores": stores, "context_len": s.context_len, "horizon": s.horizon, "batch_size": s.batch_size,
+                 "split": [1 - s.val_fraction, s.val_fraction, 0.0], "val_subset": s.val_subset, "recenter": True,
+                 "seed": 0},
+        "model": {"d_model": s.d_model, "n_head": s.n_head, "n_layer": depth, "patch": s.patch, "lr": s.lr,
+                  "warmup_steps": s.warmup_steps, "max_context": s.context_len, "max_horizon": s.horizon,
+                  "loss": "huber"},
+        "trainer": {"max_steps": steps, "val_check_interval": min(s.val_every, steps), "accelerator": s.accelerator,
+                    "devices": 1, "max_time": s.max_time, "enable_progress_bar": sys.stderr.isatty(),
+                    "enable_model_summary": False},
+        "run": run, "runs_dir": plan.path("runs"), "wandb": plan.wandb,
+    }
+
+
+def train(plan: Plan, target: str, args: dict, what: str) -> str:
+    """Trains (or resumes, or skips) one run; returns the checkpoint that stands for it."""
+    from robomorph.training import fitting  # noqa: PLC0415  (torch and Lightning only when training)
+
+    run_dir = os.path.join(args["runs_dir"], args["run"])
+    budget = {"max_steps": args["trainer"]["max_steps"], "max_time": args["trainer"]["max_time"]}
+    if resume.run_finished(run_dir, budget):
+        say(target, f"{what}: finished run {run_dir}, kept")
+        return resume.finished_ckpt(run_dir)
+    say(target, f"training {what} ({budget['max_steps']} steps) -> {run_dir} ...")
+    result = fitting.fit(args)
+    ckpt = result.best_ckpt or result.last_ckpt
+    if ckpt is None:
+        raise RuntimeError(f"{run_dir}: training wrote no checkpoint")
+    # A wall-clock cap may end a run early by design; anything else short of the budget was interrupted.
+    if result.global_step < budget["max_steps"] and budget["max_time"] is None:
+        raise RuntimeError(f"{run_dir} stopped at step {result.global_step} of {budget['max_steps']}: "
+                           "re-run the same command to resume it")
+    resume.mark_finished(run_dir, budget, ckpt, result.global_step)
+    return ckpt
+
+
+def score(plan: Plan, target: str, ckpt: str, data: str, name: str, sweeps: bool = False) -> dict:
+    """Evaluates ``ckpt`` on ``data`` into ``<run>/eval/<name>`` unless a fresh result is there.
+
+    That is where ``python -m robomorph.evaluate`` puts an evaluation by default, so the
+    reproduction's dashboard (:func:`report`) shows every score beside its training run.
+    """
+    from robomorph.evaluation.evaluator import evaluate  # noqa: PLC0415
+
+    run_dir = os.path.dirname(os.path.dirname(os.path.abspath(ckpt)))
+    run, out = os.path.basename(run_dir), os.path.join(run_dir, "eval", name)
+    if resume.eval_fresh(out, ckpt):
+        say(target, f"evaluation {run} on {name}: up to date, kept")
+        return resume.read_json(os.path.join(out, "metrics.json"))
+    say(target, f"evaluating {run} on {name} ...")
+    s = plan.scale
+    return evaluate(ckpt, data, out, n=s.eval_n, baselines=("hold",), batch_size=64, device=plan.device,
+                    samples=s.samples, sweep_horizon_spec=s.sweep_horizon if sweeps else None,
+                    sweep_context_spec=s.sweep_context if sweeps else None)
+
+
+def table1_model(plan: Plan, depth: int, train_store: str, target: str = "table1") -> str:
+    """Trains Table 1's model of ``depth`` layers on the multi-sine training store."""
+    s = plan.scale
+    args = base_args(plan, depth, [train_store], f"table1-L{depth}-s{s.train_steps}", s.train_steps)
+    return train(plan, target, args, f"{depth}-layer model")
+
+
+def table1(plan: Plan) -> dict:
+    """Table 1: three depths x three in-distribution test stores; writes table1.md/.tex/.json."""
+    from robomorph.reproduction.tables import table1_rows, write_table1  # noqa: PLC0415
+
+    train_store = store(plan, "ms_train", "table1")
+    tests = {t: store(plan, f"ms_test{i}", "table1") for i, t in enumerate(TESTS)}
+    results = {}
+    for depth in plan.scale.depths:
+        ckpt = table1_model(plan, depth, train_store)
+        results[depth] = {t: score(plan, "table1", ckpt, path, t) for t, path in tests.items()}
+    doc = write_table1(plan.out, table1_rows(results), run_info(plan))
+    say("table1", f"written {os.path.join(plan.out, 'table1.md')} (.tex, .json)")
+    return doc
+
+
+def table2(plan: Plan) -> dict:
+    """Table 2: zero-shot, fine-tuned and from-scratch models on the spiral; writes table2.md/.tex/.json."""
+    from robomorph.reproduction.tables import REGIME_TITLES, table2_data, write_table2  # noqa: PLC0415
+
+    s, depth = plan.scale, plan.scale.transfer_depth
+    mixture, spiral = store(plan, "mixture_train", "table2"), store(plan, "spiral_train", "table2")
+    test = store(plan, "spiral_test", "table2")
+    pre = base_args(plan, depth, [mixture], f"table2-pretrain-L{depth}-s{s.pretrain_steps}", s.pretrain_steps)
+    pretrained = train(plan, "table2", pre, f"{depth}-layer model on the multi-sine + chirp mixture")
+    budgets = {"zero_shot": 0, "finetune": s.finetune_steps, "scratch": s.scratch_steps}
+    results, titles = {}, {}
+    for regime in REGIMES:
+        ckpt, steps = pretrained, budgets[regime]
+        over = regime_overrides(regime, pretrained, steps, lr=s.finetune_lr if regime == "finetune" else None)
+        if over is not None:
+            args = merge(base_args(plan, depth, [spiral], f"table2-{regime}-L{depth}-s{steps}", steps), over)
+            ckpt = train(plan, "table2", args, f"{regime} on the spiral")
+        results[regime] = score(plan, "table2", ckpt, test, "spiral_test")
+        titles[regime] = REGIME_TITLES[regime] + (f" ({steps} steps)" if steps else "")
+    doc = write_table2(plan.out, table2_data(results), titles, run_info(plan))
+    say("table2", f"written {os.path.join(plan.out, 'table2.md')} (.tex, .json)")
+    return doc
+
+
+def context(plan: Plan) -> dict:
+    """The context and horizon figure of Table 1's middle model on test0; writes context_horizon.*."""
+    from robomorph.reproduction.figures import write_context_figure  # noqa: PLC0415
+
+    ckpt = table1_model(plan, plan.scale.transfer_depth, store(plan, "ms_train", "context"), "context")
+    res = score(plan, "context", ckpt, store(plan, "ms_test0", "context"), "test0-sweeps", sweeps=True)
+    doc = write_context_figure(plan.out, res["sweeps"], res["meta"], run_info(plan))
+    say("context", f"written {os.path.join(plan.out, 'context_horizon.png')} (.json, .csv)")
+    return doc
+
+
+def run_info(plan: Plan) -> dict:
+    """Provenance for the table headers: scale, command, date, minutes since the command
+    started (steps skipped as done cost nothing), machine, budgets."""
+    return {"scale": plan.scale.name, "command": plan.command,
+            "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+            "elapsed_min": round((time.time() - plan.started) / 60, 1),
+            "machine": machine(), "budgets": plan.scale.budgets()}
+
+
+def machine() -> str:
+    """Platform, CPU count and GPU name (if any)."""
+    gpu = "no GPU"
+    try:
+        import torch  # noqa: PLC0415
+
+        if torch.cuda.is_available():
+            gpu = f"GPU {torch.cuda.get_device_name(0)}"
+    except ImportError:
+        pass
+    return f"{platform.platform()}, {os.cpu_count()} CPUs, {gpu}"
+
+
+def reproduce(target: str, scale: Scale, out: str | None = None, work: str | None = None, command: str = "",
+              workers: int | None = None, device: str | None = None, wandb: str = "offline") -> dict[str, dict]:
+    """Runs ``target`` (``table1``, ``table2``, ``context`` or ``all``) at ``scale``.
+
+    Returns:
+        ``{target: the JSON content written}`` for each target run.
+    """
+    if target not in TARGETS:
+        raise ValueError(f"unknown target {target!r}; choose from {list(TARGETS)}")
+    plan = Plan(scale, work or os.path.join("data", "reproduce", scale.name),
+                out or os.path.join("results", "paper", scale.name), command, workers, device, wandb)
+    os.makedirs(plan.out, exist_ok=True)
+    steps = {"table1": table1, "table2": table2, "context": context}
+    chosen = list(steps) if target == "all" else [target]
+    done = {name: steps[name](plan) for name in chosen}
+    report(plan)
+    return done
+
+
+def report(plan: Plan) -> str:
+    """The dashboard of every run and evaluation so far: ``<work>/report.html`` (loss curves, tables, plots)."""
+    from robomorph.reporting.dashboard import build_report  # noqa: PLC0415
+
+    path = build_report(plan.path("runs"), plan.path("report.html"),
+                        title=f"RoboMorph reproduction, scale {plan.scale.name}")
+    say("report", f"written {path} (open it in a browser, offline)")
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m robomorph.reproduce", description=__doc__.split("\n")[0])
+    p.add_argument("target", choices=TARGETS, help="what to reproduce")
+    p.add_argument("--scale", choices=list(SCALES), default="small", help="sizes and budgets (robomorph.reproduction.scales)")
+    p.add_argument("--out", help="tables and figures (default results/paper/<scale>)")
+    p.add_argument("--work", help="stores, runs and evaluations (default data/reproduce/<scale>)")
+    p.add_argument("--scratch-ratio", type=float, help="scratch budget / fine-tuning budget (default: the scale's)")
+    p.add_argument("--steps-factor", type=float, default=1.0, help="multiply every training budget (e.g. 0.1)")
+    p.add_argument("--workers", type=int, help="generation threads/processes (default: all cores)")
+    p.add_argument("--device", help="evaluation device: cpu, cuda, ... (default: cuda when available)")
+    p.add_argument("--wandb", choices=("offline", "online", "disabled"), default=os.environ.get("WANDB_MODE", "offline"))
+    args = p.parse_args(argv)
+    try:
+        scale = SCALES[args.scale].scaled(args.steps_factor, args.scratch_ratio)
+    except ValueError as exc:
+        p.error(str(exc))
+    command = " ".join(["python -m robomorph.reproduce", *(sys.argv[1:] if argv is None else argv)])
+    reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,337 @@
+"""``python -m robomorph.generate``: randomized Panda trajectories into a Zarr dataset.
+
+Attempts are numbered; attempt ``i`` is fully determined by (recipe, seed, i). The kept
+trajectories are the first ``robots`` valid attempts in index order, so the arrays are
+identical whatever the worker count or batch size. Rows are flushed in chunks together
+with a resume cursor, so a killed run continues with the same command and ends with the
+same arrays as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import math
+import multiprocessing as mp
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from tqdm import tqdm
+
+from robomorph.core.config import ConfigError
+from robomorph.data.store import STATUS_COMPLETE, DatasetWriter, SchemaError, create_store, open_store
+from robomorph.sim import episode, panda
+from robomorph.sim.filters import REASONS
+from robomorph.sim.open_loop import OpenLoopEngine
+from robomorph.sim.randomize import Randomizer, param_names
+from robomorph.sim.recipe import Recipe, load_recipe
+
+# Below this kept rate (after MIN_ATTEMPTS_FOR_RATE attempts) the bound on attempts can
+# never be met, so the run stops early instead of burning hours.
+MIN_ATTEMPTS_FOR_RATE = 256
+
+
+class GenerationError(RuntimeError):
+    """Generation cannot reach its target (e.g. the valid rate is too low)."""
+
+
+@dataclass(frozen=True)
+class Shard:
+    """Part ``index`` of ``count``: attempt slots j map to attempt index + count * j."""
+
+    index: int = 0
+    count: int = 1
+
+    @classmethod
+    def parse(cls, text: str) -> "Shard":
+        try:
+            i, n = (int(x) for x in text.split("/"))
+        except ValueError as exc:
+            raise ConfigError(f"--shard must look like i/n (e.g. 0/4), got {text!r}") from exc
+        if not 0 <= i < n:
+            raise ConfigError(f"--shard {text}: need 0 <= i < n")
+        return cls(i, n)
+
+    def robots(self, total: int) -> int:
+        return total // self.count + (self.index < total % self.count)
+
+    def attempt(self, slot: int) -> int:
+        return self.index + self.count * slot
+
+
+@dataclass
+class _Progress:
+    """Committed state (on disk) plus the outcomes processed beyond it (in memory)."""
+
+    target: int
+    cursor: int = 0  # attempt slots committed
+    kept: int = 0
+    rejected: dict[str, int] = field(default_factory=lambda: {r: 0 for r in REASONS})
+    pending: list = field(default_factory=list)  # (slot, Outcome) after the cursor
+
+    def attrs(self) -> dict:
+        return {"cursor": self.cursor, "attempted": self.cursor, "kept": self.kept,
+                "rejected": dict(self.rejected)}
+
+    def take(self, k: int) -> list:
+        """Commits the next ``k`` kept outcomes, and the rejections before them."""
+        rows, i = [], 0
+        while len(rows) < k:
+            slot, out = self.pending[i]
+            i += 1
+            if out.reason is None:
+                rows.append(out)
+            else:
+                self.rejected[out.reason] += 1
+            self.cursor = slot + 1
+        del self.pending[:i]
+        self.kept += k
+        return rows
+
+    def pending_kept(self) -> int:
+        return sum(out.reason is None for _, out in self.pending)
+
+
+def _extras(recipe: Recipe) -> dict:
+    extras = {"attempt": ((), "int64"), "task_index": ((), "int8"), "fm": ((), "float32")}
+    if recipe.has_osc:
+        extras.update(kp=((), "float32"), target=((recipe.steps, 3), "float32"))
+    return extras
+
+
+def _rows(recipe: Recipe, outs: list) -> tuple:
+    tasks = recipe.task_names
+    extras = {"attempt": np.array([o.index for o in outs], dtype=np.int64),
+              "task_index": np.array([tasks.index(o.task) for o in outs], dtype=np.int8),
+              "fm": np.array([o.fm for o in outs], dtype=np.float32)}
+    if recipe.has_osc:
+        extras["kp"] = np.array([o.kp for o in outs], dtype=np.float32)
+        nan = np.full((recipe.steps, 3), np.nan, dtype=np.float32)
+        extras["target"] = np.stack([nan if o.target is None else o.target for o in outs])
+    u = np.stack([o.u for o in outs])
+    y = np.stack([o.y for o in outs])
+    params = np.stack([o.params for o in outs]).astype(np.float32)
+    return u, y, params, extras
+
+
+def _open_writer(recipe: Recipe, out: str, shard: Shard, overwrite: bool) -> DatasetWriter | None:
+    """Creates the store, or reopens a matching unfinished one; None if already complete."""
+    target = shard.robots(recipe.robots)
+    if os.path.isdir(out) and os.listdir(out) and not overwrite:
+        try:
+            ds = open_store(out, allow_incomplete=True)
+        except SchemaError as exc:
+            raise FileExistsError(f"{out} exists and is not a RoboMorph dataset; refusing to touch it") from exc
+        a = ds.attrs
+        if a.get("config") != recipe.to_dict() or a.get("shard") != [shard.index, shard.count]:
+            raise FileExistsError(
+                f"{out} holds a dataset made with a different recipe, seed or shard; "
+                "pass --overwrite to replace it, or choose another --out"
+            )
+        if a["status"] == STATUS_COMPLETE:
+            return None
+        return DatasetWriter.reopen(out)
+    attrs = {
+        "dt": recipe.dt, "domain": "panda", "task": recipe.task_label, "task_names": recipe.task_names,
+        "config": recipe.to_dict(), "seed": recipe.seed, "requested": target,
+        "shard": [shard.index, shard.count], "substeps": recipe.substeps,
+        "gravity_compensation": recipe.gravity_compensation,
+        "cursor": 0, "attempted": 0, "kept": 0, "rejected": {r: 0 for r in REASONS},
+    }
+    return create_store(out, target, recipe.steps, list(panda.U_NAMES), list(panda.Y_NAMES),
+                        param_names(), attrs, extras=_extras(recipe), chunk=recipe.chunk,
+                        overwrite=overwrite)
+
+
+class _Engines:
+    """Open-loop rollout threads and closed-loop worker processes, made on first use."""
+
+    def __init__(self, recipe: Recipe, workers: int):
+        self.recipe, self.workers = recipe, workers
+        self.model = episode.build_model(recipe)
+        self.randomizer = Randomizer(self.model, recipe.randomization)
+        self._open: OpenLoopEngine | None = None
+        self._pool = None
+        self._local: episode.ClosedLoopRunner | None = None
+
+    def open_loop(self, indices: list[int]) -> list:
+        r = self.recipe
+        if self._open is None:
+            self._open = OpenLoopEngine(self.model, self.workers, r.substeps)
+        draws = [episode.draw(r, self.randomizer, i) for i in indices]
+        sens, ranges = self._open.run(lambda model, i: self.randomizer.apply(model, draws[i].params),
+                                      np.stack([d.qpos0 for d in draws]), np.stack([d.ctrl for d in draws]))
+        return [episode.finish(r, d, s, jr[: panda.N_JOINT], r.substeps)
+                for d, s, jr in zip(draws, sens, ranges)]
+
+    def closed_loop(self, indices: list[int]) -> list:
+        if self.workers == 1:
+            self._local = self._local or episode.ClosedLoopRunner(self.recipe)
+            return [self._local(i) for i in indices]
+        if self._pool is None:
+            # spawn, not fork: the parent may hold MuJoCo rollout threads.
+            ctx = mp.get_context("spawn")
+            self._pool = ctx.Pool(self.workers, initializer=_init_worker, initargs=(self.recipe,))
+        return self._pool.map(_run_worker, indices, chunksize=max(1, len(indices) // (4 * self.workers)))
+
+    def close(self) -> None:
+        if self._open is not None:
+            self._open.close()
+        if self._pool is not None:
+            self._pool.terminate()
+            self._pool.join()
+
+
+_WORKER: episode.ClosedLoopRunner | None = None
+
+
+def _init_worker(recipe: Recipe) -> None:
+    global _WORKER
+    _WORKER = episode.ClosedLoopRunner(recipe)
+
+
+def _run_worker(index: int):
+    return _WORKER(index)
+
+
+def _simulate(engines: _Engines, recipe: Recipe, indices: list[int]) -> list:
+    """Outcomes of a batch, in index order, each attempt through its engine."""
+    tasks = {i: episode.draw_task(recipe, i) for i in indices}
+    open_idx = [i for i in indices if episode.is_open_loop(recipe, tasks[i])]
+    closed_idx = [i for i in indices if not episode.is_open_loop(recipe, tasks[i])]
+    outs = {}
+    if open_idx:
+        outs.update((o.index, o) for o in engines.open_loop(open_idx))
+    if closed_idx:
+        outs.update((o.index, o) for o in engines.closed_loop(closed_idx))
+    return [outs[i] for i in indices]
+
+
+def _max_attempts(recipe: Recipe, target: int) -> int:
+    return math.ceil(target * recipe.max_attempts_factor)
+
+
+def _check_rate(recipe: Recipe, prog: _Progress, processed: int, target: int) -> None:
+    kept = prog.kept + prog.pending_kept()
+    rejected = collections.Counter(prog.rejected)
+    rejected.update(out.reason for _, out in prog.pending if out.reason)
+    too_many = processed >= _max_attempts(recipe, target)
+    hopeless = processed >= MIN_ATTEMPTS_FOR_RATE and kept < processed / recipe.max_attempts_factor
+    if too_many or hopeless:
+        raise GenerationError(
+            f"valid rate too low: kept {kept} of {processed} attempts "
+            f"(rejected: {dict(+rejected)}); the bound is {recipe.max_attempts_factor:g} attempts per "
+            "kept trajectory. Make the torques gentler (signal.scale), raise damping/stiffness, "
+            "loosen the filters, or raise max_attempts_factor. The store keeps what was committed "
+            "and re-running the same command resumes it."
+        )
+
+
+def generate(recipe: Recipe, out: str, workers: int | None = None, shard: Shard = Shard(),
+             overwrite: bool = False, progress: bool = True) -> dict:
+    """Generates (or resumes, or finds complete) the dataset of ``recipe`` at ``out``.
+
+    Args:
+        recipe: the validated recipe.
+        out: store directory.
+        workers: threads for rollouts and processes for closed loops (default: all cores).
+        shard: which disjoint part of the attempts to generate.
+        overwrite: replace an existing RoboMorph store at ``out``.
+        progress: show a progress bar on stderr.
+
+    Returns:
+        The store's final attributes.
+    """
+    workers = max(1, workers or os.cpu_count() or 1)
+    writer = _open_writer(recipe, out, shard, overwrite)
+    if writer is None:
+        return open_store(out).attrs
+    a = writer.attrs
+    prog = _Progress(target=int(a["capacity"]), cursor=int(a["cursor"]), kept=int(a["n"]),
+                     rejected={r: int(a["rejected"].get(r, 0)) for r in REASONS})
+    engines = _Engines(recipe, workers)
+    bar = tqdm(total=prog.target, initial=prog.kept, unit="traj", desc=f"generate {recipe.task_label}",
+               disable=not progress, mininterval=1.0, dynamic_ncols=True)
+    slot, t0, made = prog.cursor, time.time(), 0
+    try:
+        while prog.kept < prog.target:
+            _check_rate(recipe, prog, slot, prog.target)
+            slots = list(range(slot, slot + recipe.chunk))
+            outs = _simulate(engines, recipe, [shard.attempt(s) for s in slots])
+            prog.pending.extend(zip(slots, outs))
+            slot += len(slots)
+            made += len(slots)
+            _flush(writer, recipe, prog)
+            kept_now = prog.kept + prog.pending_kept()
+            bar.n = min(kept_now, prog.target)
+            bar.set_postfix_str(_postfix(prog, slot, made, time.time() - t0), refresh=False)
+            bar.refresh()
+    finally:
+        bar.close()
+        engines.close()
+    writer.finalize(**prog.attrs())
+    return open_store(out).attrs
+
+
+def _flush(writer: DatasetWriter, recipe: Recipe, prog: _Progress) -> None:
+    """Writes full chunks (and the final partial one) with the matching cursor."""
+    while True:
+        need = prog.target - prog.kept
+        k = min(recipe.chunk, need)
+        if k == 0 or prog.pending_kept() < k:
+            return
+        rows = prog.take(k)
+        u, y, params, extras = _rows(recipe, rows)
+        writer.append(u, y, params, extras=extras, progress=prog.attrs())
+
+
+def _postfix(prog: _Progress, slot: int, made: int, elapsed: float) -> str:
+    rejected = collections.Counter({k: v for k, v in prog.rejected.items() if v})
+    rejected.update(out.reason for _, out in prog.pending if out.reason)
+    kept = prog.kept + prog.pending_kept()
+    rate = made / elapsed if elapsed > 0 else 0.0
+    rej = " ".join(f"{k}={v}" for k, v in sorted(rejected.items())) or "none"
+    return f"attempted={slot} kept={kept} ({kept / max(slot, 1):.0%}) rejected: {rej} | {rate:.1f} attempts/s"
+
+
+def _parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m robomorph.generate", description=__doc__.split("\n")[0])
+    p.add_argument("--config", help="recipe YAML (datamodules/*.yaml); flags override its fields")
+    p.add_argument("--task", help="multisine | chirp | circle | spiral")
+    p.add_argument("--robots", type=int, help="valid trajectories to keep")
+    p.add_argument("--steps", type=int, help="samples per trajectory")
+    p.add_argument("--seed", type=int, help="root seed")
+    p.add_argument("--substeps", type=int, help="physics steps per sample")
+    p.add_argument("--gravity-compensation", choices=["true_model", "nominal_model", "none"])
+    p.add_argument("--out", required=True, help="output store directory (e.g. data/ms.zarr)")
+    p.add_argument("--workers", type=int, default=None, help="threads/processes (default: all cores)")
+    p.add_argument("--shard", default="0/1", help="generate part i of n (e.g. 0/4); see README")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing RoboMorph store")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse_args(argv)
+    try:
+        recipe = load_recipe(args.config, {
+            "task": args.task, "robots": args.robots, "steps": args.steps, "seed": args.seed,
+            "substeps": args.substeps, "gravity_compensation": args.gravity_compensation,
+        })
+        shard = Shard.parse(args.shard)
+        attrs = generate(recipe, args.out, args.workers, shard, args.overwrite, not args.quiet)
+    except (ConfigError, GenerationError, FileExistsError, SchemaError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    rate = attrs["kept"] / max(attrs["attempted"], 1)
+    rejected = {k: v for k, v in attrs["rejected"].items() if v}
+    print(f"{args.out}: {attrs['n']} trajectories x {recipe.steps} steps ({attrs['task']}), "
+          f"kept {attrs['kept']} of {attrs['attempted']} attempts ({rate:.1%}), rejected {rejected}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,109 @@
+"""The generation recipe: what ``python -m robomorph.generate`` and ``datamodules/*.yaml`` hold."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from robomorph.core.config import ConfigError, from_dict, load_yaml, to_dict
+from robomorph.sim.filters import FilterConfig
+from robomorph.sim.osc import CircleConfig, OSCConfig, SpiralConfig
+from robomorph.sim.randomize import RandomizationConfig
+from robomorph.sim.signals import SignalConfig
+
+OPEN_LOOP_TASKS = ("multisine", "chirp")
+OSC_TASKS = ("circle", "spiral")
+TASKS = OPEN_LOOP_TASKS + OSC_TASKS
+GRAVITY_MODES = ("true_model", "nominal_model", "none")
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """Everything that decides a generated dataset (with the seed, it decides every array).
+
+    Attributes:
+        task: one task name, or a mixture ``{task: weight}`` drawn per trajectory.
+        robots: valid trajectories to keep.
+        steps: recorded samples per trajectory (T).
+        seed: root seed; attempt ``i`` draws from ``SeedSequence(seed, spawn_key=(i,))``.
+        dt: recorded sample time [s] (60 Hz as in the paper).
+        substeps: physics steps per sample (dt / substeps is the physics step).
+        gravity_compensation: ``true_model`` (g(q) of the randomized robot in the torque),
+            ``nominal_model`` (g(q) of the catalogue robot: the randomized masses then
+            show up as model error) or ``none``.
+        chunk: trajectories per Zarr chunk, per rollout batch and per flush.
+        max_attempts_factor: give up after ``robots * factor`` attempts.
+    """
+
+    task: str | dict[str, float] = "multisine"
+    robots: int = 256
+    steps: int = 1000
+    seed: int = 0
+    dt: float = 1 / 60
+    substeps: int = 8
+    gravity_compensation: Literal["true_model", "nominal_model", "none"] = "true_model"
+    chunk: int = 64
+    max_attempts_factor: float = 20.0
+    randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
+    signal: SignalConfig = field(default_factory=SignalConfig)
+    osc: OSCConfig = field(default_factory=OSCConfig)
+    circle: CircleConfig = field(default_factory=CircleConfig)
+    spiral: SpiralConfig = field(default_factory=SpiralConfig)
+    filters: FilterConfig = field(default_factory=FilterConfig)
+
+    def __post_init__(self):
+        for name in self.task_weights:
+            if name not in TASKS:
+                raise ValueError(f"unknown task {name!r}; choose from {list(TASKS)}")
+        if any(w <= 0 for w in self.task_weights.values()):
+            raise ValueError(f"task weights must be positive, got {self.task_weights}")
+        for name in ("robots", "steps", "substeps", "chunk"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not self.dt > 0:
+            raise ValueError(f"dt must be > 0, got {self.dt}")
+        if self.max_attempts_factor < 1:
+            raise ValueError(f"max_attempts_factor must be >= 1, got {self.max_attempts_factor}")
+        if self.gravity_compensation not in GRAVITY_MODES:
+            raise ValueError(f"gravity_compensation must be one of {GRAVITY_MODES}")
+
+    @property
+    def task_weights(self) -> dict[str, float]:
+        """Task -> probability (a single task has weight 1)."""
+        if isinstance(self.task, str):
+            return {self.task: 1.0}
+        total = sum(self.task.values())
+        return {k: v / total for k, v in self.task.items()} if total > 0 else dict(self.task)
+
+    @property
+    def task_names(self) -> list[str]:
+        return list(self.task_weights)
+
+    @property
+    def task_label(self) -> str:
+        return "+".join(self.task_names)
+
+    @property
+    def has_osc(self) -> bool:
+        return any(t in OSC_TASKS for t in self.task_names)
+
+    def to_dict(self) -> dict[str, Any]:
+        return to_dict(self)
+
+
+def load_recipe(path: str | None = None, overrides: dict[str, Any] | None = None) -> Recipe:
+    """Builds a recipe from an optional YAML file and flag overrides (flags win)."""
+    data = load_yaml(path) if path else {}
+    data.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    if "dt" in data and isinstance(data["dt"], int):
+        data["dt"] = float(data["dt"])
+    return from_dict(Recipe, data)
+
+
+def replace(recipe: Recipe, **changes: Any) -> Recipe:
+    """A validated copy with some fields changed."""
+    try:
+        return dataclasses.replace(recipe, **changes)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from exc

@@ -1,0 +1,197 @@
+"""``python -m robomorph.fit``: train a meta-model (LightningCLI over :func:`fit`).
+
+    python -m robomorph.fit --data.stores data/ms.zarr --run ms-small
+    python -m robomorph.fit --config configs/my.yaml --model.d_model 64 --trainer.max_steps 500
+    python -m robomorph.fit --print_config
+
+Each run writes ``<runs_dir>/<run>/``: ``config.yaml`` (the resolved configuration),
+``checkpoints/last.ckpt`` and ``checkpoints/best.ckpt`` (lowest ``val/loss``), a CSV log
+``logs/metrics.csv`` and a wandb run (offline unless ``--wandb online``). Re-running with
+the same ``--run`` resumes from ``last.ckpt`` at the same step, optimizer and schedule.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import sys
+import time
+import warnings
+from typing import Any
+
+import torch
+from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.cli import LightningCLI
+from lightning.pytorch.loggers import WandbLogger
+
+from robomorph.data.datamodule import RoboMorphDataModule
+from robomorph.training.checkpoints import AtomicCheckpointIO, ResumableCSVLogger, prune_log
+from robomorph.training.module import VAL_LOSS, MetaModule, load_checkpoint_file
+
+_RUN_ENV = "ROBOMORPH_RUN_NAME"  # shared with DDP worker processes, which re-run this script
+
+
+@dataclasses.dataclass
+class FitResult:
+    """What a finished :func:`fit` leaves behind."""
+
+    run_dir: str
+    best_ckpt: str | None
+    last_ckpt: str | None
+    metrics: dict[str, float]
+    global_step: int
+
+
+def _default_precision() -> str:
+    if torch.cuda.is_available() and torch.cuda.is_bf16_supported():
+        return "bf16-mixed"
+    return "32-true"
+
+
+TRAINER_DEFAULTS: dict[str, Any] = {
+    "max_steps": 2000,
+    "val_check_interval": 200,
+    "check_val_every_n_epoch": None,  # validate by steps, across epoch boundaries
+    "gradient_clip_val": 1.0,
+    "log_every_n_steps": 10,
+    "num_sanity_val_steps": 0,
+}
+
+
+class RoboMorphCLI(LightningCLI):
+    """LightningCLI with a run directory, automatic resume, loggers and checkpoints."""
+
+    extra_callbacks: tuple = ()  # callback objects from Python callers (benchmarks, sweeps)
+
+    def add_arguments_to_parser(self, parser) -> None:
+        parser.add_argument("--run", type=str | None, default=None,
+                            help="run name: outputs go to <runs_dir>/<run>/ (default: a timestamp)")
+        parser.add_argument("--runs_dir", type=str, default="results/runs")
+        parser.add_argument("--ckpt_path", type=str | None, default=None,
+                            help="checkpoint to resume from; 'last' = this run's last.ckpt "
+                                 "(the default whenever the run already has one)")
+        parser.add_argument("--wandb", type=str, default=os.environ.get("WANDB_MODE", "offline"),
+                            help="offline (default: no account needed), online, or disabled")
+        parser.add_argument("--project", type=str, default="robomorph", help="wandb project")
+        parser.add_argument("--group", type=str | None, default=None, help="wandb group (e.g. a sweep study)")
+        # One setting, two users: the data records it, the model's normalizer applies it.
+        parser.link_arguments("data.recenter", "model.recenter")
+
+    def run_dir(self) -> str:
+        cfg = self.config
+        name = cfg.run or os.environ.get(_RUN_ENV) or time.strftime("run-%Y%m%d-%H%M%S")
+        os.environ[_RUN_ENV] = name
+        return os.path.join(cfg.runs_dir, name)
+
+    def instantiate_trainer(self, **kwargs: Any):
+        cfg, run_dir = self.config, self.run_dir()
+        os.makedirs(run_dir, exist_ok=True)
+        self._run_dir = run_dir
+        ckpt_dir = os.path.join(run_dir, "checkpoints")
+        callbacks = [
+            ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor=VAL_LOSS, mode="min", save_top_k=1,
+                            save_last=True, auto_insert_metric_name=False, enable_version_counter=False),
+            LearningRateMonitor(logging_interval="step"),
+        ]
+        existing = self._get(self.config_init, "trainer", default={}).get("callbacks") or []
+        kwargs["callbacks"] = list(existing) + callbacks + list(self.extra_callbacks)
+        kwargs["default_root_dir"] = run_dir
+        kwargs["logger"] = _loggers(run_dir, cfg)
+        kwargs["plugins"] = [AtomicCheckpointIO()]
+        if self._get(self.config_init, "trainer", default={}).get("precision") is None:
+            kwargs["precision"] = _default_precision()
+        return super().instantiate_trainer(**kwargs)
+
+
+def _loggers(run_dir: str, cfg) -> list:
+    loggers: list = [ResumableCSVLogger(save_dir=run_dir, name="logs", version="")]
+    if cfg.wandb != "disabled":
+        os.environ.setdefault("WANDB_SILENT", "true")
+        id_file = os.path.join(run_dir, "wandb_id.txt")
+        run_id = open(id_file).read().strip() if os.path.exists(id_file) else None
+        logger = WandbLogger(save_dir=run_dir, project=cfg.project, name=os.path.basename(run_dir),
+                             group=cfg.group, id=run_id, resume="allow" if run_id else None, mode=cfg.wandb)
+        loggers.append(logger)
+    return loggers
+
+
+def _save_wandb_id(trainer, run_dir: str) -> None:
+    for logger in trainer.loggers:
+        if isinstance(logger, WandbLogger) and trainer.is_global_zero:
+            with open(os.path.join(run_dir, "wandb_id.txt"), "w") as f:
+                f.write(logger.version or "")
+
+
+def _finish_wandb(trainer) -> None:
+    """Closes the wandb run so the next fit() in this process starts its own."""
+    for logger in trainer.loggers:
+        if isinstance(logger, WandbLogger) and trainer.is_global_zero:
+            import wandb  # noqa: PLC0415
+
+            wandb.finish()
+
+
+def _resume_path(cli: RoboMorphCLI, run_dir: str) -> str | None:
+    last = os.path.join(run_dir, "checkpoints", "last.ckpt")
+    asked = cli.config.ckpt_path
+    if asked == "last" or (asked is None and os.path.isfile(last)):
+        return last if os.path.isfile(last) else None
+    return asked
+
+
+def build_cli(args: list[str] | dict | None = None, callbacks: list | None = None) -> RoboMorphCLI:
+    """Parses arguments (list, dict or sys.argv) and instantiates data, model and trainer."""
+    cls = type("RoboMorphCLIWithCallbacks", (RoboMorphCLI,), {"extra_callbacks": tuple(callbacks or ())})
+    if args is not None:
+        # Called as a function (tests, sweeps, demo): the caller's own command line is not ours.
+        warnings.filterwarnings("ignore", message="LightningCLI's args parameter is intended")
+    return cls(
+        MetaModule, RoboMorphDataModule, run=False, args=args, trainer_defaults=TRAINER_DEFAULTS,
+        save_config_callback=None, seed_everything_default=0,
+        parser_kwargs={"prog": "python -m robomorph.fit", "description": __doc__.split("\n")[0]},
+    )
+
+
+def fit(args: list[str] | dict | None = None, callbacks: list | None = None) -> FitResult:
+    """Trains (or resumes) one run; the function sweeps and tests call.
+
+    Args:
+        args: CLI arguments as a list (``["--data.stores", "x.zarr"]``) or a nested dict
+            (``{"data": {"stores": "x.zarr"}, "trainer": {"max_steps": 10}}``).
+        callbacks: extra Lightning callback objects (e.g. a sweep's pruning callback).
+    """
+    cli = build_cli(args, callbacks)
+    run_dir, trainer, module = cli._run_dir, cli.trainer, cli.model
+    ckpt = _resume_path(cli, run_dir)
+    module.resuming = ckpt is not None
+    if trainer.is_global_zero:
+        cli.parser.save(cli.config, os.path.join(run_dir, "config.yaml"), overwrite=True, multifile=False)
+        if ckpt:
+            step = load_checkpoint_file(ckpt)["global_step"]
+            prune_log(os.path.join(run_dir, "logs", "metrics.csv"), step)
+            print(f"resuming {run_dir} from {ckpt} (step {step})", file=sys.stderr)
+    try:
+        trainer.fit(module, datamodule=cli.datamodule, ckpt_path=ckpt)
+    finally:
+        _save_wandb_id(trainer, run_dir)
+        _finish_wandb(trainer)
+    cb = trainer.checkpoint_callback
+    metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
+    best = os.path.join(run_dir, "checkpoints", "best.ckpt")
+    last = os.path.join(run_dir, "checkpoints", "last.ckpt")
+    return FitResult(run_dir=run_dir, best_ckpt=best if os.path.isfile(best) else (cb.best_model_path or None),
+                     last_ckpt=last if os.path.isfile(last) else None, metrics=metrics,
+                     global_step=trainer.global_step)
+
+
+def main(argv: list[str] | None = None) -> int:
+    result = fit(argv)
+    if result.metrics:
+        shown = ", ".join(f"{k}={v:.4g}" for k, v in sorted(result.metrics.items()) if k.startswith("val/"))
+        print(f"{result.run_dir}: step {result.global_step}, {shown}")
+    print(f"best checkpoint: {result.best_ckpt}\nrun directory: {result.run_dir}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Tuning: Optuna studies over fit(), search spaces, summaries."""

@@ -1,0 +1,241 @@
+"""``python -m robomorph.sweep``: Optuna studies over fit() arguments, one run per trial.
+
+    python -m robomorph.sweep sweeps/architecture_cpu.yaml --n-trials 20
+    python -m robomorph.sweep sweeps/architecture_cpu.yaml --n-trials 20 --storage postgresql://u:p@host/db
+    python -m robomorph.sweep summary --study-name architecture-cpu
+
+Every trial is a full :func:`robomorph.training.fitting.fit` writing ``<runs_dir>/<study>-t<NNNN>/``
+(recorded in the trial's user attributes with its metrics). The validation metric is
+reported to the pruner at every validation, at step granularity (Optuna's stock Lightning
+callback reports epochs). ``--n-trials`` is the study's total of finished trials: several
+workers (processes or machines) sharing the storage stop together, and re-running the
+command continues the study. Storage is SQLite in ``results/sweeps/optuna.db`` by default
+(no server; local worker processes share it), or any SQLAlchemy URL. Workers send a
+heartbeat: the trial of a worker that died is marked failed by the next worker and
+retried with the same parameters, resuming the dead trial's run directory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import csv
+import os
+import sys
+import time
+
+import lightning.pytorch as L
+import optuna
+
+from robomorph.tuning.space import Space, SpaceError, load_space
+from robomorph.tuning.storage import DEFAULT_DIR, open_storage
+
+STATES_DONE = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
+
+
+class StepPruning(L.Callback):
+    """Reports ``metric`` at every validation with ``trainer.global_step`` as the step."""
+
+    def __init__(self, trial: optuna.Trial, metric: str):
+        self.trial, self.metric = trial, metric
+        self.values: list[float] = []
+        self.pruned_at: int | None = None
+
+    def on_validation_end(self, trainer, pl_module) -> None:
+        if trainer.sanity_checking or self.metric not in trainer.callback_metrics:
+            return
+        value = float(trainer.callback_metrics[self.metric])
+        self.values.append(value)
+        self.trial.report(value, step=trainer.global_step)
+        if self.trial.should_prune():
+            # Stop cleanly (checkpoints and logs stay consistent), raise after fit returns.
+            self.pruned_at = trainer.global_step
+            trainer.should_stop = True
+
+
+def _sampler(space: Space) -> optuna.samplers.BaseSampler:
+    cfg = dict(space.sampler)
+    name, seed = cfg.pop("name"), cfg.pop("seed", None)
+    if name == "grid":
+        return optuna.samplers.GridSampler(space.grid(), seed=seed)
+    if name == "random":
+        return optuna.samplers.RandomSampler(seed=seed)
+    return optuna.samplers.TPESampler(seed=seed, **cfg)
+
+
+def _pruner(space: Space) -> optuna.pruners.BasePruner:
+    cfg = dict(space.pruner)
+    if cfg.pop("name") == "none":
+        return optuna.pruners.NopPruner()
+    return optuna.pruners.MedianPruner(**cfg)
+
+
+def open_study(space: Space, storage=None, study_name: str | None = None) -> optuna.Study:
+    """Creates or loads the study (several workers may call this at once)."""
+    storage = storage if storage is not None else open_storage(None)
+    name = study_name or space.name
+    for attempt in range(5):
+        try:
+            return optuna.create_study(storage=storage, study_name=name, direction=space.direction,
+                                       sampler=_sampler(space), pruner=_pruner(space), load_if_exists=True)
+        except Exception:  # noqa: BLE001  (two workers creating the schema at the same instant)
+            if attempt == 4:
+                raise
+            time.sleep(0.5 + attempt)
+    raise AssertionError("unreachable")
+
+
+def _run_name(trial: optuna.Trial, study_name: str) -> str:
+    # A retried trial carries the user attributes of the trial it replaces, its run
+    # directory included: it resumes that run instead of starting over.
+    previous = trial.user_attrs.get("run_dir")
+    return os.path.basename(previous) if previous else f"{study_name}-t{trial.number:04d}"
+
+
+def make_objective(space: Space, study_name: str, runs_dir: str, wandb: str = "offline"):
+    """The objective: one fit() per trial (plus an evaluation when the space asks for one)."""
+    from robomorph.training.fitting import fit  # noqa: PLC0415
+
+    def objective(trial: optuna.Trial) -> float:
+        values = space.suggest(trial)
+        run = _run_name(trial, study_name)
+        trial.set_user_attr("run_dir", os.path.join(runs_dir, run))
+        regime = values.get("transfer.regime")
+        args = _regime_args(space, values, regime, run, runs_dir, wandb, study_name)
+        pruning = StepPruning(trial, space.metric)
+        ckpt = space.transfer.get("init_ckpt")
+        if args is not None:
+            result = fit(args, callbacks=[pruning])
+            trial.set_user_attr("metrics", result.metrics)
+            trial.set_user_attr("global_step", result.global_step)
+            if pruning.pruned_at is not None:
+                raise optuna.TrialPruned(f"pruned at step {pruning.pruned_at}")
+            ckpt = result.best_ckpt
+        if space.eval_data:
+            return _evaluate(trial, space, ckpt, os.path.join(runs_dir, run, "eval", "sweep"))
+        # The run's CSV log (pruned to the resumed step) records every validation, also those
+        # of a dead worker whose trial this retry resumed: a resume already at its budget
+        # validates no more. This process's own reports stand in when there is no log.
+        best = _best(logged_values(os.path.join(runs_dir, run), space.metric) or pruning.values, space.direction)
+        if best is None:
+            raise RuntimeError(f"trial {trial.number} logged no {space.metric!r}: validate at least once "
+                               "(trainer.val_check_interval below the step budget)")
+        return best
+
+    return objective
+
+
+def logged_values(run_dir: str, metric: str) -> list[float]:
+    """The values of ``metric`` in a run's ``logs/metrics.csv`` (empty when none were logged)."""
+    path = os.path.join(run_dir, "logs", "metrics.csv")
+    if not os.path.isfile(path):
+        return []
+    with open(path, newline="") as f:
+        return [float(r[metric]) for r in csv.DictReader(f) if r.get(metric) not in (None, "")]
+
+
+def _best(values: list[float], direction: str) -> float | None:
+    if not values:
+        return None
+    return max(values) if direction == "maximize" else min(values)
+
+
+def _regime_args(space: Space, values: dict, regime: str | None, run: str, runs_dir: str, wandb: str,
+                 group: str) -> dict | None:
+    args = space.fit_args(values, run, runs_dir)
+    args.update(wandb=wandb, group=group)
+    if regime is None:
+        return args
+    from robomorph.training.transfer import merge, regime_overrides  # noqa: PLC0415
+
+    # Learning rate and freezing are the fine-tuning's own settings; scratch keeps the base's.
+    tuned = regime == "finetune"
+    over = regime_overrides(regime, space.transfer.get("init_ckpt"), int(space.transfer.get("steps", 1000)),
+                            lr=values.get("transfer.lr", space.transfer.get("lr")) if tuned else None,
+                            freeze=values.get("transfer.freeze", space.transfer.get("freeze", "none")) if tuned else "none")
+    return None if over is None else merge(args, over)
+
+
+def _evaluate(trial: optuna.Trial, space: Space, ckpt: str | None, out: str) -> float:
+    from robomorph.evaluation.evaluator import evaluate  # noqa: PLC0415
+
+    if not ckpt:
+        raise RuntimeError("nothing to evaluate: the trial trained no checkpoint and the space names no init_ckpt")
+    res = evaluate(ckpt, space.eval_data, out, baselines=(), samples=0)
+    trial.set_user_attr("eval", {m: v["mean"] for m, v in res["approach1"]["mean"].items()})
+    return float(res["approach1"]["mean"][space.metric]["mean"])
+
+
+def run_sweep(space: Space, n_trials: int, storage=None, study_name: str | None = None,
+              runs_dir: str = "results/runs", wandb: str = "offline") -> optuna.Study:
+    """Runs trials until the study holds ``n_trials`` finished (complete or pruned) trials."""
+    study = open_study(space, storage, study_name)
+    done = len(study.get_trials(deepcopy=False, states=STATES_DONE))
+    if done >= n_trials:
+        print(f"study {study.study_name!r} already has {done} finished trials (asked {n_trials})", file=sys.stderr)
+        return study
+    stop = optuna.study.MaxTrialsCallback(n_trials, states=STATES_DONE)
+    objective = make_objective(space, study.study_name, runs_dir, wandb)
+    # n_trials bounds this worker; the callback stops every worker at the study's total.
+    study.optimize(objective, n_trials=n_trials, callbacks=[stop], catch=(RuntimeError,), gc_after_trial=True)
+    return study
+
+
+def with_overrides(space: Space, pairs: list[str]) -> Space:
+    """``space`` with ``KEY=VALUE`` pairs (dotted keys, YAML values) set in its base arguments."""
+    import dataclasses  # noqa: PLC0415
+
+    import yaml  # noqa: PLC0415
+
+    base = copy.deepcopy(space.base)
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or "." not in key:
+            raise SpaceError(f"--set takes section.argument=value, got {pair!r}")
+        node = base
+        *path, leaf = key.split(".")
+        for part in path:
+            node = node.setdefault(part, {})
+        node[leaf] = yaml.safe_load(value)
+    return dataclasses.replace(space, base=base)
+
+
+def _run_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m robomorph.sweep", description=__doc__.split("\n")[0],
+                                epilog="python -m robomorph.sweep summary --help: the study's table")
+    p.add_argument("space", help="search space file, e.g. sweeps/architecture_cpu.yaml")
+    p.add_argument("--n-trials", type=int, required=True, help="finished trials the study should hold")
+    p.add_argument("--storage", help="SQLAlchemy URL (default: sqlite:///results/sweeps/optuna.db)")
+    p.add_argument("--study-name", help="default: the space's name")
+    p.add_argument("--runs-dir", default="results/runs")
+    p.add_argument("--wandb", default="offline", choices=("offline", "online", "disabled"))
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a base fit() argument, e.g. --set data.stores=data/ms.zarr (repeatable)")
+    p.add_argument("--heartbeat", type=int, default=60, help="seconds between a running trial's heartbeats")
+    p.add_argument("--grace", type=int, default=180, help="seconds without heartbeat before a trial counts as dead")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["summary"]:
+        from robomorph.tuning.summary import main as summary_main  # noqa: PLC0415
+
+        return summary_main(argv[1:])
+    a = _run_parser().parse_args(argv)
+    if a.n_trials < 1:
+        sys.exit("error: --n-trials must be >= 1")
+    try:
+        space = with_overrides(load_space(a.space), a.set)
+        storage = open_storage(a.storage, a.heartbeat, a.grace)
+        study = run_sweep(space, a.n_trials, storage, a.study_name, a.runs_dir, a.wandb)
+    except (SpaceError, FileNotFoundError) as exc:
+        sys.exit(f"error: {exc}")
+    from robomorph.tuning.summary import summarize  # noqa: PLC0415
+
+    print(summarize(study, os.path.join(DEFAULT_DIR, study.study_name)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

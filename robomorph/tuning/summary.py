@@ -1,0 +1,103 @@
+"""``python -m robomorph.sweep summary``: a study's trials, best parameters and importances.
+
+    python -m robomorph.sweep summary --study-name architecture-cpu [--storage URL]
+
+Prints a markdown table and writes it (``summary.md``) with ``trials.csv`` into
+``results/sweeps/<study>/``. The same storage opens in the Optuna dashboard::
+
+    optuna-dashboard sqlite:///results/sweeps/optuna.db
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import sys
+
+import optuna
+
+from robomorph.tuning.storage import DEFAULT_DIR, open_storage
+
+COLUMNS = ("number", "state", "value", "duration_s", "run_dir")
+
+
+def trial_rows(study: optuna.Study) -> list[dict]:
+    """One dict per trial: number, state, value, duration, run directory and every parameter."""
+    rows = []
+    for t in study.get_trials(deepcopy=False):
+        dur = (t.datetime_complete - t.datetime_start).total_seconds() if t.datetime_complete and t.datetime_start else None
+        retried = t.system_attrs.get("failed_trial")  # set by the heartbeat retry callback
+        rows.append({"number": t.number, "state": t.state.name, "value": t.value,
+                     "duration_s": None if dur is None else round(dur, 1), "run_dir": t.user_attrs.get("run_dir", ""),
+                     "retry_of": retried if retried is not None else "", **t.params})
+    return rows
+
+
+def importances(study: optuna.Study) -> dict[str, float] | str:
+    """fANOVA importances of the completed trials, or the reason there are none."""
+    complete = [t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE]
+    if len(complete) < 2:
+        return f"needs at least 2 complete trials ({len(complete)} so far)"
+    try:
+        return optuna.importance.get_param_importances(study)
+    except (RuntimeError, ValueError) as exc:  # e.g. a parameter that never varied
+        return str(exc)
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else f"{v:.4g}"
+    return "" if v is None else str(v)
+
+
+def summarize(study: optuna.Study, out_dir: str | None = None) -> str:
+    """The summary text (markdown); with ``out_dir``, also ``summary.md`` and ``trials.csv``."""
+    rows = trial_rows(study)
+    params = sorted({k for r in rows for k in r} - set(COLUMNS) - {"retry_of"})
+    head = [*COLUMNS[:4], "retry_of", *params, "run_dir"]
+    counts = {s: sum(r["state"] == s for r in rows) for s in ("COMPLETE", "PRUNED", "FAIL", "RUNNING", "WAITING")}
+    lines = [f"# Study `{study.study_name}` ({study.direction.name.lower()})", "",
+             "trials: " + ", ".join(f"{k.lower()} {v}" for k, v in counts.items() if v), "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(_fmt(r.get(k)) for k in head) + " |" for r in rows]
+    try:
+        best = study.best_trial
+        lines += ["", f"**best**: trial {best.number}, value {_fmt(best.value)}, params {best.params}, "
+                      f"run {best.user_attrs.get('run_dir', '')}"]
+    except ValueError:
+        lines += ["", "**best**: no complete trial yet"]
+    imp = importances(study)
+    lines += ["", "parameter importances (fANOVA): " + (imp if isinstance(imp, str) else
+                                                        ", ".join(f"{k} {v:.3f}" for k, v in imp.items()))]
+    text = "\n".join(lines) + "\n"
+    if out_dir:
+        os.makedirs(out_dir, exist_ok=True)
+        with open(os.path.join(out_dir, "summary.md"), "w") as f:
+            f.write(text)
+        with open(os.path.join(out_dir, "trials.csv"), "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=head, extrasaction="ignore")
+            w.writeheader()
+            w.writerows(rows)
+    return text
+
+
+def main(argv: list[str] | None = None) -> int:
+    from robomorph.tuning.space import SpaceError  # noqa: PLC0415
+
+    p = argparse.ArgumentParser(prog="python -m robomorph.sweep summary", description=__doc__.split("\n")[0])
+    p.add_argument("--study-name", required=True)
+    p.add_argument("--storage", help="SQLAlchemy URL (default: sqlite:///results/sweeps/optuna.db)")
+    p.add_argument("--out", help="folder for summary.md and trials.csv (default: results/sweeps/<study>)")
+    a = p.parse_args(argv)
+    try:
+        storage = open_storage(a.storage)
+        study = optuna.load_study(study_name=a.study_name, storage=storage)
+    except SpaceError as exc:
+        sys.exit(f"error: {exc}")
+    except KeyError:
+        names = [s.study_name for s in optuna.get_all_study_summaries(storage)]
+        sys.exit(f"error: no study {a.study_name!r} in this storage; it holds {names}")
+    print(summarize(study, a.out or os.path.join(DEFAULT_DIR, a.study_name)))
+    return 0

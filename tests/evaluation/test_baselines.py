@@ -1,0 +1,76 @@
+import numpy as np
+import pytest
+
+from robomorph.evaluation.baselines import ARX, estimate_velocity, hold
+
+
+def test_hold_is_exact_on_a_constant_trajectory():
+    y = np.full((3, 50, 4), 2.5)
+    u = np.random.default_rng(0).normal(size=(3, 50, 2))
+    pred = hold(u[:, :20], y[:, :20], u[:, 20:])
+    assert pred.shape == (3, 30, 4)
+    np.testing.assert_array_equal(pred, y[:, 20:])
+
+
+def _linear_system(rng, n_traj=3, steps=400, n_u=2, n_y=3):
+    """y[t] = A1 y[t-1] + A2 y[t-2] + B1 u[t-1] + B2 u[t-2] + c, stable."""
+    a1 = 0.5 * np.eye(n_y) + 0.05 * rng.normal(size=(n_y, n_y))
+    a2 = -0.2 * np.eye(n_y)
+    b1, b2 = rng.normal(size=(n_y, n_u)), 0.3 * rng.normal(size=(n_y, n_u))
+    c = rng.normal(size=n_y)
+    u = rng.normal(size=(n_traj, steps, n_u))
+    y = np.zeros((n_traj, steps, n_y))
+    for t in range(2, steps):
+        y[:, t] = y[:, t - 1] @ a1.T + y[:, t - 2] @ a2.T + u[:, t - 1] @ b1.T + u[:, t - 2] @ b2.T + c
+    return u, y
+
+
+def test_arx_is_exact_on_a_linear_system():
+    u, y = _linear_system(np.random.default_rng(0))
+    arx = ARX(na=2, nb=2)
+    pred = arx(u[:, :150], y[:, :150], u[:, 150:])
+    assert pred.shape == y[:, 150:].shape and arx.diverged == 0
+    np.testing.assert_allclose(pred, y[:, 150:], atol=1e-5 * np.abs(y).max())
+
+
+def test_arx_too_low_an_order_is_not_exact():
+    u, y = _linear_system(np.random.default_rng(0))
+    pred = ARX(na=1, nb=1)(u[:, :150], y[:, :150], u[:, 150:])
+    assert np.abs(pred - y[:, 150:]).max() > 1e-2
+
+
+def test_arx_never_sees_the_query_outputs():
+    u, y = _linear_system(np.random.default_rng(1))
+    a = ARX()(u[:, :150], y[:, :150], u[:, 150:])
+    y2 = y.copy()
+    y2[:, 150:] = 1e6
+    np.testing.assert_array_equal(a, ARX()(u[:, :150], y2[:, :150], u[:, 150:]))
+
+
+def test_arx_divergence_falls_back_to_hold_and_is_counted():
+    t = np.arange(400)
+    y = (1.05 ** t)[None, :, None] * np.ones((2, 1, 1))
+    u = np.random.default_rng(0).normal(size=(2, 400, 1)) * 1e-6
+    arx = ARX(na=1, nb=1)
+    pred = arx(u[:, :100], y[:, :100], u[:, 100:])
+    assert arx.diverged == 2
+    np.testing.assert_array_equal(pred, np.repeat(y[:, 99:100], 300, axis=1))
+
+
+def test_arx_needs_enough_context():
+    u, y = _linear_system(np.random.default_rng(0))
+    with pytest.raises(ValueError, match="longer context"):
+        ARX(na=4, nb=4)(u[:, :20], y[:, :20], u[:, 20:40])
+    with pytest.raises(ValueError, match="orders"):
+        ARX(na=0)
+
+
+def test_velocity_estimate_is_exact_on_a_cubic():
+    dt = 0.01
+    t = np.arange(30) * dt
+    q = np.stack([1 + 2 * t - 3 * t**2 + 0.5 * t**3, np.sin(0 * t)], axis=-1)[None]
+    v = estimate_velocity(q, dt)
+    t_end = t[-1]
+    assert v.shape == (1, 2)
+    assert v[0, 0] == pytest.approx(2 - 6 * t_end + 1.5 * t_end**2, rel=1e-9)
+    assert v[0, 1] == pytest.approx(0.0, abs=1e-12)

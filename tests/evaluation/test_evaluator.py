@@ -1,0 +1,171 @@
+import json
+import os
+
+import numpy as np
+import pytest
+
+from robomorph.data.store import create_store
+from robomorph.evaluation.evaluator import evaluate, main, parse_range
+from robomorph.evaluation.metrics import METRICS
+from robomorph.predictor import Predictor
+from robomorph.sim.generation import generate
+from robomorph.sim.recipe import load_recipe
+from robomorph.training.fitting import fit
+
+os.environ.setdefault("WANDB_MODE", "offline")
+C, H = 30, 60
+
+
+def _store(path, robots, seed):
+    generate(load_recipe(None, {"task": "multisine", "robots": robots, "steps": C + H, "seed": seed}),
+             path, workers=1, progress=False)
+    return path
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("eval")
+    train = _store(str(root / "train.zarr"), 24, 1)
+    test = _store(str(root / "test.zarr"), 6, 2)
+    result = fit({
+        "data": {"stores": train, "context_len": C, "horizon": H, "batch_size": 8, "val_subset": 4},
+        "model": {"d_model": 16, "n_head": 2, "n_layer": 1, "patch": 5, "warmup_steps": 2, "max_context": 64,
+                  "max_horizon": 64, "anchor": True},
+        "trainer": {"max_steps": 6, "val_check_interval": 3, "accelerator": "cpu", "devices": 1,
+                    "enable_progress_bar": False, "enable_model_summary": False},
+        "run": "ev", "runs_dir": str(root / "runs"), "wandb": "disabled",
+    })
+    return root, result.best_ckpt, test
+
+
+def test_checkpoint_records_its_training_data(setup):
+    _, ckpt, _ = setup
+    info = Predictor.from_checkpoint(ckpt, device="cpu").data_info
+    assert info["context_len"] == C and info["horizon"] == H
+    assert info["y_names"][:3] == ["ee_x", "ee_y", "ee_z"] and len(info["u_names"]) == 7
+
+
+def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
+    _, ckpt, test = setup
+    out = str(tmp_path / "ev")
+    res = evaluate(ckpt, test, out, sweep_horizon_spec="20:60:20", sweep_context_spec="10,30", samples=2,
+                   arx_orders=(1, 1))
+    names = res["meta"]["y_names"]
+    for f in ("metrics.json", "metrics.csv", "table.md", "error_growth.png", "r2_distribution.png",
+              "sweep_horizon.png", "sweep_context.png"):
+        assert os.path.getsize(os.path.join(out, f)) > 0, f
+    assert len([f for f in os.listdir(out) if f.startswith("sample_")]) == 2
+    with open(os.path.join(out, "metrics.json")) as f:
+        disk = json.load(f)
+    assert disk["approach1"] == res["approach1"]
+    assert set(disk["approach1"]["channels"]) == set(names) and len(names) == 14
+    for ch in names:
+        assert set(disk["approach1"]["channels"][ch]) == set(METRICS)
+        assert set(disk["approach1"]["channels"][ch]["r2"]) == {"mean", "std"}
+        assert set(disk["approach2"]["channels"][ch]) == set(METRICS)
+    assert set(disk["baselines"]) == {"hold", "arx", "nominal_physics"}
+    for b in disk["baselines"].values():
+        assert set(b) == {"approach1", "approach2"} and set(b["approach1"]["channels"]) == set(names)
+    assert disk["meta"]["n"] == 6 and disk["meta"]["context_len"] == C and disk["meta"]["horizon"] == H
+    assert [r["horizon"] for r in disk["sweeps"]["horizon"]] == [20, 40, 60]
+    assert [r["context_len"] for r in disk["sweeps"]["context"]] == [10, 30]
+    # The full-horizon sweep point is the main evaluation.
+    assert disk["sweeps"]["horizon"][-1]["model"]["r2"] == pytest.approx(disk["approach1"]["mean"]["r2"]["mean"])
+    with open(os.path.join(out, "metrics.csv")) as f:
+        rows = f.read().splitlines()
+    # per source: approach 1 (14 channels + mean) and 2 (same), 4 metrics each
+    assert len(rows) == 1 + 4 * 2 * 15 * 4
+    table = open(os.path.join(out, "table.md")).read()
+    assert all(f"| {n} |" in table for n in names) and "colour convention" in table
+
+
+def test_hold_baseline_scores_match_a_direct_computation(setup, tmp_path):
+    _, ckpt, test = setup
+    res = evaluate(ckpt, test, str(tmp_path / "h"), baselines=("hold",), samples=0)
+    from robomorph.data.store import open_store
+    from robomorph.evaluation import metrics
+
+    y = open_store(test).read("y").astype(np.float64)
+    ref = metrics.fit_index(y[:, C:], np.repeat(y[:, C - 1:C], H, axis=1)).mean(-1).mean()
+    assert res["baselines"]["hold"]["approach1"]["mean"]["fit"]["mean"] == pytest.approx(ref)
+    assert set(res["baselines"]) == {"hold"}
+
+
+def test_shorter_windows_and_cli(setup, tmp_path, capsys):
+    _, ckpt, test = setup
+    out = str(tmp_path / "cli")
+    main(["--ckpt", ckpt, "--data", test, "--out", out, "--context-len", "20", "--horizon", "40",
+          "--baselines", "hold,arx", "--samples", "1", "--n", "3"])
+    text = capsys.readouterr().out
+    assert "3 trajectories, context 20, horizon 40" in text and "hold" in text
+    meta = json.load(open(os.path.join(out, "metrics.json")))["meta"]
+    assert (meta["n"], meta["context_len"], meta["horizon"]) == (3, 20, 40)
+
+
+def test_real_logs_skip_nominal_physics_with_the_reason(setup, tmp_path):
+    _, ckpt, test = setup
+    from robomorph.data.store import open_store
+
+    ds = open_store(test)
+    path = str(tmp_path / "real.zarr")
+    w = create_store(path, ds.n, ds.steps, ds.u_names, ds.y_names, [], {"dt": ds.dt, "domain": "real"})
+    w.append(ds.read("u"), ds.read("y"), np.zeros((ds.n, 0), np.float32))
+    w.finalize()
+    res = evaluate(ckpt, path, str(tmp_path / "r"), samples=0,
+                   baselines=("hold", "nominal_physics", "true_physics"))
+    assert set(res["baselines"]) == {"hold"}
+    assert "domain" in res["skipped_baselines"]["nominal_physics"]
+    assert "domain" in res["skipped_baselines"]["true_physics"]
+    sim = evaluate(ckpt, test, str(tmp_path / "t"), samples=0, baselines=("true_physics",))
+    assert set(sim["baselines"]) == {"true_physics"}
+
+
+def _other_store(path, names, steps=C + H, n=3, nan=False):
+    rng = np.random.default_rng(0)
+    u_names, y_names = names
+    w = create_store(path, n, steps, u_names, y_names, [], {"dt": 1 / 60, "domain": "real"})
+    y = rng.normal(size=(n, steps, len(y_names))).astype(np.float32)
+    if nan:
+        y[1, 5, 0] = np.nan
+    w.append(rng.normal(size=(n, steps, len(u_names))).astype(np.float32), y, np.zeros((n, 0), np.float32))
+    w.finalize()
+    return path
+
+
+def test_bad_input_gives_clear_errors(setup, tmp_path):
+    _, ckpt, test = setup
+    from robomorph.data.store import open_store
+
+    ds = open_store(test)
+    u_names, y_names = list(ds.u_names), list(ds.y_names)
+    cases = [
+        (_other_store(str(tmp_path / "names.zarr"), (u_names, y_names[:-1] + ["other"])), "y_names"),
+        (_other_store(str(tmp_path / "nu.zarr"), (u_names[:3], y_names)), "u_names"),
+        (_other_store(str(tmp_path / "nan.zarr"), (u_names, y_names), nan=True), r"trajectories \[1\]"),
+        (_other_store(str(tmp_path / "short.zarr"), (u_names, y_names), steps=50), "must fit"),
+        (str(tmp_path / "missing.zarr"), "missing|not found|No such|does not exist"),
+    ]
+    empty = str(tmp_path / "empty.zarr")
+    create_store(empty, 4, C + H, u_names, y_names, [], {"dt": 1 / 60})
+    cases.append((empty, "no trajectories"))
+    for store, msg in cases:
+        with pytest.raises((ValueError, FileNotFoundError), match=msg):
+            evaluate(ckpt, store, str(tmp_path / "bad"), samples=0)
+    with pytest.raises(ValueError, match="must fit"):
+        evaluate(ckpt, test, str(tmp_path / "bad"), horizon=500, samples=0)
+    with pytest.raises(ValueError, match=r"multiples of the model's patch \(5 steps per token\): \[12\]"):
+        evaluate(ckpt, test, str(tmp_path / "bad"), sweep_context_spec="10,12", samples=0)
+    with pytest.raises(ValueError, match="unknown baseline"):
+        evaluate(ckpt, test, str(tmp_path / "bad"), baselines=("oracle",))
+    with pytest.raises(SystemExit, match="error: .*must fit"):
+        main(["--ckpt", ckpt, "--data", test, "--horizon", "999", "--out", str(tmp_path / "bad")])
+    assert not os.path.exists(os.path.join(tmp_path, "bad", "metrics.json"))
+
+
+def test_parse_range():
+    assert parse_range("200:800:200", 1, 800, "horizon") == [200, 400, 600, 800]
+    assert parse_range("5,10", 1, 800, "context") == [5, 10]
+    with pytest.raises(ValueError, match="within"):
+        parse_range("0:900:100", 1, 800, "horizon")
+    with pytest.raises(ValueError, match="start:stop:step"):
+        parse_range("a:b", 1, 800, "horizon")

@@ -1,0 +1,58 @@
+import numpy as np
+import pytest
+
+from robomorph.data.store import open_store
+from robomorph.evaluation import metrics
+from robomorph.evaluation.baselines import hold
+from robomorph.evaluation.physics import NominalPhysics, NotApplicable
+from robomorph.sim.generation import generate
+from robomorph.sim.recipe import load_recipe
+
+# The catalogue robot: every range collapsed onto the value the baseline takes as nominal.
+UNRANDOMIZED = {"mass_pct": 0.0, "com_offset": 0.0, "damping": [7.5, 7.5], "stiffness": [0.03, 0.03],
+                "armature": [0.1, 0.1], "frictionloss_scale": [1.0, 1.0]}
+
+
+@pytest.fixture(scope="module")
+def nominal_store(tmp_path_factory):
+    path = str(tmp_path_factory.mktemp("nominal") / "nominal.zarr")
+    recipe = load_recipe(None, {"task": "multisine", "robots": 4, "steps": 300, "seed": 5,
+                                "randomization": UNRANDOMIZED})
+    generate(recipe, path, workers=1, progress=False)
+    return open_store(path)
+
+
+def test_nominal_physics_matches_an_unrandomized_robot(nominal_store):
+    u, y = nominal_store.read("u"), nominal_store.read("y")
+    c, h = 200, 60
+    sim = NominalPhysics(nominal_store.attrs)
+    pred = sim(u[:, :c], y[:, :c], u[:, c:c + h])
+    truth = y[:, c:c + h].astype(np.float64)
+    assert pred.shape == truth.shape
+    # Only the context's velocity estimate separates the two (chaos amplifies it later).
+    assert np.abs(pred - truth).max() < 2e-3
+    assert metrics.approach2(truth, pred, nominal_store.y_names)["mean"]["r2"] > 0.99
+    err_hold = np.abs(hold(u[:, :c], y[:, :c], u[:, c:c + h]) - truth).max()
+    assert np.abs(pred - truth).max() < 0.05 * err_hold
+
+
+def test_nominal_physics_is_skipped_for_other_stores(nominal_store):
+    attrs = dict(nominal_store.attrs)
+    with pytest.raises(NotApplicable, match="domain"):
+        NominalPhysics({**attrs, "domain": "real"})
+    with pytest.raises(NotApplicable, match="layout"):
+        NominalPhysics({**attrs, "y_names": ["a"] * 14})
+
+
+def test_true_physics_uses_each_robots_own_parameters(tmp_path):
+    path = str(tmp_path / "rand.zarr")
+    generate(load_recipe(None, {"task": "multisine", "robots": 3, "steps": 260, "seed": 6}), path,
+             workers=1, progress=False)
+    ds = open_store(path)
+    u, y, params = ds.read("u"), ds.read("y"), ds.read("params")
+    c, h = 200, 60
+    sim = NominalPhysics(ds.attrs)
+    truth = y[:, c:c + h].astype(np.float64)
+    true_err = np.abs(sim(u[:, :c], y[:, :c], u[:, c:c + h], params=params) - truth).max()
+    nominal_err = np.abs(sim(u[:, :c], y[:, :c], u[:, c:c + h]) - truth).max()
+    assert true_err < 2e-3 and nominal_err > 5 * true_err

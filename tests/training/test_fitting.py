@@ -1,0 +1,234 @@
+import csv
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from robomorph.data.store import create_store
+from robomorph.predictor import Predictor
+from robomorph.sim.generation import generate
+from robomorph.sim.recipe import load_recipe
+from robomorph.training.fitting import fit
+from robomorph.training.module import CheckpointError, load_checkpoint_file
+
+os.environ.setdefault("WANDB_MODE", "offline")
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    path = str(tmp_path_factory.mktemp("data") / "ms.zarr")
+    generate(load_recipe(None, {"task": "multisine", "robots": 40, "steps": 60, "chunk": 20, "seed": 1}),
+             path, workers=1, progress=False)
+    return path
+
+
+def _args(store, runs, run, steps=30, **extra):
+    args = {
+        "data": {"stores": store, "context_len": 20, "horizon": 40, "batch_size": 8, "val_subset": 8},
+        "model": {"d_model": 16, "n_head": 2, "n_layer": 1, "lr": 3e-3, "warmup_steps": 5, "max_context": 64,
+                  "max_horizon": 64},
+        "trainer": {"max_steps": steps, "val_check_interval": 10, "accelerator": "cpu", "devices": 1,
+                    "enable_progress_bar": False, "enable_model_summary": False},
+        "run": run, "runs_dir": str(runs), "wandb": "offline",
+    }
+    for key, value in extra.items():
+        args[key].update(value)
+    return args
+
+
+def _log(run_dir, key):
+    with open(os.path.join(run_dir, "logs", "metrics.csv")) as f:
+        rows = [r for r in csv.DictReader(f) if r.get(key)]
+    return [(int(r["step"]), float(r[key])) for r in rows]
+
+
+@pytest.fixture(scope="module")
+def trained(store, tmp_path_factory):
+    runs = tmp_path_factory.mktemp("runs")
+    return fit(_args(store, runs, "base", steps=60)), runs
+
+
+def test_fit_lowers_the_loss_and_writes_the_run(trained):
+    result, _ = trained
+    for rel in ("config.yaml", "checkpoints/last.ckpt", "checkpoints/best.ckpt", "logs/metrics.csv", "wandb"):
+        assert os.path.exists(os.path.join(result.run_dir, rel)), rel
+    losses = [v for _, v in _log(result.run_dir, "train/loss")]
+    assert np.mean(losses[-2:]) < 0.7 * np.mean(losses[:2])
+    assert {"val/loss", "val/r2", "val/fit"} <= set(result.metrics)
+    assert result.global_step == 60
+    assert _log(result.run_dir, "lr") and _log(result.run_dir, "val/r2")
+
+
+def test_resume_continues_at_the_saved_step(store, tmp_path):
+    first = fit(_args(store, tmp_path, "r", steps=20))
+    assert load_checkpoint_file(first.last_ckpt)["global_step"] == 20
+    second = fit(_args(store, tmp_path, "r", steps=40))  # same run: resumes from last.ckpt
+    assert second.global_step == 40
+    steps = [s for s, _ in _log(second.run_dir, "train/loss")]
+    # one log across the resume: the first run's rows kept, no step logged twice
+    assert min(steps) < 20 and max(steps) >= 30 and steps == sorted(set(steps))
+    assert _log(second.run_dir, "val/loss")[0][0] < 20
+    ckpt = load_checkpoint_file(second.last_ckpt)
+    assert ckpt["global_step"] == 40 and ckpt["optimizer_states"][0]["state"]  # optimizer state carried
+    # the schedule continued: the logged lr after resuming is not the warmup's start value
+    lr_after = [v for s, v in _log(second.run_dir, "lr") if s > 20]
+    assert lr_after and lr_after[0] < 3e-3 + 1e-12 and lr_after[0] > 3e-3 * 0.1 - 1e-12
+
+
+def test_transfer_loads_weights_and_freeze_freezes(trained, store, tmp_path):
+    base, _ = trained
+    tuned = fit(_args(store, tmp_path, "ft", steps=10,
+                      model={"init_ckpt": base.best_ckpt, "freeze": "all_but_head", "lr": 1e-2}))
+    src = load_checkpoint_file(base.best_ckpt)["state_dict"]
+    dst = load_checkpoint_file(tuned.last_ckpt)["state_dict"]
+    frozen = [k for k in src if k.startswith("net.") and not k.startswith("net.head")]
+    assert frozen and all(torch.equal(src[k], dst[k]) for k in frozen)
+    assert any(not torch.equal(src[k], dst[k]) for k in src if k.startswith("net.head"))
+    assert torch.equal(src["normalizer.y_mean"], dst["normalizer.y_mean"])  # the pretrained normalization
+
+
+@pytest.fixture(scope="module")
+def other_store(tmp_path_factory):
+    path = str(tmp_path_factory.mktemp("other") / "o.zarr")
+    w = create_store(path, 20, 60, ["a", "b"], ["c", "d", "e"], [], {"dt": 0.01})
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=(20, 60, 2)).astype(np.float32)
+    y = np.cumsum(u[..., :1] * 0.1, axis=1).repeat(3, axis=2).astype(np.float32)
+    w.append(u, y, np.zeros((20, 0), np.float32))
+    w.finalize()
+    return path
+
+
+def test_transfer_to_other_channels_needs_reinit_io(trained, other_store, tmp_path):
+    base, _ = trained
+    with pytest.raises(CheckpointError, match="reinit_io"):
+        fit(_args(other_store, tmp_path, "bad", steps=2, model={"init_ckpt": base.best_ckpt}))
+    ok = fit(_args(other_store, tmp_path, "io", steps=2, model={"init_ckpt": base.best_ckpt, "reinit_io": True}))
+    assert ok.global_step == 2
+
+
+def test_predictor_equals_the_module(trained, store):
+    base, _ = trained
+    from robomorph.data.store import open_store
+
+    ds = open_store(store)
+    u, y = ds.read("u", slice(0, 3)), ds.read("y", slice(0, 3))
+    pred = Predictor.from_checkpoint(base.best_ckpt, device="cpu")
+    batched = pred.simulate(u[:, :20], y[:, :20], u[:, 20:60])
+    assert isinstance(batched, np.ndarray) and batched.shape == (3, 40, 14)
+    single = pred.simulate(u[1, :20], y[1, :20], u[1, 20:60])
+    np.testing.assert_allclose(single, batched[1], atol=1e-5)
+    with torch.no_grad():
+        ref = pred.module(*(torch.as_tensor(x) for x in (u[:, :20], y[:, :20], u[:, 20:60])))
+    np.testing.assert_allclose(batched, ref.numpy(), atol=1e-6)
+    as_torch = pred.simulate(torch.as_tensor(u[:, :20]), torch.as_tensor(y[:, :20]), torch.as_tensor(u[:, 20:60]))
+    assert isinstance(as_torch, torch.Tensor)
+    # the prediction uses the context: a different robot's context changes it
+    other = pred.simulate(u[2, :20], y[2, :20], u[1, 20:60])
+    assert not np.allclose(other, single)
+    with pytest.raises(ValueError, match="channels"):
+        pred.simulate(u[1, :20, :3], y[1, :20], u[1, 20:60])
+    with pytest.raises(ValueError, match="NaN"):
+        pred.simulate(u[1, :20] * np.nan, y[1, :20], u[1, 20:60])
+
+
+def test_bad_checkpoints(tmp_path, trained):
+    with pytest.raises(CheckpointError, match="not found"):
+        Predictor.from_checkpoint(str(tmp_path / "missing.ckpt"))
+    base, _ = trained
+    data = open(base.best_ckpt, "rb").read()
+    cut = tmp_path / "cut.ckpt"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(CheckpointError, match="corrupt or truncated"):
+        Predictor.from_checkpoint(str(cut))
+    junk = tmp_path / "junk.ckpt"
+    torch.save({"hello": 1}, junk)
+    with pytest.raises(CheckpointError, match="not a RoboMorph"):
+        Predictor.from_checkpoint(str(junk))
+
+
+@pytest.mark.slow
+def test_ddp_with_two_cpu_processes(store, tmp_path):
+    cmd = [sys.executable, "-m", "robomorph.fit", "--data.stores", store, "--data.context_len", "20",
+           "--data.horizon", "40", "--data.batch_size", "4", "--data.val_subset", "8", "--model.d_model", "16",
+           "--model.n_head", "2", "--model.n_layer", "1", "--trainer.max_steps", "6",
+           "--trainer.val_check_interval", "3", "--trainer.accelerator", "cpu", "--trainer.devices", "2",
+           "--trainer.strategy", "ddp", "--trainer.enable_progress_bar", "false", "--run", "ddp",
+           "--runs_dir", str(tmp_path), "--wandb", "disabled"]
+    env = {**os.environ, "PYTHONWARNINGS": "ignore"}
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    ckpt = load_checkpoint_file(str(tmp_path / "ddp" / "checkpoints" / "last.ckpt"))
+    assert ckpt["global_step"] == 6
+
+
+def test_shipped_training_config_parses():
+    proc = subprocess.run([sys.executable, "-m", "robomorph.fit", "--config", "datamodules/train_cpu.yaml",
+                           "--print_config"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "patch: 10" in proc.stdout and "recenter: true" in proc.stdout
+
+
+def test_invalid_model_config_is_refused(store, tmp_path):
+    with pytest.raises(ValueError, match="n_head"):
+        fit(_args(store, tmp_path, "bad", steps=1, model={"d_model": 18, "n_head": 4}))
+
+
+def test_freeze_encoder_trains_only_the_rest(trained, store, tmp_path):
+    base, _ = trained
+    tuned = fit(_args(store, tmp_path, "fe", steps=10, model={"init_ckpt": base.best_ckpt, "freeze": "encoder", "lr": 1e-2}))
+    src = load_checkpoint_file(base.best_ckpt)["state_dict"]
+    dst = load_checkpoint_file(tuned.last_ckpt)["state_dict"]
+    enc = [k for k in src if k.startswith("net.enc")]
+    dec = [k for k in src if k.startswith("net.dec")]
+    assert enc and dec and all(torch.equal(src[k], dst[k]) for k in enc)
+    assert any(not torch.equal(src[k], dst[k]) for k in dec)
+
+
+def test_training_step_predictions_never_see_the_query_outputs(store, tmp_path):
+    # End to end through the LightningModule, with per-trajectory recentring on: changing
+    # y_query changes the target and the loss, never the prediction.
+    result = fit(_args(store, tmp_path, "rc", steps=5, data={"recenter": True}))
+    module = Predictor.from_checkpoint(result.last_ckpt, device="cpu").module
+    assert module.hparams.recenter
+    from robomorph.data.store import open_store
+
+    ds = open_store(store)
+    u, y = torch.as_tensor(ds.read("u", slice(0, 4))), torch.as_tensor(ds.read("y", slice(0, 4)))
+    batch = {"u_ctx": u[:, :20], "y_ctx": y[:, :20], "u_query": u[:, 20:60], "y_query": y[:, 20:60]}
+    poisoned = {**batch, "y_query": batch["y_query"] * 10 + 5}
+    with torch.no_grad():
+        loss, pred, target = module._step(batch)
+        loss2, pred2, target2 = module._step(poisoned)
+    assert torch.equal(pred, pred2)
+    assert not torch.allclose(target, target2) and loss2 > loss
+
+
+def test_ckpt_path_last_resumes_a_named_run(store, tmp_path):
+    fit(_args(store, tmp_path, "named", steps=10))
+    args = _args(store, tmp_path, "named", steps=20)
+    args["ckpt_path"] = "last"
+    assert fit(args).global_step == 20
+
+
+def test_an_interrupted_checkpoint_write_keeps_the_previous_checkpoint(tmp_path, monkeypatch):
+    from robomorph.training.checkpoints import AtomicCheckpointIO
+
+    path = tmp_path / "last.ckpt"
+    io = AtomicCheckpointIO()
+    io.save_checkpoint({"global_step": 1, "w": torch.ones(3)}, str(path))
+    before = path.read_bytes()
+
+    def dies_mid_write(obj, f, *a, **k):
+        f.write(b"half a checkpoint")
+        raise KeyboardInterrupt  # the job is killed while writing
+
+    monkeypatch.setattr(torch, "save", dies_mid_write)
+    with pytest.raises(KeyboardInterrupt):
+        io.save_checkpoint({"global_step": 2, "w": torch.zeros(3)}, str(path))
+    assert path.read_bytes() == before
+    assert torch.load(path, weights_only=False)["global_step"] == 1
+
