@@ -13,10 +13,12 @@ from typing import Any, TypeVar
 
 import yaml
 
+from robomorph.core.errors import RoboMorphError
+
 T = TypeVar("T")
 
 
-class ConfigError(ValueError):
+class ConfigError(RoboMorphError, ValueError):
     """A recipe or override is malformed; the message names the key."""
 
 

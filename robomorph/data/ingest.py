@@ -34,6 +34,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from robomorph.core.errors import RoboMorphError
 from robomorph.data.store import Dataset, check_writable, create_store, open_store
 
 FORMATS = ("csv", "npz", "mat")
@@ -42,7 +43,7 @@ _EXTENSIONS = {".csv": "csv", ".npz": "npz", ".mat": "mat"}
 _WRITE_BLOCK = 64
 
 
-class IngestError(ValueError):
+class IngestError(RoboMorphError, ValueError):
     """A log cannot be turned into a dataset as asked (the message says what to change)."""
 
 

@@ -29,6 +29,7 @@ from zarr.codecs import BloscCodec
 from zarr.storage import LocalStore
 
 from robomorph import __version__
+from robomorph.core.errors import RoboMorphError
 
 SCHEMA_VERSION = 1
 SCHEMA_NAME = "robomorph.dataset"
@@ -40,7 +41,7 @@ _COMPRESSORS = [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")]
 _REQUIRED_ATTRS = ("schema", "schema_version", "u_names", "y_names", "param_names", "dt", "status", "n")
 
 
-class SchemaError(ValueError):
+class SchemaError(RoboMorphError, ValueError):
     """A path is not a RoboMorph dataset of the supported schema."""
 
 

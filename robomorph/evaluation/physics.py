@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from robomorph.core.errors import RoboMorphError
 from robomorph.evaluation.baselines import estimate_velocity
 
 
-class NotApplicable(ValueError):
+class NotApplicable(RoboMorphError, ValueError):
     """The baseline cannot run on this store; the message says why."""
 
 

@@ -22,6 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from robomorph.core.config import ConfigError
+from robomorph.core.errors import RoboMorphError
 from robomorph.data.store import STATUS_COMPLETE, DatasetWriter, SchemaError, create_store, open_store
 from robomorph.sim import episode, panda
 from robomorph.sim.filters import REASONS
@@ -34,7 +35,7 @@ from robomorph.sim.recipe import Recipe, load_recipe
 MIN_ATTEMPTS_FOR_RATE = 256
 
 
-class GenerationError(RuntimeError):
+class GenerationError(RoboMorphError, RuntimeError):
     """Generation cannot reach its target (e.g. the valid rate is too low)."""
 
 

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from robomorph.core.errors import RoboMorphError
+
 N_JOINT = 7
 TORQUE_LIMITS = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])
 # A comfortable pose used as the spring reference default and by tests.
@@ -41,7 +43,7 @@ SENS_TAU = slice(14, 21)
 SENS_CONTACTS = 21
 
 
-class AssetsMissingError(RuntimeError):
+class AssetsMissingError(RoboMorphError, RuntimeError):
     """The Panda meshes are not installed."""
 
 

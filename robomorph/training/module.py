@@ -15,6 +15,7 @@ import lightning.pytorch as L
 import torch
 import torch.nn.functional as F
 
+from robomorph.core.errors import RoboMorphError
 from robomorph.evaluation import metrics
 from robomorph.model.normalization import Normalizer
 from robomorph.model.transformer import MetaModel, ModelConfig
@@ -36,7 +37,7 @@ def data_info(dm) -> dict:
             "stores": [str(s) for s in dm.stores]}
 
 
-class CheckpointError(RuntimeError):
+class CheckpointError(RoboMorphError, RuntimeError):
     """A checkpoint is missing, corrupt, or does not fit the model asked for."""
 
 

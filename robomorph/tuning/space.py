@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from robomorph.core.config import load_yaml
+from robomorph.core.errors import RoboMorphError
 
 SAMPLERS = ("tpe", "random", "grid")
 PRUNERS = ("median", "none")
@@ -37,7 +38,7 @@ SECTIONS = ("data", "model", "trainer", "transfer")
 EVAL_METRICS = ("r2", "rmse", "nrmse", "fit")
 
 
-class SpaceError(ValueError):
+class SpaceError(RoboMorphError, ValueError):
     """A search space that cannot be run; the message names the field and the fix."""
 
 
