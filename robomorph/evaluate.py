@@ -3,9 +3,58 @@
 The door only; the machinery is :mod:`robomorph.evaluation.evaluator`.
 """
 
+from __future__ import annotations
+
+import argparse
 import sys
 
-from robomorph.evaluation.evaluator import main
+from robomorph.core.errors import UsageError, run_command
+from robomorph.evaluation import evaluator
+from robomorph.evaluation.baselines import BASELINES, CEILINGS
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m robomorph.evaluate", description=evaluator.__doc__.split("\n")[0])
+    p.add_argument("--ckpt", required=True, help="checkpoint written by robomorph.fit")
+    p.add_argument("--data", required=True, help="store to evaluate on (.zarr)")
+    p.add_argument("--out", help="output folder (default: <run>/eval/<store name>)")
+    p.add_argument("--context-len", type=int, help="context steps (default: the checkpoint's)")
+    p.add_argument("--horizon", type=int, help="predicted steps (default: the checkpoint's)")
+    p.add_argument("--n", type=int, help="evaluate only the first N trajectories")
+    p.add_argument("--baselines", default=",".join(BASELINES),
+                   help=f"comma list from {BASELINES + CEILINGS}, or 'none' (true_physics reads the hidden "
+                        "parameters: a predictability ceiling, not a competitor)")
+    p.add_argument("--sweep-horizon", help="horizons to sweep, e.g. 200:800:50 or 100,400,800")
+    p.add_argument("--sweep-context", help="context lengths to sweep, e.g. 20:200:20")
+    p.add_argument("--batch-size", type=int, default=64)
+    p.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
+    p.add_argument("--samples", type=int, default=3, help="sample trajectories to plot")
+    p.add_argument("--arx-orders", default="2,2", help="ARX output and input lags na,nb")
+    p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories")
+    return p
+
+
+def _orders(text: str) -> tuple[int, int]:
+    try:
+        na, nb = (int(v) for v in text.split(","))
+    except ValueError:
+        raise UsageError(f"--arx-orders takes two integers na,nb, got {text!r}") from None
+    return na, nb
+
+
+def run(a: argparse.Namespace) -> int:
+    baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
+    out = a.out or evaluator.default_out(a.ckpt, a.data)
+    res = evaluator.evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
+                             a.sweep_context, a.batch_size, a.device, a.samples, _orders(a.arx_orders), a.seed)
+    print(evaluator.summary_text(res, out))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_command(lambda: run(args))
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -3,9 +3,68 @@
 The door only; the machinery is :mod:`robomorph.data.ingest`.
 """
 
-import sys
+from __future__ import annotations
 
-from robomorph.data.ingest import main
+import argparse
+import sys
+import warnings
+
+from robomorph.core.errors import run_command
+from robomorph.data import ingest
+
+
+def _names(text: str) -> list[str]:
+    return [c.strip() for c in text.split(",") if c.strip()]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m robomorph.ingest", description=ingest.__doc__.split("\n")[0])
+    p.add_argument("files", nargs="+", help="log files, one recording each (.csv, .npz, .mat)")
+    p.add_argument("--u-cols", required=True, type=_names, help="input columns, comma-separated")
+    p.add_argument("--y-cols", required=True, type=_names, help="output columns, comma-separated")
+    p.add_argument("--steps", required=True, type=int, help="samples per window (T)")
+    p.add_argument("--stride", type=int, help="samples between window starts (default: --steps)")
+    p.add_argument("--dt", type=float, help="sample time in seconds")
+    p.add_argument("--time-col", help="timestamp column (seconds) to derive dt from; must be uniform")
+    p.add_argument("--time-tol", type=float, default=0.01,
+                   help="largest relative deviation of a time step from the mean (default: 0.01)")
+    p.add_argument("--format", dest="fmt", default="auto", help="auto | csv | npz | mat (default: auto)")
+    p.add_argument("--out", required=True, help="output store directory (e.g. data/real.zarr)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing RoboMorph store")
+    p.add_argument("--name", help="domain name recorded in the store (default: real)")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    # Warnings about skipped recordings are printed before the result line (or the error),
+    # once the recording context is left (inside it, showwarning only records).
+    caught: list[warnings.WarningMessage] = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ingest.ShortRecordingWarning)
+            ds = ingest.ingest(args.files, args.u_cols, args.y_cols, args.out, args.steps, dt=args.dt,
+                               time_col=args.time_col, stride=args.stride, fmt=args.fmt,
+                               overwrite=args.overwrite, name=args.name, time_tol=args.time_tol)
+    finally:
+        _print_warnings(caught)
+    used = len(args.files) - len(ds.attrs["skipped_recordings"])
+    print(f"{args.out}: {ds.n} windows x {ds.steps} steps (dt={ds.dt:.6g} s, n_u={len(ds.u_names)}, "
+          f"n_y={len(ds.y_names)}) from {used} of {len(args.files)} recordings")
+    return 0
+
+
+def _print_warnings(caught: list[warnings.WarningMessage]) -> None:
+    for w in caught:
+        if issubclass(w.category, ingest.ShortRecordingWarning):
+            print(f"warning: {w.message}", file=sys.stderr)
+        else:  # warnings of other libraries keep their usual form
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_command(lambda: run(args))
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -3,9 +3,33 @@
 The door only; the machinery is :mod:`robomorph.data.merging`.
 """
 
+from __future__ import annotations
+
+import argparse
 import sys
 
-from robomorph.data.merging import main
+from robomorph.core.errors import run_command
+from robomorph.data import merging
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m robomorph.merge", description=merging.__doc__.split("\n")[0])
+    p.add_argument("parts", nargs="+", help="shard stores (complete)")
+    p.add_argument("--out", required=True)
+    p.add_argument("--overwrite", action="store_true")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    attrs = merging.merge(args.parts, args.out, args.overwrite)
+    print(f"{args.out}: {attrs['n']} trajectories from {len(args.parts)} shards")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_command(lambda: run(args))
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -3,9 +3,32 @@
 The door only; the machinery is :mod:`robomorph.reporting.dashboard`.
 """
 
+from __future__ import annotations
+
+import argparse
 import sys
 
-from robomorph.reporting.dashboard import main
+from robomorph.core.errors import run_command
+from robomorph.reporting import dashboard
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m robomorph.report", description=dashboard.__doc__.splitlines()[0])
+    parser.add_argument("runs_dir", nargs="?", default="results/runs", help="folder of run directories (default: %(default)s)")
+    parser.add_argument("--out", help="HTML file to write (default: <runs_dir>/../report.html)")
+    parser.add_argument("--title", default="RoboMorph training report", help="page title")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    print(dashboard.build_report(args.runs_dir, args.out or dashboard.default_out(args.runs_dir), args.title))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_command(lambda: run(args))
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -3,9 +3,43 @@
 The door only; the machinery is :mod:`robomorph.reproduction.pipeline`.
 """
 
+from __future__ import annotations
+
+import argparse
+import os
 import sys
 
-from robomorph.reproduction.pipeline import main
+from robomorph.core.errors import run_command
+from robomorph.reproduction import pipeline
+from robomorph.reproduction.scales import SCALES
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m robomorph.reproduce", description=pipeline.__doc__.split("\n")[0])
+    p.add_argument("target", choices=pipeline.TARGETS, help="what to reproduce")
+    p.add_argument("--scale", choices=list(SCALES), default="small", help="sizes and budgets (robomorph.reproduction.scales)")
+    p.add_argument("--out", help="tables and figures (default results/paper/<scale>)")
+    p.add_argument("--work", help="stores, runs and evaluations (default data/reproduce/<scale>)")
+    p.add_argument("--scratch-ratio", type=float, help="scratch budget / fine-tuning budget (default: the scale's)")
+    p.add_argument("--steps-factor", type=float, default=1.0, help="multiply every training budget (e.g. 0.1)")
+    p.add_argument("--workers", type=int, help="generation threads/processes (default: all cores)")
+    p.add_argument("--device", help="evaluation device: cpu, cuda, ... (default: cuda when available)")
+    p.add_argument("--wandb", choices=("offline", "online", "disabled"), default=os.environ.get("WANDB_MODE", "offline"))
+    return p
+
+
+def run(args: argparse.Namespace, argv: list[str]) -> int:
+    scale = SCALES[args.scale].scaled(args.steps_factor, args.scratch_ratio)
+    command = " ".join(["python -m robomorph.reproduce", *argv])  # recorded in the tables' headers
+    pipeline.reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    return run_command(lambda: run(args, argv))
+
 
 if __name__ == "__main__":
     sys.exit(main())

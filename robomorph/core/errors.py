@@ -18,6 +18,18 @@ class RoboMorphError(Exception):
     """Bad input: the message says what is wrong and how to fix it."""
 
 
+class UsageError(RoboMorphError, ValueError):
+    """A flag or argument value that no more specific error class covers."""
+
+
+class MissingInputError(RoboMorphError, FileNotFoundError):
+    """An input file or folder (store, checkpoint, log, recipe) that is not there."""
+
+
+class OutputExistsError(RoboMorphError, FileExistsError):
+    """An output path holds something the command refuses to replace."""
+
+
 def report(exc: BaseException) -> int:
     """Prints ``error: <message>`` (one line) to stderr; returns the exit code 2."""
     text = " ".join(str(exc).split()) or type(exc).__name__

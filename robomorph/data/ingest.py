@@ -24,17 +24,15 @@ is created, so a bad log never leaves a half-written dataset behind.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import os
-import sys
 import warnings
 import zipfile
 from typing import Any, Mapping
 
 import numpy as np
 
-from robomorph.core.errors import RoboMorphError
+from robomorph.core.errors import MissingInputError, RoboMorphError
 from robomorph.data.store import Dataset, check_writable, create_store, open_store
 
 FORMATS = ("csv", "npz", "mat")
@@ -151,7 +149,7 @@ def read_log(path: str, fmt: str = "auto") -> dict[str, np.ndarray]:
         IngestError: unknown format, unreadable file or unparsable values.
     """
     if not os.path.isfile(path):
-        raise FileNotFoundError(f"log file not found: {path}")
+        raise MissingInputError(f"log file not found: {path}")
     kind = _detect_format(path, fmt)
     try:
         if kind == "csv":
@@ -324,56 +322,3 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
                                   "window_start": block})
     writer.finalize()
     return open_store(out)
-
-
-def _names(text: str) -> list[str]:
-    return [c.strip() for c in text.split(",") if c.strip()]
-
-
-def _parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m robomorph.ingest", description=__doc__.split("\n")[0])
-    p.add_argument("files", nargs="+", help="log files, one recording each (.csv, .npz, .mat)")
-    p.add_argument("--u-cols", required=True, type=_names, help="input columns, comma-separated")
-    p.add_argument("--y-cols", required=True, type=_names, help="output columns, comma-separated")
-    p.add_argument("--steps", required=True, type=int, help="samples per window (T)")
-    p.add_argument("--stride", type=int, help="samples between window starts (default: --steps)")
-    p.add_argument("--dt", type=float, help="sample time in seconds")
-    p.add_argument("--time-col", help="timestamp column (seconds) to derive dt from; must be uniform")
-    p.add_argument("--time-tol", type=float, default=0.01,
-                   help="largest relative deviation of a time step from the mean (default: 0.01)")
-    p.add_argument("--format", dest="fmt", default="auto", help="auto | csv | npz | mat (default: auto)")
-    p.add_argument("--out", required=True, help="output store directory (e.g. data/real.zarr)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing RoboMorph store")
-    p.add_argument("--name", help="domain name recorded in the store (default: real)")
-    return p.parse_args(argv)
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = _parse_args(argv)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", ShortRecordingWarning)
-        try:
-            ds = ingest(args.files, args.u_cols, args.y_cols, args.out, args.steps, dt=args.dt,
-                        time_col=args.time_col, stride=args.stride, fmt=args.fmt,
-                        overwrite=args.overwrite, name=args.name, time_tol=args.time_tol)
-        except (ValueError, OSError) as exc:  # IngestError, SchemaError, FileExistsError, ...
-            _print_warnings(caught)
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-    _print_warnings(caught)
-    used = len(args.files) - len(ds.attrs["skipped_recordings"])
-    print(f"{args.out}: {ds.n} windows x {ds.steps} steps (dt={ds.dt:.6g} s, n_u={len(ds.u_names)}, "
-          f"n_y={len(ds.y_names)}) from {used} of {len(args.files)} recordings")
-    return 0
-
-
-def _print_warnings(caught: list[warnings.WarningMessage]) -> None:
-    for w in caught:
-        if issubclass(w.category, ShortRecordingWarning):
-            print(f"warning: {w.message}", file=sys.stderr)
-        else:  # warnings of other libraries keep their usual form
-            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

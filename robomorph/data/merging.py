@@ -7,16 +7,19 @@ records the shard stores it came from.
 
 from __future__ import annotations
 
-import argparse
-import sys
 
-from robomorph.data.store import SchemaError, create_store, open_store
+from robomorph.core.errors import RoboMorphError
+from robomorph.data.store import create_store, open_store
+
+
+class MergeError(RoboMorphError, ValueError):
+    """The given stores are not shards of one generation."""
 
 
 def merge(parts: list[str], out: str, overwrite: bool = False, chunk: int = 64) -> dict:
     """Concatenates complete shard stores of one recipe into ``out``."""
     if not parts:
-        raise ValueError("give at least one shard store to merge")
+        raise MergeError("give at least one shard store to merge")
     stores = [open_store(p) for p in parts]
     first = stores[0].attrs
     shards = sorted(tuple(s.attrs.get("shard", [0, 1])) for s in stores)
@@ -24,9 +27,9 @@ def merge(parts: list[str], out: str, overwrite: bool = False, chunk: int = 64) 
         a = s.attrs
         for key in ("config", "u_names", "y_names", "param_names", "dt"):
             if a.get(key) != first.get(key):
-                raise ValueError(f"{s.path} differs from {stores[0].path} in {key}: shards must share one recipe")
+                raise MergeError(f"{s.path} differs from {stores[0].path} in {key}: shards must share one recipe")
     if len(set(shards)) != len(shards):
-        raise ValueError(f"duplicate shards among the parts: {shards}")
+        raise MergeError(f"duplicate shards among the parts: {shards}")
     total = sum(s.n for s in stores)
     extras = {k: (tuple(stores[0].group[k].shape[1:]), str(stores[0].group[k].dtype))
               for k in stores[0].arrays if k not in ("u", "y", "params")}
@@ -50,22 +53,3 @@ def merge(parts: list[str], out: str, overwrite: bool = False, chunk: int = 64) 
                           extras={k: s.read(k, rows) for k in extras})
     writer.finalize()
     return open_store(out).attrs
-
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m robomorph.merge", description=__doc__.split("\n")[0])
-    p.add_argument("parts", nargs="+", help="shard stores (complete)")
-    p.add_argument("--out", required=True)
-    p.add_argument("--overwrite", action="store_true")
-    args = p.parse_args(argv)
-    try:
-        attrs = merge(args.parts, args.out, args.overwrite)
-    except (ValueError, SchemaError, FileExistsError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(f"{args.out}: {attrs['n']} trajectories from {len(args.parts)} shards")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

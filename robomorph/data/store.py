@@ -29,7 +29,7 @@ from zarr.codecs import BloscCodec
 from zarr.storage import LocalStore
 
 from robomorph import __version__
-from robomorph.core.errors import RoboMorphError
+from robomorph.core.errors import MissingInputError, OutputExistsError, RoboMorphError
 
 SCHEMA_VERSION = 1
 SCHEMA_NAME = "robomorph.dataset"
@@ -62,13 +62,13 @@ def check_writable(path: str, overwrite: bool) -> None:
     if not os.path.exists(path):
         return
     if os.path.isfile(path):
-        raise FileExistsError(f"{path} is a file, not a dataset directory; choose another --out")
+        raise OutputExistsError(f"{path} is a file, not a dataset directory; choose another --out")
     if not os.listdir(path):
         return
     try:
         attrs = dict(zarr.open_group(LocalStore(path), mode="r").attrs)
     except Exception as exc:  # noqa: BLE001  (any unreadable directory is refused)
-        raise FileExistsError(
+        raise OutputExistsError(
             f"{path} exists and is not a Zarr store; refusing to overwrite it"
         ) from exc
     if attrs.get("schema") != SCHEMA_NAME:
@@ -77,7 +77,7 @@ def check_writable(path: str, overwrite: bool) -> None:
             "refusing to overwrite it: choose another output path"
         )
     if not overwrite:
-        raise FileExistsError(
+        raise OutputExistsError(
             f"{path} already holds a RoboMorph dataset (status={attrs.get('status')}, "
             f"n={attrs.get('n')}); pass --overwrite to replace it, or choose another output path"
         )
@@ -195,7 +195,7 @@ class DatasetWriter:
 
 def _open_group(path: str, mode: str = "r") -> zarr.Group:
     if not os.path.exists(path):
-        raise FileNotFoundError(f"dataset not found: {path}")
+        raise MissingInputError(f"dataset not found: {path}; check the path, or generate it first (robomorph generate)")
     if not os.path.isdir(path):
         raise SchemaError(f"{path} is a file, not a Zarr dataset directory")
     try:

@@ -14,16 +14,16 @@ has no parameters, e.g. one made by ``robomorph.ingest``).
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
-import sys
 import warnings
 
 import numpy as np
 from matplotlib.figure import Figure
 
+from robomorph.core.atomic import save_figure
+from robomorph.core.errors import UsageError
 from robomorph.data.store import Dataset, open_store
 
 SAMPLE_ROWS = 256
@@ -200,7 +200,7 @@ def _plot_trajectories(ds: Dataset, path: str, idx: np.ndarray) -> None:
     fig.suptitle(f"{ds.attrs.get('domain')} / {ds.attrs.get('task')}: {len(idx)} of {ds.n} trajectories",
                  fontsize=11, x=0.02, ha="left")
     fig.supxlabel("time [s]", fontsize=9)
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
 
 
 def _plot_params(ds: Dataset, path: str) -> None:
@@ -217,7 +217,7 @@ def _plot_params(ds: Dataset, path: str) -> None:
         ax.set_title(name, fontsize=8)
         ax.tick_params(labelsize=6)
     fig.suptitle(f"{ds.attrs.get('domain')}: parameters over {ds.n} trajectories", fontsize=11)
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
 
 
 def params_plot_path(path: str) -> str:
@@ -239,9 +239,9 @@ def plot(dataset: Dataset, path: str, n_traj: int = 3, seed: int = 0) -> list[st
         The paths written (the histogram image only when the store has parameters).
     """
     if dataset.n == 0:
-        raise ValueError(f"{dataset.path} has no valid trajectories to plot")
+        raise UsageError(f"{dataset.path} has no valid trajectories to plot")
     if n_traj < 1:
-        raise ValueError(f"--n-traj must be >= 1, got {n_traj}")
+        raise UsageError(f"--n-traj must be >= 1, got {n_traj}")
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     rng = np.random.default_rng(seed)
     idx = np.sort(rng.choice(dataset.n, size=min(n_traj, dataset.n), replace=False))
@@ -251,26 +251,3 @@ def plot(dataset: Dataset, path: str, n_traj: int = 3, seed: int = 0) -> list[st
         _plot_params(dataset, params_plot_path(path))
         written.append(params_plot_path(path))
     return written
-
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m robomorph.inspect", description=__doc__.split("\n")[0])
-    p.add_argument("store", help="dataset directory (e.g. data/ms.zarr)")
-    p.add_argument("--plot", metavar="OUT.png", help="write trajectories to OUT.png, parameters to OUT_params.png")
-    p.add_argument("--n-traj", type=int, default=3, help="trajectories to plot (default: 3)")
-    p.add_argument("--allow-incomplete", action="store_true", help="inspect the valid rows of an unfinished store")
-    args = p.parse_args(argv)
-    try:
-        ds = open_store(args.store, allow_incomplete=args.allow_incomplete)
-        print(summarize(ds))
-        if args.plot:
-            for path in plot(ds, args.plot, args.n_traj):
-                print(f"wrote {path}")
-    except (ValueError, OSError) as exc:  # SchemaError, missing path, unwritable plot
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -17,18 +17,22 @@ before it, so every point of it scores the same targets.
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import sys
 from dataclasses import dataclass
 
 import numpy as np
 
+from robomorph.core.atomic import write_json
+from robomorph.core.errors import RoboMorphError
+from robomorph.core.rundir import RunDir
 from robomorph.evaluation import metrics
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
 from robomorph.evaluation.tables import write_csv, write_table
+
+
+class EvaluationError(RoboMorphError, ValueError):
+    """A checkpoint and a store (or the evaluation's options) that do not fit together."""
 
 
 @dataclass
@@ -56,7 +60,7 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
     """Reads and checks the first ``n`` trajectories of a store against the model.
 
     Raises:
-        ValueError: empty store, channels that differ from the checkpoint's, a window longer
+        EvaluationError: empty store, channels that differ from the checkpoint's, a window longer
             than the trajectories, or non-finite values (the trajectories are named).
     """
     from robomorph.data.store import open_store  # noqa: PLC0415
@@ -64,24 +68,24 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
     ds = open_store(data, allow_incomplete=True)
     total = int(ds.attrs.get("n", 0))
     if total == 0:
-        raise ValueError(f"{data} holds no trajectories: generate or import data into it first")
+        raise EvaluationError(f"{data} holds no trajectories: generate or import data into it first")
     ds = open_store(data)  # a half-written store: the error says how to finish it
     if info is not None:
         for what, ours, theirs in (("u_names", ds.u_names, info["u_names"]), ("y_names", ds.y_names, info["y_names"])):
             if list(ours) != list(theirs):
-                raise ValueError(f"{data} has {what} {list(ours)} but the checkpoint was trained on {list(theirs)}")
+                raise EvaluationError(f"{data} has {what} {list(ours)} but the checkpoint was trained on {list(theirs)}")
     elif (len(ds.u_names), len(ds.y_names)) != (n_u, n_y):
-        raise ValueError(f"{data} has n_u={len(ds.u_names)}, n_y={len(ds.y_names)} but the checkpoint expects "
+        raise EvaluationError(f"{data} has n_u={len(ds.u_names)}, n_y={len(ds.y_names)} but the checkpoint expects "
                          f"n_u={n_u}, n_y={n_y}")
     if context_len < 1 or horizon < 1 or context_len + horizon > ds.steps:
-        raise ValueError(f"context_len {context_len} + horizon {horizon} must fit in the store's T={ds.steps} steps "
+        raise EvaluationError(f"context_len {context_len} + horizon {horizon} must fit in the store's T={ds.steps} steps "
                          "(both >= 1): pass shorter --context-len / --horizon")
     rows = slice(0, min(n or total, total))
     u = ds.read("u", rows)[:, : context_len + horizon]
     y = ds.read("y", rows)[:, : context_len + horizon]
     bad = np.flatnonzero(~(np.isfinite(u).all((1, 2)) & np.isfinite(y).all((1, 2))))
     if len(bad):
-        raise ValueError(f"{data}: trajectories {bad[:10].tolist()} hold NaN or inf in the evaluated window; "
+        raise EvaluationError(f"{data}: trajectories {bad[:10].tolist()} hold NaN or inf in the evaluated window; "
                          "drop them (robomorph.merge) or fix the import")
     return Window(u, y, context_len, horizon, list(ds.u_names), list(ds.y_names), ds.dt, ds.attrs,
                   ds.read("params", rows))
@@ -125,7 +129,7 @@ def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]
             params = w.params if name == "true_physics" else None
             preds[name] = _batched(sim, u_ctx, y_ctx, u_q, name.replace("_", " "), params=params)
         else:
-            raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
+            raise EvaluationError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
     return preds, skipped, notes
 
 
@@ -180,9 +184,9 @@ def parse_range(text: str | None, low: int, high: int, what: str) -> list[int]:
         else:
             values = [int(v) for v in text.split(",")]
     except ValueError:
-        raise ValueError(f"--sweep-{what} takes start:stop:step or a comma list of integers, got {text!r}") from None
+        raise EvaluationError(f"--sweep-{what} takes start:stop:step or a comma list of integers, got {text!r}") from None
     if not values or min(values) < low or max(values) > high:
-        raise ValueError(f"--sweep-{what} {text!r} must lie within [{low}, {high}]")
+        raise EvaluationError(f"--sweep-{what} {text!r} must lie within [{low}, {high}]")
     return values
 
 
@@ -199,20 +203,20 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
 
     for name in baselines:
         if name not in BASELINES + CEILINGS:
-            raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
+            raise EvaluationError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
     predictor = Predictor.from_checkpoint(ckpt, device=device)
     info = predictor.data_info
     context_len = context_len or (info or {}).get("context_len")
     horizon = horizon or (info or {}).get("horizon")
     if context_len is None or horizon is None:
-        raise ValueError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
+        raise EvaluationError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
     w = load_window(data, int(context_len), int(horizon), n, info, predictor.n_u, predictor.n_y)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
     contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")
     patch = int(predictor.module.hparams.get("patch", 1))
     odd = [c for c in [w.context_len, *contexts] if c % patch]
     if odd:
-        raise ValueError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "
+        raise EvaluationError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "
                          f"{odd} are not (--context-len / --sweep-context)")
     os.makedirs(out, exist_ok=True)
 
@@ -242,56 +246,13 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     eval_plots.write_all(out, y_ctx, y_q, preds, names, w.dt, samples, seed)
     write_csv(os.path.join(out, "metrics.csv"), result)
     write_table(os.path.join(out, "table.md"), result)
-    _write_json(os.path.join(out, "metrics.json"), result)
+    write_json(os.path.join(out, "metrics.json"), result)
     return result
-
-
-def _write_json(path: str, obj: dict) -> None:
-    tmp = f"{path}.tmp"
-    with open(tmp, "w") as f:
-        json.dump(obj, f, indent=1, allow_nan=True)
-    os.replace(tmp, path)
 
 
 def default_out(ckpt: str, data: str) -> str:
     """``<run>/eval/<store name>`` for a checkpoint in ``<run>/checkpoints/``."""
-    run = os.path.dirname(os.path.dirname(os.path.abspath(ckpt)))
-    return os.path.join(run, "eval", os.path.basename(os.path.normpath(data)).removesuffix(".zarr"))
-
-
-def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="python -m robomorph.evaluate", description=__doc__.split("\n")[0])
-    p.add_argument("--ckpt", required=True, help="checkpoint written by robomorph.fit")
-    p.add_argument("--data", required=True, help="store to evaluate on (.zarr)")
-    p.add_argument("--out", help="output folder (default: <run>/eval/<store name>)")
-    p.add_argument("--context-len", type=int, help="context steps (default: the checkpoint's)")
-    p.add_argument("--horizon", type=int, help="predicted steps (default: the checkpoint's)")
-    p.add_argument("--n", type=int, help="evaluate only the first N trajectories")
-    p.add_argument("--baselines", default=",".join(BASELINES),
-                   help=f"comma list from {BASELINES + CEILINGS}, or 'none' (true_physics reads the hidden "
-                        "parameters: a predictability ceiling, not a competitor)")
-    p.add_argument("--sweep-horizon", help="horizons to sweep, e.g. 200:800:50 or 100,400,800")
-    p.add_argument("--sweep-context", help="context lengths to sweep, e.g. 20:200:20")
-    p.add_argument("--batch-size", type=int, default=64)
-    p.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
-    p.add_argument("--samples", type=int, default=3, help="sample trajectories to plot")
-    p.add_argument("--arx-orders", default="2,2", help="ARX output and input lags na,nb")
-    p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories")
-    a = p.parse_args(argv)
-    baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
-    out = a.out or default_out(a.ckpt, a.data)
-    try:
-        orders = tuple(int(v) for v in a.arx_orders.split(","))
-        if len(orders) != 2:
-            raise ValueError
-    except ValueError:
-        p.error(f"--arx-orders takes two integers na,nb, got {a.arx_orders!r}")
-    try:
-        res = evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
-                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed)
-    except (ValueError, FileNotFoundError) as exc:
-        sys.exit(f"error: {exc}")
-    print(summary_text(res, out))
+    return RunDir.of_checkpoint(ckpt).eval_dir(data)
 
 
 def summary_text(res: dict, out: str) -> str:
@@ -306,6 +267,3 @@ def summary_text(res: dict, out: str) -> str:
     lines.append(f"written: {out}/ (metrics.json, metrics.csv, table.md, *.png)")
     return "\n".join(lines)
 
-
-if __name__ == "__main__":
-    main()

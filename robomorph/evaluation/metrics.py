@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from robomorph.core.names import FIT, NRMSE, R2, RMSE
 from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band  # noqa: F401  (re-exported)
 
 EPS = 1e-8
@@ -68,7 +69,7 @@ def fit_index(y, yhat, eps: float = EPS):
     return _flat_safe(xp, 100 * (1 - xp.sqrt(sse) / xp.sqrt(safe)), sse, sst, t, eps, 100.0)
 
 
-METRICS = {"r2": r2, "rmse": rmse, "nrmse": nrmse, "fit": fit_index}
+METRICS = {R2: r2, RMSE: rmse, NRMSE: nrmse, FIT: fit_index}  # in the order of names.METRICS
 
 
 def approach1_mean(y, yhat, name: str = "r2"):

@@ -10,6 +10,7 @@ import os
 
 import numpy as np
 
+from robomorph.core.atomic import save_figure
 from robomorph.evaluation import metrics
 
 _STYLE = {"model": dict(color="C0", lw=1.4), "hold": dict(color="C7", ls=":"),
@@ -53,7 +54,7 @@ def plot_samples(path: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[s
     fig.supxlabel("time [s] (grey: context)", fontsize=9)
     fig.suptitle(f"trajectory {index}", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, dpi=90)
     plt.close(fig)
     return path
 
@@ -72,7 +73,7 @@ def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path
 
@@ -95,7 +96,7 @@ def plot_r2_distribution(path: str, y_true: np.ndarray, preds: dict[str, np.ndar
     ax.axhline(0, color="0.5", lw=0.6)
     ax.legend(fontsize=8, loc="lower left")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path
 
@@ -122,7 +123,7 @@ def plot_sweep(path: str, rows: list[dict], key: str) -> str:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import os
 
+from robomorph.core.atomic import atomic_open, write_text
 from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
 
 
@@ -28,12 +29,10 @@ def csv_rows(result: dict) -> list[dict]:
 
 
 def write_csv(path: str, result: dict) -> None:
-    tmp = f"{path}.tmp"
-    with open(tmp, "w", newline="") as f:
+    with atomic_open(path) as f:
         w = csv.DictWriter(f, fieldnames=["source", "approach", "channel", "metric", "value", "std"])
         w.writeheader()
         w.writerows(csv_rows(result))
-    os.replace(tmp, path)
 
 
 def _fit(v: float) -> str:
@@ -68,9 +67,6 @@ def table_markdown(result: dict) -> str:
 
 
 def write_table(path: str, result: dict) -> None:
-    tmp = f"{path}.tmp"
-    with open(tmp, "w") as f:
-        f.write(table_markdown(result))
-    os.replace(tmp, path)
+    write_text(path, table_markdown(result))
 
 

@@ -45,6 +45,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from robomorph.core.config import ConfigError
+
 __all__ = ["ModelConfig", "MetaModel"]
 
 
@@ -84,14 +86,14 @@ class ModelConfig:
         if self.n_layer_dec is not None:
             _require_positive_int("n_layer_dec", self.n_layer_dec)
         if self.d_model % self.n_head != 0:
-            raise ValueError(f"ModelConfig.d_model ({self.d_model}) must be divisible by n_head ({self.n_head})")
+            raise ConfigError(f"ModelConfig.d_model ({self.d_model}) must be divisible by n_head ({self.n_head})")
         if isinstance(self.dropout, bool) or not isinstance(self.dropout, (int, float)) or not 0 <= self.dropout < 1:
-            raise ValueError(f"ModelConfig.dropout must be a number in [0, 1), got {self.dropout!r}")
+            raise ConfigError(f"ModelConfig.dropout must be a number in [0, 1), got {self.dropout!r}")
         if not isinstance(self.bias, bool):
-            raise ValueError(f"ModelConfig.bias must be true or false, got {self.bias!r}")
+            raise ConfigError(f"ModelConfig.bias must be true or false, got {self.bias!r}")
         for name in ("max_context", "max_horizon"):
             if getattr(self, name) < self.patch:
-                raise ValueError(f"ModelConfig.{name} ({getattr(self, name)}) must be at least patch ({self.patch})")
+                raise ConfigError(f"ModelConfig.{name} ({getattr(self, name)}) must be at least patch ({self.patch})")
 
     @property
     def decoder_layers(self) -> int:
@@ -111,7 +113,7 @@ class ModelConfig:
 
 def _require_positive_int(name: str, value: object) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"ModelConfig.{name} must be a positive integer, got {value!r}")
+        raise ConfigError(f"ModelConfig.{name} must be a positive integer, got {value!r}")
 
 
 def _attend(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, n_head: int, dropout: float, causal: bool) -> torch.Tensor:

@@ -15,7 +15,6 @@ some run went wrong.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import json
@@ -28,15 +27,21 @@ from pathlib import Path
 
 import yaml
 
+from robomorph.core.atomic import write_text
+from robomorph.core.errors import RoboMorphError
+from robomorph.core.names import CURVES
+from robomorph.core.rundir import RunDir
 from robomorph.reporting import html as rh
 from robomorph.reporting.html import fit_colour
 
-__all__ = ["build_report", "fit_colour", "load_run", "main", "read_curves", "RunData", "EvalData"]
+__all__ = ["build_report", "default_out", "fit_colour", "load_run", "read_curves", "ReportError", "RunData", "EvalData"]
 
-CURVES = ("train/loss", "val/loss", "val/r2")
 # Run-level facts shown in the overview, looked up anywhere in the resolved config.
 FACTS = ("d_model", "n_layer", "n_head", "patch", "context_len", "horizon")
-RUN_MARKERS = ("config.yaml", "logs", "checkpoints", "eval")
+
+
+class ReportError(RoboMorphError, ValueError):
+    """There is nothing to report: the runs folder is missing or holds no run."""
 
 
 @dataclass
@@ -119,7 +124,7 @@ def read_curves(path: Path) -> tuple[dict[str, tuple[list[float], list[float]]],
 
 
 def _load_config(run: RunData) -> None:
-    path = run.path / "config.yaml"
+    path = Path(RunDir(str(run.path)).config)
     if not path.is_file():
         run.notes.append("no config.yaml")
         return
@@ -158,9 +163,9 @@ def _load_eval(path: Path) -> EvalData:
 
 def load_run(path: Path) -> RunData:
     """Reads one run directory; whatever is missing or broken becomes a note or a warning."""
-    run = RunData(name=path.name, path=path)
+    run, layout = RunData(name=path.name, path=path), RunDir(str(path))
     _load_config(run)
-    csv_path = path / "logs" / "metrics.csv"
+    csv_path = Path(layout.metrics_csv)
     if csv_path.is_file():
         try:
             run.curves, notes = read_curves(csv_path)
@@ -169,8 +174,8 @@ def load_run(path: Path) -> RunData:
             run.warnings.append(f"logs/metrics.csv is unreadable: {e}")
     else:
         run.notes.append("no logs/metrics.csv; no training curves")
-    run.checkpoints = [(p.name, p.stat().st_size) for p in sorted((path / "checkpoints").glob("*.ckpt"))]
-    eval_dir = path / "eval"
+    run.checkpoints = [(p.name, p.stat().st_size) for p in sorted(Path(layout.checkpoints).glob("*.ckpt"))]
+    eval_dir = Path(layout.evals)
     if eval_dir.is_dir():
         run.evals = [_load_eval(p) for p in sorted(eval_dir.iterdir()) if p.is_dir()]
     if not run.evals:
@@ -182,18 +187,18 @@ def find_runs(runs_dir: str | os.PathLike) -> list[RunData]:
     """Loads every run under ``runs_dir``.
 
     Raises:
-        ValueError: the directory is missing or holds no run, with what to do about it.
+        ReportError: the directory is missing or holds no run, with what to do about it.
     """
     root = Path(runs_dir)
     if not root.is_dir():
-        raise ValueError(f"runs directory {str(root)!r} does not exist; train a run first with "
+        raise ReportError(f"runs directory {str(root)!r} does not exist; train a run first with "
                          "`python -m robomorph.fit ...` or pass the folder that holds the runs")
-    dirs = [p for p in sorted(root.iterdir()) if p.is_dir() and any((p / m).exists() for m in RUN_MARKERS)]
-    if not dirs and any((root / m).exists() for m in RUN_MARKERS):
-        raise ValueError(f"{str(root)!r} looks like a single run; pass the folder that holds the runs "
+    dirs = [p for p in sorted(root.iterdir()) if p.is_dir() and RunDir(str(p)).looks_like_run()]
+    if not dirs and RunDir(str(root)).looks_like_run():
+        raise ReportError(f"{str(root)!r} looks like a single run; pass the folder that holds the runs "
                          f"(here {str(root.parent)!r})")
     if not dirs:
-        raise ValueError(f"no runs found in {str(root)!r}: expected sub-folders <run>/ with config.yaml, "
+        raise ReportError(f"no runs found in {str(root)!r}: expected sub-folders <run>/ with config.yaml, "
                          "logs/metrics.csv, checkpoints/ or eval/ (as written by `python -m robomorph.fit`)")
     return [load_run(p) for p in dirs]
 
@@ -343,20 +348,6 @@ def render(runs: list[RunData], title: str, runs_dir: str) -> str:
     return rh.page(title, "\n".join(parts))
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    """Writes ``text`` so that a reader never sees a half-written page."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # A plain open() (not mkstemp) so the page gets the usual umask permissions, not 0600.
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
 def build_report(runs_dir: str, out: str, title: str = "RoboMorph training report") -> str:
     """Writes the report of every run under ``runs_dir`` to ``out``.
 
@@ -369,30 +360,16 @@ def build_report(runs_dir: str, out: str, title: str = "RoboMorph training repor
         The path written.
 
     Raises:
-        ValueError: ``runs_dir`` is missing or holds no run.
+        ReportError: ``runs_dir`` is missing or holds no run.
     """
     runs = find_runs(runs_dir)
     for run in runs:
         for w in run.all_warnings:
             print(f"report: warning: {run.name}: {w}", file=sys.stderr)
-    _write_atomic(Path(out), render(runs, title, str(runs_dir)))
+    write_text(out, render(runs, title, str(runs_dir)))
     return str(out)
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Command-line entry point; see the module docstring."""
-    parser = argparse.ArgumentParser(prog="python -m robomorph.report", description=__doc__.splitlines()[0])
-    parser.add_argument("runs_dir", nargs="?", default="results/runs", help="folder of run directories (default: %(default)s)")
-    parser.add_argument("--out", help="HTML file to write (default: <runs_dir>/../report.html)")
-    parser.add_argument("--title", default="RoboMorph training report", help="page title")
-    args = parser.parse_args(argv)
-    out = args.out or os.path.join(os.path.dirname(os.path.abspath(args.runs_dir)), "report.html")
-    try:
-        path = build_report(args.runs_dir, out, args.title)
-    except ValueError as e:
-        parser.error(str(e))
-    print(path)
-
-
-if __name__ == "__main__":
-    main()
+def default_out(runs_dir: str) -> str:
+    """``report.html`` beside the runs folder (``results/runs`` -> ``results/report.html``)."""
+    return os.path.join(os.path.dirname(os.path.abspath(runs_dir)), "report.html")

@@ -12,11 +12,12 @@ import html
 import math
 from typing import Any, Iterable
 
+from robomorph.core.names import FIT, NRMSE, R2, RMSE
 from robomorph.evaluation.fit_bands import FIT_BANDS
 
 # Cells are painted with xcolor's ``colour!N`` (N% colour mixed with white, FIT_BANDS'
 # strength) so the page looks the same on any background, not alpha blended.
-METRICS = ("r2", "fit", "rmse", "nrmse")
+METRICS = (R2, FIT, RMSE, NRMSE)  # the order the tables show them
 DASH = "—"
 
 CSS = """

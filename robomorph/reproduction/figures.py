@@ -12,7 +12,7 @@ import csv
 import io
 import os
 
-from robomorph.core.atomic import write_json, write_text
+from robomorph.core.atomic import save_figure, write_json, write_text
 
 SWEEPS = (("horizon", "horizon", "prediction horizon [steps] (context fixed)"),
           ("context", "context_len", "context length [steps] (predicted window fixed)"))
@@ -80,6 +80,6 @@ def _plot(path: str, sweeps: dict[str, list[dict]], meta: dict, info: dict) -> s
                  f"{meta.get('context_len')} + horizon {meta.get('horizon')}; scores below the floor drawn on it)",
                  fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path

@@ -29,7 +29,6 @@ step times). Sizes, budgets and how the estimates were made: :mod:`robomorph.rep
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
 import os
@@ -38,10 +37,14 @@ import sys
 import time
 from dataclasses import dataclass
 
+from robomorph.core.errors import MissingInputError, UsageError
+from robomorph.core.names import REGIMES
+from robomorph.core.overrides import merge
+from robomorph.core.rundir import RunDir
 from robomorph.reproduction import skip as resume
-from robomorph.reproduction.scales import SCALES, Scale
+from robomorph.reproduction.scales import Scale
 from robomorph.sim.recipe import load_recipe
-from robomorph.training.transfer import REGIMES, merge, regime_overrides
+from robomorph.training.transfer import regime_overrides
 
 TARGETS = ("table1", "table2", "context", "all")
 # (recipe, robots field of the scale, seed): disjoint seeds, so no test robot is a training robot.
@@ -99,7 +102,7 @@ def recipe_path(name: str) -> str:
         path = os.path.join(root, "datamodules", f"{name}.yaml")
         if os.path.isfile(path):
             return path
-    raise FileNotFoundError(f"datamodules/{name}.yaml not found: run from the repository root")
+    raise MissingInputError(f"datamodules/{name}.yaml not found: run from the repository root")
 
 
 def base_args(plan: Plan, depth: int, stores: list[str], run: str, steps: int) -> dict:
@@ -123,7 +126,7 @@ def train(plan: Plan, target: str, args: dict, what: str) -> str:
     """Trains (or resumes, or skips) one run; returns the checkpoint that stands for it."""
     from robomorph.training import fitting  # noqa: PLC0415  (torch and Lightning only when training)
 
-    run_dir = os.path.join(args["runs_dir"], args["run"])
+    run_dir = RunDir.named(args["runs_dir"], args["run"]).path
     budget = {"max_steps": args["trainer"]["max_steps"], "max_time": args["trainer"]["max_time"]}
     if resume.run_finished(run_dir, budget):
         say(target, f"{what}: finished run {run_dir}, kept")
@@ -149,8 +152,8 @@ def score(plan: Plan, target: str, ckpt: str, data: str, name: str, sweeps: bool
     """
     from robomorph.evaluation.evaluator import evaluate  # noqa: PLC0415
 
-    run_dir = os.path.dirname(os.path.dirname(os.path.abspath(ckpt)))
-    run, out = os.path.basename(run_dir), os.path.join(run_dir, "eval", name)
+    layout = RunDir.of_checkpoint(ckpt)
+    run, out = layout.name, layout.eval_dir(name)
     if resume.eval_fresh(out, ckpt):
         say(target, f"evaluation {run} on {name}: up to date, kept")
         return resume.read_json(os.path.join(out, "metrics.json"))
@@ -248,7 +251,7 @@ def reproduce(target: str, scale: Scale, out: str | None = None, work: str | Non
         ``{target: the JSON content written}`` for each target run.
     """
     if target not in TARGETS:
-        raise ValueError(f"unknown target {target!r}; choose from {list(TARGETS)}")
+        raise UsageError(f"unknown target {target!r}; choose from {list(TARGETS)}")
     plan = Plan(scale, work or os.path.join("data", "reproduce", scale.name),
                 out or os.path.join("results", "paper", scale.name), command, workers, device, wandb)
     os.makedirs(plan.out, exist_ok=True)
@@ -268,27 +271,3 @@ def report(plan: Plan) -> str:
     say("report", f"written {path} (open it in a browser, offline)")
     return path
 
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m robomorph.reproduce", description=__doc__.split("\n")[0])
-    p.add_argument("target", choices=TARGETS, help="what to reproduce")
-    p.add_argument("--scale", choices=list(SCALES), default="small", help="sizes and budgets (robomorph.reproduction.scales)")
-    p.add_argument("--out", help="tables and figures (default results/paper/<scale>)")
-    p.add_argument("--work", help="stores, runs and evaluations (default data/reproduce/<scale>)")
-    p.add_argument("--scratch-ratio", type=float, help="scratch budget / fine-tuning budget (default: the scale's)")
-    p.add_argument("--steps-factor", type=float, default=1.0, help="multiply every training budget (e.g. 0.1)")
-    p.add_argument("--workers", type=int, help="generation threads/processes (default: all cores)")
-    p.add_argument("--device", help="evaluation device: cpu, cuda, ... (default: cuda when available)")
-    p.add_argument("--wandb", choices=("offline", "online", "disabled"), default=os.environ.get("WANDB_MODE", "offline"))
-    args = p.parse_args(argv)
-    try:
-        scale = SCALES[args.scale].scaled(args.steps_factor, args.scratch_ratio)
-    except ValueError as exc:
-        p.error(str(exc))
-    command = " ".join(["python -m robomorph.reproduce", *(sys.argv[1:] if argv is None else argv)])
-    reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

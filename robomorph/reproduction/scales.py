@@ -41,6 +41,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+from robomorph.core.config import ConfigError
+
 
 @dataclass(frozen=True)
 class Scale:
@@ -104,20 +106,20 @@ class Scale:
 
     def __post_init__(self):
         if len(self.depths) != 3 or min(self.depths) < 1:
-            raise ValueError(f"{self.name}: depths must be three positive layer counts, got {self.depths}")
+            raise ConfigError(f"{self.name}: depths must be three positive layer counts, got {self.depths}")
         if self.context_len % self.patch:
-            raise ValueError(f"{self.name}: context_len {self.context_len} must be a multiple of patch {self.patch}")
+            raise ConfigError(f"{self.name}: context_len {self.context_len} must be a multiple of patch {self.patch}")
         if self.context_len + self.horizon > self.steps:
-            raise ValueError(f"{self.name}: context_len + horizon exceeds the {self.steps} steps per trajectory")
+            raise ConfigError(f"{self.name}: context_len + horizon exceeds the {self.steps} steps per trajectory")
         if self.d_model % self.n_head:
-            raise ValueError(f"{self.name}: d_model {self.d_model} must be divisible by n_head {self.n_head}")
+            raise ConfigError(f"{self.name}: d_model {self.d_model} must be divisible by n_head {self.n_head}")
         for field in ("train_steps", "pretrain_steps", "finetune_steps", "batch_size", "val_every"):
             if getattr(self, field) < 1:
-                raise ValueError(f"{self.name}: {field} must be >= 1, got {getattr(self, field)}")
+                raise ConfigError(f"{self.name}: {field} must be >= 1, got {getattr(self, field)}")
         if not self.scratch_ratio > 0:
-            raise ValueError(f"{self.name}: scratch_ratio must be > 0, got {self.scratch_ratio}")
+            raise ConfigError(f"{self.name}: scratch_ratio must be > 0, got {self.scratch_ratio}")
         if not 0 < self.val_fraction < 1:
-            raise ValueError(f"{self.name}: val_fraction must lie in (0, 1), got {self.val_fraction}")
+            raise ConfigError(f"{self.name}: val_fraction must lie in (0, 1), got {self.val_fraction}")
 
     @property
     def transfer_depth(self) -> int:
@@ -131,7 +133,7 @@ class Scale:
     def scaled(self, steps_factor: float = 1.0, scratch_ratio: float | None = None) -> "Scale":
         """A copy with every training budget times ``steps_factor`` and, optionally, another scratch ratio."""
         if not steps_factor > 0:
-            raise ValueError(f"steps_factor must be > 0, got {steps_factor}")
+            raise ConfigError(f"steps_factor must be > 0, got {steps_factor}")
 
         def f(n: int) -> int:
             return max(1, round(n * steps_factor))

@@ -12,10 +12,11 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from robomorph.core.names import OPEN_LOOP_TASKS
 from robomorph.sim import filters, osc, panda
 from robomorph.sim.closed_loop import simulate_closed_loop
 from robomorph.sim.randomize import Randomizer
-from robomorph.sim.recipe import OPEN_LOOP_TASKS, Recipe
+from robomorph.sim.recipe import Recipe
 from robomorph.sim.signals import SIGNALS
 
 

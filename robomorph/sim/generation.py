@@ -9,12 +9,10 @@ same arrays as an uninterrupted one.
 
 from __future__ import annotations
 
-import argparse
 import collections
 import math
 import multiprocessing as mp
 import os
-import sys
 import time
 from dataclasses import dataclass, field
 
@@ -22,13 +20,13 @@ import numpy as np
 from tqdm import tqdm
 
 from robomorph.core.config import ConfigError
-from robomorph.core.errors import RoboMorphError
+from robomorph.core.errors import OutputExistsError, RoboMorphError
 from robomorph.data.store import STATUS_COMPLETE, DatasetWriter, SchemaError, create_store, open_store
 from robomorph.sim import episode, panda
 from robomorph.sim.filters import REASONS
 from robomorph.sim.open_loop import OpenLoopEngine
 from robomorph.sim.randomize import Randomizer, param_names
-from robomorph.sim.recipe import Recipe, load_recipe
+from robomorph.sim.recipe import Recipe
 
 # Below this kept rate (after MIN_ATTEMPTS_FOR_RATE attempts) the bound on attempts can
 # never be met, so the run stops early instead of burning hours.
@@ -125,10 +123,10 @@ def _open_writer(recipe: Recipe, out: str, shard: Shard, overwrite: bool) -> Dat
         try:
             ds = open_store(out, allow_incomplete=True)
         except SchemaError as exc:
-            raise FileExistsError(f"{out} exists and is not a RoboMorph dataset; refusing to touch it") from exc
+            raise OutputExistsError(f"{out} exists and is not a RoboMorph dataset; refusing to touch it") from exc
         a = ds.attrs
         if a.get("config") != recipe.to_dict() or a.get("shard") != [shard.index, shard.count]:
-            raise FileExistsError(
+            raise OutputExistsError(
                 f"{out} holds a dataset made with a different recipe, seed or shard; "
                 "pass --overwrite to replace it, or choose another --out"
             )
@@ -296,43 +294,3 @@ def _postfix(prog: _Progress, slot: int, made: int, elapsed: float) -> str:
     rate = made / elapsed if elapsed > 0 else 0.0
     rej = " ".join(f"{k}={v}" for k, v in sorted(rejected.items())) or "none"
     return f"attempted={slot} kept={kept} ({kept / max(slot, 1):.0%}) rejected: {rej} | {rate:.1f} attempts/s"
-
-
-def _parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m robomorph.generate", description=__doc__.split("\n")[0])
-    p.add_argument("--config", help="recipe YAML (datamodules/*.yaml); flags override its fields")
-    p.add_argument("--task", help="multisine | chirp | circle | spiral")
-    p.add_argument("--robots", type=int, help="valid trajectories to keep")
-    p.add_argument("--steps", type=int, help="samples per trajectory")
-    p.add_argument("--seed", type=int, help="root seed")
-    p.add_argument("--substeps", type=int, help="physics steps per sample")
-    p.add_argument("--gravity-compensation", choices=["true_model", "nominal_model", "none"])
-    p.add_argument("--out", required=True, help="output store directory (e.g. data/ms.zarr)")
-    p.add_argument("--workers", type=int, default=None, help="threads/processes (default: all cores)")
-    p.add_argument("--shard", default="0/1", help="generate part i of n (e.g. 0/4); see README")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing RoboMorph store")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    return p.parse_args(argv)
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = _parse_args(argv)
-    try:
-        recipe = load_recipe(args.config, {
-            "task": args.task, "robots": args.robots, "steps": args.steps, "seed": args.seed,
-            "substeps": args.substeps, "gravity_compensation": args.gravity_compensation,
-        })
-        shard = Shard.parse(args.shard)
-        attrs = generate(recipe, args.out, args.workers, shard, args.overwrite, not args.quiet)
-    except (ConfigError, GenerationError, FileExistsError, SchemaError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    rate = attrs["kept"] / max(attrs["attempted"], 1)
-    rejected = {k: v for k, v in attrs["rejected"].items() if v}
-    print(f"{args.out}: {attrs['n']} trajectories x {recipe.steps} steps ({attrs['task']}), "
-          f"kept {attrs['kept']} of {attrs['attempted']} attempts ({rate:.1%}), rejected {rejected}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

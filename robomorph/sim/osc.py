@@ -31,10 +31,9 @@ import mujoco
 import numpy as np
 
 from robomorph.core.config import check_range
+from robomorph.core.names import OSC_TASKS
 from robomorph.sim.closed_loop import reset_to, simulate_closed_loop
 from robomorph.sim.panda import TORQUE_LIMITS
-
-TASKS = ("circle", "spiral")
 
 
 def _positive(where: str, **values: float | None) -> None:
@@ -406,7 +405,7 @@ def simulate_osc(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.ndarray, 
         sens (T, nsensordata) sensor data, target (T, 3) desired EE positions, kp used.
     """
     if task not in PATHS:
-        raise ValueError(f"unknown OSC task {task!r}; choose from {list(TASKS)}")
+        raise ValueError(f"unknown OSC task {task!r}; choose from {list(OSC_TASKS)}")
     expected = CircleConfig if task == "circle" else SpiralConfig
     if not isinstance(path_cfg, expected):
         raise TypeError(f"task {task!r} needs a {expected.__name__}, got {type(path_cfg).__name__}")

@@ -7,15 +7,12 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from robomorph.core.config import ConfigError, from_dict, load_yaml, to_dict
+from robomorph.core.names import GRAVITY_MODES, OSC_TASKS, TASKS
+from robomorph.core.overrides import merge
 from robomorph.sim.filters import FilterConfig
 from robomorph.sim.osc import CircleConfig, OSCConfig, SpiralConfig
 from robomorph.sim.randomize import RandomizationConfig
 from robomorph.sim.signals import SignalConfig
-
-OPEN_LOOP_TASKS = ("multisine", "chirp")
-OSC_TASKS = ("circle", "spiral")
-TASKS = OPEN_LOOP_TASKS + OSC_TASKS
-GRAVITY_MODES = ("true_model", "nominal_model", "none")
 
 
 @dataclass(frozen=True)
@@ -42,7 +39,7 @@ class Recipe:
     seed: int = 0
     dt: float = 1 / 60
     substeps: int = 8
-    gravity_compensation: Literal["true_model", "nominal_model", "none"] = "true_model"
+    gravity_compensation: Literal[GRAVITY_MODES] = "true_model"
     chunk: int = 64
     max_attempts_factor: float = 20.0
     randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
@@ -94,8 +91,8 @@ class Recipe:
 
 def load_recipe(path: str | None = None, overrides: dict[str, Any] | None = None) -> Recipe:
     """Builds a recipe from an optional YAML file and flag overrides (flags win)."""
-    data = load_yaml(path) if path else {}
-    data.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    # A flag left unset (None) keeps the file's value.
+    data = merge(load_yaml(path) if path else {}, {k: v for k, v in (overrides or {}).items() if v is not None})
     if "dt" in data and isinstance(data["dt"], int):
         data["dt"] = float(data["dt"])
     return from_dict(Recipe, data)

@@ -1,4 +1,4 @@
-"""Checkpoints that are never half-written: write to a temporary file, then rename."""
+"""Checkpoints and training logs that are never half-written (:mod:`robomorph.core.atomic`)."""
 
 from __future__ import annotations
 
@@ -10,20 +10,16 @@ import torch
 from lightning.pytorch.loggers import CSVLogger
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
+from robomorph.core.atomic import atomic_open, write_bytes
+
 
 class AtomicCheckpointIO(TorchCheckpointIO):
-    """``torch.save`` into ``<path>.tmp`` then ``os.replace``: a crash mid-save leaves
-    the previous checkpoint intact instead of a truncated file."""
+    """``torch.save`` through the atomic writer: a crash mid-save leaves the previous
+    checkpoint intact instead of a truncated file."""
 
     def save_checkpoint(self, checkpoint: dict[str, Any], path: str, storage_options: Any | None = None) -> None:
-        path = str(path)
-        os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-        tmp = f"{path}.tmp"
-        with open(tmp, "wb") as f:
+        with atomic_open(path, "wb") as f:
             torch.save(checkpoint, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
 
 
 class ResumableCSVLogger(CSVLogger):
@@ -42,8 +38,7 @@ class ResumableCSVLogger(CSVLogger):
         kept = open(path, "rb").read() if os.path.isfile(path) else b""
         exp = super().experiment
         if kept:
-            with open(exp.metrics_file_path, "wb") as f:
-                f.write(kept)
+            write_bytes(exp.metrics_file_path, kept)
             with open(exp.metrics_file_path, newline="") as f:
                 exp.metrics_keys = sorted(next(csv.reader(f), []))
         return exp
@@ -60,9 +55,7 @@ def prune_log(path: str, from_step: int) -> None:
     kept = [r for r in rows if not r.get("step") or int(float(r["step"])) < from_step]
     if len(kept) == len(rows):
         return
-    tmp = f"{path}.tmp"
-    with open(tmp, "w", newline="") as f:
+    with atomic_open(path) as f:
         writer = csv.DictWriter(f, fieldnames=fields)
         writer.writeheader()
         writer.writerows(kept)
-    os.replace(tmp, path)

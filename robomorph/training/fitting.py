@@ -24,9 +24,12 @@ from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.loggers import WandbLogger
 
+from robomorph.core.atomic import write_text
+from robomorph.core.names import VAL_LOSS
+from robomorph.core.rundir import RunDir
 from robomorph.data.datamodule import RoboMorphDataModule
 from robomorph.training.checkpoints import AtomicCheckpointIO, ResumableCSVLogger, prune_log
-from robomorph.training.module import VAL_LOSS, MetaModule, load_checkpoint_file
+from robomorph.training.module import MetaModule, load_checkpoint_file
 
 _RUN_ENV = "ROBOMORPH_RUN_NAME"  # shared with DDP worker processes, which re-run this script
 
@@ -77,49 +80,48 @@ class RoboMorphCLI(LightningCLI):
         # One setting, two users: the data records it, the model's normalizer applies it.
         parser.link_arguments("data.recenter", "model.recenter")
 
-    def run_dir(self) -> str:
+    def run_dir(self) -> RunDir:
         cfg = self.config
         name = cfg.run or os.environ.get(_RUN_ENV) or time.strftime("run-%Y%m%d-%H%M%S")
         os.environ[_RUN_ENV] = name
-        return os.path.join(cfg.runs_dir, name)
+        return RunDir.named(cfg.runs_dir, name)
 
     def instantiate_trainer(self, **kwargs: Any):
-        cfg, run_dir = self.config, self.run_dir()
-        os.makedirs(run_dir, exist_ok=True)
-        self._run_dir = run_dir
-        ckpt_dir = os.path.join(run_dir, "checkpoints")
+        cfg, run = self.config, self.run_dir()
+        os.makedirs(run.path, exist_ok=True)
+        self._run = run
         callbacks = [
-            ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor=VAL_LOSS, mode="min", save_top_k=1,
+            # The file names are RunDir's: best.ckpt, and Lightning's last.ckpt.
+            ModelCheckpoint(dirpath=run.checkpoints, filename="best", monitor=VAL_LOSS, mode="min", save_top_k=1,
                             save_last=True, auto_insert_metric_name=False, enable_version_counter=False),
             LearningRateMonitor(logging_interval="step"),
         ]
         existing = self._get(self.config_init, "trainer", default={}).get("callbacks") or []
         kwargs["callbacks"] = list(existing) + callbacks + list(self.extra_callbacks)
-        kwargs["default_root_dir"] = run_dir
-        kwargs["logger"] = _loggers(run_dir, cfg)
+        kwargs["default_root_dir"] = run.path
+        kwargs["logger"] = _loggers(run, cfg)
         kwargs["plugins"] = [AtomicCheckpointIO()]
         if self._get(self.config_init, "trainer", default={}).get("precision") is None:
             kwargs["precision"] = _default_precision()
         return super().instantiate_trainer(**kwargs)
 
 
-def _loggers(run_dir: str, cfg) -> list:
-    loggers: list = [ResumableCSVLogger(save_dir=run_dir, name="logs", version="")]
+def _loggers(run: RunDir, cfg) -> list:
+    # save_dir + name "logs" + no version: the CSV log is RunDir's logs/metrics.csv.
+    loggers: list = [ResumableCSVLogger(save_dir=run.path, name=os.path.basename(run.logs), version="")]
     if cfg.wandb != "disabled":
         os.environ.setdefault("WANDB_SILENT", "true")
-        id_file = os.path.join(run_dir, "wandb_id.txt")
-        run_id = open(id_file).read().strip() if os.path.exists(id_file) else None
-        logger = WandbLogger(save_dir=run_dir, project=cfg.project, name=os.path.basename(run_dir),
+        run_id = open(run.wandb_id).read().strip() if os.path.exists(run.wandb_id) else None
+        logger = WandbLogger(save_dir=run.path, project=cfg.project, name=run.name,
                              group=cfg.group, id=run_id, resume="allow" if run_id else None, mode=cfg.wandb)
         loggers.append(logger)
     return loggers
 
 
-def _save_wandb_id(trainer, run_dir: str) -> None:
+def _save_wandb_id(trainer, run: RunDir) -> None:
     for logger in trainer.loggers:
         if isinstance(logger, WandbLogger) and trainer.is_global_zero:
-            with open(os.path.join(run_dir, "wandb_id.txt"), "w") as f:
-                f.write(logger.version or "")
+            write_text(run.wandb_id, logger.version or "")
 
 
 def _finish_wandb(trainer) -> None:
@@ -131,8 +133,8 @@ def _finish_wandb(trainer) -> None:
             wandb.finish()
 
 
-def _resume_path(cli: RoboMorphCLI, run_dir: str) -> str | None:
-    last = os.path.join(run_dir, "checkpoints", "last.ckpt")
+def _resume_path(cli: RoboMorphCLI, run: RunDir) -> str | None:
+    last = run.last_ckpt
     asked = cli.config.ckpt_path
     if asked == "last" or (asked is None and os.path.isfile(last)):
         return last if os.path.isfile(last) else None
@@ -161,37 +163,24 @@ def fit(args: list[str] | dict | None = None, callbacks: list | None = None) -> 
         callbacks: extra Lightning callback objects (e.g. a sweep's pruning callback).
     """
     cli = build_cli(args, callbacks)
-    run_dir, trainer, module = cli._run_dir, cli.trainer, cli.model
-    ckpt = _resume_path(cli, run_dir)
+    run, trainer, module = cli._run, cli.trainer, cli.model
+    ckpt = _resume_path(cli, run)
     module.resuming = ckpt is not None
     if trainer.is_global_zero:
-        cli.parser.save(cli.config, os.path.join(run_dir, "config.yaml"), overwrite=True, multifile=False)
+        cli.parser.save(cli.config, run.config, overwrite=True, multifile=False)
         if ckpt:
             step = load_checkpoint_file(ckpt)["global_step"]
-            prune_log(os.path.join(run_dir, "logs", "metrics.csv"), step)
-            print(f"resuming {run_dir} from {ckpt} (step {step})", file=sys.stderr)
+            prune_log(run.metrics_csv, step)
+            print(f"resuming {run.path} from {ckpt} (step {step})", file=sys.stderr)
     try:
         trainer.fit(module, datamodule=cli.datamodule, ckpt_path=ckpt)
     finally:
-        _save_wandb_id(trainer, run_dir)
+        _save_wandb_id(trainer, run)
         _finish_wandb(trainer)
     cb = trainer.checkpoint_callback
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
-    best = os.path.join(run_dir, "checkpoints", "best.ckpt")
-    last = os.path.join(run_dir, "checkpoints", "last.ckpt")
-    return FitResult(run_dir=run_dir, best_ckpt=best if os.path.isfile(best) else (cb.best_model_path or None),
+    best, last = run.best_ckpt, run.last_ckpt
+    return FitResult(run_dir=run.path, best_ckpt=best if os.path.isfile(best) else (cb.best_model_path or None),
                      last_ckpt=last if os.path.isfile(last) else None, metrics=metrics,
                      global_step=trainer.global_step)
 
-
-def main(argv: list[str] | None = None) -> int:
-    result = fit(argv)
-    if result.metrics:
-        shown = ", ".join(f"{k}={v:.4g}" for k, v in sorted(result.metrics.items()) if k.startswith("val/"))
-        print(f"{result.run_dir}: step {result.global_step}, {shown}")
-    print(f"best checkpoint: {result.best_ckpt}\nrun directory: {result.run_dir}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

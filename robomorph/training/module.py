@@ -15,15 +15,14 @@ import lightning.pytorch as L
 import torch
 import torch.nn.functional as F
 
+from robomorph.core.config import ConfigError
 from robomorph.core.errors import RoboMorphError
+from robomorph.core.names import (FREEZE_MODES, LOSSES, LR, TEST_FIT, TEST_LOSS, TEST_R2, TRAIN_LOSS, VAL_FIT,
+                                  VAL_LOSS, VAL_R2)
 from robomorph.evaluation import metrics
 from robomorph.model.normalization import Normalizer
 from robomorph.model.transformer import MetaModel, ModelConfig
 
-# Log keys, defined once (namespaced as the lightning-hydra-template does).
-TRAIN_LOSS, VAL_LOSS, VAL_R2, VAL_FIT, LR = "train/loss", "val/loss", "val/r2", "val/fit", "lr"
-TEST_LOSS, TEST_R2, TEST_FIT = "test/loss", "test/r2", "test/fit"
-FREEZE_MODES = ("none", "encoder", "all_but_head")
 # Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
 IO_LAYERS = ("encoder.embed", "decoder.embed", "head")
 # Checkpoint entry holding what the model was trained on (see ``data_info``).
@@ -94,7 +93,7 @@ class MetaModule(L.LightningModule):
         patch: int = 10,
         max_context: int = 1024,
         max_horizon: int = 1024,
-        loss: Literal["huber", "mse"] = "huber",
+        loss: Literal[LOSSES] = "huber",
         huber_delta: float = 1.0,
         lr: float = 1e-3,
         min_lr_ratio: float = 0.1,
@@ -105,16 +104,16 @@ class MetaModule(L.LightningModule):
         recenter: bool = False,
         anchor: bool = False,
         init_ckpt: str | None = None,
-        freeze: Literal["none", "encoder", "all_but_head"] = "none",
+        freeze: Literal[FREEZE_MODES] = "none",
         reinit_io: bool = False,
     ):
         super().__init__()
-        if loss not in ("huber", "mse"):
-            raise ValueError(f"loss must be 'huber' or 'mse', got {loss!r}")
+        if loss not in LOSSES:
+            raise ConfigError(f"loss must be one of {LOSSES}, got {loss!r}")
         if freeze not in FREEZE_MODES:
-            raise ValueError(f"freeze must be one of {FREEZE_MODES}, got {freeze!r}")
+            raise ConfigError(f"freeze must be one of {FREEZE_MODES}, got {freeze!r}")
         if lr <= 0 or not 0 <= min_lr_ratio <= 1 or warmup_steps < 0 or huber_delta <= 0:
-            raise ValueError("need lr > 0, 0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
+            raise ConfigError("need lr > 0, 0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
         self.save_hyperparameters()
         self.net: MetaModel | None = None
         self.normalizer: Normalizer | None = None

@@ -9,22 +9,22 @@ The paper's Table 2 compares three ways to get a model for a new task (the spira
 - ``scratch``: the same architecture from a random initialization, ``steps`` steps.
 
 The overrides are nested dicts in :func:`robomorph.training.fitting.fit`'s vocabulary, to be merged
-into a base configuration with :func:`merge`::
+into a base configuration with :func:`robomorph.core.overrides.merge`::
 
     args = merge(base_args, regime_overrides("finetune", "runs/pre/checkpoints/best.ckpt", 2000))
 """
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
-REGIMES = ("zero_shot", "finetune", "scratch")
+from robomorph.core.config import ConfigError
+from robomorph.core.names import FREEZE_MODES, REGIMES
+
+__all__ = ["FINETUNE_LR", "REGIMES", "regime_overrides"]
 # The paper's fine-tuning follows Piga, Forgione et al. (2024): a pre-trained meta-model
 # adapts with a smaller step than it was trained with (the CPU default trains at 1e-3).
 FINETUNE_LR = 3e-4
-# Mirrors robomorph.training.module.FREEZE_MODES, which cannot be imported here without torch.
-_FREEZE_MODES = ("none", "encoder", "all_but_head")
 
 
 def regime_overrides(regime: str, init_ckpt: str | None, steps: int, lr: float | None = None,
@@ -47,35 +47,25 @@ def regime_overrides(regime: str, init_ckpt: str | None, steps: int, lr: float |
             freeze other than ``none`` outside ``finetune``, ``steps < 1`` or ``lr <= 0``.
     """
     if regime not in REGIMES:
-        raise ValueError(f"unknown transfer regime {regime!r}; choose from {list(REGIMES)}")
-    if freeze not in _FREEZE_MODES:
-        raise ValueError(f"freeze must be one of {list(_FREEZE_MODES)}, got {freeze!r}")
+        raise ConfigError(f"unknown transfer regime {regime!r}; choose from {list(REGIMES)}")
+    if freeze not in FREEZE_MODES:
+        raise ConfigError(f"freeze must be one of {list(FREEZE_MODES)}, got {freeze!r}")
     if regime == "zero_shot":
         return None
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-        raise ValueError(f"steps must be a positive integer for {regime}, got {steps!r}")
+        raise ConfigError(f"steps must be a positive integer for {regime}, got {steps!r}")
     if lr is not None and not lr > 0:
-        raise ValueError(f"lr must be > 0, got {lr!r}")
+        raise ConfigError(f"lr must be > 0, got {lr!r}")
     trainer = {"max_steps": steps}
     if regime == "scratch":
         if freeze != "none":
-            raise ValueError(f"freeze={freeze!r} applies to finetune only: a frozen random network is not 'scratch'")
+            raise ConfigError(f"freeze={freeze!r} applies to finetune only: a frozen random network is not 'scratch'")
         model: dict[str, Any] = {"init_ckpt": None, "freeze": "none"}
         if lr is not None:
             model["lr"] = lr
         return {"model": model, "trainer": trainer}
     if not init_ckpt:
-        raise ValueError("finetune needs init_ckpt: the pre-trained checkpoint to start from")
+        raise ConfigError("finetune needs init_ckpt: the pre-trained checkpoint to start from")
     model = {"init_ckpt": init_ckpt, "freeze": freeze, "lr": FINETUNE_LR if lr is None else lr}
     return {"model": model, "trainer": trainer}
 
-
-def merge(base: dict[str, Any], overrides: dict[str, Any] | None) -> dict[str, Any]:
-    """A deep copy of ``base`` with ``overrides`` merged in, nested dicts key by key (overrides win)."""
-    out = copy.deepcopy(base)
-    for key, value in (overrides or {}).items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out

@@ -17,18 +17,20 @@ retried with the same parameters, resuming the dead trial's run directory.
 
 from __future__ import annotations
 
-import argparse
-import copy
 import csv
+import dataclasses
 import os
 import sys
 import time
 
 import lightning.pytorch as L
 import optuna
+import yaml
 
-from robomorph.tuning.space import Space, SpaceError, load_space
-from robomorph.tuning.storage import DEFAULT_DIR, open_storage
+from robomorph.core.overrides import merge, unflatten
+from robomorph.core.rundir import RunDir
+from robomorph.tuning.space import Space, SpaceError
+from robomorph.tuning.storage import open_storage
 
 STATES_DONE = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
 
@@ -99,7 +101,8 @@ def make_objective(space: Space, study_name: str, runs_dir: str, wandb: str = "o
     def objective(trial: optuna.Trial) -> float:
         values = space.suggest(trial)
         run = _run_name(trial, study_name)
-        trial.set_user_attr("run_dir", os.path.join(runs_dir, run))
+        layout = RunDir.named(runs_dir, run)
+        trial.set_user_attr("run_dir", layout.path)
         regime = values.get("transfer.regime")
         args = _regime_args(space, values, regime, run, runs_dir, wandb, study_name)
         pruning = StepPruning(trial, space.metric)
@@ -112,11 +115,11 @@ def make_objective(space: Space, study_name: str, runs_dir: str, wandb: str = "o
                 raise optuna.TrialPruned(f"pruned at step {pruning.pruned_at}")
             ckpt = result.best_ckpt
         if space.eval_data:
-            return _evaluate(trial, space, ckpt, os.path.join(runs_dir, run, "eval", "sweep"))
+            return _evaluate(trial, space, ckpt, layout.eval_dir("sweep"))
         # The run's CSV log (pruned to the resumed step) records every validation, also those
         # of a dead worker whose trial this retry resumed: a resume already at its budget
         # validates no more. This process's own reports stand in when there is no log.
-        best = _best(logged_values(os.path.join(runs_dir, run), space.metric) or pruning.values, space.direction)
+        best = _best(logged_values(layout.path, space.metric) or pruning.values, space.direction)
         if best is None:
             raise RuntimeError(f"trial {trial.number} logged no {space.metric!r}: validate at least once "
                                "(trainer.val_check_interval below the step budget)")
@@ -127,7 +130,7 @@ def make_objective(space: Space, study_name: str, runs_dir: str, wandb: str = "o
 
 def logged_values(run_dir: str, metric: str) -> list[float]:
     """The values of ``metric`` in a run's ``logs/metrics.csv`` (empty when none were logged)."""
-    path = os.path.join(run_dir, "logs", "metrics.csv")
+    path = RunDir(run_dir).metrics_csv
     if not os.path.isfile(path):
         return []
     with open(path, newline="") as f:
@@ -146,7 +149,7 @@ def _regime_args(space: Space, values: dict, regime: str | None, run: str, runs_
     args.update(wandb=wandb, group=group)
     if regime is None:
         return args
-    from robomorph.training.transfer import merge, regime_overrides  # noqa: PLC0415
+    from robomorph.training.transfer import regime_overrides  # noqa: PLC0415
 
     # Learning rate and freezing are the fine-tuning's own settings; scratch keeps the base's.
     tuned = regime == "finetune"
@@ -183,59 +186,10 @@ def run_sweep(space: Space, n_trials: int, storage=None, study_name: str | None 
 
 def with_overrides(space: Space, pairs: list[str]) -> Space:
     """``space`` with ``KEY=VALUE`` pairs (dotted keys, YAML values) set in its base arguments."""
-    import dataclasses  # noqa: PLC0415
-
-    import yaml  # noqa: PLC0415
-
-    base = copy.deepcopy(space.base)
+    flat = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep or "." not in key:
             raise SpaceError(f"--set takes section.argument=value, got {pair!r}")
-        node = base
-        *path, leaf = key.split(".")
-        for part in path:
-            node = node.setdefault(part, {})
-        node[leaf] = yaml.safe_load(value)
-    return dataclasses.replace(space, base=base)
-
-
-def _run_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m robomorph.sweep", description=__doc__.split("\n")[0],
-                                epilog="python -m robomorph.sweep summary --help: the study's table")
-    p.add_argument("space", help="search space file, e.g. sweeps/architecture_cpu.yaml")
-    p.add_argument("--n-trials", type=int, required=True, help="finished trials the study should hold")
-    p.add_argument("--storage", help="SQLAlchemy URL (default: sqlite:///results/sweeps/optuna.db)")
-    p.add_argument("--study-name", help="default: the space's name")
-    p.add_argument("--runs-dir", default="results/runs")
-    p.add_argument("--wandb", default="offline", choices=("offline", "online", "disabled"))
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a base fit() argument, e.g. --set data.stores=data/ms.zarr (repeatable)")
-    p.add_argument("--heartbeat", type=int, default=60, help="seconds between a running trial's heartbeats")
-    p.add_argument("--grace", type=int, default=180, help="seconds without heartbeat before a trial counts as dead")
-    return p
-
-
-def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] == ["summary"]:
-        from robomorph.tuning.summary import main as summary_main  # noqa: PLC0415
-
-        return summary_main(argv[1:])
-    a = _run_parser().parse_args(argv)
-    if a.n_trials < 1:
-        sys.exit("error: --n-trials must be >= 1")
-    try:
-        space = with_overrides(load_space(a.space), a.set)
-        storage = open_storage(a.storage, a.heartbeat, a.grace)
-        study = run_sweep(space, a.n_trials, storage, a.study_name, a.runs_dir, a.wandb)
-    except (SpaceError, FileNotFoundError) as exc:
-        sys.exit(f"error: {exc}")
-    from robomorph.tuning.summary import summarize  # noqa: PLC0415
-
-    print(summarize(study, os.path.join(DEFAULT_DIR, study.study_name)))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+        flat[key] = yaml.safe_load(value)
+    return dataclasses.replace(space, base=merge(space.base, unflatten(flat)))

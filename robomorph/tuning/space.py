@@ -24,18 +24,19 @@ a validation metric logged by training.
 
 from __future__ import annotations
 
-import copy
 import inspect
 from dataclasses import dataclass, field
 from typing import Any
 
 from robomorph.core.config import load_yaml
+from robomorph.core.names import METRICS, REGIMES
+from robomorph.core.overrides import merge, unflatten
 from robomorph.core.errors import RoboMorphError
 
 SAMPLERS = ("tpe", "random", "grid")
 PRUNERS = ("median", "none")
 SECTIONS = ("data", "model", "trainer", "transfer")
-EVAL_METRICS = ("r2", "rmse", "nrmse", "fit")
+EVAL_METRICS = METRICS  # an evaluation objective takes one of the evaluation's metrics
 
 
 class SpaceError(RoboMorphError, ValueError):
@@ -90,27 +91,14 @@ class Space:
 
     def fit_args(self, values: dict[str, Any], run: str, runs_dir: str) -> dict:
         """The nested fit() arguments of one trial (``transfer.*`` values left out)."""
-        base = copy.deepcopy(self.base)
+        base = dict(self.base)
         config = base.pop("config", None)
-        args = _merge(load_yaml(config), base) if config else base
-        for key, value in values.items():
-            section, leaf = key.split(".", 1)
-            if section != "transfer":
-                args.setdefault(section, {})[leaf] = value
+        args = merge(load_yaml(config), base) if config else merge(base, None)
+        args = merge(args, unflatten({k: v for k, v in values.items() if not k.startswith("transfer.")}))
         # The budget is each trial's default; trainer arguments given in base win.
-        args["trainer"] = {**self.budget, **args.get("trainer", {})}
+        args["trainer"] = merge(self.budget, args.get("trainer"))
         args.update(run=run, runs_dir=runs_dir)
         return args
-
-
-def _merge(into: dict, over: dict) -> dict:
-    """``over`` deep-merged into ``into`` (mappings merged key by key, the rest replaced)."""
-    for key, value in over.items():
-        if isinstance(value, dict) and isinstance(into.get(key), dict):
-            _merge(into[key], value)
-        else:
-            into[key] = value
-    return into
 
 
 def _known_args() -> dict[str, set[str]]:
@@ -183,8 +171,6 @@ def parse_space(data: dict, where: str = "space") -> Space:
         raise SpaceError(f"{where}: pruner must be one of {PRUNERS}, got {pruner['name']!r}")
     regime = next((p for p in parsed if p.name == "transfer.regime"), None)
     if regime is not None:
-        from robomorph.training.transfer import REGIMES  # noqa: PLC0415
-
         bad = set(regime.choices or ()) - set(REGIMES)
         if regime.choices is None or bad:
             raise SpaceError(f"{where}: transfer.regime takes choices from {REGIMES}")

@@ -10,15 +10,15 @@ Prints a markdown table and writes it (``summary.md``) with ``trials.csv`` into
 
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import os
-import sys
 
 import optuna
 
-from robomorph.tuning.storage import DEFAULT_DIR, open_storage
+from robomorph.core.atomic import atomic_open, write_text
+from robomorph.tuning.space import SpaceError
+from robomorph.tuning.storage import open_storage
 
 COLUMNS = ("number", "state", "value", "duration_s", "run_dir")
 
@@ -73,31 +73,23 @@ def summarize(study: optuna.Study, out_dir: str | None = None) -> str:
                                                         ", ".join(f"{k} {v:.3f}" for k, v in imp.items()))]
     text = "\n".join(lines) + "\n"
     if out_dir:
-        os.makedirs(out_dir, exist_ok=True)
-        with open(os.path.join(out_dir, "summary.md"), "w") as f:
-            f.write(text)
-        with open(os.path.join(out_dir, "trials.csv"), "w", newline="") as f:
+        write_text(os.path.join(out_dir, "summary.md"), text)
+        with atomic_open(os.path.join(out_dir, "trials.csv")) as f:
             w = csv.DictWriter(f, fieldnames=head, extrasaction="ignore")
             w.writeheader()
             w.writerows(rows)
     return text
 
 
-def main(argv: list[str] | None = None) -> int:
-    from robomorph.tuning.space import SpaceError  # noqa: PLC0415
+def load_study(study_name: str, storage_url: str | None = None) -> optuna.Study:
+    """The study ``study_name`` of a storage (default: the local SQLite one).
 
-    p = argparse.ArgumentParser(prog="python -m robomorph.sweep summary", description=__doc__.split("\n")[0])
-    p.add_argument("--study-name", required=True)
-    p.add_argument("--storage", help="SQLAlchemy URL (default: sqlite:///results/sweeps/optuna.db)")
-    p.add_argument("--out", help="folder for summary.md and trials.csv (default: results/sweeps/<study>)")
-    a = p.parse_args(argv)
+    Raises:
+        SpaceError: the storage cannot be opened or holds no such study (its studies are named).
+    """
+    storage = open_storage(storage_url)
     try:
-        storage = open_storage(a.storage)
-        study = optuna.load_study(study_name=a.study_name, storage=storage)
-    except SpaceError as exc:
-        sys.exit(f"error: {exc}")
+        return optuna.load_study(study_name=study_name, storage=storage)
     except KeyError:
         names = [s.study_name for s in optuna.get_all_study_summaries(storage)]
-        sys.exit(f"error: no study {a.study_name!r} in this storage; it holds {names}")
-    print(summarize(study, a.out or os.path.join(DEFAULT_DIR, a.study_name)))
-    return 0
+        raise SpaceError(f"no study {study_name!r} in this storage; it holds {names}") from None

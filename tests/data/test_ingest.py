@@ -7,7 +7,8 @@ import pytest
 import scipy.io
 import zarr
 
-from robomorph.data.ingest import IngestError, ShortRecordingWarning, ingest, main
+from robomorph.data.ingest import IngestError, ShortRecordingWarning, ingest
+from robomorph.ingest import main
 from robomorph.data.store import SchemaError, create_store, open_store
 
 U, Y = ["tau1", "tau2"], ["q1", "q2", "q3"]

@@ -8,7 +8,8 @@ import pytest
 import zarr
 
 from robomorph.data.store import create_store, open_store
-from robomorph.data.summary import _sample_blocks, channel_stats, main, params_plot_path, plot, summarize
+from robomorph.data.summary import _sample_blocks, channel_stats, params_plot_path, plot, summarize
+from robomorph.inspect import main
 
 U, Y, P = ["tau0", "tau1"], ["ee_x", "q0", "q1"], ["mass_scale_link1", "damping_q0"]
 REJECTED = {"joint_limit": 4, "unstable": 2, "ee_velocity": 0}

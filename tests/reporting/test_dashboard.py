@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robomorph.reporting.dashboard import build_report, fit_colour, main, read_curves
+from robomorph.report import main
+from robomorph.reporting.dashboard import ReportError, build_report, fit_colour, read_curves
 
 ROOT = Path(__file__).resolve().parents[2]
 CHANNELS = ("ee_x", "ee_y", "ee_z")
@@ -220,13 +221,11 @@ def test_missing_or_empty_runs_dir_is_a_clear_error(tmp_path, capsys, layout, me
         runs.mkdir()
     if layout == "one run":
         (runs / "config.yaml").write_text(CONFIG.format(name="runs"))
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ReportError, match=message):
         build_report(str(runs), str(tmp_path / "r.html"))
-    with pytest.raises(SystemExit) as exit_info:
-        main([str(runs)])
-    assert exit_info.value.code == 2
+    assert main([str(runs)]) == 2
     err = capsys.readouterr().err
-    assert message in err and hint in err
+    assert err.startswith("error: ") and err.count("\n") == 1 and message in err and hint in err
     assert not (tmp_path / "r.html").exists() and not (tmp_path / "report.html").exists()
 
 

@@ -9,8 +9,9 @@ import re
 
 import pytest
 
+from robomorph import reproduce
 from robomorph.evaluation.fit_bands import FIT_BANDS
-from robomorph.reproduction import pipeline as reproduce
+from robomorph.reproduction import pipeline
 from robomorph.reproduction import skip as resume
 from robomorph.reproduction.scales import SCALES
 
@@ -146,12 +147,16 @@ def test_all_reuses_table1_and_writes_table2_and_the_context_figure(table1_run):
 
 
 @pytest.mark.parametrize("argv, message", [(["table3"], "invalid choice: 'table3'"),
-                                           (["table1", "--scale", "huge"], "invalid choice: 'huge'"),
-                                           (["table2", "--steps-factor", "0"], "steps_factor must be > 0")])
+                                           (["table1", "--scale", "huge"], "invalid choice: 'huge'")])
 def test_bad_arguments_are_argparse_errors(argv, message, capsys):
     with pytest.raises(SystemExit) as exc:
         reproduce.main(argv)
     assert exc.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_bad_values_are_one_line_errors(capsys):
+    assert reproduce.main(["table2", "--steps-factor", "0"]) == 2
+    assert capsys.readouterr().err == "error: steps_factor must be > 0, got 0.0\n"
 
 
 def test_scales_hold_the_documented_sizes():
@@ -173,8 +178,8 @@ def test_a_run_stopped_short_of_its_budget_is_not_marked_finished(tmp_path, monk
     # what fit() returns after Lightning's graceful shutdown on Ctrl-C: a checkpoint, fewer steps
     monkeypatch.setattr(fitting, "fit", lambda args, callbacks=None: fitting.FitResult(
         str(ckpt.parent.parent), None, str(ckpt), {}, 3))
-    plan = reproduce.Plan(SCALES["ci"], str(tmp_path), str(tmp_path / "out"), "test")
-    args = reproduce.base_args(plan, 1, ["unused.zarr"], "r", 10)
+    plan = pipeline.Plan(SCALES["ci"], str(tmp_path), str(tmp_path / "out"), "test")
+    args = pipeline.base_args(plan, 1, ["unused.zarr"], "r", 10)
     with pytest.raises(RuntimeError, match="stopped at step 3 of 10: re-run the same command"):
-        reproduce.train(plan, "t", args, "model")
+        pipeline.train(plan, "t", args, "model")
     assert not resume.run_finished(str(ckpt.parent.parent), {"max_steps": 10, "max_time": None})

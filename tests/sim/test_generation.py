@@ -13,7 +13,8 @@ from robomorph.data.merging import merge
 from robomorph.data.store import DatasetWriter, open_store
 from robomorph.sim import panda
 from robomorph.sim.filters import to_outputs
-from robomorph.sim.generation import GenerationError, Shard, generate, main
+from robomorph.generate import main
+from robomorph.sim.generation import GenerationError, Shard, generate
 from robomorph.sim.randomize import Randomizer
 from robomorph.sim.recipe import load_recipe
 

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from robomorph.core.config import from_dict
+from robomorph.core.names import OSC_TASKS
 from robomorph.sim import osc, panda
 from robomorph.sim.filters import FilterConfig, check, continuous_quaternion
 
@@ -30,7 +31,7 @@ def _run(model, task, seed, steps, cfg=osc.OSCConfig(), path_cfg=None, qpos0=pan
 
 # --- paths -----------------------------------------------------------------------------
 
-@pytest.mark.parametrize("task", osc.TASKS)
+@pytest.mark.parametrize("task", OSC_TASKS)
 def test_paths_start_at_the_ee_at_rest_with_consistent_derivatives(task):
     start = np.array([0.3, -0.1, 0.5])
     pos, vel, acc = osc.PATHS[task](np.random.default_rng(0), start, 600, DT,
@@ -71,7 +72,7 @@ def test_spiral_circles_in_xy_and_climbs_by_the_drawn_amount():
     assert signs == {-1.0, 1.0}
 
 
-@pytest.mark.parametrize("task", osc.TASKS)
+@pytest.mark.parametrize("task", OSC_TASKS)
 def test_same_seed_same_path_other_seed_other_path(task):
     draw = osc.PATHS[task]
     cfg = osc.CircleConfig() if task == "circle" else osc.SpiralConfig()

@@ -1,0 +1,33 @@
+"""The package's vocabulary, defined once: log keys, metric names, tasks and modes.
+
+Torch-free, so that configuration checks (transfer regimes, sweep spaces, recipes) and
+readers of results (the dashboard) use the same names as the training code without
+importing it.
+"""
+
+from __future__ import annotations
+
+# Log keys, namespaced as the lightning-hydra-template does (``logs/metrics.csv`` columns).
+TRAIN_LOSS, VAL_LOSS, VAL_R2, VAL_FIT, LR = "train/loss", "val/loss", "val/r2", "val/fit", "lr"
+TEST_LOSS, TEST_R2, TEST_FIT = "test/loss", "test/r2", "test/fit"
+# The curves the dashboard draws against the step.
+CURVES = (TRAIN_LOSS, VAL_LOSS, VAL_R2)
+
+# Evaluation metrics, in the order the evaluation computes and writes them.
+R2, RMSE, NRMSE, FIT = "r2", "rmse", "nrmse", "fit"
+METRICS = (R2, RMSE, NRMSE, FIT)
+
+# Training losses (on normalized outputs).
+LOSSES = ("huber", "mse")
+
+# Tasks a recipe can generate: open-loop torque signals and OSC-tracked paths.
+OPEN_LOOP_TASKS = ("multisine", "chirp")
+OSC_TASKS = ("circle", "spiral")
+TASKS = OPEN_LOOP_TASKS + OSC_TASKS
+
+# How the simulated arm compensates gravity (see robomorph.sim.recipe.Recipe).
+GRAVITY_MODES = ("true_model", "nominal_model", "none")
+
+# Which parameters a fine-tuned model keeps fixed, and the transfer regimes of Table 2.
+FREEZE_MODES = ("none", "encoder", "all_but_head")
+REGIMES = ("zero_shot", "finetune", "scratch")
