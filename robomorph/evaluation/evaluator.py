@@ -18,6 +18,7 @@ before it, so every point of it scores the same targets.
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass
 
 import numpy as np

@@ -14,6 +14,7 @@ import os
 from typing import Any, Literal
 
 from robomorph.core.atomic import write_json
+from robomorph.core.rundir import RunDir
 from robomorph.data.store import STATUS_COMPLETE, open_store
 from robomorph.sim.generation import generate
 from robomorph.sim.recipe import Recipe
@@ -55,7 +56,7 @@ def ensure_store(recipe: Recipe, path: str, workers: int | None = None, progress
 def run_finished(run_dir: str, budget: dict[str, Any]) -> bool:
     """True when :func:`mark_finished` recorded this exact training budget for the run."""
     try:
-        with open(os.path.join(run_dir, DONE_FILE)) as f:
+        with open(RunDir(run_dir).file(DONE_FILE)) as f:
             done = json.load(f)
     except (OSError, ValueError):
         return False
@@ -64,12 +65,12 @@ def run_finished(run_dir: str, budget: dict[str, Any]) -> bool:
 
 def mark_finished(run_dir: str, budget: dict[str, Any], ckpt: str, global_step: int) -> None:
     """Records that the run reached its budget and which checkpoint stands for it."""
-    write_json(os.path.join(run_dir, DONE_FILE), {"budget": _plain(budget), "ckpt": ckpt, "global_step": global_step})
+    write_json(RunDir(run_dir).file(DONE_FILE), {"budget": _plain(budget), "ckpt": ckpt, "global_step": global_step})
 
 
 def finished_ckpt(run_dir: str) -> str:
     """The checkpoint :func:`mark_finished` recorded."""
-    with open(os.path.join(run_dir, DONE_FILE)) as f:
+    with open(RunDir(run_dir).file(DONE_FILE)) as f:
         return json.load(f)["ckpt"]
 
 
