@@ -5,6 +5,7 @@ Each command runs in a subprocess, as a user runs it, through both spellings:
 the ``robomorph`` console script).
 """
 
+import concurrent.futures
 import os
 import subprocess
 import sys
@@ -35,10 +36,26 @@ BAD_INPUT = [
 ]
 
 
+def _env() -> dict:
+    return {**os.environ, "WANDB_MODE": "disabled", "MUJOCO_GL": "disable"}
+
+
 def _run(argv: list[str]) -> subprocess.CompletedProcess:
-    env = {**os.environ, "WANDB_MODE": "disabled", "MUJOCO_GL": "disable"}
-    return subprocess.run([sys.executable, "-m", *argv], capture_output=True, text=True, cwd=ROOT, env=env,
+    return subprocess.run([sys.executable, "-m", *argv], capture_output=True, text=True, cwd=ROOT, env=_env(),
                           timeout=300)
+
+
+@pytest.fixture(scope="module")
+def bad_runs(tmp_path_factory) -> list[subprocess.CompletedProcess]:
+    """Every case's finished process; a few run at once (they spend their time importing)."""
+    argvs = []
+    for i, (command, args, _) in enumerate(BAD_INPUT):
+        tmp = str(tmp_path_factory.mktemp(command))
+        args = [a.replace("{tmp}", tmp) for a in args]
+        # Alternate the spellings so both are exercised across the commands.
+        argvs.append([f"robomorph.{command}", *args] if i % 2 == 0 else ["robomorph", command, *args])
+    with concurrent.futures.ThreadPoolExecutor(max_workers=3) as pool:
+        return list(pool.map(_run, argvs))
 
 
 def test_every_command_is_covered():
@@ -46,16 +63,12 @@ def test_every_command_is_covered():
 
 
 @pytest.mark.parametrize("i", range(len(BAD_INPUT)), ids=[f"{c}-{a[0]}" for c, a, _ in BAD_INPUT])
-def test_bad_input_is_one_line_and_exit_code_2(i, tmp_path):
-    command, args, phrase = BAD_INPUT[i]
-    args = [a.replace("{tmp}", str(tmp_path)) for a in args]
-    # Alternate the spellings so both are exercised across the commands.
-    argv = [f"robomorph.{command}", *args] if i % 2 == 0 else ["robomorph", command, *args]
-    done = _run(argv)
-    assert done.returncode == 2, (done.stdout, done.stderr)
-    assert "Traceback" not in done.stderr + done.stdout
-    errors = [line for line in done.stderr.splitlines() if line.startswith("error: ")]
-    assert len(errors) == 1 and phrase in errors[0], done.stderr
+def test_bad_input_is_one_line_and_exit_code_2(i, bad_runs):
+    code, out, err = bad_runs[i].returncode, bad_runs[i].stdout, bad_runs[i].stderr
+    assert code == 2, (out, err)
+    assert "Traceback" not in err + out
+    errors = [line for line in err.splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1 and BAD_INPUT[i][2] in errors[0], err
 
 
 def test_an_unknown_command_names_the_choices():
