@@ -16,8 +16,8 @@ import torch
 import torch.nn.functional as F
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.evaluation import metrics
 from robomorph.data.statistics import check_normalization
+from robomorph.evaluation import metrics
 from robomorph.model.normalization import Normalizer, query_stats
 from robomorph.model.transformer import MetaModel, ModelConfig
 
