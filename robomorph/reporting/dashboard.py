@@ -35,7 +35,7 @@ __all__ = ["build_report", "fit_colour", "load_run", "main", "read_curves", "Run
 
 CURVES = ("train/loss", "val/loss", "val/r2")
 # Run-level facts shown in the overview, looked up anywhere in the resolved config.
-FACTS = ("d_model", "n_layer", "n_head", "patch", "context_len", "horizon")
+FACTS = ("d_model", "n_layer", "n_head", "patch", "context_len", "horizon", "normalization")
 RUN_MARKERS = ("config.yaml", "logs", "checkpoints", "eval")
 
 
