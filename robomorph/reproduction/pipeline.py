@@ -291,7 +291,7 @@ def reproduce(target: str, scale: Scale, out: str | None = None, work: str | Non
         from robomorph.reproduction.protocols import FILE, compare  # noqa: PLC0415
 
         out = out or default_out(scale, "paper_window")
-        doc = compare(leak_free or default_out(scale), out)
+        doc = compare(leak_free or default_out(scale), out, scale=scale.name)
         say("compare", f"written {os.path.join(out, FILE + '.md')} (.json)")
         return {"compare": doc}
     plan = Plan(scale, work or os.path.join("data", "reproduce", scale.name), out or default_out(scale, normalization),

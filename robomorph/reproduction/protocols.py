@@ -39,13 +39,13 @@ class ComparisonError(RoboMorphError, ValueError):
     """The two Table 1 results cannot be compared (missing, wrong protocol, other rows)."""
 
 
-def read_table1(folder: str, expected: str) -> dict:
+def read_table1(folder: str, expected: str, scale: str | None = None) -> dict:
     """``<folder>/table1.json``, checked to have been produced under normalization ``expected``."""
     path = os.path.join(folder, "table1.json")
     if not os.path.isfile(path):
-        how = "" if expected == "train_stats" else " --normalization paper_window"
-        raise ComparisonError(f"{path} not found: run `python -m robomorph.reproduce table1{how} --out {folder}` "
-                              "first (same --scale)")
+        how = (f" --scale {scale}" if scale else "") + ("" if expected == "train_stats" else " --normalization paper_window")
+        raise ComparisonError(f"{path} not found: run `python -m robomorph.reproduce table1{how} --out {folder}` first "
+                              "(both protocols at the same scale)")
     with open(path) as f:
         doc = json.load(f)
     # Tables written before the option existed were all train_stats.
@@ -127,13 +127,13 @@ def markdown(doc: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def compare(leak_free_dir: str, paper_window_dir: str, out: str | None = None) -> dict:
+def compare(leak_free_dir: str, paper_window_dir: str, out: str | None = None, scale: str | None = None) -> dict:
     """Writes ``table1_protocols.md`` and ``.json`` into ``out`` (default ``paper_window_dir``).
 
     Raises:
         ComparisonError: a ``table1.json`` is missing, of the other protocol, or of other rows.
     """
-    ts, pw = read_table1(leak_free_dir, "train_stats"), read_table1(paper_window_dir, "paper_window")
+    ts, pw = read_table1(leak_free_dir, "train_stats", scale), read_table1(paper_window_dir, "paper_window", scale)
     rows = compare_rows(ts, pw)
     doc = {"train_stats_info": ts["info"], "paper_window_info": pw["info"], "rows": rows, "summary": summary(rows),
            "leaks_query_statistics": {p: leaks_query_statistics(p) for p in PROTOCOLS},
