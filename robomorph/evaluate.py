@@ -9,6 +9,7 @@ import argparse
 import sys
 
 from robomorph.core.errors import UsageError, run_command
+from robomorph.core.names import NORMALIZATIONS
 from robomorph.evaluation import evaluator
 from robomorph.evaluation.baselines import BASELINES, CEILINGS
 
@@ -31,6 +32,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, default=3, help="sample trajectories to plot")
     p.add_argument("--arx-orders", default="2,2", help="ARX output and input lags na,nb")
     p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories")
+    p.add_argument("--normalization", choices=NORMALIZATIONS,
+                   help="require the checkpoint to have been trained with this normalization (default: its own)")
     return p
 
 
@@ -46,7 +49,8 @@ def run(a: argparse.Namespace) -> int:
     baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
     out = a.out or evaluator.default_out(a.ckpt, a.data)
     res = evaluator.evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
-                             a.sweep_context, a.batch_size, a.device, a.samples, _orders(a.arx_orders), a.seed)
+                             a.sweep_context, a.batch_size, a.device, a.samples, _orders(a.arx_orders), a.seed,
+                             a.normalization)
     print(evaluator.summary_text(res, out))
     return 0
 

@@ -10,6 +10,7 @@ import os
 import sys
 
 from robomorph.core.errors import run_command
+from robomorph.core.names import NORMALIZATIONS
 from robomorph.reproduction import pipeline
 from robomorph.reproduction.scales import SCALES
 
@@ -18,20 +19,26 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m robomorph.reproduce", description=pipeline.__doc__.split("\n")[0])
     p.add_argument("target", choices=pipeline.TARGETS, help="what to reproduce")
     p.add_argument("--scale", choices=list(SCALES), default="small", help="sizes and budgets (robomorph.reproduction.scales)")
-    p.add_argument("--out", help="tables and figures (default results/paper/<scale>)")
+    p.add_argument("--out", help="tables and figures (default results/paper/<scale>, or <scale>_paper_window)")
     p.add_argument("--work", help="stores, runs and evaluations (default data/reproduce/<scale>)")
     p.add_argument("--scratch-ratio", type=float, help="scratch budget / fine-tuning budget (default: the scale's)")
     p.add_argument("--steps-factor", type=float, default=1.0, help="multiply every training budget (e.g. 0.1)")
     p.add_argument("--workers", type=int, help="generation threads/processes (default: all cores)")
     p.add_argument("--device", help="evaluation device: cpu, cuda, ... (default: cuda when available)")
     p.add_argument("--wandb", choices=("offline", "online", "disabled"), default=os.environ.get("WANDB_MODE", "offline"))
+    p.add_argument("--normalization", choices=NORMALIZATIONS, default="train_stats",
+                   help="train_stats (leak-free) or paper_window (the paper's protocol: each window z-scored over "
+                        "context and query; its scores use the query outputs' statistics)")
+    p.add_argument("--leak-free", help="compare: the train_stats output folder (default results/paper/<scale>); "
+                                       "--out is the paper_window one")
     return p
 
 
 def run(args: argparse.Namespace, argv: list[str]) -> int:
     scale = SCALES[args.scale].scaled(args.steps_factor, args.scratch_ratio)
     command = " ".join(["python -m robomorph.reproduce", *argv])  # recorded in the tables' headers
-    pipeline.reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb)
+    pipeline.reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb,
+                       args.normalization, args.leak_free)
     return 0
 
 

@@ -28,6 +28,10 @@ TASKS = OPEN_LOOP_TASKS + OSC_TASKS
 # How the simulated arm compensates gravity (see robomorph.sim.recipe.Recipe).
 GRAVITY_MODES = ("true_model", "nominal_model", "none")
 
+# How the model normalizes (see robomorph.data.statistics): statistics of the training split,
+# or the paper's per-window statistics (which leak the query outputs' statistics).
+NORMALIZATIONS = ("train_stats", "paper_window")
+
 # Which parameters a fine-tuned model keeps fixed, and the transfer regimes of Table 2.
 FREEZE_MODES = ("none", "encoder", "all_but_head")
 REGIMES = ("zero_shot", "finetune", "scratch")
