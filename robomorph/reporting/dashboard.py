@@ -297,7 +297,7 @@ def eval_html(ev: EvalData) -> str:
         skipped = ev.metrics.get("skipped_baselines")
         if isinstance(skipped, dict):
             parts += [f'<p class="note">baseline <b>{rh.esc(k)}</b> skipped: {rh.esc(v)}</p>' for k, v in skipped.items()]
-        parts.append(rh.channel_table(ev.metrics))
+        parts += [rh.channel_table(ev.metrics), rh.horizon_table(ev.metrics)]
     parts += [rh.figure(png, name) for name, png in ev.pngs]
     if ev.table_md:
         parts.append(f"<details><summary>table.md</summary><pre>{rh.esc(ev.table_md)}</pre></details>")
