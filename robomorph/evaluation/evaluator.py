@@ -308,8 +308,9 @@ def main(argv: list[str] | None = None) -> None:
     print(summary_text(res, out))
 
 
-def summary_text(res: dict, out: str) -> str:
-    """A few lines for the terminal: mean approach-1 scores of the model and the baselines."""
+def summary_text(res: dict, out: str, horizons: bool = True) -> str:
+    """A few lines for the terminal: mean approach-1 scores of the model and the baselines,
+    then (with ``horizons``) the RMS errors by horizon in physical units."""
     m, meta = res["approach1"]["mean"], res["meta"]
     lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']} (approach 1 mean):",
              f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}"]
@@ -317,7 +318,7 @@ def summary_text(res: dict, out: str) -> str:
         mb = r["approach1"]["mean"]
         lines.append(f"  {b:16s} R2 {mb['r2']['mean']:8.3f}  FIT {mb['fit']['mean']:8.2f}  RMSE {mb['rmse']['mean']:.4g}")
     lines += [f"  skipped {b}: {why}" for b, why in res["skipped_baselines"].items()]
-    if "horizons" in res:
+    if horizons and "horizons" in res:
         lines += ["RMS error by horizon (step k: k dt after the last context sample):", horizon_markdown(res["horizons"])]
     lines.append(f"written: {out}/ (metrics.json, metrics.csv, horizons.csv, table.md, *.png)")
     return "\n".join(lines)
