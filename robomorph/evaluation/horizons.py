@@ -170,17 +170,34 @@ def horizon_report(y: np.ndarray, preds: dict[str, np.ndarray], y_names: list[st
         steps: 1-based steps (:func:`parse_horizons`).
         std: (N, H, n_y) the model's predicted standard deviation, when it gives one; then
             ``calibration`` holds its ±1σ / ±2σ coverage per step (all channels, and per quantity).
+
+    With both ``model`` and ``hold`` among ``preds``, ``below_hold`` says per quantity
+    over which share of all H steps the model beats hold (:func:`below_hold`).
     """
     groups = groups_for(y_names, y_units)
     idx = [k - 1 for k in steps]
-    out = {"steps": list(steps), "seconds": [k * dt for k in steps],
+    out = {"steps": list(steps), "seconds": [k * dt for k in steps], "horizon": int(y.shape[1]),
            "quantities": {g.name: {"unit": g.unit, "channels": [y_names[i] for i in g.channels], "kind": g.kind}
                           for g in groups},
            "rms": {src: {g.name: error_curve(y, p, g)[idx].tolist() for g in groups} for src, p in preds.items()}}
+    if "hold" in preds and "model" in preds:
+        out["below_hold"] = {g.name: below_hold(y, preds["model"], preds["hold"], g) for g in groups}
     if std is not None:
         out["calibration"] = {"all": coverage(y, preds["model"], std, steps),
                               **{g.name: coverage(y, preds["model"], std, steps, g.channels) for g in groups}}
     return out
+
+
+def below_hold(y: np.ndarray, model: np.ndarray, hold: np.ndarray, group: Group) -> dict:
+    """Where over the whole horizon the model's RMS error is below that of holding the last output.
+
+    Returns:
+        ``fraction``: of all steps; ``first_not_below``: the first 1-based step where it is
+        not (None when it is below at every step).
+    """
+    below = error_curve(y, model, group) < error_curve(y, hold, group)
+    worse = np.flatnonzero(~below)
+    return {"fraction": float(below.mean()), "first_not_below": int(worse[0]) + 1 if len(worse) else None}
 
 
 def horizon_markdown(h: dict, sources: tuple[str, ...] | None = None) -> str:
@@ -197,4 +214,10 @@ def horizon_markdown(h: dict, sources: tuple[str, ...] | None = None) -> str:
         for s in SIGMAS:
             lines.append(f"| inside ±{s}σ [%] | model | " + " | ".join(f"{100 * v:.1f}" for v in cal["all"][f"{s}sigma"])
                          + " |")
+    below = h.get("below_hold")
+    if below:
+        parts = [f"{q} {100 * b['fraction']:.0f} %" + (f" (first step not below: {b['first_not_below']})"
+                                                       if b["first_not_below"] else "") for q, b in below.items()]
+        lines += ["", f"Share of the {h.get('horizon', '')} predicted steps where the model's RMS error is below "
+                  "hold's: " + "; ".join(parts)]
     return "\n".join(lines) + "\n"

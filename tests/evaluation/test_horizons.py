@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from robomorph.evaluation.horizons import (
-    HorizonError, coverage, error_curve, groups_for, horizon_markdown, horizon_report, parse_horizons,
+    HorizonError, below_hold, coverage, error_curve, groups_for, horizon_markdown, horizon_report, parse_horizons,
     quaternion_angle,
 )
 
@@ -116,3 +116,16 @@ def test_horizon_report_and_table():
     assert "| joints [mrad] | model | 1 | 1 | 1 |" in table and "step 5 (0.5 s)" in table
     assert "inside ±2σ [%] | model | 100.0" in table and "nominal_physics" not in table
     assert "calibration" not in horizon_report(y, preds, PANDA, 0.1, [1])
+
+
+def test_below_hold_counts_the_steps_where_the_model_beats_hold():
+    y = np.zeros((2, 5, len(PANDA)))
+    y[..., 6] = 1.0
+    model, hold = y.copy(), y.copy()
+    model[..., 7:] = 0.01
+    hold[..., 7:] = np.array([0.0, 0.02, 0.02, 0.005, 0.02])[None, :, None]
+    g = {x.name: x for x in groups_for(PANDA)}
+    assert below_hold(y, model, hold, g["joints"]) == {"fraction": 0.6, "first_not_below": 1}
+    assert below_hold(y, model, model + 1.0, g["joints"]) == {"fraction": 1.0, "first_not_below": None}
+    rep = horizon_report(y, {"model": model, "hold": hold}, PANDA, 0.1, [1])
+    assert rep["below_hold"]["joints"]["fraction"] == 0.6
