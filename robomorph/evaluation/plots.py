@@ -70,7 +70,7 @@ def plot_samples(path: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[s
 
 def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray], dt: float,
                       names: list[str], steps: list[int] = (), y_units: list[str] | None = None) -> str:
-    """RMS error over trajectories against time into the horizon, in physical units, log scale.
+    """RMS error over trajectories against time into the horizon, in physical units, log-log.
 
     One panel per quantity of :func:`robomorph.evaluation.horizons.groups_for` (for the
     Panda: joints [mrad], end-effector position [mm] and orientation [mrad]); dotted
@@ -87,8 +87,9 @@ def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray
             ax.plot(t, np.maximum(horizons.error_curve(y_true, y, g), 1e-12), label=src, **_STYLE.get(src, {}))
         for k in steps:
             ax.axvline(k * dt, color="0.6", ls=":", lw=0.8)
+        # Log time too: the first second, what a controller uses, would be a sliver otherwise.
         ax.set(xlabel="time into the horizon [s]", ylabel=f"RMS error [{g.unit}]" if g.unit else "RMS error",
-               yscale="log", title=g.name)
+               xscale="log", yscale="log", title=g.label)
         ax.grid(alpha=0.3, which="both")
     for ax in list(axes.flat)[len(groups):]:
         ax.axis("off")
