@@ -68,7 +68,8 @@ def gives_std(predictor, u_ctx, y_ctx, u_query) -> bool:
     from robomorph.core.errors import RoboMorphError  # noqa: PLC0415
 
     try:
-        if "return_std" not in inspect.signature(predictor.simulate).parameters:
+        params = inspect.signature(predictor.simulate).parameters
+        if "return_std" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
             return False
         out = predictor.simulate(u_ctx[:1], y_ctx[:1], u_query[:1], return_std=True)
     except (NotImplementedError, RoboMorphError, ValueError, TypeError):

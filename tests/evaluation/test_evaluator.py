@@ -159,6 +159,12 @@ def test_bad_input_gives_clear_errors(setup, tmp_path):
         evaluate(ckpt, test, str(tmp_path / "bad"), baselines=("oracle",))
     with pytest.raises(SystemExit, match="error: .*must fit"):
         main(["--ckpt", ckpt, "--data", test, "--horizon", "999", "--out", str(tmp_path / "bad")])
+    with pytest.raises(SystemExit, match="error: --offset takes 'start', 'random' or a step number"):
+        main(["--ckpt", ckpt, "--data", test, "--offset", "later", "--out", str(tmp_path / "bad")])
+    with pytest.raises(SystemExit, match=r"error: --offset 5 \+ context_len \+ horizon = 95 steps exceeds"):
+        main(["--ckpt", ckpt, "--data", test, "--offset", "5", "--out", str(tmp_path / "bad")])
+    with pytest.raises(SystemExit, match="error: --horizons item '2s' is step 120, outside"):
+        main(["--ckpt", ckpt, "--data", test, "--horizons", "1,2s", "--out", str(tmp_path / "bad")])
     assert not os.path.exists(os.path.join(tmp_path, "bad", "metrics.json"))
 
 
