@@ -247,6 +247,31 @@ def horizon_table(metrics: dict) -> str:
     return note + table(head, rows)
 
 
+HORIZON_HEAD = "joints RMS [mrad] first step / 0.25 s / 1 s (hold)"
+
+
+def horizon_cell(metrics: dict) -> str:
+    """The overview's cell: the model's joint RMS error at the first step, 0.25 s and 1 s
+    (those of them that were reported), hold's in brackets; a dash without them."""
+    steps, seconds = dig(metrics, "horizons", "steps"), dig(metrics, "horizons", "seconds")
+    if not (isinstance(steps, list) and isinstance(seconds, list) and len(steps) == len(seconds) and steps):
+        return td(DASH)
+    model = _row_values(dig(metrics, "horizons", "rms", "model", "joints"), len(steps))
+    hold = _row_values(dig(metrics, "horizons", "rms", "hold", "joints"), len(steps))
+    pairs = [(num(k), num(t)) for k, t in zip(steps, seconds)]
+    if model is None or any(k is None or t is None or k <= 0 for k, t in pairs):
+        return td(DASH)
+    dt = pairs[0][1] / pairs[0][0]
+    picks = [j for j, (k, t) in enumerate(pairs) if k == 1 or min(abs(t - 0.25), abs(t - 1.0)) < dt / 2]
+    picks = [j for j in picks if model[j] is not None]
+    if not picks:
+        return td(DASH)
+    text = " / ".join(f"{model[j]:.3g}" for j in picks)
+    if hold and all(hold[j] is not None for j in picks):
+        text += " (" + " / ".join(f"{hold[j]:.3g}" for j in picks) + ")"
+    return td(esc(text))
+
+
 def best_baseline(metrics: dict) -> tuple[str, float] | None:
     """(name, mean approach-1 FIT) of the baseline with the highest such FIT, if any has one.
 

@@ -49,3 +49,18 @@ def test_report_shows_the_horizon_table_of_an_evaluation(tmp_path):
     (folder / "metrics.json").write_text(json.dumps(metrics))
     page = open(build_report(str(tmp_path / "runs"), str(tmp_path / "report.html"))).read()
     assert "RMS error by horizon" in page and "ee_rot [mrad]" in page and "inside ±2σ" in page
+    overview = page.split("<h2>Overview</h2>")[1].split("<h2>")[0]
+    assert "joints RMS [mrad] first step / 0.25 s / 1 s (hold)" in overview
+
+
+def test_overview_cell_gives_the_models_joint_error_at_the_first_step_quarter_second_and_second():
+    from robomorph.reporting.html import horizon_cell
+
+    y = np.zeros((2, 80, len(NAMES)))
+    preds = {"model": y + 0.001 * np.arange(1, 81)[None, :, None], "hold": y + 0.002}
+    h = horizon_report(y, preds, NAMES, 1 / 60, [1, 15, 60, 80])
+    assert horizon_cell({"horizons": h}) == "<td>1 / 15 / 60 (2 / 2 / 2)</td>"
+    del h["rms"]["hold"]
+    assert horizon_cell({"horizons": h}) == "<td>1 / 15 / 60</td>"
+    assert horizon_cell({}) == "<td>—</td>"
+    assert horizon_cell({"horizons": {"steps": [1], "seconds": ["x"], "rms": {"model": {"joints": [1.0]}}}}) == "<td>—</td>"
