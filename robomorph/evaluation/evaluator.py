@@ -101,11 +101,23 @@ def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]
             except NotApplicable as exc:
                 skipped[name] = str(exc)
                 continue
-            params = w.params if name == "true_physics" else None
+            params = w.params if name == "true_physics" else _nominal_params(sim, w)
             preds[name] = _batched(sim, u_ctx, y_ctx, u_q, name.replace("_", " "), params=params)
         else:
             raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
     return preds, skipped, notes
+
+
+def _nominal_params(sim, w: Window) -> np.ndarray | None:
+    """Nominal parameters with the joint springs anchored where each robot started (its
+    trajectory's first sample), as the generator anchored them; None (the simulator anchors
+    at the context's first sample) when every window opens its trajectory, where they agree."""
+    from robomorph.sim import panda  # noqa: PLC0415  (NominalPhysics checked the Panda layout)
+
+    if not w.starts.any():
+        return None
+    q = w.y_first[:, [w.y_names.index(f"q{i}") for i in range(panda.N_JOINT)]]
+    return np.stack([sim.params(q0.astype(np.float64)) for q0 in q])
 
 
 def _batched(fn, u_ctx, y_ctx, u_q, desc: str, size: int = 16, params=None) -> np.ndarray:

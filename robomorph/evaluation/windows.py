@@ -33,6 +33,7 @@ class Window:
     attrs: dict
     params: np.ndarray  # (N, P) the stored physical parameters (P may be 0)
     starts: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (N,) first step of each window
+    y_first: np.ndarray | None = None  # (N, n_y) each trajectory's first output (where the robot started)
 
     def split(self, context_len: int | None = None, horizon: int | None = None):
         """``u_ctx, y_ctx, u_query, y_query`` with the query always starting at ``self.context_len``."""
@@ -116,10 +117,11 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
     rows = slice(0, min(n or total, total))
     u, y = ds.read("u", rows), ds.read("y", rows)
     starts = window_starts(offset, len(u), ds.steps, length, seed)
+    y_first = y[:, 0].copy()
     u, y = cut(u, starts, length), cut(y, starts, length)
     bad = np.flatnonzero(~(np.isfinite(u).all((1, 2)) & np.isfinite(y).all((1, 2))))
     if len(bad):
         raise WindowError(f"{data}: trajectories {bad[:10].tolist()} hold NaN or inf in the evaluated window; "
                           "drop them (robomorph.merge) or fix the import")
     return Window(u, y, context_len, horizon, list(ds.u_names), list(ds.y_names), ds.dt, ds.attrs,
-                  ds.read("params", rows), starts)
+                  ds.read("params", rows), starts, y_first)

@@ -241,3 +241,21 @@ def test_calibration_of_a_predicted_std_equals_a_direct_count(setup, tmp_path):
     assert not gives_std(NoStd(), w.u[:, :C], w.y[:, :C], w.u[:, C:])
     res, _, std, _ = score(NoStd(), w, (), (1, 1), 4, [1])
     assert std is None and "calibration" not in res["horizons"]
+
+
+def test_nominal_physics_from_offsets_anchors_the_springs_where_the_robot_started(setup):
+    from robomorph.data.store import open_store
+    from robomorph.evaluation.evaluator import _nominal_params
+    from robomorph.evaluation.physics import NominalPhysics
+    from robomorph.evaluation.windows import load_window
+
+    _, _, test = setup
+    ds = open_store(test)
+    sim = NominalPhysics(ds.attrs)
+    w = load_window(test, 20, 30, None, None, 7, 14, offset="random", seed=4)
+    assert w.starts.any()
+    params = _nominal_params(sim, w)
+    first_q = ds.read("y")[:, 0, 7:14].astype(np.float64)
+    assert np.allclose(params[:, -7:], first_q)  # the parameter vector ends with the spring anchor
+    assert np.allclose(params, np.stack([sim.params(q) for q in first_q]))
+    assert _nominal_params(sim, load_window(test, 20, 30, None, None, 7, 14)) is None
