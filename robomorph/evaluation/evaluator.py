@@ -14,6 +14,11 @@ and metric), ``horizons.csv`` (one row per source, quantity and horizon), ``tabl
 (per-channel table in the paper's fit colour convention, then the per-horizon table) and
 PNG plots.
 
+A checkpoint trained with ``data.normalization: paper_window`` (the paper's protocol) is
+scored as the paper scored it: each window rescaled with its own query outputs' mean and
+std. ``metrics.json`` then says ``"leaks_query_statistics": true`` and ``table.md`` says so
+in its header.
+
 The horizon sweep predicts with shorter query windows after the same context; the context
 sweep keeps the predicted window fixed and gives the model only the last ``c`` steps
 before it, so every point of it scores the same targets.
@@ -29,6 +34,7 @@ import sys
 
 import numpy as np
 
+from robomorph.data.statistics import NormalizationError, leaks_query_statistics, query_output_stats
 from robomorph.evaluation import metrics
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
@@ -37,29 +43,46 @@ from robomorph.evaluation.tables import write_csv, write_horizons_csv, write_tab
 from robomorph.evaluation.windows import Window, load_window, parse_offset  # noqa: F401  (Window re-exported)
 
 
-def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", with_std: bool = False):
+def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None,
+            with_std: bool = False):
     """The model's predictions in batches, with a progress bar on stderr.
+
+    ``y_query`` (the true outputs) is read only by a ``paper_window`` model, which needs
+    their statistics (the paper's protocol); any other model never receives them.
 
     Returns:
         (N, H, n_y) means, or with ``with_std`` the pair (means, standard deviations).
     """
     from tqdm.auto import tqdm  # noqa: PLC0415
 
+    leaks = getattr(predictor, "leaks_query_statistics", False)
+    if leaks and y_query is None:
+        raise NormalizationError("a paper_window model needs the query outputs' statistics: pass y_query to predict()")
     means, stds = [], []
     for s in tqdm(range(0, len(u_ctx), batch_size), desc=desc, unit="batch", leave=False,
                   disable=not sys.stderr.isatty() and len(u_ctx) <= batch_size):
-        args = (u_ctx[s:s + batch_size], y_ctx[s:s + batch_size], u_query[s:s + batch_size])
+        part = slice(s, s + batch_size)
+        out = predictor.simulate(u_ctx[part], y_ctx[part], u_query[part], **_extra(predictor, y_query, part, with_std))
+        mean = out[0] if with_std else out
         if with_std:
-            mean, std = predictor.simulate(*args, return_std=True)
-            stds.append(std)
-        else:
-            mean = predictor.simulate(*args)
+            stds.append(out[1])
         means.append(mean)
     mean = np.concatenate(means).astype(np.float64)
     return (mean, np.concatenate(stds).astype(np.float64)) if with_std else mean
 
 
-def gives_std(predictor, u_ctx, y_ctx, u_query) -> bool:
+def _extra(predictor, y_query, part: slice, with_std: bool) -> dict:
+    """Keyword arguments of ``simulate`` beyond the three arrays: only those this call needs,
+    so any object with ``simulate(u_ctx, y_ctx, u_query)`` can be evaluated."""
+    kwargs = {}
+    if getattr(predictor, "leaks_query_statistics", False):
+        kwargs["y_query_stats"] = query_output_stats(y_query[part])
+    if with_std:
+        kwargs["return_std"] = True
+    return kwargs
+
+
+def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
     """Whether ``predictor.simulate(..., return_std=True)`` returns a standard deviation.
 
     Asked of the first trajectory: a predictor without the keyword, one that refuses it
@@ -71,7 +94,7 @@ def gives_std(predictor, u_ctx, y_ctx, u_query) -> bool:
         params = inspect.signature(predictor.simulate).parameters
         if "return_std" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
             return False
-        out = predictor.simulate(u_ctx[:1], y_ctx[:1], u_query[:1], return_std=True)
+        out = predictor.simulate(u_ctx[:1], y_ctx[:1], u_query[:1], **_extra(predictor, y_query, slice(0, 1), True))
     except (NotImplementedError, RoboMorphError, ValueError, TypeError):
         return False
     return isinstance(out, tuple) and len(out) == 2 and out[1] is not None
@@ -143,7 +166,7 @@ def sweep_horizon(predictor, w: Window, horizons: list[int], baselines: dict, ba
     for h in horizons:
         u_ctx, y_ctx, u_q, y_q = w.split(horizon=h)
         y_q = y_q.astype(np.float64)
-        row = {"horizon": h, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size, f"horizon {h}"))}
+        row = {"horizon": h, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size, f"horizon {h}", y_q))}
         row.update({name: _summary(y_q, p[:, :h]) for name, p in baselines.items()})
         rows.append(row)
     return rows
@@ -155,7 +178,8 @@ def sweep_context(predictor, w: Window, contexts: list[int], batch_size: int) ->
     for c in contexts:
         u_ctx, y_ctx, u_q, y_q = w.split(context_len=c)
         y_q = y_q.astype(np.float64)
-        rows.append({"context_len": c, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size, f"context {c}")),
+        rows.append({"context_len": c, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size,
+                                                                      f"context {c}", y_q)),
                      "hold": _summary(y_q, hold(u_ctx, y_ctx, u_q))})
     return rows
 
@@ -181,10 +205,13 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
              n: int | None = None, baselines: tuple[str, ...] = BASELINES, sweep_horizon_spec: str | None = None,
              sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
              samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0,
-             horizons_spec: str | None = None, offset: str | int | None = "start") -> dict:
+             normalization: str | None = None, horizons_spec: str | None = None,
+             offset: str | int | None = "start") -> dict:
     """Evaluates a checkpoint on a store and writes every output file into ``out``.
 
     Args:
+        normalization: when given, the normalization the checkpoint must have been trained
+            with (``train_stats`` or ``paper_window``); default: whatever it was trained with.
         horizons_spec: the steps of the per-horizon errors (:func:`parse_horizons`; default
             first step, 0.25 s, 1 s, 5 s and the end of the horizon).
         offset: where each window starts (:func:`parse_offset`): ``start``, ``random``
@@ -200,6 +227,9 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
             raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
     offset = parse_offset(offset)
     predictor = Predictor.from_checkpoint(ckpt, device=device)
+    if normalization is not None and normalization != predictor.normalization:
+        raise NormalizationError(f"{ckpt} was trained with normalization {predictor.normalization!r}, not "
+                                 f"{normalization!r}: the normalization is fixed at training time (data.normalization)")
     info = predictor.data_info
     context_len = context_len or (info or {}).get("context_len")
     horizon = horizon or (info or {}).get("horizon")
@@ -246,11 +276,12 @@ def score(predictor, w: Window, baselines: tuple[str, ...], arx_orders: tuple[in
     """
     u_ctx, y_ctx, u_q, y_q = w.split()
     y_q = y_q.astype(np.float64)
+    normalization = getattr(predictor, "normalization", None)
     std = None
-    if gives_std(predictor, u_ctx, y_ctx, u_q):
-        model, std = predict(predictor, u_ctx, y_ctx, u_q, batch_size, with_std=True)
+    if gives_std(predictor, u_ctx, y_ctx, u_q, y_q):
+        model, std = predict(predictor, u_ctx, y_ctx, u_q, batch_size, y_query=y_q, with_std=True)
     else:
-        model = predict(predictor, u_ctx, y_ctx, u_q, batch_size)
+        model = predict(predictor, u_ctx, y_ctx, u_q, batch_size, y_query=y_q)
     preds = {"model": model}
     base, skipped, notes = run_baselines(w, baselines, arx_orders)
     preds.update(base)
@@ -265,7 +296,9 @@ def score(predictor, w: Window, baselines: tuple[str, ...], arx_orders: tuple[in
               "meta": {"context_len": w.context_len, "horizon": w.horizon, "n": len(w.u), "dt": w.dt,
                        "y_names": names, "u_names": w.u_names, "device": str(getattr(predictor, "device", "")),
                        "baseline_notes": notes, "domain": w.attrs.get("domain"), "task": w.attrs.get("task"),
-                       "std": std is not None}}
+                       "normalization": normalization, "std": std is not None},
+              # The paper's protocol scales each window with its query outputs' statistics: say so first.
+              "leaks_query_statistics": leaks_query_statistics(normalization)}
     return result, preds, std, base
 
 
@@ -304,6 +337,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--offset", default="start", help="where each window starts: 'start' (the paper's), 'random' "
                    "(seeded by --seed, within the data) or a step number")
     p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories and the random offsets")
+    p.add_argument("--normalization", choices=("train_stats", "paper_window"),
+                   help="require the checkpoint to have been trained with this normalization (default: its own)")
     a = p.parse_args(argv)
     baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
     out = a.out or default_out(a.ckpt, a.data)
@@ -315,7 +350,8 @@ def main(argv: list[str] | None = None) -> None:
         p.error(f"--arx-orders takes two integers na,nb, got {a.arx_orders!r}")
     try:
         res = evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
-                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed, a.horizons, a.offset)
+                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed, a.normalization,
+                       horizons_spec=a.horizons, offset=a.offset)
     except (ValueError, FileNotFoundError) as exc:
         sys.exit(f"error: {exc}")
     print(summary_text(res, out))
@@ -325,8 +361,11 @@ def summary_text(res: dict, out: str, horizons: bool = True) -> str:
     """A few lines for the terminal: mean approach-1 scores of the model and the baselines,
     then (with ``horizons``) the RMS errors by horizon in physical units."""
     m, meta = res["approach1"]["mean"], res["meta"]
-    lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']} (approach 1 mean):",
-             f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}"]
+    lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']} (approach 1 mean):"]
+    if res.get("leaks_query_statistics"):
+        lines.append(f"  normalization {meta.get('normalization')}: scores use the query outputs' statistics (the "
+                     "paper's protocol), not those of a deployable model")
+    lines.append(f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}")
     for b, r in res["baselines"].items():
         mb = r["approach1"]["mean"]
         lines.append(f"  {b:16s} R2 {mb['r2']['mean']:8.3f}  FIT {mb['fit']['mean']:8.2f}  RMSE {mb['rmse']['mean']:.4g}")
