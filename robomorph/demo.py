@@ -31,6 +31,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"training run: {res.run_dir} (config.yaml, checkpoints/best.ckpt, logs/metrics.csv, wandb/)")
     print(f"evaluation: {res.eval_dir} (metrics.json, metrics.csv, table.md, plots)")
     print(f"report: {res.report}  (open it in a browser; it works offline)")
+    print(demo.horizon_summary(res.result))
     return 0
 
 

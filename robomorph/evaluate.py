@@ -31,7 +31,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
     p.add_argument("--samples", type=int, default=3, help="sample trajectories to plot")
     p.add_argument("--arx-orders", default="2,2", help="ARX output and input lags na,nb")
-    p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories")
+    p.add_argument("--horizons", help="steps of the per-horizon errors: steps (15), seconds (0.25s) or 'end', "
+                   "comma-separated (default: 1,0.25s,1s,5s,end)")
+    p.add_argument("--offset", default="start", help="where each window starts: 'start' (the paper's), 'random' "
+                   "(seeded by --seed, within the data) or a step number")
+    p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories and the random offsets")
     p.add_argument("--normalization", choices=NORMALIZATIONS,
                    help="require the checkpoint to have been trained with this normalization (default: its own)")
     return p
@@ -50,7 +54,7 @@ def run(a: argparse.Namespace) -> int:
     out = a.out or evaluator.default_out(a.ckpt, a.data)
     res = evaluator.evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
                              a.sweep_context, a.batch_size, a.device, a.samples, _orders(a.arx_orders), a.seed,
-                             a.normalization)
+                             a.normalization, horizons_spec=a.horizons, offset=a.offset)
     print(evaluator.summary_text(res, out))
     return 0
 

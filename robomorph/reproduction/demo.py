@@ -6,6 +6,8 @@
 3. Evaluates it on held-out robots it never saw (context alone), beside the baselines,
    with the horizon and context sweeps, and prints the per-channel table.
 4. Writes the HTML report of all runs (``results/report.html``) and prints its path.
+5. Ends with the RMS errors by horizon in physical units (joint angles [mrad], end-effector
+   position [mm] and orientation [mrad]) of the model, ``hold`` and ``nominal_physics``.
 
 Re-running skips datasets that are complete and resumes the training run.
 """
@@ -60,7 +62,7 @@ def train(out_dir: str, robots: int, minutes: float, runs_dir: str) -> tuple[str
     return result.run_dir, result.best_ckpt, test
 
 
-def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str]:
+def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str, dict]:
     """Scores held-out robots (model and baselines, both sweeps) and builds the HTML report."""
     from robomorph.evaluation.evaluator import evaluate, summary_text  # noqa: PLC0415
     from robomorph.reporting.dashboard import build_report, default_out  # noqa: PLC0415
@@ -69,9 +71,9 @@ def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str]:
     res = evaluate(ckpt, test, out, sweep_horizon_spec="100:800:100", sweep_context_spec="20:200:20")
     with open(os.path.join(out, "table.md")) as f:
         print("\n" + f.read())
-    print(summary_text(res, out))
+    print(summary_text(res, out, horizons=False))  # the demo closes with the horizon table
     report = build_report(runs_dir, default_out(runs_dir))
-    return out, report
+    return out, report, res
 
 
 def _ddhhmmss(seconds: float) -> str:
@@ -88,6 +90,7 @@ class DemoResult:
     run_dir: str
     eval_dir: str
     report: str
+    result: dict  # the evaluation's metrics.json content
 
 
 def run_demo(out_dir: str = "data/demo", robots: int = 32, steps: int = 1000, train_robots: int = 1024,
@@ -95,5 +98,15 @@ def run_demo(out_dir: str = "data/demo", robots: int = 32, steps: int = 1000, tr
     """The three steps of the module docstring, in order."""
     paths = make_data(out_dir, robots, steps, workers)
     run_dir, ckpt, test = train(out_dir, train_robots, minutes, runs_dir)
-    eval_dir, report = evaluate_and_report(ckpt, test, runs_dir)
-    return DemoResult(paths, run_dir, eval_dir, report)
+    eval_dir, report, res = evaluate_and_report(ckpt, test, runs_dir)
+    return DemoResult(paths, run_dir, eval_dir, report, res)
+
+
+def horizon_summary(res: dict) -> str:
+    """The closing table: RMS error by horizon of the model, hold and nominal physics."""
+    from robomorph.evaluation.horizons import horizon_markdown  # noqa: PLC0415
+
+    meta = res["meta"]
+    return (f"\nRMS error by horizon on {meta['n']} held-out robots (context {meta['context_len']} steps; "
+            "step k is k dt after the last context sample):\n"
+            + horizon_markdown(res["horizons"], ("model", "hold", "nominal_physics")))
