@@ -18,6 +18,7 @@ import os
 import time
 from dataclasses import dataclass
 
+from robomorph.core.errors import UsageError
 from robomorph.core.names import TASKS
 from robomorph.core.rundir import RunDir
 from robomorph.data.store import open_store
@@ -59,7 +60,11 @@ def train(out_dir: str, robots: int, minutes: float, runs_dir: str) -> tuple[str
     result = fit(["--config", "datamodules/train_cpu.yaml", "--data.stores", train, "--data.test_store", test,
                   "--data.split", "[0.95, 0.05, 0.0]", "--trainer.max_time", _ddhhmmss(minutes * 60),
                   "--trainer.val_check_interval", "200", "--run", "demo", "--runs_dir", runs_dir])
-    return result.run_dir, result.best_ckpt, test
+    ckpt = result.best_ckpt or result.last_ckpt
+    if ckpt is None:  # a budget too short to reach the first validation
+        raise UsageError(f"training stopped after {result.global_step} steps without a checkpoint (the first "
+                         "is written at the first validation, step 200): give it more --minutes")
+    return result.run_dir, ckpt, test
 
 
 def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str, dict]:
