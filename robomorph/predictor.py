@@ -16,7 +16,12 @@ import inspect
 import numpy as np
 import torch
 
+from robomorph.data.store import InputsError, check_inputs
 from robomorph.training.module import CheckpointError, MetaModule, load_checkpoint_file
+
+
+_MEANING = {"total": "total joint torque, gravity compensation included",
+            "command": "the command, without the gravity compensation the arm adds"}
 
 
 class Predictor:
@@ -25,6 +30,8 @@ class Predictor:
     Attributes:
         module: the LightningModule in eval mode.
         n_u, n_y: channel counts the model expects.
+        inputs: the input formulation it was trained on: ``total`` (total joint torque)
+            or ``command`` (the command without the arm's gravity compensation).
         device: where it runs.
     """
 
@@ -36,6 +43,17 @@ class Predictor:
         self.n_u, self.n_y = int(module.hparams.n_u), int(module.hparams.n_y)
         # Channel names, dt and the training window (None for checkpoints that predate it).
         self.data_info: dict | None = module.data_info
+        # Checkpoints written before the command formulation were all trained on total torque.
+        self.inputs: str = (self.data_info or {}).get("inputs", "total")
+
+    def check_inputs(self, inputs: str | None) -> None:
+        """Refuses inputs of the other formulation than the one the model was trained on."""
+        if inputs is not None and check_inputs(inputs) != self.inputs:
+            raise InputsError(
+                f"the model was trained on inputs={self.inputs} ({_MEANING[self.inputs]}) but was given "
+                f"inputs={inputs} ({_MEANING[inputs]}): feed it the {self.inputs} array "
+                f"({'u' if self.inputs == 'total' else 'u_cmd'}) or use a checkpoint trained with "
+                f"data.inputs={inputs}")
 
     @classmethod
     def from_checkpoint(cls, path: str, device: str | torch.device | None = None) -> "Predictor":
@@ -60,17 +78,20 @@ class Predictor:
             raise ValueError(f"{name} holds NaN or inf values")
 
     @torch.no_grad()
-    def simulate(self, u_ctx, y_ctx, u_query):
+    def simulate(self, u_ctx, y_ctx, u_query, inputs: str | None = None):
         """Predicts the outputs over the query horizon.
 
         Args:
             u_ctx: (Tc, n_u) or (B, Tc, n_u) context inputs, numpy or torch.
             y_ctx: (Tc, n_y) or (B, Tc, n_y) context outputs.
             u_query: (Th, n_u) or (B, Th, n_u) future inputs.
+            inputs: which formulation the torques are (``total`` or ``command``); when
+                given, a mismatch with the training formulation is refused.
 
         Returns:
             y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``.
         """
+        self.check_inputs(inputs)
         as_numpy = not isinstance(u_query, torch.Tensor)
         dtype = getattr(u_query, "dtype", None)
         tensors = [torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x,

@@ -44,6 +44,7 @@ class Window:
     dt: float
     attrs: dict
     params: np.ndarray  # (N, P) the stored physical parameters (P may be 0)
+    inputs: str = "total"  # which array u is: total torque (u) or command (u_cmd)
 
     def split(self, context_len: int | None = None, horizon: int | None = None):
         """``u_ctx, y_ctx, u_query, y_query`` with the query always starting at ``self.context_len``."""
@@ -52,8 +53,11 @@ class Window:
 
 
 def load_window(data: str, context_len: int, horizon: int, n: int | None, info: dict | None,
-                n_u: int, n_y: int) -> Window:
+                n_u: int, n_y: int, inputs: str = "total") -> Window:
     """Reads and checks the first ``n`` trajectories of a store against the model.
+
+    ``inputs`` picks the input array (``total``: ``u``, ``command``: ``u_cmd``); a store
+    without the command is refused with a message saying to regenerate it.
 
     Raises:
         ValueError: empty store, channels that differ from the checkpoint's, a window longer
@@ -66,8 +70,9 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
     if total == 0:
         raise ValueError(f"{data} holds no trajectories: generate or import data into it first")
     ds = open_store(data)  # a half-written store: the error says how to finish it
+    u_names = ds.input_names(inputs)
     if info is not None:
-        for what, ours, theirs in (("u_names", ds.u_names, info["u_names"]), ("y_names", ds.y_names, info["y_names"])):
+        for what, ours, theirs in (("u_names", u_names, info["u_names"]), ("y_names", ds.y_names, info["y_names"])):
             if list(ours) != list(theirs):
                 raise ValueError(f"{data} has {what} {list(ours)} but the checkpoint was trained on {list(theirs)}")
     elif (len(ds.u_names), len(ds.y_names)) != (n_u, n_y):
@@ -77,14 +82,14 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
         raise ValueError(f"context_len {context_len} + horizon {horizon} must fit in the store's T={ds.steps} steps "
                          "(both >= 1): pass shorter --context-len / --horizon")
     rows = slice(0, min(n or total, total))
-    u = ds.read("u", rows)[:, : context_len + horizon]
+    u = ds.read_inputs(inputs, rows)[:, : context_len + horizon]
     y = ds.read("y", rows)[:, : context_len + horizon]
     bad = np.flatnonzero(~(np.isfinite(u).all((1, 2)) & np.isfinite(y).all((1, 2))))
     if len(bad):
         raise ValueError(f"{data}: trajectories {bad[:10].tolist()} hold NaN or inf in the evaluated window; "
                          "drop them (robomorph.merge) or fix the import")
-    return Window(u, y, context_len, horizon, list(ds.u_names), list(ds.y_names), ds.dt, ds.attrs,
-                  ds.read("params", rows))
+    return Window(u, y, context_len, horizon, list(u_names), list(ds.y_names), ds.dt, ds.attrs,
+                  ds.read("params", rows), inputs)
 
 
 def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model") -> np.ndarray:
@@ -116,7 +121,7 @@ def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]
             from robomorph.evaluation.physics import NominalPhysics, NotApplicable, check_params  # noqa: PLC0415
 
             try:
-                sim = NominalPhysics(w.attrs)
+                sim = NominalPhysics(w.attrs, inputs=w.inputs)
                 if name == "true_physics":
                     check_params(w.attrs)
             except NotApplicable as exc:
@@ -189,8 +194,12 @@ def parse_range(text: str | None, low: int, high: int, what: str) -> list[int]:
 def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, horizon: int | None = None,
              n: int | None = None, baselines: tuple[str, ...] = BASELINES, sweep_horizon_spec: str | None = None,
              sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
-             samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0) -> dict:
+             samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0,
+             inputs: str | None = None) -> dict:
     """Evaluates a checkpoint on a store and writes every output file into ``out``.
+
+    The store's input array is the one the checkpoint was trained on (``total``: ``u``,
+    ``command``: ``u_cmd``); ``inputs``, when given, must agree with it.
 
     Returns:
         The ``metrics.json`` content.
@@ -201,12 +210,13 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
         if name not in BASELINES + CEILINGS:
             raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
     predictor = Predictor.from_checkpoint(ckpt, device=device)
+    predictor.check_inputs(inputs)
     info = predictor.data_info
     context_len = context_len or (info or {}).get("context_len")
     horizon = horizon or (info or {}).get("horizon")
     if context_len is None or horizon is None:
         raise ValueError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
-    w = load_window(data, int(context_len), int(horizon), n, info, predictor.n_u, predictor.n_y)
+    w = load_window(data, int(context_len), int(horizon), n, info, predictor.n_u, predictor.n_y, predictor.inputs)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
     contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")
     patch = int(predictor.module.hparams.get("patch", 1))
@@ -230,7 +240,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
               "meta": {"ckpt": ckpt, "data": data, "context_len": w.context_len,
                        "horizon": w.horizon, "n": len(w.u), "dt": w.dt, "y_names": names, "u_names": w.u_names,
                        "device": str(predictor.device), "baseline_notes": notes,
-                       "domain": w.attrs.get("domain"), "task": w.attrs.get("task")}}
+                       "domain": w.attrs.get("domain"), "task": w.attrs.get("task"), "inputs": w.inputs}}
     sweeps = {}
     if horizons:
         sweeps["horizon"] = sweep_horizon(predictor, w, horizons, base, batch_size)
@@ -277,6 +287,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--samples", type=int, default=3, help="sample trajectories to plot")
     p.add_argument("--arx-orders", default="2,2", help="ARX output and input lags na,nb")
     p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories")
+    p.add_argument("--inputs", choices=["total", "command"],
+                   help="input formulation of the data (default: the checkpoint's; a different one is refused)")
     a = p.parse_args(argv)
     baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
     out = a.out or default_out(a.ckpt, a.data)
@@ -288,7 +300,7 @@ def main(argv: list[str] | None = None) -> None:
         p.error(f"--arx-orders takes two integers na,nb, got {a.arx_orders!r}")
     try:
         res = evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
-                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed)
+                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed, a.inputs)
     except (ValueError, FileNotFoundError) as exc:
         sys.exit(f"error: {exc}")
     print(summary_text(res, out))
@@ -297,7 +309,8 @@ def main(argv: list[str] | None = None) -> None:
 def summary_text(res: dict, out: str) -> str:
     """A few lines for the terminal: mean approach-1 scores of the model and the baselines."""
     m, meta = res["approach1"]["mean"], res["meta"]
-    lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']} (approach 1 mean):",
+    lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']}, "
+             f"inputs {meta.get('inputs', 'total')} (approach 1 mean):",
              f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}"]
     for b, r in res["baselines"].items():
         mb = r["approach1"]["mean"]
