@@ -3,6 +3,7 @@
     python -m robomorph.reproduce table1 --scale ci
     python -m robomorph.reproduce all --scale small --out results/paper/small
     python -m robomorph.reproduce table2 --scale paper --steps-factor 0.1
+    python -m robomorph.reproduce table1 --scale small --inputs command
 
 Targets:
 
@@ -22,6 +23,11 @@ in ``<work>/report.html``; the tables and the figure go to ``--out`` (default
 stores, runs that reached their budget, evaluations newer than their checkpoint), and an
 interrupted run resumes from its last checkpoint: re-run the same command.
 
+``--inputs command`` trains and scores every model on the command formulation (``u_cmd``,
+the torque without the gravity compensation the arm adds) instead of the total joint
+torque: its runs are named ``...-command``, its tables go to ``results/paper/<scale>-command``
+by default and name the formulation in their header.
+
 Run times of ``all``: ``ci`` about 25 s on 2 CPU cores and ``small`` 1 h 59 min on 2 CPU
 cores (both measured), ``paper`` about 38 hours of training on one H100 (from measured
 step times). Sizes, budgets and how the estimates were made: :mod:`robomorph.reproduction.scales`.
@@ -38,6 +44,7 @@ import sys
 import time
 from dataclasses import dataclass
 
+from robomorph.data.store import INPUTS
 from robomorph.reproduction import skip as resume
 from robomorph.reproduction.scales import SCALES, Scale
 from robomorph.sim.recipe import load_recipe
@@ -66,11 +73,16 @@ class Plan:
     workers: int | None = None
     device: str | None = None
     wandb: str = "offline"
+    inputs: str = "total"  # the input formulation of every model: total torque or command
     started: float = dataclasses.field(default_factory=time.time)  # for the tables' elapsed time
 
     def path(self, *parts: str) -> str:
         """A path inside the work folder."""
         return os.path.join(self.work, *parts)
+
+    def run_name(self, name: str) -> str:
+        """A run's name; command-formulation runs are told apart so neither reuses the other."""
+        return name if self.inputs == "total" else f"{name}-{self.inputs}"
 
 
 def say(target: str, message: str) -> None:
@@ -84,12 +96,13 @@ def store(plan: Plan, key: str, target: str) -> str:
     s = plan.scale
     recipe = load_recipe(recipe_path(task), {"robots": getattr(s, robots_field), "steps": s.steps, "seed": seed})
     path = plan.path("data", f"{key}.zarr")
-    state = resume.store_state(path, recipe)
+    need = plan.inputs == "command"
+    state = resume.store_state(path, recipe, need)
     if state == "complete":
         say(target, f"data {key}: complete ({recipe.robots} robots x {s.steps} steps), kept")
     else:
         say(target, f"data {key}: generating {recipe.robots} {recipe.task_label} robots x {s.steps} steps ({state}) ...")
-        resume.ensure_store(recipe, path, workers=plan.workers, progress=sys.stderr.isatty())
+        resume.ensure_store(recipe, path, workers=plan.workers, progress=sys.stderr.isatty(), need_command=need)
     return path
 
 
@@ -108,14 +121,14 @@ def base_args(plan: Plan, depth: int, stores: list[str], run: str, steps: int) -
     return {
         "data": {"stores": stores, "context_len": s.context_len, "horizon": s.horizon, "batch_size": s.batch_size,
                  "split": [1 - s.val_fraction, s.val_fraction, 0.0], "val_subset": s.val_subset, "recenter": True,
-                 "seed": 0},
+                 "seed": 0, "inputs": plan.inputs},
         "model": {"d_model": s.d_model, "n_head": s.n_head, "n_layer": depth, "patch": s.patch, "lr": s.lr,
                   "warmup_steps": s.warmup_steps, "max_context": s.context_len, "max_horizon": s.horizon,
                   "loss": "huber"},
         "trainer": {"max_steps": steps, "val_check_interval": min(s.val_every, steps), "accelerator": s.accelerator,
                     "devices": 1, "max_time": s.max_time, "enable_progress_bar": sys.stderr.isatty(),
                     "enable_model_summary": False},
-        "run": run, "runs_dir": plan.path("runs"), "wandb": plan.wandb,
+        "run": plan.run_name(run), "runs_dir": plan.path("runs"), "wandb": plan.wandb,
     }
 
 
@@ -224,7 +237,7 @@ def run_info(plan: Plan) -> dict:
     return {"scale": plan.scale.name, "command": plan.command,
             "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "elapsed_min": round((time.time() - plan.started) / 60, 1),
-            "machine": machine(), "budgets": plan.scale.budgets()}
+            "machine": machine(), "budgets": plan.scale.budgets(), "inputs": plan.inputs}
 
 
 def machine() -> str:
@@ -241,16 +254,22 @@ def machine() -> str:
 
 
 def reproduce(target: str, scale: Scale, out: str | None = None, work: str | None = None, command: str = "",
-              workers: int | None = None, device: str | None = None, wandb: str = "offline") -> dict[str, dict]:
+              workers: int | None = None, device: str | None = None, wandb: str = "offline",
+              inputs: str = "total") -> dict[str, dict]:
     """Runs ``target`` (``table1``, ``table2``, ``context`` or ``all``) at ``scale``.
+
+    ``inputs`` is the formulation every model trains on: ``total`` (the paper's) or ``command``.
 
     Returns:
         ``{target: the JSON content written}`` for each target run.
     """
     if target not in TARGETS:
         raise ValueError(f"unknown target {target!r}; choose from {list(TARGETS)}")
+    if inputs not in INPUTS:
+        raise ValueError(f"inputs must be one of {INPUTS}, got {inputs!r}")
+    default_out = scale.name if inputs == "total" else f"{scale.name}-{inputs}"
     plan = Plan(scale, work or os.path.join("data", "reproduce", scale.name),
-                out or os.path.join("results", "paper", scale.name), command, workers, device, wandb)
+                out or os.path.join("results", "paper", default_out), command, workers, device, wandb, inputs)
     os.makedirs(plan.out, exist_ok=True)
     steps = {"table1": table1, "table2": table2, "context": context}
     chosen = list(steps) if target == "all" else [target]
@@ -280,13 +299,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workers", type=int, help="generation threads/processes (default: all cores)")
     p.add_argument("--device", help="evaluation device: cpu, cuda, ... (default: cuda when available)")
     p.add_argument("--wandb", choices=("offline", "online", "disabled"), default=os.environ.get("WANDB_MODE", "offline"))
+    p.add_argument("--inputs", choices=INPUTS, default="total",
+                   help="input formulation: total joint torque (the paper's) or command (without the arm's "
+                        "gravity compensation); tables go to results/paper/<scale>-command by default")
     args = p.parse_args(argv)
     try:
         scale = SCALES[args.scale].scaled(args.steps_factor, args.scratch_ratio)
     except ValueError as exc:
         p.error(str(exc))
     command = " ".join(["python -m robomorph.reproduce", *(sys.argv[1:] if argv is None else argv)])
-    reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb)
+    reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb, args.inputs)
     return 0
 
 

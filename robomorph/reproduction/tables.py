@@ -21,12 +21,17 @@ _TEX_NAMES = {"ee_x": "$x$", "ee_y": "$y$", "ee_z": "$z$", "ee_qx": "$X$", "ee_q
               "ee_qw": "$W$", **{f"q{i}": f"$q_{i}$" for i in range(10)}}
 
 
+_INPUTS_TEXT = {"total": "total joint torque, the paper's input",
+                "command": "the command, without the gravity compensation the arm adds"}
+
+
 def header_markdown(info: dict) -> str:
     """The provenance line every table starts with."""
     budgets = ", ".join(f"{k} {v}" for k, v in info["budgets"].items() if v is not None)
     elapsed = f" ({info['elapsed_min']} min into the command)" if info.get("elapsed_min") is not None else ""
-    return (f"Scale `{info['scale']}`; command `{info['command']}`; {info['date']}{elapsed}; "
-            f"machine: {info['machine']}; budgets: {budgets}.")
+    inputs = _INPUTS_TEXT[info.get("inputs", "total")]
+    return (f"Scale `{info['scale']}`; inputs `{info.get('inputs', 'total')}` ({inputs}); command "
+            f"`{info['command']}`; {info['date']}{elapsed}; machine: {info['machine']}; budgets: {budgets}.")
 
 
 def _layers(n: int) -> str:

@@ -178,3 +178,20 @@ def test_a_run_stopped_short_of_its_budget_is_not_marked_finished(tmp_path, monk
     with pytest.raises(RuntimeError, match="stopped at step 3 of 10: re-run the same command"):
         reproduce.train(plan, "t", args, "model")
     assert not resume.run_finished(str(ckpt.parent.parent), {"max_steps": 10, "max_time": None})
+
+
+def test_inputs_command_trains_its_own_runs_and_names_the_formulation(table1_run):
+    from robomorph.predictor import Predictor
+
+    root, _ = table1_run
+    argv = [*_argv("table1", root), "--inputs", "command"]
+    argv[argv.index("--out") + 1] = str(root / "out-command")
+    with spied() as calls:
+        assert reproduce.main(argv) == 0
+    # the stores are shared, the total-torque runs are not reused
+    assert len(calls["fit"]) == 3 and all(r.endswith("-command") for r in calls["fit"])
+    text = open(root / "out-command" / "table1.md").read()
+    assert "inputs `command`" in text and "--inputs command" in text
+    assert "inputs `total`" in open(root / "out" / "table1.md").read()
+    ckpt = resume.finished_ckpt(str(root / "work" / "runs" / calls["fit"][0]))
+    assert Predictor.from_checkpoint(ckpt, device="cpu").inputs == "command"
