@@ -111,18 +111,29 @@ class NominalPhysics:
                                    None if params is None else np.asarray(params[b], dtype=np.float64))
                          for b in range(len(torque))])
 
-    def _one(self, q_ctx: np.ndarray, qvel0: np.ndarray, torque: np.ndarray, quat_last: np.ndarray,
-             params: np.ndarray | None) -> np.ndarray:
+    def rollout(self, torque: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray | None = None,
+                params: np.ndarray | None = None) -> np.ndarray:
+        """Simulates ``torque`` (T, 7), in this baseline's formulation, from joint state
+        ``(qpos0, qvel0)``; returns y (T, 14) at the start of each frame (row 0: the start).
+
+        ``params`` are the robot's own parameters (default: the catalogue robot with its
+        springs anchored at ``qpos0``).
+        """
         from robomorph.sim.closed_loop import simulate_closed_loop  # noqa: PLC0415
         from robomorph.sim.filters import to_outputs  # noqa: PLC0415
 
+        self._randomizer.apply(self.model, self.params(qpos0) if params is None else params)
+        sens = simulate_closed_loop(self.model, self.data, qpos0, len(torque), self.substeps,
+                                    self._controller(np.asarray(torque, dtype=np.float64)), qvel0)
+        return to_outputs(sens)[1]
+
+    def _one(self, q_ctx: np.ndarray, qvel0: np.ndarray, torque: np.ndarray, quat_last: np.ndarray,
+             params: np.ndarray | None) -> np.ndarray:
         # The stiffness springs pull toward where the robot started: the first context
         # sample when the context opens the trajectory (stiffness is small either way).
-        self._randomizer.apply(self.model, self.params(q_ctx[0]) if params is None else params)
-        command = self._controller(torque)
-
-        sens = simulate_closed_loop(self.model, self.data, q_ctx[-1], len(torque), self.substeps, command, qvel0)
-        _, y = to_outputs(sens)  # row f: the start of frame c-1+f
+        if params is None:
+            params = self.params(q_ctx[0])
+        y = self.rollout(torque, q_ctx[-1], qvel0, params)  # row f: the start of frame c-1+f
         if np.dot(y[0, self._quat], quat_last) < 0:  # the context's sign convention
             y[:, self._quat] *= -1.0
         return y[1:]
