@@ -29,7 +29,7 @@ def test_nominal_physics_matches_an_unrandomized_robot(nominal_store):
     pred = sim(u[:, :c], y[:, :c], u[:, c:c + h])
     truth = y[:, c:c + h].astype(np.float64)
     assert pred.shape == truth.shape
-    # Only the context's velocity estimate separates the two (chaos amplifies it later).
+    # Only the context's velocity estimate separates the two (the total torque amplifies it later).
     assert np.abs(pred - truth).max() < 2e-3
     assert metrics.approach2(truth, pred, nominal_store.y_names)["mean"]["r2"] > 0.99
     err_hold = np.abs(hold(u[:, :c], y[:, :c], u[:, c:c + h]) - truth).max()
