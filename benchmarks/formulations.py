@@ -11,6 +11,7 @@ checkpoints on the held-out robots (context 200, horizon 800) beside ``hold``,
 R^2 and FIT over the 800 steps, and the steps and minutes trained.
 
     python benchmarks/formulations.py --steps 1500 --max-minutes 12
+    python benchmarks/formulations.py --steps 400 --max-minutes 14 --d-model 64 --n-layer 2 --patch 20 --batch 16
 """
 
 from __future__ import annotations
@@ -49,6 +50,8 @@ def _train(inputs: str, train: str, test: str, args) -> tuple[str, int, float]:
         "--config", "datamodules/train_cpu.yaml", "--data.stores", train, "--data.test_store", test,
         "--data.split", "[0.95, 0.05, 0.0]", "--data.inputs", inputs, "--data.val_subset", str(args.val_subset),
         "--model.decay_steps", str(args.steps), "--model.warmup_steps", str(min(500, args.steps // 10)),
+        "--model.d_model", str(args.d_model), "--model.n_layer", str(args.n_layer), "--model.patch", str(args.patch),
+        "--data.batch_size", str(args.batch),
         "--trainer.max_steps", str(args.steps), "--trainer.max_time", f"00:00:{int(args.max_minutes):02d}:00",
         "--trainer.val_check_interval", str(max(2, args.steps // 6)), "--trainer.enable_progress_bar", "false",
         "--run", f"formulation_{inputs}", "--runs_dir", os.path.join(args.out, "runs"), "--wandb", "disabled",
@@ -86,6 +89,10 @@ def main() -> None:
     p.add_argument("--robots", type=int, default=1500, help="training robots")
     p.add_argument("--held-out", type=int, default=128)
     p.add_argument("--val-subset", type=int, default=75, help="validation trajectories (fixed subset)")
+    p.add_argument("--d-model", type=int, default=128, help="the CPU model's width (train_cpu.yaml: 128)")
+    p.add_argument("--n-layer", type=int, default=4, help="encoder and decoder depth (train_cpu.yaml: 4)")
+    p.add_argument("--patch", type=int, default=10, help="steps per token (train_cpu.yaml: 10)")
+    p.add_argument("--batch", type=int, default=32, help="trajectories per batch (train_cpu.yaml: 32)")
     p.add_argument("--out", default="data/formulations")
     p.add_argument("--csv", default="results/benchmarks/formulations.csv")
     args = p.parse_args()

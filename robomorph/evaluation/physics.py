@@ -16,7 +16,7 @@ Two input formulations (``inputs``):
   the same with the simulated model's gravity (command = u - g(q) at the frame start), so
   on an un-randomized robot it reproduces the recorded torques. Otherwise ``u`` is held
   over the frame as recorded. g(q) is paid at the *recorded* state, so any deviation
-  feels gravity uncompensated and grows (about tenfold every 50 steps): no simulation
+  feels gravity uncompensated and grows (about tenfold every 57 steps): no simulation
   follows this formulation far.
 * ``command``: ``u`` is the command ``u_cmd``, simulated on an arm that compensates its own
   gravity at its current state, as the generator does: ``true_model`` through the
