@@ -11,6 +11,7 @@ import math
 import os
 
 from robomorph.core.atomic import write_json, write_text
+from robomorph.data.statistics import leaks_query_statistics, normalization_label
 from robomorph.evaluation.fit_bands import FIT_BANDS, LATEX_COLORS, fit_band
 
 TABLE1_COLUMNS = ("r2", "r2_std", "rmse", "rmse_std")
@@ -25,13 +26,20 @@ _INPUTS_TEXT = {"total": "total joint torque, the paper's input",
                 "command": "the command, without the gravity compensation the arm adds"}
 
 
-def header_markdown(info: dict) -> str:
-    """The provenance line every table starts with."""
+def header_markdown(info: dict, with_normalization: bool = True) -> str:
+    """The provenance line every table starts with (naming its input formulation), ending with
+    its normalization (flagged in bold when it leaks the query outputs' statistics, as the
+    paper's protocol does)."""
     budgets = ", ".join(f"{k} {v}" for k, v in info["budgets"].items() if v is not None)
     elapsed = f" ({info['elapsed_min']} min into the command)" if info.get("elapsed_min") is not None else ""
-    inputs = _INPUTS_TEXT[info.get("inputs", "total")]
-    return (f"Scale `{info['scale']}`; inputs `{info.get('inputs', 'total')}` ({inputs}); command "
-            f"`{info['command']}`; {info['date']}{elapsed}; machine: {info['machine']}; budgets: {budgets}.")
+    inputs = info.get("inputs", "total")  # absent in tables written before the option: total
+    line = (f"Scale `{info['scale']}`; inputs `{inputs}` ({_INPUTS_TEXT[inputs]}); command `{info['command']}`; "
+            f"{info['date']}{elapsed}; machine: {info['machine']}; budgets: {budgets}.")
+    if not with_normalization:
+        return line
+    norm = info.get("normalization")  # absent in tables written before the option: train_stats
+    label = normalization_label(norm)
+    return f"{line} **⚠ {label}**" if leaks_query_statistics(norm) else f"{line} {label}"
 
 
 def _layers(n: int) -> str:
