@@ -71,7 +71,7 @@ def _row(inputs: str, source: str, y_q: np.ndarray, pred: np.ndarray, steps: int
 
 def _score(inputs: str, ckpt: str, test: str, steps: int, minutes: float) -> list[dict]:
     predictor = Predictor.from_checkpoint(ckpt, device="cpu")
-    w = load_window(test, CONTEXT, HORIZON, None, predictor.data_info, predictor.n_u, predictor.n_y, inputs)
+    w = load_window(test, CONTEXT, HORIZON, None, predictor.data_info, predictor.n_u, predictor.n_y, inputs=inputs)
     u_ctx, y_ctx, u_q, y_q = w.split()
     y_q = y_q.astype(np.float64)
     rows = [_row(inputs, "model", y_q, predict(predictor, u_ctx, y_ctx, u_q, 64), steps, minutes)]
