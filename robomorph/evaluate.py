@@ -9,7 +9,7 @@ import argparse
 import sys
 
 from robomorph.core.errors import UsageError, run_command
-from robomorph.core.names import NORMALIZATIONS
+from robomorph.core.names import INPUTS, NORMALIZATIONS
 from robomorph.evaluation import evaluator
 from robomorph.evaluation.baselines import BASELINES, CEILINGS
 
@@ -38,6 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories and the random offsets")
     p.add_argument("--normalization", choices=NORMALIZATIONS,
                    help="require the checkpoint to have been trained with this normalization (default: its own)")
+    p.add_argument("--inputs", choices=INPUTS,
+                   help="input formulation of the data (default: the checkpoint's; a different one is refused)")
     return p
 
 
@@ -54,7 +56,7 @@ def run(a: argparse.Namespace) -> int:
     out = a.out or evaluator.default_out(a.ckpt, a.data)
     res = evaluator.evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
                              a.sweep_context, a.batch_size, a.device, a.samples, _orders(a.arx_orders), a.seed,
-                             a.normalization, horizons_spec=a.horizons, offset=a.offset)
+                             a.normalization, horizons_spec=a.horizons, offset=a.offset, inputs=a.inputs)
     print(evaluator.summary_text(res, out))
     return 0
 

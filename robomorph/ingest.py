@@ -20,7 +20,10 @@ def _names(text: str) -> list[str]:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m robomorph.ingest", description=ingest.__doc__.split("\n")[0])
     p.add_argument("files", nargs="+", help="log files, one recording each (.csv, .npz, .mat)")
-    p.add_argument("--u-cols", required=True, type=_names, help="input columns, comma-separated")
+    p.add_argument("--u-cols", required=True, type=_names,
+                   help="total joint torque columns (the store's u), comma-separated")
+    p.add_argument("--u-cmd-cols", type=_names, help="command columns before the arm's gravity compensation "
+                   "(the store's u_cmd, for data.inputs: command), comma-separated, joint order of --u-cols")
     p.add_argument("--y-cols", required=True, type=_names, help="output columns, comma-separated")
     p.add_argument("--steps", required=True, type=int, help="samples per window (T)")
     p.add_argument("--stride", type=int, help="samples between window starts (default: --steps)")
@@ -44,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
             warnings.simplefilter("always", ingest.ShortRecordingWarning)
             ds = ingest.ingest(args.files, args.u_cols, args.y_cols, args.out, args.steps, dt=args.dt,
                                time_col=args.time_col, stride=args.stride, fmt=args.fmt,
-                               overwrite=args.overwrite, name=args.name, time_tol=args.time_tol)
+                               overwrite=args.overwrite, name=args.name, time_tol=args.time_tol,
+                               u_cmd_cols=args.u_cmd_cols)
     finally:
         _print_warnings(caught)
     used = len(args.files) - len(ds.attrs["skipped_recordings"])

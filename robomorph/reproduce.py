@@ -10,7 +10,7 @@ import os
 import sys
 
 from robomorph.core.errors import run_command
-from robomorph.core.names import NORMALIZATIONS
+from robomorph.core.names import INPUTS, NORMALIZATIONS
 from robomorph.reproduction import pipeline
 from robomorph.reproduction.scales import SCALES
 
@@ -31,6 +31,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "context and query; its scores use the query outputs' statistics)")
     p.add_argument("--leak-free", help="compare: the train_stats output folder (default results/paper/<scale>); "
                                        "--out is the paper_window one")
+    p.add_argument("--inputs", choices=INPUTS, default="total",
+                   help="input formulation: total joint torque (the paper's) or command (without the arm's "
+                        "gravity compensation); tables go to results/paper/<scale>-command by default")
     return p
 
 
@@ -38,7 +41,7 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
     scale = SCALES[args.scale].scaled(args.steps_factor, args.scratch_ratio)
     command = " ".join(["python -m robomorph.reproduce", *argv])  # recorded in the tables' headers
     pipeline.reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb,
-                       args.normalization, args.leak_free)
+                       args.normalization, args.leak_free, args.inputs)
     return 0
 
 

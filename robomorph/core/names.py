@@ -32,6 +32,10 @@ GRAVITY_MODES = ("true_model", "nominal_model", "none")
 # or the paper's per-window statistics (which leak the query outputs' statistics).
 NORMALIZATIONS = ("train_stats", "paper_window")
 
+# What the model reads as u (data.inputs): the total joint torque, or the command before the
+# arm's gravity compensation (a store's u_cmd).
+INPUTS = ("total", "command")
+
 # Which parameters a fine-tuned model keeps fixed, and the transfer regimes of Table 2.
 FREEZE_MODES = ("none", "encoder", "all_but_head")
 REGIMES = ("zero_shot", "finetune", "scratch")
