@@ -1,89 +1,9 @@
-"""Inference API: a trained meta-model as a simulator of an unseen robot.
-
-    from robomorph import Predictor
-    pred = Predictor.from_checkpoint("results/runs/ms/checkpoints/best.ckpt")
-    y_query = pred.simulate(u_ctx, y_ctx, u_query)   # physical units in and out
-
-This is what a model predictive controller calls: given a window of measured torques and
-outputs of the robot at hand (the context) and candidate future torques, it returns the
-predicted outputs. Normalization is handled inside (statistics stored in the checkpoint).
+"""The inference API users import: ``from robomorph.predictor import Predictor`` (or ``from
+robomorph import Predictor``). It lives in :mod:`robomorph.model.predictor`, below the
+evaluation that uses it too; a deployed model needs only ``robomorph.model`` and
+``robomorph.core``.
 """
 
-from __future__ import annotations
+from robomorph.model.predictor import Predictor
 
-import inspect
-
-import numpy as np
-import torch
-
-from robomorph.training.module import CheckpointError, MetaModule, load_checkpoint_file
-
-
-class Predictor:
-    """Wraps a trained :class:`MetaModule` for inference.
-
-    Attributes:
-        module: the LightningModule in eval mode.
-        n_u, n_y: channel counts the model expects.
-        device: where it runs.
-    """
-
-    def __init__(self, module: MetaModule, device: str | torch.device | None = None):
-        if module.net is None:
-            raise CheckpointError("the module has no network (it was never built or trained)")
-        self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
-        self.module = module.to(self.device).eval()
-        self.n_u, self.n_y = int(module.hparams.n_u), int(module.hparams.n_y)
-        # Channel names, dt and the training window (None for checkpoints that predate it).
-        self.data_info: dict | None = module.data_info
-
-    @classmethod
-    def from_checkpoint(cls, path: str, device: str | torch.device | None = None) -> "Predictor":
-        """Loads a checkpoint written by ``robomorph.fit`` (clear errors for bad files)."""
-        ckpt = load_checkpoint_file(path)
-        hp = ckpt["hyper_parameters"]
-        if hp.get("n_u") is None or hp.get("n_y") is None:
-            raise CheckpointError(f"{path} lacks n_u/n_y: it was not written by robomorph.fit")
-        accepted = inspect.signature(MetaModule.__init__).parameters
-        module = MetaModule(**{k: v for k, v in hp.items() if k in accepted and k != "init_ckpt"})
-        module.on_load_checkpoint(ckpt)
-        try:
-            module.load_state_dict(ckpt["state_dict"])
-        except RuntimeError as exc:
-            raise CheckpointError(f"{path} does not match its own hyper-parameters: {exc}") from exc
-        return cls(module, device)
-
-    def _check(self, name: str, x: torch.Tensor, width: int) -> None:
-        if x.shape[-1] != width:
-            raise ValueError(f"{name} has {x.shape[-1]} channels, the model expects {width}")
-        if not torch.isfinite(x).all():
-            raise ValueError(f"{name} holds NaN or inf values")
-
-    @torch.no_grad()
-    def simulate(self, u_ctx, y_ctx, u_query):
-        """Predicts the outputs over the query horizon.
-
-        Args:
-            u_ctx: (Tc, n_u) or (B, Tc, n_u) context inputs, numpy or torch.
-            y_ctx: (Tc, n_y) or (B, Tc, n_y) context outputs.
-            u_query: (Th, n_u) or (B, Th, n_u) future inputs.
-
-        Returns:
-            y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``.
-        """
-        as_numpy = not isinstance(u_query, torch.Tensor)
-        dtype = getattr(u_query, "dtype", None)
-        tensors = [torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x,
-                                   dtype=torch.float32, device=self.device) for x in (u_ctx, y_ctx, u_query)]
-        single = tensors[0].dim() == 2
-        if any(t.dim() != (2 if single else 3) for t in tensors):
-            raise ValueError("give all three arrays unbatched (T, C) or all batched (B, T, C)")
-        if single:
-            tensors = [t.unsqueeze(0) for t in tensors]
-        for name, t, w in zip(("u_ctx", "y_ctx", "u_query"), tensors, (self.n_u, self.n_y, self.n_u)):
-            self._check(name, t, w)
-        y = self.module(*tensors)
-        y = y[0] if single else y
-        if as_numpy:
-            return y.cpu().numpy().astype(dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32)
-        return y.to(u_query.device, u_query.dtype)
+__all__ = ["Predictor"]

@@ -2,7 +2,7 @@
 
 The paper's code z-scored every trajectory over its whole window, query included, so a
 test-time prediction was rescaled with statistics of the very outputs it predicted
-(REFERENCE.md section 1). Here the scale comes from the training split only
+(README, section 9). Here the scale comes from the training split only
 (:class:`Stats`, computed here without torch), and the optional per-trajectory recentring
 (:class:`robomorph.model.normalization.Normalizer` with ``recenter=True``) uses the context
 window only.
@@ -10,9 +10,7 @@ window only.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -120,20 +118,3 @@ class Stats:
         acc.update(u, y)
         return acc.finalize(eps)
 
-    @classmethod
-    def from_blocks(cls, blocks: Iterable[tuple[np.ndarray, np.ndarray]], n_u: int, n_y: int,
-                    eps: float = 1e-6) -> "Stats":
-        """Statistics over an iterable of ``(u, y)`` blocks (e.g. a store read chunk by chunk)."""
-        acc = StatsAccumulator(n_u, n_y)
-        for u, y in blocks:
-            acc.update(u, y)
-        return acc.finalize(eps)
-
-    def to_dict(self) -> dict[str, list[float]]:
-        """JSON-able form (lists of floats), for checkpoints and run records."""
-        return {k: getattr(self, k).tolist() for k in ("u_mean", "u_std", "y_mean", "y_std")}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Stats":
-        """Inverse of :meth:`to_dict`."""
-        return cls(**{k: np.asarray(d[k], dtype=np.float64) for k in ("u_mean", "u_std", "y_mean", "y_std")})

@@ -1,6 +1,6 @@
 """The one reader/writer of RoboMorph's Zarr v3 dataset schema.
 
-Layout (DESIGN.md)::
+Layout (README, section 4)::
 
     <name>.zarr/
       u       float32 (N, T, n_u)
@@ -35,8 +35,8 @@ SCHEMA_VERSION = 1
 SCHEMA_NAME = "robomorph.dataset"
 STATUS_IN_PROGRESS = "in_progress"
 STATUS_COMPLETE = "complete"
-# lz4 over zstd: simulated floats barely compress either way, lz4 writes 2.7x faster
-# (REFERENCE.md, measured on this machine kind).
+# lz4 over zstd: simulated floats barely compress either way and lz4 writes faster
+# (README, section 4).
 _COMPRESSORS = [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")]
 _REQUIRED_ATTRS = ("schema", "schema_version", "u_names", "y_names", "param_names", "dt", "status", "n")
 
@@ -182,9 +182,6 @@ class DatasetWriter:
                 target[self.n:self.n + k] = arr
         self.n += k
         self.group.attrs.update({"n": self.n, **(progress or {})})
-
-    def set_attrs(self, **attrs: Any) -> None:
-        self.group.attrs.update(attrs)
 
     def finalize(self, **attrs: Any) -> None:
         """Marks the store complete (the last write of a job)."""

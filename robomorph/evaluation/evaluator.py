@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from robomorph.core import metrics as scores
 from robomorph.evaluation import metrics
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
@@ -141,7 +142,7 @@ def _batched(fn, u_ctx, y_ctx, u_q, desc: str, size: int = 16, params=None) -> n
 def _summary(y, yhat) -> dict:
     """Channel-mean R^2 and FIT: ``r2``/``fit`` by approach 1, ``r2_a2``/``fit_a2`` by approach 2."""
     a2 = [np.asarray(f(y.reshape(1, -1, y.shape[-1]), yhat.reshape(1, -1, y.shape[-1])))[0].mean()
-          for f in (metrics.r2, metrics.fit_index)]
+          for f in (scores.r2, scores.fit_index)]
     return {"r2": float(metrics.approach1_mean(y, yhat, "r2")), "fit": float(metrics.approach1_mean(y, yhat, "fit")),
             "r2_a2": float(a2[0]), "fit_a2": float(a2[1])}
 
@@ -195,7 +196,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     Returns:
         The ``metrics.json`` content.
     """
-    from robomorph.predictor import Predictor  # noqa: PLC0415  (torch only here)
+    from robomorph.model.predictor import Predictor  # noqa: PLC0415  (torch only here)
 
     for name in baselines:
         if name not in BASELINES + CEILINGS:
@@ -209,7 +210,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     w = load_window(data, int(context_len), int(horizon), n, info, predictor.n_u, predictor.n_y)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
     contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")
-    patch = int(predictor.module.hparams.get("patch", 1))
+    patch = predictor.patch
     odd = [c for c in [w.context_len, *contexts] if c % patch]
     if odd:
         raise ValueError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "

@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-from robomorph.evaluation import metrics
+from robomorph.core import metrics
 
 _STYLE = {"model": dict(color="C0", lw=1.4), "hold": dict(color="C7", ls=":"),
           "arx": dict(color="C2", ls="--", lw=1.0), "nominal_physics": dict(color="C3", ls="-.", lw=1.0),

@@ -4,38 +4,18 @@ import os
 import numpy as np
 import pytest
 
+from robomorph.core.metrics import METRICS
 from robomorph.data.store import create_store
 from robomorph.evaluation.evaluator import evaluate, main, parse_range
-from robomorph.evaluation.metrics import METRICS
 from robomorph.predictor import Predictor
-from robomorph.sim.generation import generate
-from robomorph.sim.recipe import load_recipe
-from robomorph.training.fitting import fit
-
-os.environ.setdefault("WANDB_MODE", "offline")
-C, H = 30, 60
-
-
-def _store(path, robots, seed):
-    generate(load_recipe(None, {"task": "multisine", "robots": robots, "steps": C + H, "seed": seed}),
-             path, workers=1, progress=False)
-    return path
+from tests.conftest import CKPT_CONTEXT as C
+from tests.conftest import CKPT_HORIZON as H
 
 
 @pytest.fixture(scope="module")
-def setup(tmp_path_factory):
-    root = tmp_path_factory.mktemp("eval")
-    train = _store(str(root / "train.zarr"), 24, 1)
-    test = _store(str(root / "test.zarr"), 6, 2)
-    result = fit({
-        "data": {"stores": train, "context_len": C, "horizon": H, "batch_size": 8, "val_subset": 4},
-        "model": {"d_model": 16, "n_head": 2, "n_layer": 1, "patch": 5, "warmup_steps": 2, "max_context": 64,
-                  "max_horizon": 64, "anchor": True},
-        "trainer": {"max_steps": 6, "val_check_interval": 3, "accelerator": "cpu", "devices": 1,
-                    "enable_progress_bar": False, "enable_model_summary": False},
-        "run": "ev", "runs_dir": str(root / "runs"), "wandb": "disabled",
-    })
-    return root, result.best_ckpt, test
+def setup(tiny_checkpoint, simulated_store):
+    """The shared tiny checkpoint (trained on 24 robots, seed 1) and 6 unseen robots (seed 2)."""
+    return None, tiny_checkpoint, simulated_store(robots=6, steps=C + H, seed=2)
 
 
 def test_checkpoint_records_its_training_data(setup):
@@ -82,8 +62,8 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
 def test_hold_baseline_scores_match_a_direct_computation(setup, tmp_path):
     _, ckpt, test = setup
     res = evaluate(ckpt, test, str(tmp_path / "h"), baselines=("hold",), samples=0)
+    from robomorph.core import metrics
     from robomorph.data.store import open_store
-    from robomorph.evaluation import metrics
 
     y = open_store(test).read("y").astype(np.float64)
     ref = metrics.fit_index(y[:, C:], np.repeat(y[:, C - 1:C], H, axis=1)).mean(-1).mean()

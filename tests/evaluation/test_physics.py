@@ -1,11 +1,11 @@
 import numpy as np
 import pytest
 
+from robomorph.data.generation import generate
 from robomorph.data.store import open_store
 from robomorph.evaluation import metrics
 from robomorph.evaluation.baselines import hold
 from robomorph.evaluation.physics import NominalPhysics, NotApplicable
-from robomorph.sim.generation import generate
 from robomorph.sim.recipe import load_recipe
 
 # The catalogue robot: every range collapsed onto the value the baseline takes as nominal.

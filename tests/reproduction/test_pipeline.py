@@ -11,7 +11,7 @@ import pytest
 
 from robomorph.evaluation.fit_bands import FIT_BANDS
 from robomorph.reproduction import pipeline as reproduce
-from robomorph.reproduction import skip as resume
+from robomorph.reproduction import skip
 from robomorph.reproduction.scales import SCALES
 
 os.environ.setdefault("WANDB_MODE", "disabled")
@@ -176,5 +176,5 @@ def test_a_run_stopped_short_of_its_budget_is_not_marked_finished(tmp_path, monk
     plan = reproduce.Plan(SCALES["ci"], str(tmp_path), str(tmp_path / "out"), "test")
     args = reproduce.base_args(plan, 1, ["unused.zarr"], "r", 10)
     with pytest.raises(RuntimeError, match="stopped at step 3 of 10: re-run the same command"):
-        reproduce.train(plan, "t", args, "model")
-    assert not resume.run_finished(str(ckpt.parent.parent), {"max_steps": 10, "max_time": None})
+        reproduce.trained_ckpt(plan, "t", args, "model")
+    assert not skip.run_finished(str(ckpt.parent.parent), {"max_steps": 10, "max_time": None})

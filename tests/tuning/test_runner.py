@@ -13,7 +13,7 @@ import time
 import optuna
 import pytest
 
-from robomorph.sim.generation import generate
+from robomorph.data.generation import generate
 from robomorph.sim.recipe import load_recipe
 from robomorph.tuning.runner import logged_values, main, open_storage, open_study, run_sweep, with_overrides
 from robomorph.tuning.space import SpaceError, load_space, parse_space
