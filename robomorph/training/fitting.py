@@ -27,7 +27,7 @@ from lightning.pytorch.loggers import WandbLogger
 from robomorph.data.datamodule import RoboMorphDataModule
 from robomorph.model.checkpoint import load_checkpoint_file
 from robomorph.training.checkpoints import AtomicCheckpointIO, ResumableCSVLogger, prune_log
-from robomorph.training.module import VAL_LOSS, MetaModule
+from robomorph.training.module import FROM_DATA, VAL_LOSS, MetaModule
 
 _RUN_ENV = "ROBOMORPH_RUN_NAME"  # shared with DDP worker processes, which re-run this script
 
@@ -79,7 +79,7 @@ class RoboMorphCLI(LightningCLI):
         parser.link_arguments("data.recenter", "model.recenter")
         # The data decide the model's widths and context: read from the instantiated
         # datamodule (its stores' metadata) and passed to the model's constructor.
-        for name in ("n_u", "n_y", "context_len"):
+        for name in FROM_DATA:
             parser.link_arguments(f"data.{name}", f"model.{name}", apply_on="instantiate")
 
     def run_dir(self) -> str:

@@ -33,6 +33,8 @@ _M = ModelConfig  # the architecture's defaults are defined there, once
 TRAIN_LOSS, VAL_LOSS, VAL_R2, VAL_FIT, LR = "train/loss", "val/loss", "val/r2", "val/fit", "lr"
 TEST_LOSS, TEST_R2, TEST_FIT = "test/loss", "test/r2", "test/fit"
 FREEZE_MODES = ("none", "encoder", "all_but_head")
+# Constructor arguments that the data decide: robomorph fit links them from the datamodule.
+FROM_DATA = ("n_u", "n_y", "context_len")
 # Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
 IO_LAYERS = ("encoder.embed", "decoder.embed", "head")
 

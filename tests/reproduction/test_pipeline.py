@@ -1,6 +1,5 @@
 import contextlib
 import csv
-import dataclasses
 import glob
 import json
 import math
@@ -152,16 +151,6 @@ def test_bad_arguments_are_argparse_errors(argv, message, capsys):
     with pytest.raises(SystemExit) as exc:
         reproduce.main(argv)
     assert exc.value.code == 2 and message in capsys.readouterr().err
-
-
-def test_scales_hold_the_documented_sizes():
-    paper = SCALES["paper"]
-    assert (paper.d_model, paper.n_head, paper.depths, paper.patch, paper.batch_size) == (192, 12, (10, 12, 16), 1, 16)
-    assert (paper.context_len, paper.horizon, paper.steps) == (200, 800, 1000) and paper.scratch_steps == 183_600
-    small = SCALES["small"].scaled(0.5, scratch_ratio=2.0)
-    assert small.train_steps == SCALES["small"].train_steps // 2 and small.scratch_steps == 2 * small.finetune_steps
-    with pytest.raises(ValueError, match="multiple of patch"):
-        dataclasses.replace(SCALES["small"], context_len=205)
 
 
 def test_a_run_stopped_short_of_its_budget_is_not_marked_finished(tmp_path, monkeypatch):
