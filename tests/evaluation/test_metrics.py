@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from robomorph.core import metrics as scores
 from robomorph.evaluation import metrics
 
 
@@ -33,7 +34,7 @@ def test_approach2_is_the_metric_of_the_concatenation():
 def test_approach1_mean_averages_channels_then_trajectories():
     rng = np.random.default_rng(2)
     y, yhat = rng.normal(size=(5, 20, 2)), rng.normal(size=(5, 20, 2))
-    per = metrics.fit_index(y, yhat)  # (5, 2)
+    per = scores.fit_index(y, yhat)  # (5, 2)
     a1 = metrics.approach1(y, yhat, ["a", "b"])
     assert a1["mean"]["fit"]["mean"] == pytest.approx(per.mean(1).mean())
     assert a1["mean"]["fit"]["std"] == pytest.approx(per.mean(1).std())
