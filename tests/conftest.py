@@ -3,6 +3,7 @@ checkpoint, built once per session where costly."""
 
 from __future__ import annotations
 
+import json
 import os
 
 import numpy as np
@@ -23,24 +24,27 @@ def nominal_model():
 
 
 def write_store(path, u, y, params=None, u_names=None, y_names=None, param_names=None, attrs=None,
-                chunk=None, extras=None, finish=True, overwrite=True) -> str:
+                chunk=None, extras=None, finish=True, overwrite=True, capacity=None) -> str:
     """Writes arrays ``u (N, T, n_u)``, ``y (N, T, n_y)`` as a schema-valid store (no simulation).
 
     Channel and parameter names default to ``u0..``, ``y0..``, ``p0..``; ``attrs`` default to
-    ``{"dt": 0.01}``; ``finish=False`` leaves the store incomplete (as a killed writer would).
+    ``{"dt": 0.01}``; ``extras`` maps a name to ``((row shape), dtype, values)``;
+    ``finish=False`` leaves the store incomplete (as a killed writer would), with room for
+    ``capacity`` rows (default N).
     """
     from robomorph.data.store import create_store
 
-    n, steps = u.shape[:2]
-    params = np.zeros((n, 0), np.float32) if params is None else params
+    steps = u.shape[1]
+    n = capacity or len(u)
+    params = np.zeros((len(u), 0), np.float32) if params is None else params
     u_names = u_names or [f"u{i}" for i in range(u.shape[-1])]
     y_names = y_names or [f"y{i}" for i in range(y.shape[-1])]
     param_names = [f"p{i}" for i in range(params.shape[-1])] if param_names is None else param_names
     kw = {"chunk": chunk} if chunk else {}
     w = create_store(str(path), n, steps, u_names, y_names, param_names, attrs or {"dt": 0.01},
-                     extras={k: v[0] for k, v in (extras or {}).items()} or None, overwrite=overwrite, **kw)
+                     extras={k: v[:2] for k, v in (extras or {}).items()} or None, overwrite=overwrite, **kw)
     w.append(u.astype(np.float32), y.astype(np.float32), params.astype(np.float32),
-             extras={k: v[1] for k, v in extras.items()} if extras else None)
+             extras={k: v[2] for k, v in extras.items()} if extras else None)
     if finish:
         w.finalize()
     return str(path)
@@ -86,7 +90,7 @@ def simulated_store(tmp_path_factory):
     made: dict[tuple, str] = {}
 
     def make(task: str = "multisine", robots: int = 40, steps: int = 60, seed: int = 1, **recipe) -> str:
-        key = (task, robots, steps, seed, tuple(sorted(recipe.items())))
+        key = (task, robots, steps, seed, json.dumps(recipe, sort_keys=True))
         if key not in made:
             from robomorph.data.generation import generate
             from robomorph.sim.recipe import load_recipe
