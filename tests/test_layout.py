@@ -145,3 +145,10 @@ def test_limits_are_measured_on_real_code(tmp_path):
     long = tmp_path / "long.py"
     long.write_text(f"def f():\n{body}\n")
     assert _too_long(long) == [f"FunctionDef f: {MAX_FUNCTION_LINES + 1} lines (limit {MAX_FUNCTION_LINES})"]
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if _room(m) == "model") + ["robomorph.predictor"])
+def test_inference_needs_only_model_and_core(module):
+    # A deployed model ships robomorph/model/ and robomorph/core/ alone.
+    outside = sorted(m for m in _internal(MODULES[module]) if _room(m) not in ("model", "core"))
+    assert not outside, f"{module} imports {outside}"

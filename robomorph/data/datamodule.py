@@ -74,43 +74,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.split, self.seed, self.batch_size, self.num_workers = tuple(split), seed, batch_size, num_workers
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
         self.train_samples_per_epoch = train_samples_per_epoch
-        self._validate()
+        _check_arguments(self)
         self._ready = False
         self._sources: list[Source] | None = None
-
-    def _validate(self) -> None:
-        if not self.stores:
-            raise ValueError("stores: give at least one store path")
-        paths = [os.path.realpath(p) for p in self.stores]
-        if len(set(paths)) != len(paths):
-            raise ValueError(f"stores lists a store twice: {self.stores}")
-        if self.test_store is not None and os.path.realpath(self.test_store) in paths:
-            raise ValueError(f"test_store {self.test_store} is also a training store: its trajectories would leak")
-        if self.weights is not None:
-            w = np.asarray(self.weights, dtype=float)
-            if w.shape != (len(self.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
-                raise ValueError(f"weights must be {len(self.stores)} non-negative numbers with a positive sum "
-                                 f"(one per store), got {self.weights}")
-        if (self._context_len_arg is None) == (self.context_frac is None):
-            raise ValueError("give exactly one of context_len and context_frac "
-                             f"(got context_len={self._context_len_arg}, context_frac={self.context_frac})")
-        if self._context_len_arg is not None and self._context_len_arg < 1:
-            raise ValueError(f"context_len must be >= 1, got {self._context_len_arg}")
-        if self.context_frac is not None and not 0 < self.context_frac < 1:
-            raise ValueError(f"context_frac must be in (0, 1), got {self.context_frac}")
-        if self.window not in ("start", "random"):
-            raise ValueError(f"window must be 'start' or 'random', got {self.window!r}")
-        f = self.split
-        if len(f) != 3 or any(not math.isfinite(x) or x < 0 for x in f) or abs(sum(f) - 1) > 1e-6 or f[0] <= 0:
-            raise ValueError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
-                             f"with train > 0, got {self.split}")
-        for name, value, low in (("horizon", self.horizon, 1), ("batch_size", self.batch_size, 1),
-                                 ("num_workers", self.num_workers, 0), ("val_subset", self.val_subset, 1),
-                                 ("seed", self.seed, 0)):
-            if value < low:
-                raise ValueError(f"{name} must be >= {low}, got {value}")
-        if self.train_samples_per_epoch is not None and self.train_samples_per_epoch < 1:
-            raise ValueError(f"train_samples_per_epoch must be >= 1, got {self.train_samples_per_epoch}")
 
     def setup(self, stage: str | None = None) -> None:
         """Opens and checks the stores, splits them and computes the training statistics.
@@ -246,3 +212,39 @@ class RoboMorphDataModule(L.LightningDataModule):
             "n_u": self.n_u, "n_y": self.n_y, "dt": self.dt, "in_memory": bool(self.loaded),
             "seed": self.seed, "split": list(self.split),
         }
+
+
+def _check_arguments(dm: RoboMorphDataModule) -> None:
+    """Refuses arguments that cannot work, naming the argument and the fix."""
+    if not dm.stores:
+        raise ValueError("stores: give at least one store path")
+    paths = [os.path.realpath(p) for p in dm.stores]
+    if len(set(paths)) != len(paths):
+        raise ValueError(f"stores lists a store twice: {dm.stores}")
+    if dm.test_store is not None and os.path.realpath(dm.test_store) in paths:
+        raise ValueError(f"test_store {dm.test_store} is also a training store: its trajectories would leak")
+    if dm.weights is not None:
+        w = np.asarray(dm.weights, dtype=float)
+        if w.shape != (len(dm.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
+            raise ValueError(f"weights must be {len(dm.stores)} non-negative numbers with a positive sum "
+                             f"(one per store), got {dm.weights}")
+    if (dm._context_len_arg is None) == (dm.context_frac is None):
+        raise ValueError("give exactly one of context_len and context_frac "
+                         f"(got context_len={dm._context_len_arg}, context_frac={dm.context_frac})")
+    if dm._context_len_arg is not None and dm._context_len_arg < 1:
+        raise ValueError(f"context_len must be >= 1, got {dm._context_len_arg}")
+    if dm.context_frac is not None and not 0 < dm.context_frac < 1:
+        raise ValueError(f"context_frac must be in (0, 1), got {dm.context_frac}")
+    if dm.window not in ("start", "random"):
+        raise ValueError(f"window must be 'start' or 'random', got {dm.window!r}")
+    f = dm.split
+    if len(f) != 3 or any(not math.isfinite(x) or x < 0 for x in f) or abs(sum(f) - 1) > 1e-6 or f[0] <= 0:
+        raise ValueError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
+                         f"with train > 0, got {dm.split}")
+    for name, value, low in (("horizon", dm.horizon, 1), ("batch_size", dm.batch_size, 1),
+                             ("num_workers", dm.num_workers, 0), ("val_subset", dm.val_subset, 1),
+                             ("seed", dm.seed, 0)):
+        if value < low:
+            raise ValueError(f"{name} must be >= {low}, got {value}")
+    if dm.train_samples_per_epoch is not None and dm.train_samples_per_epoch < 1:
+        raise ValueError(f"train_samples_per_epoch must be >= 1, got {dm.train_samples_per_epoch}")

@@ -104,7 +104,7 @@ def test_state_dict_carries_the_stats():
     torch.testing.assert_close(dst.u_std, torch.ones(2))
     dst.load_state_dict(src.state_dict())
     for k in ("u_mean", "u_std", "y_mean", "y_std"):
-        np.testing.assert_allclose(getattr(dst.stats, k), getattr(s, k), rtol=1e-6)
+        np.testing.assert_allclose(getattr(dst, k).numpy(), getattr(s, k), rtol=1e-6)
     # Through a saved file, as a checkpoint would carry it.
     blob = io.BytesIO()
     torch.save(src.state_dict(), blob)
