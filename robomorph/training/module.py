@@ -27,8 +27,6 @@ from robomorph.model.checkpoint import (
 from robomorph.model.normalization import Normalizer
 from robomorph.model.transformer import MetaModel, ModelConfig
 
-_M = ModelConfig  # the architecture's defaults are defined there, once
-
 # Log keys, defined once (namespaced as the lightning-hydra-template does).
 TRAIN_LOSS, VAL_LOSS, VAL_R2, VAL_FIT, LR = "train/loss", "val/loss", "val/r2", "val/fit", "lr"
 TEST_LOSS, TEST_R2, TEST_FIT = "test/loss", "test/r2", "test/fit"
@@ -80,15 +78,16 @@ class MetaModule(L.LightningModule):
         n_u: int | None = None,
         n_y: int | None = None,
         context_len: int | None = None,
-        d_model: int = _M.d_model,
-        n_head: int = _M.n_head,
-        n_layer: int = _M.n_layer,
-        n_layer_dec: int | None = _M.n_layer_dec,
-        dropout: float = _M.dropout,
-        bias: bool = _M.bias,
-        patch: int = _M.patch,
-        max_context: int = _M.max_context,
-        max_horizon: int = _M.max_horizon,
+        # The architecture's defaults are ModelConfig's, defined there once.
+        d_model: int = ModelConfig.d_model,
+        n_head: int = ModelConfig.n_head,
+        n_layer: int = ModelConfig.n_layer,
+        n_layer_dec: int | None = ModelConfig.n_layer_dec,
+        dropout: float = ModelConfig.dropout,
+        bias: bool = ModelConfig.bias,
+        patch: int = ModelConfig.patch,
+        max_context: int = ModelConfig.max_context,
+        max_horizon: int = ModelConfig.max_horizon,
         loss: Literal["huber", "mse"] = "huber",
         huber_delta: float = 1.0,
         lr: float = 1e-3,
