@@ -10,6 +10,7 @@ from robomorph.evaluation.evaluator import evaluate, main, parse_range
 from robomorph.predictor import Predictor
 from tests.conftest import CKPT_CONTEXT as C
 from tests.conftest import CKPT_HORIZON as H
+from tests.conftest import write_store
 
 
 @pytest.fixture(scope="module")
@@ -87,10 +88,8 @@ def test_real_logs_skip_nominal_physics_with_the_reason(setup, tmp_path):
     from robomorph.data.store import open_store
 
     ds = open_store(test)
-    path = str(tmp_path / "real.zarr")
-    w = create_store(path, ds.n, ds.steps, ds.u_names, ds.y_names, [], {"dt": ds.dt, "domain": "real"})
-    w.append(ds.read("u"), ds.read("y"), np.zeros((ds.n, 0), np.float32))
-    w.finalize()
+    path = write_store(tmp_path / "real.zarr", ds.read("u"), ds.read("y"), u_names=ds.u_names, y_names=ds.y_names,
+                       attrs={"dt": ds.dt, "domain": "real"})
     res = evaluate(ckpt, path, str(tmp_path / "r"), samples=0,
                    baselines=("hold", "nominal_physics", "true_physics"))
     assert set(res["baselines"]) == {"hold"}
@@ -103,13 +102,11 @@ def test_real_logs_skip_nominal_physics_with_the_reason(setup, tmp_path):
 def _other_store(path, names, steps=C + H, n=3, nan=False):
     rng = np.random.default_rng(0)
     u_names, y_names = names
-    w = create_store(path, n, steps, u_names, y_names, [], {"dt": 1 / 60, "domain": "real"})
-    y = rng.normal(size=(n, steps, len(y_names))).astype(np.float32)
+    y = rng.normal(size=(n, steps, len(y_names)))
     if nan:
         y[1, 5, 0] = np.nan
-    w.append(rng.normal(size=(n, steps, len(u_names))).astype(np.float32), y, np.zeros((n, 0), np.float32))
-    w.finalize()
-    return path
+    return write_store(path, rng.normal(size=(n, steps, len(u_names))), y, u_names=u_names, y_names=y_names,
+                       attrs={"dt": 1 / 60, "domain": "real"})
 
 
 def test_bad_input_gives_clear_errors(setup, tmp_path):
