@@ -6,6 +6,10 @@ test-time prediction was rescaled with statistics of the very outputs it predict
 (:class:`Stats`, computed here without torch), and the optional per-trajectory recentring
 (:class:`robomorph.model.normalization.Normalizer` with ``recenter=True``) uses the context
 window only.
+
+The paper's own protocol is still available, labelled, for reproducing its numbers:
+``normalization: paper_window`` (:mod:`robomorph.core.normalizations`) z-scores every window
+with its own mean and std over context and query together.
 """
 
 from __future__ import annotations

@@ -60,10 +60,13 @@ def predict_normalized(net: MetaModel, anchor: bool, uc: torch.Tensor, yc: torch
 
 
 def simulate(net: MetaModel, normalizer: Normalizer, anchor: bool, u_ctx: torch.Tensor,
-             y_ctx: torch.Tensor, u_query: torch.Tensor) -> torch.Tensor:
-    """Predicts y over the query horizon in physical units: normalize, predict, decode."""
-    uc, yc, uq = normalizer.encode(u_ctx, y_ctx, u_query)
-    return normalizer.decode(predict_normalized(net, anchor, uc, yc, uq), y_ctx)
+             y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None) -> torch.Tensor:
+    """Predicts y over the query horizon in physical units: normalize, predict, decode.
+
+    ``y_query_stats`` (mean, std of the query outputs) only under the ``paper_window`` protocol.
+    """
+    uc, yc, uq = normalizer.encode(u_ctx, y_ctx, u_query, y_query_stats)
+    return normalizer.decode(predict_normalized(net, anchor, uc, yc, uq), y_ctx, y_query_stats)
 
 
 class TrainedModel(nn.Module):
@@ -76,17 +79,20 @@ class TrainedModel(nn.Module):
         config: the architecture.
         recenter: the normalizer subtracts each trajectory's context mean.
         anchor: predictions are offsets from the last context output.
+        normalization: ``train_stats`` or ``paper_window`` (see :class:`Normalizer`).
     """
 
-    def __init__(self, config: ModelConfig, recenter: bool = False, anchor: bool = False):
+    def __init__(self, config: ModelConfig, recenter: bool = False, anchor: bool = False,
+                 normalization: str = "train_stats"):
         super().__init__()
         self.config, self.anchor = config, bool(anchor)
         self.net = MetaModel(config)
-        self.normalizer = Normalizer(n_u=config.n_u, n_y=config.n_y, recenter=recenter)
+        self.normalizer = Normalizer(n_u=config.n_u, n_y=config.n_y, recenter=recenter, normalization=normalization)
 
-    def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor) -> torch.Tensor:
+    def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
+                y_query_stats=None) -> torch.Tensor:
         """(B, Tc, n_u), (B, Tc, n_y), (B, Th, n_u) in physical units -> (B, Th, n_y)."""
-        return simulate(self.net, self.normalizer, self.anchor, u_ctx, y_ctx, u_query)
+        return simulate(self.net, self.normalizer, self.anchor, u_ctx, y_ctx, u_query, y_query_stats)
 
 
 def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
@@ -105,7 +111,8 @@ def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
         raise CheckpointError(f"{path} lacks n_u/n_y: it was not written by robomorph fit")
     try:
         model = TrainedModel(model_config(hp), recenter=bool(hp.get("recenter", False)),
-                             anchor=bool(hp.get("anchor", False)))
+                             anchor=bool(hp.get("anchor", False)),
+                             normalization=hp.get("normalization", "train_stats"))
     except ValueError as exc:
         raise CheckpointError(f"{path} holds an invalid architecture: {exc}") from exc
     state = {k: v for k, v in ckpt["state_dict"].items() if k not in _TRAINING_ONLY}

@@ -77,6 +77,7 @@ class RoboMorphCLI(LightningCLI):
         parser.add_argument("--group", type=str | None, default=None, help="wandb group (e.g. a sweep study)")
         # One setting, two users: the data records it, the model's normalizer applies it.
         parser.link_arguments("data.recenter", "model.recenter")
+        parser.link_arguments("data.normalization", "model.normalization")
         # The data decide the model's widths and context: read from the instantiated
         # datamodule (its stores' metadata) and passed to the model's constructor.
         for name in FROM_DATA:
