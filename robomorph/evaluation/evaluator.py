@@ -248,14 +248,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     os.makedirs(out, exist_ok=True)
     result, preds, std, base = score(predictor, w, tuple(baselines), arx_orders, batch_size, steps)
     result["meta"] = {"ckpt": ckpt, "data": data, **result["meta"], "offset": offset, "seed": seed}
-    sweeps = {}
-    if horizons:
-        sweeps["horizon"] = sweep_horizon(predictor, w, horizons, base, batch_size)
-        eval_plots.plot_sweep(os.path.join(out, "sweep_horizon.png"), sweeps["horizon"], "horizon")
-    if contexts:
-        sweeps["context"] = sweep_context(predictor, w, contexts, batch_size)
-        eval_plots.plot_sweep(os.path.join(out, "sweep_context.png"), sweeps["context"], "context_len")
-    result["sweeps"] = sweeps
+    result["sweeps"] = _sweeps(predictor, w, horizons, contexts, base, batch_size, out)
     _, y_ctx, _, y_q = w.split()
     eval_plots.write_all(out, y_ctx, y_q.astype(np.float64), preds, w.y_names, w.dt, samples, seed,
                          std=std, steps=steps, y_units=w.attrs.get("y_units"))
@@ -264,6 +257,19 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     write_table(os.path.join(out, "table.md"), result)
     _write_json(os.path.join(out, "metrics.json"), result)
     return result
+
+
+def _sweeps(predictor, w: Window, horizons: list[int], contexts: list[int], base: dict, batch_size: int,
+            out: str) -> dict:
+    """The horizon and context sweeps asked for, each with its plot in ``out``."""
+    sweeps = {}
+    if horizons:
+        sweeps["horizon"] = sweep_horizon(predictor, w, horizons, base, batch_size)
+        eval_plots.plot_sweep(os.path.join(out, "sweep_horizon.png"), sweeps["horizon"], "horizon")
+    if contexts:
+        sweeps["context"] = sweep_context(predictor, w, contexts, batch_size)
+        eval_plots.plot_sweep(os.path.join(out, "sweep_context.png"), sweeps["context"], "context_len")
+    return sweeps
 
 
 def score(predictor, w: Window, baselines: tuple[str, ...], arx_orders: tuple[int, int], batch_size: int,

@@ -162,30 +162,8 @@ class MetaModule(L.LightningModule):
             self.stats_ready.fill_(True)
 
     def _transfer(self, path: str) -> None:
-        ckpt = load_checkpoint_file(path)
-        src = ckpt["hyper_parameters"]
-        same_io = (src.get("n_u"), src.get("n_y")) == (self.hparams.n_u, self.hparams.n_y)
-        theirs, ours = src.get("normalization", "train_stats"), self.hparams.get("normalization", "train_stats")
-        if theirs != ours:
-            raise CheckpointError(f"{path} was trained with normalization {theirs!r}, this run uses {ours!r}: "
-                                  "transfer between the same protocol only (set data.normalization to match)")
-        if not same_io and not self.hparams.reinit_io:
-            raise CheckpointError(
-                f"{path} was trained with n_u={src.get('n_u')}, n_y={src.get('n_y')}; this model has "
-                f"n_u={self.hparams.n_u}, n_y={self.hparams.n_y}. Set reinit_io=true to re-initialize the "
-                "input embeddings and the head (the rest transfers)."
-            )
-        state = {k: v for k, v in ckpt["state_dict"].items()
-                 if same_io or not (k.startswith("normalizer.") or _is_io(k))}
-        missing, unexpected = self.load_state_dict(state, strict=False)
-        allowed_missing = [k for k in missing if not same_io and (k.startswith("normalizer.") or _is_io(k))]
-        if set(missing) - set(allowed_missing) - {"stats_ready"} or unexpected:
-            raise CheckpointError(
-                f"{path} does not match this architecture (missing {sorted(set(missing) - set(allowed_missing))[:5]}, "
-                f"unexpected {sorted(unexpected)[:5]}): use the same d_model, n_head, layers and patch"
-            )
-        if same_io:
-            self.stats_ready.fill_(True)
+        if _load_transferred(self, path):
+            self.stats_ready.fill_(True)  # same channels: the pretrained normalization came along
         self._apply_freeze()
 
     def _apply_freeze(self) -> None:
@@ -263,6 +241,36 @@ class MetaModule(L.LightningModule):
         total = h.decay_steps or (self.trainer.max_steps if self.trainer.max_steps > 0 else 10_000)
         sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda step: _lr_factor(step, h.warmup_steps, total, h.min_lr_ratio))
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+
+def _load_transferred(module: MetaModule, path: str) -> bool:
+    """Loads a pretrained checkpoint's weights into ``module``; True when its normalization came too.
+
+    Refuses another protocol, other channels without ``reinit_io`` and another architecture.
+    """
+    ckpt = load_checkpoint_file(path)
+    src = ckpt["hyper_parameters"]
+    same_io = (src.get("n_u"), src.get("n_y")) == (module.hparams.n_u, module.hparams.n_y)
+    theirs, ours = src.get("normalization", "train_stats"), module.hparams.get("normalization", "train_stats")
+    if theirs != ours:
+        raise CheckpointError(f"{path} was trained with normalization {theirs!r}, this run uses {ours!r}: "
+                              "transfer between the same protocol only (set data.normalization to match)")
+    if not same_io and not module.hparams.reinit_io:
+        raise CheckpointError(
+            f"{path} was trained with n_u={src.get('n_u')}, n_y={src.get('n_y')}; this model has "
+            f"n_u={module.hparams.n_u}, n_y={module.hparams.n_y}. Set reinit_io=true to re-initialize the "
+            "input embeddings and the head (the rest transfers)."
+        )
+    state = {k: v for k, v in ckpt["state_dict"].items()
+             if same_io or not (k.startswith("normalizer.") or _is_io(k))}
+    missing, unexpected = module.load_state_dict(state, strict=False)
+    allowed_missing = [k for k in missing if not same_io and (k.startswith("normalizer.") or _is_io(k))]
+    if set(missing) - set(allowed_missing) - {"stats_ready"} or unexpected:
+        raise CheckpointError(
+            f"{path} does not match this architecture (missing {sorted(set(missing) - set(allowed_missing))[:5]}, "
+            f"unexpected {sorted(unexpected)[:5]}): use the same d_model, n_head, layers and patch"
+        )
+    return same_io
 
 
 def _check_context(context_len: int | None, patch: int, max_context: int) -> None:
