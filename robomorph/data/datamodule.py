@@ -23,6 +23,7 @@ import lightning.pytorch as L
 import numpy as np
 from torch.utils.data import DataLoader
 
+from robomorph.core.inputs import check_inputs
 from robomorph.core.normalizations import check_normalization
 from robomorph.data.sources import Source, check_lengths, compatible, scan
 from robomorph.data.statistics import Stats, StatsAccumulator
@@ -58,6 +59,9 @@ class RoboMorphDataModule(L.LightningDataModule):
             or ``paper_window`` (the paper's protocol, each window z-scored over context and
             query; it leaks the query outputs' statistics and is labelled so wherever it is used).
         val_subset: at most this many validation trajectories (a fixed seeded subset).
+        inputs: ``total``: u is the total joint torque (the paper's input, array ``u``);
+            ``command``: u is the command without the gravity compensation the arm adds
+            (array ``u_cmd``; stores of schema 2 on). The checkpoint records the choice.
         train_samples_per_epoch: windows per training epoch; default the number of training
             trajectories.
     """
@@ -68,7 +72,8 @@ class RoboMorphDataModule(L.LightningDataModule):
                  split: tuple[float, float, float] = (0.8, 0.1, 0.1), seed: int = 0, batch_size: int = 16,
                  num_workers: int = 0, in_memory: bool | None = None, recenter: bool = False,
                  val_subset: int = 256, train_samples_per_epoch: int | None = None,
-                 normalization: Literal["train_stats", "paper_window"] = "train_stats"):
+                 normalization: Literal["train_stats", "paper_window"] = "train_stats",
+                 inputs: Literal["total", "command"] = "total"):
         super().__init__()
         self.save_hyperparameters()
         self.stores = [stores] if isinstance(stores, str) else list(stores)
@@ -79,6 +84,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.split, self.seed, self.batch_size, self.num_workers = tuple(split), seed, batch_size, num_workers
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
         self.train_samples_per_epoch = train_samples_per_epoch
+        self.inputs = inputs
         self.normalization = normalization
         _check_arguments(self)
         self._ready = False
@@ -112,7 +118,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         """The training stores' sources (then the test store's), checked to agree; opened once."""
         if self._sources is None:
             paths = self.stores + ([self.test_store] if self.test_store is not None else [])
-            self._sources = compatible([Source(p) for p in paths])
+            self._sources = compatible([Source(p, self.inputs) for p in paths])
         return self._sources
 
     @property
@@ -217,6 +223,7 @@ class RoboMorphDataModule(L.LightningDataModule):
             "context_len": self.context_len, "horizon": self.horizon, "window": self.window,
             "n_u": self.n_u, "n_y": self.n_y, "dt": self.dt, "in_memory": bool(self.loaded),
             "seed": self.seed, "split": list(self.split), "normalization": self.normalization,
+            "inputs": self.inputs,
         }
 
 
@@ -224,6 +231,7 @@ def _check_arguments(dm: RoboMorphDataModule) -> None:
     """Refuses arguments that cannot work, naming the argument and the fix."""
     if not dm.stores:
         raise ValueError("stores: give at least one store path")
+    check_inputs(dm.inputs)
     paths = [os.path.realpath(p) for p in dm.stores]
     if len(set(paths)) != len(paths):
         raise ValueError(f"stores lists a store twice: {dm.stores}")

@@ -18,12 +18,14 @@ class Source:
     handle is never shared across fork or pickling), so DataLoader workers are safe.
     """
 
-    def __init__(self, path: str):
+    def __init__(self, path: str, inputs: str = "total"):
         ds = open_store(path)
         if ds.n < 1:
             raise ValueError(f"{path} holds no trajectories (n=0)")
         self.path, self.n, self.steps, self.chunk = path, ds.n, ds.steps, ds.chunk
-        self.u_names, self.y_names, self.dt = ds.u_names, ds.y_names, ds.dt
+        # The array the model reads as u: the total torque or the command (data.inputs).
+        self.u_array = ds.check_inputs(inputs)
+        self.u_names, self.y_names, self.dt = ds.input_names(inputs), ds.y_names, ds.dt
         self.u: np.ndarray | None = None
         self.y: np.ndarray | None = None
         self._ds, self._pid = ds, os.getpid()
@@ -45,7 +47,7 @@ class Source:
     def load(self) -> None:
         """Reads all of u and y into memory."""
         ds = self._store()
-        self.u, self.y = ds.read("u"), ds.read("y")
+        self.u, self.y = ds.read(self.u_array), ds.read("y")
 
     def block(self, c: int) -> tuple[int, np.ndarray, np.ndarray]:
         """Rows of chunk ``c``: ``(first row, u (k, T, n_u), y (k, T, n_y))``."""
@@ -54,7 +56,7 @@ class Source:
             return c0, self.u[c0:c1], self.y[c0:c1]
         if self._cache[0] != c:
             ds = self._store()
-            self._cache = (c, ds.read("u", slice(c0, c1)), ds.read("y", slice(c0, c1)))
+            self._cache = (c, ds.read(self.u_array, slice(c0, c1)), ds.read("y", slice(c0, c1)))
         return c0, self._cache[1], self._cache[2]
 
     def window(self, i: int, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:

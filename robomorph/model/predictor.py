@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from robomorph.core.inputs import check_model_inputs
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
 from robomorph.model.checkpoint import TrainedModel, load_trained
 
@@ -32,6 +33,8 @@ class Predictor:
         n_u, n_y: channel counts the model expects.
         patch: steps per token; context lengths must be multiples of it.
         normalization: the protocol it was trained with (``train_stats`` or ``paper_window``).
+        inputs: the input formulation it was trained on: ``total`` (total joint torque)
+            or ``command`` (the command without the arm's gravity compensation).
         data_info: channel names, dt and the training window (None for checkpoints that predate it).
         device: where it runs.
     """
@@ -42,6 +45,12 @@ class Predictor:
         self.n_u, self.n_y, self.patch = model.config.n_u, model.config.n_y, model.config.patch
         self.normalization: str = model.normalizer.normalization
         self.data_info = data_info
+        # Checkpoints written before the command formulation were all trained on total torque.
+        self.inputs: str = (data_info or {}).get("inputs", "total")
+
+    def check_inputs(self, inputs: str | None) -> None:
+        """Refuses inputs of the other formulation than the one the model was trained on."""
+        check_model_inputs(self.inputs, inputs)
 
     @property
     def leaks_query_statistics(self) -> bool:
@@ -88,7 +97,7 @@ class Predictor:
         return tuple(out)
 
     @torch.no_grad()
-    def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None):
+    def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, inputs: str | None = None):
         """Predicts the outputs over the query horizon.
 
         Args:
@@ -98,6 +107,8 @@ class Predictor:
             y_query_stats: only for a ``paper_window`` model, and required there: ``(mean, std)``
                 over time of the query outputs, (n_y,) or (B, n_y) each. This is information
                 about the answer: scores obtained with it are not those of a deployable model.
+            inputs: which formulation the torques are (``total`` or ``command``); when
+                given, a mismatch with the training formulation is refused.
 
         Returns:
             y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``.
@@ -105,7 +116,9 @@ class Predictor:
         Raises:
             NormalizationError: ``y_query_stats`` missing for a ``paper_window`` model, given
                 for another, or of the wrong shape.
+            InputsError: ``inputs`` names the other formulation.
         """
+        self.check_inputs(inputs)
         as_numpy = not isinstance(u_query, torch.Tensor)
         dtype = getattr(u_query, "dtype", None)
         tensors = [torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x,
