@@ -130,14 +130,7 @@ def create_store(
     if u_cmd_names is not None:
         _check_names("u_cmd", list(u_cmd_names), len(u_names))
         widths.append(("u_cmd", len(u_names)))
-    for name, width in widths:
-        group.create_array(name, shape=(n, steps, width), chunks=(chunk, steps, width),
-                           dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
-    group.create_array("params", shape=(n, len(param_names)), chunks=(chunk, max(1, len(param_names))),
-                       dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
-    for name, (tail, dtype) in extras.items():
-        group.create_array(name, shape=(n, *tail), chunks=(chunk, *tail), dtype=dtype,
-                           compressors=_COMPRESSORS)
+    _create_arrays(group, n, steps, chunk, widths, len(param_names), extras)
     meta = {
         **attrs,
         "schema": SCHEMA_NAME,
@@ -156,6 +149,19 @@ def create_store(
     }
     group.attrs.update(meta)
     return DatasetWriter(path, group)
+
+
+def _create_arrays(group: zarr.Group, n: int, steps: int, chunk: int, widths: list[tuple[str, int]],
+                   n_params: int, extras: dict[str, tuple[tuple[int, ...], str]]) -> None:
+    """The store's arrays at full capacity: signals and params NaN-filled until written."""
+    for name, width in widths:
+        group.create_array(name, shape=(n, steps, width), chunks=(chunk, steps, width),
+                           dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
+    group.create_array("params", shape=(n, n_params), chunks=(chunk, max(1, n_params)),
+                       dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
+    for name, (tail, dtype) in extras.items():
+        group.create_array(name, shape=(n, *tail), chunks=(chunk, *tail), dtype=dtype,
+                           compressors=_COMPRESSORS)
 
 
 class DatasetWriter:

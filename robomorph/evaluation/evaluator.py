@@ -246,11 +246,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     steps = parse_horizons(horizons_spec, w.horizon, w.dt)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
     contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")
-    patch = predictor.patch
-    odd = [c for c in [w.context_len, *contexts] if c % patch]
-    if odd:
-        raise ValueError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "
-                         f"{odd} are not (--context-len / --sweep-context)")
+    _check_patch(predictor.patch, [w.context_len, *contexts])
     os.makedirs(out, exist_ok=True)
     result, preds, std, base = score(predictor, w, tuple(baselines), arx_orders, batch_size, steps)
     result["meta"] = {"ckpt": ckpt, "data": data, **result["meta"], "offset": offset, "seed": seed}
@@ -263,6 +259,13 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     write_table(os.path.join(out, "table.md"), result)
     _write_json(os.path.join(out, "metrics.json"), result)
     return result
+
+
+def _check_patch(patch: int, contexts: list[int]) -> None:
+    odd = [c for c in contexts if c % patch]
+    if odd:
+        raise ValueError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "
+                         f"{odd} are not (--context-len / --sweep-context)")
 
 
 def _sweeps(predictor, w: Window, horizons: list[int], contexts: list[int], base: dict, batch_size: int,
