@@ -1,6 +1,6 @@
 """``python -m robomorph.generate`` (or ``robomorph generate``): randomized robot trajectories into a Zarr store.
 
-The door only; the machinery is :mod:`robomorph.sim.generation`.
+The door only; the machinery is :mod:`robomorph.data.generation`.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import sys
 
 from robomorph.core.errors import run_command
 from robomorph.core.names import GRAVITY_MODES
-from robomorph.sim import generation
+from robomorph.data import generation
 from robomorph.sim.recipe import load_recipe
 
 

@@ -6,7 +6,7 @@ import csv
 import os
 
 from robomorph.core.atomic import atomic_open, write_text
-from robomorph.data.statistics import leaks_query_statistics, normalization_label
+from robomorph.core.normalizations import leaks_query_statistics, normalization_label
 from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
 from robomorph.evaluation.horizons import horizon_markdown
 

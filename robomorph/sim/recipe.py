@@ -10,7 +10,8 @@ from robomorph.core.config import ConfigError, from_dict, load_yaml, to_dict
 from robomorph.core.names import GRAVITY_MODES, OSC_TASKS, TASKS
 from robomorph.core.overrides import merge
 from robomorph.sim.filters import FilterConfig
-from robomorph.sim.osc import CircleConfig, OSCConfig, SpiralConfig
+from robomorph.sim.osc import OSCConfig
+from robomorph.sim.paths import CircleConfig, SpiralConfig
 from robomorph.sim.randomize import RandomizationConfig
 from robomorph.sim.signals import SignalConfig
 
