@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
+from robomorph.data.splits import SplitError, held_out_fractions, split_rows
 from robomorph.data.statistics import Stats, StatsAccumulator
 from robomorph.data.store import open_store
 
@@ -31,7 +32,10 @@ from robomorph.data.store import open_store
 # batch from disk costs 34-55 ms against 0.1 ms from memory, REFERENCE.md section 3).
 MEMORY_BUDGET_BYTES = 4 * 2**30
 # SeedSequence spawn keys of the independent random streams drawn from ``seed``.
-_SPLIT_STREAM, _VAL_STREAM, _TRAIN_STREAM = 0, 1, 2
+# (0 is robomorph.data.splits.SPLIT_STREAM.)
+_VAL_STREAM, _TRAIN_STREAM = 1, 2
+# The array in which ingested stores record each window's recording (splits group by it).
+RECORDING_ARRAY = "recording_index"
 
 
 class _Source:
@@ -47,6 +51,8 @@ class _Source:
             raise ValueError(f"{path} holds no trajectories (n=0)")
         self.path, self.n, self.steps, self.chunk = path, ds.n, ds.steps, ds.chunk
         self.u_names, self.y_names, self.dt = ds.u_names, ds.y_names, ds.dt
+        # Recording of each window (ingested logs): splits keep a recording's windows together.
+        self.groups = ds.read(RECORDING_ARRAY) if RECORDING_ARRAY in ds.arrays else None
         self.u: np.ndarray | None = None
         self.y: np.ndarray | None = None
         self._ds, self._pid = ds, os.getpid()
@@ -107,16 +113,6 @@ def _scan(src: _Source, train_rows: np.ndarray, stop: int, acc: StatsAccumulator
         mask = in_train[c0:c0 + len(u)]
         if acc is not None and mask.any():
             acc.update(u[mask, :stop], y[mask, :stop])
-
-
-def _split_rows(n: int, fractions: tuple[float, float, float], seed: int, store_index: int
-                ) -> dict[str, np.ndarray]:
-    """Disjoint sorted trajectory indices ``{"train", "val", "test"}`` covering ``range(n)``."""
-    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_SPLIT_STREAM, store_index)))
-    perm = rng.permutation(n)
-    n_val, n_test = round(n * fractions[1]), round(n * fractions[2])
-    return {"val": np.sort(perm[:n_val]), "test": np.sort(perm[n_val:n_val + n_test]),
-            "train": np.sort(perm[n_val + n_test:])}
 
 
 def _pairs(per_store: list[np.ndarray]) -> np.ndarray:
@@ -188,6 +184,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         stores: training store paths (one path or a list); all must share u_names, y_names and dt.
         weights: sampling probability of each store in the training stream (normalized);
             default proportional to each store's number of training trajectories.
+        val_store: a separate store used whole as the validation split (e.g. another
+            recording of a real robot); ``split``'s validation fraction is then ignored and
+            train/test keep their ratio. ``best.ckpt`` is chosen on this store.
         test_store: a separate store used whole as the test split; ``split``'s test fraction is
             then ignored and train/val keep their ratio.
         context_len: context steps; exactly one of ``context_len`` and ``context_frac``.
@@ -196,7 +195,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         horizon: query steps predicted after the context.
         window: ``start``: windows begin at step 0 (the paper: 200 + 800 of 1000); ``random``:
             a seeded random offset per training sample (validation and test still use ``start``).
-        split: (train, val, test) fractions of each store's trajectories; they sum to 1.
+        split: (train, val, test) fractions of each store's trajectories; they sum to 1. A store
+            that records ``recording_index`` (written by ``ingest``) is split by recording:
+            overlapping windows of one recording never land in two splits.
         seed: root seed of the splits, the validation subset and the training stream.
         batch_size: trajectories per batch.
         num_workers: DataLoader worker processes (the data do not depend on it).
@@ -208,7 +209,7 @@ class RoboMorphDataModule(L.LightningDataModule):
     """
 
     def __init__(self, stores: list[str] | str = "data/demo/multisine.zarr", weights: list[float] | None = None,
-                 test_store: str | None = None, context_len: int | None = 200, context_frac: float | None = None,
+                 test_store: str | None = None, val_store: str | None = None, context_len: int | None = 200, context_frac: float | None = None,
                  horizon: int = 800, window: Literal["start", "random"] = "start",
                  split: tuple[float, float, float] = (0.8, 0.1, 0.1), seed: int = 0, batch_size: int = 16,
                  num_workers: int = 0, in_memory: bool | None = None, recenter: bool = False,
@@ -216,7 +217,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         super().__init__()
         self.save_hyperparameters()
         self.stores = [stores] if isinstance(stores, str) else list(stores)
-        self.weights, self.test_store = weights, test_store
+        self.weights, self.test_store, self.val_store = weights, test_store, val_store
         self.context_len, self.context_frac, self.horizon, self.window = context_len, context_frac, horizon, window
         self.split, self.seed, self.batch_size, self.num_workers = tuple(split), seed, batch_size, num_workers
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
@@ -230,8 +231,14 @@ class RoboMorphDataModule(L.LightningDataModule):
         paths = [os.path.realpath(p) for p in self.stores]
         if len(set(paths)) != len(paths):
             raise ValueError(f"stores lists a store twice: {self.stores}")
-        if self.test_store is not None and os.path.realpath(self.test_store) in paths:
-            raise ValueError(f"test_store {self.test_store} is also a training store: its trajectories would leak")
+        held_out = [(k, p) for k, p in (("test_store", self.test_store), ("val_store", self.val_store)) if p is not None]
+        for key, path in held_out:
+            if os.path.realpath(path) in paths:
+                raise SplitError(f"{key} {path} is also a training store: its trajectories would leak; "
+                                 "give a store of other recordings")
+        if len(held_out) == 2 and os.path.realpath(self.test_store) == os.path.realpath(self.val_store):
+            raise SplitError(f"val_store and test_store are the same store {self.val_store}: the test "
+                             "score would be the one best.ckpt was chosen on; give two stores")
         if self.weights is not None:
             w = np.asarray(self.weights, dtype=float)
             if w.shape != (len(self.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
@@ -269,8 +276,8 @@ class RoboMorphDataModule(L.LightningDataModule):
         if self._ready:
             return
         sources = [_Source(p) for p in self.stores]
-        if self.test_store is not None:
-            sources.append(_Source(self.test_store))
+        # Held-out stores follow the training stores: [train..., val_store?, test_store?].
+        sources += [_Source(p) for p in (self.val_store, self.test_store) if p is not None]
         self._check_compatible(sources)
         self._resolve_lengths(sources)
         total = sum(s.nbytes for s in sources)
@@ -308,13 +315,14 @@ class RoboMorphDataModule(L.LightningDataModule):
                                  f"{self.context_len} + horizon {self.horizon} = {need} are needed")
 
     def _make_splits(self, sources: list[_Source]) -> None:
-        f = self.split
-        if self.test_store is not None:
-            f = (f[0] / (f[0] + f[1]), f[1] / (f[0] + f[1]), 0.0)
-        self.splits = [_split_rows(src.n, f, self.seed, k) for k, src in enumerate(sources[:len(self.stores)])]
-        if self.test_store is not None:
-            empty = np.zeros(0, dtype=np.int64)
-            self.splits.append({"train": empty, "val": empty, "test": np.arange(sources[-1].n)})
+        f = held_out_fractions(self.split, self.val_store is not None, self.test_store is not None)
+        self.splits = [split_rows(src.n, f, self.seed, k, groups=src.groups, path=src.path)
+                       for k, src in enumerate(sources[:len(self.stores)])]
+        empty = np.zeros(0, dtype=np.int64)
+        for role, path in (("val", self.val_store), ("test", self.test_store)):
+            if path is not None:
+                whole = np.arange(sources[len(self.splits)].n)
+                self.splits.append({"train": empty, "val": empty, "test": empty, role: whole})
         counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
         w = np.asarray(self.weights if self.weights is not None else counts, dtype=float)
         for k, ck in enumerate(counts):
@@ -371,7 +379,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         per_store = {src.path: {"n": src.n, "steps": src.steps, **{k: len(v) for k, v in sp.items()}}
                      for src, sp in zip(self.sources, self.splits)}
         return {
-            "stores": list(self.stores), "test_store": self.test_store, "per_store": per_store,
+            "stores": list(self.stores), "val_store": self.val_store, "test_store": self.test_store,
+            "per_store": per_store,
+            "split_by": ["recording" if src.groups is not None else "trajectory" for src in self.sources],
             "weights": [float(p) for p in self.probs],
             "train": len(self.train_set), "val": self.n_val_total, "val_used": len(self.val_set),
             "test": len(self.test_set), "train_samples_per_epoch": len(self.train_sampler),
