@@ -28,6 +28,8 @@ FREEZE_MODES = ("none", "encoder", "all_but_head")
 IO_LAYERS = ("encoder.embed", "decoder.embed", "head")
 # Checkpoint entry holding what the model was trained on (see ``data_info``).
 DATA_INFO_KEY = "robomorph_data"
+# Checkpoint entry holding the trainer's max_steps, so a resume can say how the schedule changes.
+SCHEDULE_KEY = "robomorph_schedule"
 
 
 def data_info(dm) -> dict:
@@ -197,6 +199,8 @@ class MetaModule(L.LightningModule):
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.data_info is not None:
             checkpoint[DATA_INFO_KEY] = self.data_info
+        if self._trainer is not None:
+            checkpoint[SCHEDULE_KEY] = {"max_steps": int(self.trainer.max_steps)}
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         self.data_info = checkpoint.get(DATA_INFO_KEY, self.data_info)
@@ -265,6 +269,29 @@ def _lr_factor(step: int, warmup: int, total: int, floor: float) -> float:
         return (step + 1) / warmup
     progress = min(1.0, (step - warmup) / max(1, total - warmup))
     return floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * progress))
+
+
+def schedule_change(old_hparams: dict, old_max_steps: int | None, new_hparams, new_max_steps: int,
+                    step: int) -> str | None:
+    """One line on how a resume at ``step`` changes the run, or None when nothing changes.
+
+    The cosine runs over ``decay_steps`` or, by default, ``max_steps``: resuming with another
+    ``max_steps`` then stretches or shrinks the rest of it, and the learning rate jumps.
+    """
+    if old_max_steps is None or old_max_steps == new_max_steps:
+        return None
+
+    def total(h, max_steps: int) -> int:
+        return h.get("decay_steps") or (max_steps if max_steps > 0 else 10_000)
+
+    old_total, new_total = total(old_hparams, old_max_steps), total(new_hparams, new_max_steps)
+    head = f"max_steps {old_max_steps} -> {new_max_steps}, resuming at step {step}"
+    if old_total == new_total:
+        return f"{head}: the learning-rate schedule is unchanged (decay_steps {new_total})"
+    lrs = [h["lr"] * _lr_factor(step, h["warmup_steps"], t, h["min_lr_ratio"])
+           for h, t in ((old_hparams, old_total), (new_hparams, new_total))]
+    return (f"{head}: the cosine learning-rate decay now ends at step {new_total} instead of {old_total} "
+            f"(lr at step {step}: {lrs[0]:.3g} -> {lrs[1]:.3g}); pin --model.decay_steps to keep it")
 
 
 def _is_io(key: str) -> bool:
