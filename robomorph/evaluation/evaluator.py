@@ -27,8 +27,9 @@ import numpy as np
 
 from robomorph.evaluation import metrics
 from robomorph.evaluation import plots as eval_plots
-from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
-from robomorph.evaluation.tables import write_csv, write_table
+from robomorph.evaluation import training_data
+from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, TrainedARX, hold
+from robomorph.evaluation.tables import diverged_note, write_csv, write_table
 
 
 @dataclass
@@ -98,19 +99,26 @@ def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "mode
     return np.concatenate(out).astype(np.float64)
 
 
-def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]) -> tuple[dict, dict, dict]:
-    """Predictions of the baselines that apply, the reasons of those skipped, and notes."""
+def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int],
+                  train_blocks=None) -> tuple[dict, dict, dict]:
+    """Predictions of the baselines that apply, the reasons of those skipped, and notes.
+
+    ``train_blocks``: a function returning the training data as ``(u, y)`` blocks (for
+    ``arx_train``; see :mod:`robomorph.evaluation.training_data`).
+    """
     u_ctx, y_ctx, u_q, _ = w.split()
     preds, skipped, notes = {}, {}, {}
     for name in names:
         if name == "hold":
             preds[name] = hold(u_ctx, y_ctx, u_q).astype(np.float64)
-        elif name == "arx":
-            arx = ARX(*arx_orders)
+        elif name in ("arx", "arx_train"):
             try:
+                arx = ARX(*arx_orders) if name == "arx" else _fit_arx_train(arx_orders, train_blocks)
                 preds[name] = arx(u_ctx, y_ctx, u_q)
-                notes["arx"] = {"na": arx.na, "nb": arx.nb, "diverged_held": arx.diverged}
-            except ValueError as exc:
+                notes[name] = {"na": arx.na, "nb": arx.nb, "diverged_held": arx.diverged}
+                if name == "arx_train":
+                    notes[name]["trajectories"] = arx.trajectories
+            except ValueError as exc:  # too short a context, or no training data to read
                 skipped[name] = str(exc)
         elif name in ("nominal_physics", "true_physics"):
             from robomorph.evaluation.physics import NominalPhysics, NotApplicable, check_params  # noqa: PLC0415
@@ -127,6 +135,12 @@ def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]
         else:
             raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
     return preds, skipped, notes
+
+
+def _fit_arx_train(orders: tuple[int, int], train_blocks) -> TrainedARX:
+    if train_blocks is None:
+        raise ValueError("arx_train needs the training data: pass --arx-train-data")
+    return TrainedARX(*orders).fit(train_blocks())
 
 
 def _batched(fn, u_ctx, y_ctx, u_q, desc: str, size: int = 16, params=None) -> np.ndarray:
@@ -189,8 +203,12 @@ def parse_range(text: str | None, low: int, high: int, what: str) -> list[int]:
 def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, horizon: int | None = None,
              n: int | None = None, baselines: tuple[str, ...] = BASELINES, sweep_horizon_spec: str | None = None,
              sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
-             samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0) -> dict:
+             samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0,
+             arx_train_data: list[str] | None = None) -> dict:
     """Evaluates a checkpoint on a store and writes every output file into ``out``.
+
+    ``arx_train`` is fitted on the checkpoint's training split (read back from its stores),
+    or on the whole of the ``arx_train_data`` stores when given.
 
     Returns:
         The ``metrics.json`` content.
@@ -219,7 +237,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     u_ctx, y_ctx, u_q, y_q = w.split()
     y_q = y_q.astype(np.float64)
     preds = {"model": predict(predictor, u_ctx, y_ctx, u_q, batch_size)}
-    base, skipped, notes = run_baselines(w, tuple(baselines), arx_orders)
+    base, skipped, notes = run_baselines(w, tuple(baselines), arx_orders, _training_blocks(ckpt, arx_train_data))
     preds.update(base)
     names = w.y_names
     result = {"approach1": metrics.approach1(y_q, preds["model"], names),
@@ -244,6 +262,17 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     write_table(os.path.join(out, "table.md"), result)
     _write_json(os.path.join(out, "metrics.json"), result)
     return result
+
+
+def _training_blocks(ckpt: str, stores: list[str] | None):
+    def read():
+        from robomorph.training.module import load_checkpoint_file  # noqa: PLC0415
+
+        try:
+            return training_data.blocks(training_data.training_rows(load_checkpoint_file(ckpt), stores))
+        except training_data.TrainingDataUnavailable as exc:
+            raise ValueError(str(exc)) from exc
+    return read
 
 
 def _write_json(path: str, obj: dict) -> None:
@@ -277,6 +306,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--samples", type=int, default=3, help="sample trajectories to plot")
     p.add_argument("--arx-orders", default="2,2", help="ARX output and input lags na,nb")
     p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories")
+    p.add_argument("--arx-train-data", help="comma list of stores to fit arx_train on, whole (default: the "
+                                            "checkpoint's training split, read back from its stores)")
     a = p.parse_args(argv)
     baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
     out = a.out or default_out(a.ckpt, a.data)
@@ -288,7 +319,8 @@ def main(argv: list[str] | None = None) -> None:
         p.error(f"--arx-orders takes two integers na,nb, got {a.arx_orders!r}")
     try:
         res = evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
-                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed)
+                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed,
+                       [s.strip() for s in a.arx_train_data.split(",") if s.strip()] if a.arx_train_data else None)
     except (ValueError, FileNotFoundError) as exc:
         sys.exit(f"error: {exc}")
     print(summary_text(res, out))
@@ -299,9 +331,11 @@ def summary_text(res: dict, out: str) -> str:
     m, meta = res["approach1"]["mean"], res["meta"]
     lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']} (approach 1 mean):",
              f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}"]
+    notes = meta.get("baseline_notes", {})
     for b, r in res["baselines"].items():
         mb = r["approach1"]["mean"]
-        lines.append(f"  {b:16s} R2 {mb['r2']['mean']:8.3f}  FIT {mb['fit']['mean']:8.2f}  RMSE {mb['rmse']['mean']:.4g}")
+        lines.append(f"  {b:16s} R2 {mb['r2']['mean']:8.3f}  FIT {mb['fit']['mean']:8.2f}  RMSE {mb['rmse']['mean']:.4g}"
+                     + (f"  ({note})" if (note := diverged_note(notes.get(b, {}), meta["n"])) else ""))
     lines += [f"  skipped {b}: {why}" for b, why in res["skipped_baselines"].items()]
     lines.append(f"written: {out}/ (metrics.json, metrics.csv, table.md, *.png)")
     return "\n".join(lines)

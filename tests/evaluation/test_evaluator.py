@@ -63,7 +63,7 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
         assert set(disk["approach1"]["channels"][ch]) == set(METRICS)
         assert set(disk["approach1"]["channels"][ch]["r2"]) == {"mean", "std"}
         assert set(disk["approach2"]["channels"][ch]) == set(METRICS)
-    assert set(disk["baselines"]) == {"hold", "arx", "nominal_physics"}
+    assert set(disk["baselines"]) == {"hold", "arx", "arx_train", "nominal_physics"}
     for b in disk["baselines"].values():
         assert set(b) == {"approach1", "approach2"} and set(b["approach1"]["channels"]) == set(names)
     assert disk["meta"]["n"] == 6 and disk["meta"]["context_len"] == C and disk["meta"]["horizon"] == H
@@ -74,7 +74,7 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
     with open(os.path.join(out, "metrics.csv")) as f:
         rows = f.read().splitlines()
     # per source: approach 1 (14 channels + mean) and 2 (same), 4 metrics each
-    assert len(rows) == 1 + 4 * 2 * 15 * 4
+    assert len(rows) == 1 + 5 * 2 * 15 * 4
     table = open(os.path.join(out, "table.md")).read()
     assert all(f"| {n} |" in table for n in names) and "colour convention" in table
 
@@ -169,3 +169,33 @@ def test_parse_range():
         parse_range("0:900:100", 1, 800, "horizon")
     with pytest.raises(ValueError, match="start:stop:step"):
         parse_range("a:b", 1, 800, "horizon")
+
+
+def test_arx_train_is_fitted_on_the_checkpoints_training_split(setup, tmp_path):
+    root, ckpt, test = setup
+    from robomorph.data.splits import split_rows
+
+    res = evaluate(ckpt, test, str(tmp_path / "a"), baselines=("arx_train",), samples=0, arx_orders=(1, 1))
+    train_rows = split_rows(24, (0.8, 0.1, 0.1), 0, 0)["train"]  # the fit's stores, split and seed
+    assert res["meta"]["baseline_notes"]["arx_train"]["trajectories"] == len(train_rows) < 24
+    assert set(res["baselines"]) == {"arx_train"}
+    whole = evaluate(ckpt, test, str(tmp_path / "b"), baselines=("arx_train",), samples=0, arx_orders=(1, 1),
+                     arx_train_data=[str(root / "train.zarr")])
+    assert whole["meta"]["baseline_notes"]["arx_train"]["trajectories"] == 24
+    gone = evaluate(ckpt, test, str(tmp_path / "c"), baselines=("hold", "arx_train"), samples=0,
+                    arx_train_data=[str(tmp_path / "moved.zarr")])
+    assert set(gone["baselines"]) == {"hold"} and "--arx-train-data" in gone["skipped_baselines"]["arx_train"]
+
+
+def test_a_diverged_baseline_says_so_in_the_printed_table(setup, tmp_path):
+    _, ckpt, test = setup
+    from robomorph.evaluation.evaluator import summary_text
+    from robomorph.evaluation.tables import table_markdown
+
+    res = evaluate(ckpt, test, str(tmp_path / "d"), baselines=("hold", "arx"), samples=0, arx_orders=(1, 1))
+    res["meta"]["baseline_notes"]["arx"]["diverged_held"] = 0
+    assert "diverged" not in summary_text(res, "x") and "diverged" not in table_markdown(res)
+    res["meta"]["baseline_notes"]["arx"]["diverged_held"] = 2  # as ARX reports two blow-ups
+    arx_line = next(line for line in summary_text(res, "x").splitlines() if line.strip().startswith("arx"))
+    assert arx_line.endswith("(2 of 6 trajectories diverged: held instead)")
+    assert "Baseline `arx`: 2 of 6 trajectories diverged: held instead" in table_markdown(res)
