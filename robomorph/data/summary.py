@@ -24,7 +24,7 @@ import warnings
 import numpy as np
 from matplotlib.figure import Figure
 
-from robomorph.data.store import Dataset, open_store
+from robomorph.data.store import Dataset, channel_label, channel_units, open_store
 
 SAMPLE_ROWS = 256
 # Attributes the summary shows in its own sections; the rest are listed as they are.
@@ -183,7 +183,9 @@ def _grid(fig: Figure, n_u: int, n_y: int, ncols: int) -> list:
 
 
 def _plot_trajectories(ds: Dataset, path: str, idx: np.ndarray) -> None:
-    names = [f"u: {n}" for n in ds.u_names] + [f"y: {n}" for n in ds.y_names]
+    attrs = ds.attrs
+    names = [f"{kind}: {channel_label(n, unit)}" for kind, chans in (("u", ds.u_names), ("y", ds.y_names))
+             for n, unit in zip(chans, channel_units(attrs, kind))]
     ncols = min(4, max(len(ds.u_names), len(ds.y_names)))
     rows = math.ceil(len(ds.u_names) / ncols) + math.ceil(len(ds.y_names) / ncols)
     fig = Figure(figsize=(4.2 * ncols, 2.3 * rows + 0.8), layout="constrained")

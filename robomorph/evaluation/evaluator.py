@@ -257,7 +257,10 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
         sweeps["context"] = sweep_context(predictor, w, contexts, batch_size)
         eval_plots.plot_sweep(os.path.join(out, "sweep_context.png"), sweeps["context"], "context_len")
     result["sweeps"] = sweeps
-    eval_plots.write_all(out, y_ctx, y_q, preds, names, w.dt, samples, seed)
+    from robomorph.data.store import channel_label, channel_units  # noqa: PLC0415
+
+    labels = [channel_label(c, unit) for c, unit in zip(names, channel_units(w.attrs, "y"))]
+    eval_plots.write_all(out, y_ctx, y_q, preds, labels, w.dt, samples, seed)
     write_csv(os.path.join(out, "metrics.csv"), result)
     write_table(os.path.join(out, "table.md"), result)
     _write_json(os.path.join(out, "metrics.json"), result)

@@ -199,3 +199,22 @@ def test_a_diverged_baseline_says_so_in_the_printed_table(setup, tmp_path):
     arx_line = next(line for line in summary_text(res, "x").splitlines() if line.strip().startswith("arx"))
     assert arx_line.endswith("(2 of 6 trajectories diverged: held instead)")
     assert "Baseline `arx`: 2 of 6 trajectories diverged: held instead" in table_markdown(res)
+
+
+def test_plots_label_channels_with_the_stores_units(setup, tmp_path, monkeypatch):
+    _, ckpt, test = setup
+    from matplotlib.figure import Figure
+
+    from robomorph.data.store import open_store
+
+    ds = open_store(test)
+    path = str(tmp_path / "units.zarr")
+    units = ["m"] * 3 + [""] * 4 + ["rad"] * 7
+    w = create_store(path, ds.n, ds.steps, ds.u_names, ds.y_names, [], {"dt": ds.dt, "y_units": units})
+    w.append(ds.read("u"), ds.read("y"), np.zeros((ds.n, 0), np.float32))
+    w.finalize()
+    titles, save = [], Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: (titles.extend(ax.get_title() for ax in fig.axes),
+                                                                save(fig, *a, **k))[1])
+    evaluate(ckpt, path, str(tmp_path / "u"), baselines=("hold",), samples=1)
+    assert {"ee_x [m]", "ee_qx", "q0 [rad]"} <= set(titles)
