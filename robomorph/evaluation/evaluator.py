@@ -204,11 +204,12 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
              n: int | None = None, baselines: tuple[str, ...] = BASELINES, sweep_horizon_spec: str | None = None,
              sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
              samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0,
-             arx_train_data: list[str] | None = None) -> dict:
+             arx_train_data: list[str] | None = None, compare: dict[str, str] | None = None) -> dict:
     """Evaluates a checkpoint on a store and writes every output file into ``out``.
 
     ``arx_train`` is fitted on the checkpoint's training split (read back from its stores),
-    or on the whole of the ``arx_train_data`` stores when given.
+    or on the whole of the ``arx_train_data`` stores when given. ``compare`` maps names to
+    other checkpoints (e.g. ``{"scratch": ...}``) scored beside the baselines on the same data.
 
     Returns:
         The ``metrics.json`` content.
@@ -238,6 +239,9 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     y_q = y_q.astype(np.float64)
     preds = {"model": predict(predictor, u_ctx, y_ctx, u_q, batch_size)}
     base, skipped, notes = run_baselines(w, tuple(baselines), arx_orders, _training_blocks(ckpt, arx_train_data))
+    for name, other in (compare or {}).items():
+        base[name] = _other_model(name, other, w, device, batch_size)
+        notes[name] = {"ckpt": other}
     preds.update(base)
     names = w.y_names
     result = {"approach1": metrics.approach1(y_q, preds["model"], names),
@@ -265,6 +269,24 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     write_table(os.path.join(out, "table.md"), result)
     _write_json(os.path.join(out, "metrics.json"), result)
     return result
+
+
+def _other_model(name: str, ckpt: str, w: Window, device: str | None, batch_size: int) -> np.ndarray:
+    """Predictions of another checkpoint (``--compare name=ckpt``) on the same windows."""
+    from robomorph.predictor import Predictor  # noqa: PLC0415
+
+    if name in BASELINES + CEILINGS + ("model",):
+        raise ValueError(f"--compare {name}=...: {name!r} names a baseline; choose another name")
+    other = Predictor.from_checkpoint(ckpt, device=device)
+    info = other.data_info or {}
+    if (info.get("u_names"), info.get("y_names")) != (w.u_names, w.y_names):
+        raise ValueError(f"--compare {name}: {ckpt} was trained on other channels ({info.get('u_names')} -> "
+                         f"{info.get('y_names')}) than the store's ({w.u_names} -> {w.y_names})")
+    patch = int(other.module.hparams.get("patch", 1))
+    if w.context_len % patch:
+        raise ValueError(f"--compare {name}: context {w.context_len} is not a multiple of its patch {patch}")
+    u_ctx, y_ctx, u_q, _ = w.split()
+    return predict(other, u_ctx, y_ctx, u_q, batch_size, desc=name)
 
 
 def _training_blocks(ckpt: str, stores: list[str] | None):
@@ -309,6 +331,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--samples", type=int, default=3, help="sample trajectories to plot")
     p.add_argument("--arx-orders", default="2,2", help="ARX output and input lags na,nb")
     p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories")
+    p.add_argument("--compare", action="append", default=[], metavar="NAME=CKPT",
+                   help="another checkpoint scored beside the baselines (repeatable), e.g. scratch=runs/a/checkpoints/best.ckpt")
     p.add_argument("--arx-train-data", help="comma list of stores to fit arx_train on, whole (default: the "
                                             "checkpoint's training split, read back from its stores)")
     a = p.parse_args(argv)
@@ -320,10 +344,14 @@ def main(argv: list[str] | None = None) -> None:
             raise ValueError
     except ValueError:
         p.error(f"--arx-orders takes two integers na,nb, got {a.arx_orders!r}")
+    compare = dict(c.split("=", 1) for c in a.compare if "=" in c)
+    if len(compare) != len(a.compare):
+        p.error(f"--compare takes NAME=CKPT, got {a.compare}")
     try:
         res = evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
                        a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed,
-                       [s.strip() for s in a.arx_train_data.split(",") if s.strip()] if a.arx_train_data else None)
+                       [s.strip() for s in a.arx_train_data.split(",") if s.strip()] if a.arx_train_data else None,
+                       compare)
     except (ValueError, FileNotFoundError) as exc:
         sys.exit(f"error: {exc}")
     print(summary_text(res, out))
