@@ -7,7 +7,7 @@ gravity load ``g_i sin(q_i)``, stiffness and damping that differ per joint, and 
 its neighbours; the torques are slowly varying random steps and sines around a holding
 torque (joint 2 works around -6 N m, as a real shoulder does).
 
-    python benchmarks/real_log_fixture.py --out data/arm6_logs [--lengths 1800,1200,950,1500,700] [--seed 0]
+    python benchmarks/real_log_fixture.py --out data/arm6_logs [--lengths 1834,1207,953,1519,702] [--seed 0]
 
 writes ``rec0.csv ...`` with columns ``t, tau1..tau6 [N m], q1..q6 [rad]``.
 """
@@ -22,7 +22,7 @@ import numpy as np
 N_JOINTS, DT, SUBSTEPS = 6, 0.1, 20
 U_COLS = [f"tau{i + 1}" for i in range(N_JOINTS)]
 Y_COLS = [f"q{i + 1}" for i in range(N_JOINTS)]
-DEFAULT_LENGTHS = (1800, 1200, 950, 1500, 700)
+DEFAULT_LENGTHS = (1834, 1207, 953, 1519, 702)
 # Per joint: inertia [kg m^2], damping [N m s/rad], stiffness [N m/rad], gravity load [N m].
 _INERTIA = np.array([1.2, 1.5, 0.9, 0.5, 0.3, 0.2])
 _DAMPING = np.array([2.0, 2.5, 1.5, 0.8, 0.5, 0.3])
