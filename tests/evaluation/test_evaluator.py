@@ -218,3 +218,12 @@ def test_plots_label_channels_with_the_stores_units(setup, tmp_path, monkeypatch
                                                                 save(fig, *a, **k))[1])
     evaluate(ckpt, path, str(tmp_path / "u"), baselines=("hold",), samples=1)
     assert {"ee_x [m]", "ee_qx", "q0 [rad]"} <= set(titles)
+
+
+def test_compare_scores_another_checkpoint_beside_the_baselines(setup, tmp_path):
+    _, ckpt, test = setup
+    res = evaluate(ckpt, test, str(tmp_path / "c"), baselines=("hold",), samples=0, compare={"again": ckpt})
+    assert set(res["baselines"]) == {"hold", "again"} and res["meta"]["baseline_notes"]["again"]["ckpt"] == ckpt
+    assert res["baselines"]["again"]["approach1"] == res["approach1"]  # the same model scores the same
+    with pytest.raises(ValueError, match="names a baseline"):
+        evaluate(ckpt, test, str(tmp_path / "d"), baselines=(), samples=0, compare={"hold": ckpt})
