@@ -209,7 +209,8 @@ class RoboMorphDataModule(L.LightningDataModule):
     """
 
     def __init__(self, stores: list[str] | str = "data/demo/multisine.zarr", weights: list[float] | None = None,
-                 test_store: str | None = None, val_store: str | None = None, context_len: int | None = 200, context_frac: float | None = None,
+                 test_store: str | None = None, val_store: str | None = None, context_len: int | None = 200,
+                 context_frac: float | None = None,
                  horizon: int = 800, window: Literal["start", "random"] = "start",
                  split: tuple[float, float, float] = (0.8, 0.1, 0.1), seed: int = 0, batch_size: int = 16,
                  num_workers: int = 0, in_memory: bool | None = None, recenter: bool = False,

@@ -25,9 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robomorph.evaluation import metrics
+from robomorph.evaluation import metrics, training_data
 from robomorph.evaluation import plots as eval_plots
-from robomorph.evaluation import training_data
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, TrainedARX, hold
 from robomorph.evaluation.tables import diverged_note, write_csv, write_table
 
