@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
-from robomorph.data.splits import SplitError, held_out_fractions, split_rows
+from robomorph.data.splits import RECORDING_ARRAY, SplitError, held_out_fractions, split_rows
 from robomorph.data.statistics import Stats, StatsAccumulator
 from robomorph.data.store import open_store
 
@@ -34,8 +34,6 @@ MEMORY_BUDGET_BYTES = 4 * 2**30
 # SeedSequence spawn keys of the independent random streams drawn from ``seed``.
 # (0 is robomorph.data.splits.SPLIT_STREAM.)
 _VAL_STREAM, _TRAIN_STREAM = 1, 2
-# The array in which ingested stores record each window's recording (splits group by it).
-RECORDING_ARRAY = "recording_index"
 
 
 class _Source:

@@ -16,6 +16,8 @@ from robomorph.core.errors import RoboMorphError
 
 # SeedSequence spawn key of the split stream (shared with the DataModule's other streams).
 SPLIT_STREAM = 0
+# The array in which ingested stores record each window's recording (splits group by it).
+RECORDING_ARRAY = "recording_index"
 
 
 class SplitError(RoboMorphError, ValueError):

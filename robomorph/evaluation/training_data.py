@@ -14,13 +14,12 @@ from collections.abc import Iterator
 import numpy as np
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.data.splits import held_out_fractions, split_rows
+from robomorph.data.splits import RECORDING_ARRAY, held_out_fractions, split_rows
 from robomorph.data.store import open_store
 
 # Trajectories read per block, and at most this many in all (a least-squares fit of a few
 # dozen coefficients gains nothing from more; it bounds the time on a huge store).
 BLOCK, MAX_TRAJECTORIES = 256, 4096
-RECORDING_ARRAY = "recording_index"
 
 
 class TrainingDataUnavailable(RoboMorphError):
