@@ -10,6 +10,11 @@ evaluation approaches for the model and every baseline, the sweeps, and the run'
 meta-data), ``metrics.csv`` (one row per source, approach, channel and metric),
 ``table.md`` (per-channel table in the paper's fit colour convention) and PNG plots.
 
+A checkpoint trained with ``data.normalization: paper_window`` (the paper's protocol) is
+scored as the paper scored it: each window rescaled with its own query outputs' mean and
+std. ``metrics.json`` then says ``"leaks_query_statistics": true`` and ``table.md`` says so
+in its header.
+
 The horizon sweep predicts with shorter query windows after the same context; the context
 sweep keeps the predicted window fixed and gives the model only the last ``c`` steps
 before it, so every point of it scores the same targets.
@@ -25,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from robomorph.data.statistics import NormalizationError, leaks_query_statistics, query_output_stats
 from robomorph.evaluation import metrics, training_data
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, TrainedARX, hold
@@ -87,14 +93,23 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
                   ds.read("params", rows))
 
 
-def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model") -> np.ndarray:
-    """The model's predictions in batches, with a progress bar on stderr."""
+def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None) -> np.ndarray:
+    """The model's predictions in batches, with a progress bar on stderr.
+
+    ``y_query`` (the true outputs) is read only by a ``paper_window`` model, which needs
+    their statistics (the paper's protocol); any other model never receives them.
+    """
     from tqdm.auto import tqdm  # noqa: PLC0415
 
+    leaks = getattr(predictor, "leaks_query_statistics", False)
+    if leaks and y_query is None:
+        raise NormalizationError("a paper_window model needs the query outputs' statistics: pass y_query to predict()")
     out = []
     for s in tqdm(range(0, len(u_ctx), batch_size), desc=desc, unit="batch", leave=False,
                   disable=not sys.stderr.isatty() and len(u_ctx) <= batch_size):
-        out.append(predictor.simulate(u_ctx[s:s + batch_size], y_ctx[s:s + batch_size], u_query[s:s + batch_size]))
+        part = slice(s, s + batch_size)
+        stats = query_output_stats(y_query[part]) if leaks else None
+        out.append(predictor.simulate(u_ctx[part], y_ctx[part], u_query[part], y_query_stats=stats))
     return np.concatenate(out).astype(np.float64)
 
 
@@ -165,7 +180,7 @@ def sweep_horizon(predictor, w: Window, horizons: list[int], baselines: dict, ba
     for h in horizons:
         u_ctx, y_ctx, u_q, y_q = w.split(horizon=h)
         y_q = y_q.astype(np.float64)
-        row = {"horizon": h, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size, f"horizon {h}"))}
+        row = {"horizon": h, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size, f"horizon {h}", y_q))}
         row.update({name: _summary(y_q, p[:, :h]) for name, p in baselines.items()})
         rows.append(row)
     return rows
@@ -177,7 +192,8 @@ def sweep_context(predictor, w: Window, contexts: list[int], batch_size: int) ->
     for c in contexts:
         u_ctx, y_ctx, u_q, y_q = w.split(context_len=c)
         y_q = y_q.astype(np.float64)
-        rows.append({"context_len": c, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size, f"context {c}")),
+        rows.append({"context_len": c, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size,
+                                                                      f"context {c}", y_q)),
                      "hold": _summary(y_q, hold(u_ctx, y_ctx, u_q))})
     return rows
 
@@ -203,12 +219,17 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
              n: int | None = None, baselines: tuple[str, ...] = BASELINES, sweep_horizon_spec: str | None = None,
              sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
              samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0,
-             arx_train_data: list[str] | None = None, compare: dict[str, str] | None = None) -> dict:
+             normalization: str | None = None, arx_train_data: list[str] | None = None,
+             compare: dict[str, str] | None = None) -> dict:
     """Evaluates a checkpoint on a store and writes every output file into ``out``.
 
     ``arx_train`` is fitted on the checkpoint's training split (read back from its stores),
     or on the whole of the ``arx_train_data`` stores when given. ``compare`` maps names to
     other checkpoints (e.g. ``{"scratch": ...}``) scored beside the baselines on the same data.
+
+    Args:
+        normalization: when given, the normalization the checkpoint must have been trained
+            with (``train_stats`` or ``paper_window``); default: whatever it was trained with.
 
     Returns:
         The ``metrics.json`` content.
@@ -219,6 +240,9 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
         if name not in BASELINES + CEILINGS:
             raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
     predictor = Predictor.from_checkpoint(ckpt, device=device)
+    if normalization is not None and normalization != predictor.normalization:
+        raise NormalizationError(f"{ckpt} was trained with normalization {predictor.normalization!r}, not "
+                                 f"{normalization!r}: the normalization is fixed at training time (data.normalization)")
     info = predictor.data_info
     context_len = context_len or (info or {}).get("context_len")
     horizon = horizon or (info or {}).get("horizon")
@@ -236,8 +260,8 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
 
     u_ctx, y_ctx, u_q, y_q = w.split()
     y_q = y_q.astype(np.float64)
-    preds = {"model": predict(predictor, u_ctx, y_ctx, u_q, batch_size)}
-    base, skipped, notes = run_baselines(w, tuple(baselines), arx_orders, _training_blocks(ckpt, arx_train_data))
+    preds = {"model": predict(predictor, u_ctx, y_ctx, u_q, batch_size, y_query=y_q)}
+    base, skipped, notes = run_baselines(w, tuple(baselines), arx_orders, training_data.reader(ckpt, arx_train_data))
     for name, other in (compare or {}).items():
         base[name] = _other_model(name, other, w, device, batch_size)
         notes[name] = {"ckpt": other}
@@ -251,7 +275,10 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
               "meta": {"ckpt": ckpt, "data": data, "context_len": w.context_len,
                        "horizon": w.horizon, "n": len(w.u), "dt": w.dt, "y_names": names, "u_names": w.u_names,
                        "device": str(predictor.device), "baseline_notes": notes,
-                       "domain": w.attrs.get("domain"), "task": w.attrs.get("task")}}
+                       "domain": w.attrs.get("domain"), "task": w.attrs.get("task"),
+                       "normalization": predictor.normalization},
+              # The paper's protocol scales each window with its query outputs' statistics: say so first.
+              "leaks_query_statistics": leaks_query_statistics(predictor.normalization)}
     sweeps = {}
     if horizons:
         sweeps["horizon"] = sweep_horizon(predictor, w, horizons, base, batch_size)
@@ -284,19 +311,8 @@ def _other_model(name: str, ckpt: str, w: Window, device: str | None, batch_size
     patch = int(other.module.hparams.get("patch", 1))
     if w.context_len % patch:
         raise ValueError(f"--compare {name}: context {w.context_len} is not a multiple of its patch {patch}")
-    u_ctx, y_ctx, u_q, _ = w.split()
-    return predict(other, u_ctx, y_ctx, u_q, batch_size, desc=name)
-
-
-def _training_blocks(ckpt: str, stores: list[str] | None):
-    def read():
-        from robomorph.training.module import load_checkpoint_file  # noqa: PLC0415
-
-        try:
-            return training_data.blocks(training_data.training_rows(load_checkpoint_file(ckpt), stores))
-        except training_data.TrainingDataUnavailable as exc:
-            raise ValueError(str(exc)) from exc
-    return read
+    u_ctx, y_ctx, u_q, y_q = w.split()
+    return predict(other, u_ctx, y_ctx, u_q, batch_size, desc=name, y_query=y_q)
 
 
 def _write_json(path: str, obj: dict) -> None:
@@ -330,6 +346,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--samples", type=int, default=3, help="sample trajectories to plot")
     p.add_argument("--arx-orders", default="2,2", help="ARX output and input lags na,nb")
     p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories")
+    p.add_argument("--normalization", choices=("train_stats", "paper_window"),
+                   help="require the checkpoint to have been trained with this normalization (default: its own)")
     p.add_argument("--compare", action="append", default=[], metavar="NAME=CKPT",
                    help="another checkpoint scored beside the baselines (repeatable), e.g. scratch=runs/a/checkpoints/best.ckpt")
     p.add_argument("--arx-train-data", help="comma list of stores to fit arx_train on, whole (default: the "
@@ -348,7 +366,7 @@ def main(argv: list[str] | None = None) -> None:
         p.error(f"--compare takes NAME=CKPT, got {a.compare}")
     try:
         res = evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
-                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed,
+                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed, a.normalization,
                        [s.strip() for s in a.arx_train_data.split(",") if s.strip()] if a.arx_train_data else None,
                        compare)
     except (ValueError, FileNotFoundError) as exc:
@@ -359,8 +377,11 @@ def main(argv: list[str] | None = None) -> None:
 def summary_text(res: dict, out: str) -> str:
     """A few lines for the terminal: mean approach-1 scores of the model and the baselines."""
     m, meta = res["approach1"]["mean"], res["meta"]
-    lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']} (approach 1 mean):",
-             f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}"]
+    lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']} (approach 1 mean):"]
+    if res.get("leaks_query_statistics"):
+        lines.append(f"  normalization {meta.get('normalization')}: scores use the query outputs' statistics (the "
+                     "paper's protocol), not those of a deployable model")
+    lines.append(f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}")
     notes = meta.get("baseline_notes", {})
     for b, r in res["baselines"].items():
         mb = r["approach1"]["mean"]

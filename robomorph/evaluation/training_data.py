@@ -9,7 +9,7 @@ validation or test data.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from robomorph.data.store import open_store
 BLOCK, MAX_TRAJECTORIES = 256, 4096
 
 
-class TrainingDataUnavailable(RoboMorphError):
+class TrainingDataUnavailable(RoboMorphError, ValueError):
     """The checkpoint's training data cannot be read back (the message says what to pass)."""
 
 
@@ -69,3 +69,13 @@ def blocks(rows: list[tuple[str, np.ndarray]], limit: int = MAX_TRAJECTORIES) ->
         for b in range(0, len(r), BLOCK):
             sel = r[b:b + BLOCK]
             yield ds.read("u", sel), ds.read("y", sel)
+
+
+def reader(ckpt_path: str, stores: list[str] | None = None) -> Callable[[], Iterator[tuple[np.ndarray, np.ndarray]]]:
+    """A function that reads the training blocks of a checkpoint when called (only a
+    baseline that needs them pays for the reading)."""
+    def read() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        from robomorph.training.module import load_checkpoint_file  # noqa: PLC0415  (torch only here)
+
+        return blocks(training_rows(load_checkpoint_file(ckpt_path), stores))
+    return read
