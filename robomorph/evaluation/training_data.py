@@ -57,9 +57,11 @@ def _open(path: str, what: str):
     return open_store(path)
 
 
-def blocks(rows: list[tuple[str, np.ndarray]], limit: int = MAX_TRAJECTORIES) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+def blocks(rows: list[tuple[str, np.ndarray]], limit: int = MAX_TRAJECTORIES,
+           inputs: str = "total") -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """``(u, y)`` blocks of the training trajectories, at most ``limit`` of them, spread
-    evenly over the stores' rows in order (deterministic)."""
+    evenly over the stores' rows in order (deterministic); ``u`` is the input formulation
+    the model was trained on (``data.inputs``: the total torque or the command)."""
     total = sum(len(r) for _, r in rows)
     keep = min(1.0, limit / max(total, 1))
     for path, r in rows:
@@ -68,7 +70,7 @@ def blocks(rows: list[tuple[str, np.ndarray]], limit: int = MAX_TRAJECTORIES) ->
         ds = open_store(path)
         for b in range(0, len(r), BLOCK):
             sel = r[b:b + BLOCK]
-            yield ds.read("u", sel), ds.read("y", sel)
+            yield ds.read_inputs(inputs, sel), ds.read("y", sel)
 
 
 def reader(ckpt_path: str, stores: list[str] | None = None) -> Callable[[], Iterator[tuple[np.ndarray, np.ndarray]]]:
@@ -77,5 +79,7 @@ def reader(ckpt_path: str, stores: list[str] | None = None) -> Callable[[], Iter
     def read() -> Iterator[tuple[np.ndarray, np.ndarray]]:
         from robomorph.training.module import load_checkpoint_file  # noqa: PLC0415  (torch only here)
 
-        return blocks(training_rows(load_checkpoint_file(ckpt_path), stores))
+        ckpt = load_checkpoint_file(ckpt_path)
+        inputs = (ckpt.get("datamodule_hyper_parameters") or {}).get("inputs") or "total"
+        return blocks(training_rows(ckpt, stores), inputs=inputs)
     return read
