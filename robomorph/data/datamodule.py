@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
-from robomorph.data.splits import RECORDING_ARRAY, SplitError, held_out_fractions, split_rows
+from robomorph.data.splits import RECORDING_ARRAY, check_held_out, held_out_fractions, split_rows
 from robomorph.data.statistics import Stats, StatsAccumulator, check_normalization
 from robomorph.data.store import check_inputs, open_store
 
@@ -243,14 +243,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         paths = [os.path.realpath(p) for p in self.stores]
         if len(set(paths)) != len(paths):
             raise ValueError(f"stores lists a store twice: {self.stores}")
-        held_out = [(k, p) for k, p in (("test_store", self.test_store), ("val_store", self.val_store)) if p is not None]
-        for key, path in held_out:
-            if os.path.realpath(path) in paths:
-                raise SplitError(f"{key} {path} is also a training store: its trajectories would leak; "
-                                 "give a store of other recordings")
-        if len(held_out) == 2 and os.path.realpath(self.test_store) == os.path.realpath(self.val_store):
-            raise SplitError(f"val_store and test_store are the same store {self.val_store}: the test "
-                             "score would be the one best.ckpt was chosen on; give two stores")
+        check_held_out(paths, self.val_store, self.test_store)
         if self.weights is not None:
             w = np.asarray(self.weights, dtype=float)
             if w.shape != (len(self.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:

@@ -10,6 +10,8 @@ one recording lands in the same split.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from robomorph.core.errors import RoboMorphError
@@ -74,3 +76,15 @@ def held_out_fractions(split: tuple[float, float, float], val_store: bool, test_
     f = [split[0], 0.0 if val_store else split[1], 0.0 if test_store else split[2]]
     total = sum(f)
     return (f[0] / total, f[1] / total, f[2] / total)
+
+
+def check_held_out(train_paths: list[str], val_store: str | None, test_store: str | None) -> None:
+    """Refuses a validation or test store that is also a training store, or one store as both."""
+    held_out = [(k, p) for k, p in (("test_store", test_store), ("val_store", val_store)) if p is not None]
+    for key, path in held_out:
+        if os.path.realpath(path) in train_paths:
+            raise SplitError(f"{key} {path} is also a training store: its trajectories would leak; "
+                             "give a store of other recordings")
+    if len(held_out) == 2 and os.path.realpath(test_store) == os.path.realpath(val_store):
+        raise SplitError(f"val_store and test_store are the same store {val_store}: the test "
+                         "score would be the one best.ckpt was chosen on; give two stores")
