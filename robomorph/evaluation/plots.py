@@ -11,8 +11,9 @@ import os
 
 import numpy as np
 
+from robomorph.core import metrics
 from robomorph.data.store import channel_label
-from robomorph.evaluation import horizons, metrics
+from robomorph.evaluation import horizons
 
 _STYLE = {"model": dict(color="C0", lw=1.4), "hold": dict(color="C7", ls=":"),
           "arx": dict(color="C2", ls="--", lw=1.0), "arx_train": dict(color="C1", ls="--", lw=1.0),

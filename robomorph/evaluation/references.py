@@ -24,7 +24,7 @@ def load_other(name: str, ckpt: str, w, device: str | None):  # w: evaluation.wi
     if (info.get("u_names"), info.get("y_names")) != (w.u_names, w.y_names):
         raise ValueError(f"--compare {name}: {ckpt} was trained on other channels ({info.get('u_names')} -> "
                          f"{info.get('y_names')}) than the store's ({w.u_names} -> {w.y_names})")
-    patch = int(other.module.hparams.get("patch", 1))
+    patch = int(other.patch)
     if w.context_len % patch:
         raise ValueError(f"--compare {name}: context {w.context_len} is not a multiple of its patch {patch}")
     return other

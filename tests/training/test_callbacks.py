@@ -11,7 +11,8 @@ import pytest
 
 from robomorph.data.store import create_store
 from robomorph.training.fitting import final_line, fit
-from robomorph.training.module import load_checkpoint_file, schedule_change
+from robomorph.model.checkpoint import load_checkpoint_file
+from robomorph.training.module import schedule_change
 
 os.environ.setdefault("WANDB_MODE", "offline")
 
