@@ -14,10 +14,10 @@ import os
 import numpy as np
 import pytest
 
+from robomorph.data.generation import generate
 from robomorph.data.ingest import main as ingest_main
 from robomorph.data.store import open_store
 from robomorph.evaluation.evaluator import main as evaluate_main
-from robomorph.data.generation import generate
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit
 from robomorph.training.fitting import main as fit_main

@@ -30,7 +30,7 @@ def training_rows(ckpt: dict, stores: list[str] | None = None) -> list[tuple[str
     """``(store path, training rows)`` of each training store of a checkpoint.
 
     Args:
-        ckpt: a loaded checkpoint (``robomorph.training.module.load_checkpoint_file``).
+        ckpt: a loaded checkpoint (``robomorph.model.checkpoint.load_checkpoint_file``).
         stores: use these stores whole instead (``--arx-train-data``).
     """
     if stores:
@@ -77,7 +77,7 @@ def reader(ckpt_path: str, stores: list[str] | None = None) -> Callable[[], Iter
     """A function that reads the training blocks of a checkpoint when called (only a
     baseline that needs them pays for the reading)."""
     def read() -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        from robomorph.training.module import load_checkpoint_file  # noqa: PLC0415  (torch only here)
+        from robomorph.model.checkpoint import load_checkpoint_file  # noqa: PLC0415  (torch only here)
 
         ckpt = load_checkpoint_file(ckpt_path)
         inputs = (ckpt.get("datamodule_hyper_parameters") or {}).get("inputs") or "total"

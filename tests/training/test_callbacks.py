@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from robomorph.data.store import create_store
-from robomorph.training.fitting import final_line, fit
 from robomorph.model.checkpoint import load_checkpoint_file
+from robomorph.training.fitting import final_line, fit
 from robomorph.training.module import schedule_change
 
 os.environ.setdefault("WANDB_MODE", "offline")
