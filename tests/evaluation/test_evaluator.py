@@ -155,15 +155,17 @@ def test_parse_range():
 
 
 def test_arx_train_is_fitted_on_the_checkpoints_training_split(setup, tmp_path):
-    root, ckpt, test = setup
+    _, ckpt, test = setup
     from robomorph.data.splits import split_rows
+
+    train_store = Predictor.from_checkpoint(ckpt, device="cpu").data_info["stores"][0]
 
     res = evaluate(ckpt, test, str(tmp_path / "a"), baselines=("arx_train",), samples=0, arx_orders=(1, 1))
     train_rows = split_rows(24, (0.8, 0.1, 0.1), 0, 0)["train"]  # the fit's stores, split and seed
     assert res["meta"]["baseline_notes"]["arx_train"]["trajectories"] == len(train_rows) < 24
     assert set(res["baselines"]) == {"arx_train"}
     whole = evaluate(ckpt, test, str(tmp_path / "b"), baselines=("arx_train",), samples=0, arx_orders=(1, 1),
-                     arx_train_data=[str(root / "train.zarr")])
+                     arx_train_data=[train_store])
     assert whole["meta"]["baseline_notes"]["arx_train"]["trajectories"] == 24
     gone = evaluate(ckpt, test, str(tmp_path / "c"), baselines=("hold", "arx_train"), samples=0,
                     arx_train_data=[str(tmp_path / "moved.zarr")])
