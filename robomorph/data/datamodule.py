@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
+from robomorph.core.errors import RoboMorphError
 from robomorph.data.statistics import Stats, StatsAccumulator
 from robomorph.data.store import open_store
 
@@ -32,6 +33,10 @@ from robomorph.data.store import open_store
 MEMORY_BUDGET_BYTES = 4 * 2**30
 # SeedSequence spawn keys of the independent random streams drawn from ``seed``.
 _SPLIT_STREAM, _VAL_STREAM, _TRAIN_STREAM = 0, 1, 2
+
+
+class DataError(RoboMorphError, ValueError):
+    """Data settings or stores that cannot feed training; the message names the fix."""
 
 
 class _Source:
@@ -44,7 +49,7 @@ class _Source:
     def __init__(self, path: str):
         ds = open_store(path)
         if ds.n < 1:
-            raise ValueError(f"{path} holds no trajectories (n=0)")
+            raise DataError(f"{path} holds no trajectories (n=0)")
         self.path, self.n, self.steps, self.chunk = path, ds.n, ds.steps, ds.chunk
         self.u_names, self.y_names, self.dt = ds.u_names, ds.y_names, ds.dt
         self.u: np.ndarray | None = None
@@ -101,7 +106,7 @@ def _scan(src: _Source, train_rows: np.ndarray, stop: int, acc: StatsAccumulator
         for name, arr in (("u", u), ("y", y)):
             bad = np.flatnonzero(~np.isfinite(arr).all(axis=(1, 2)))
             if bad.size:
-                raise ValueError(f"{src.path}: trajectory {c0 + int(bad[0])} has NaN/inf values in '{name}' "
+                raise DataError(f"{src.path}: trajectory {c0 + int(bad[0])} has NaN/inf values in '{name}' "
                                  f"({bad.size} bad trajectories in rows {c0}..{c0 + len(u) - 1}); "
                                  "regenerate the store or drop those rows")
         mask = in_train[c0:c0 + len(u)]
@@ -226,37 +231,37 @@ class RoboMorphDataModule(L.LightningDataModule):
 
     def _validate(self) -> None:
         if not self.stores:
-            raise ValueError("stores: give at least one store path")
+            raise DataError("stores: give at least one store path")
         paths = [os.path.realpath(p) for p in self.stores]
         if len(set(paths)) != len(paths):
-            raise ValueError(f"stores lists a store twice: {self.stores}")
+            raise DataError(f"stores lists a store twice: {self.stores}")
         if self.test_store is not None and os.path.realpath(self.test_store) in paths:
-            raise ValueError(f"test_store {self.test_store} is also a training store: its trajectories would leak")
+            raise DataError(f"test_store {self.test_store} is also a training store: its trajectories would leak")
         if self.weights is not None:
             w = np.asarray(self.weights, dtype=float)
             if w.shape != (len(self.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
-                raise ValueError(f"weights must be {len(self.stores)} non-negative numbers with a positive sum "
+                raise DataError(f"weights must be {len(self.stores)} non-negative numbers with a positive sum "
                                  f"(one per store), got {self.weights}")
         if (self.context_len is None) == (self.context_frac is None):
-            raise ValueError("give exactly one of context_len and context_frac "
+            raise DataError("give exactly one of context_len and context_frac "
                              f"(got context_len={self.context_len}, context_frac={self.context_frac})")
         if self.context_len is not None and self.context_len < 1:
-            raise ValueError(f"context_len must be >= 1, got {self.context_len}")
+            raise DataError(f"context_len must be >= 1, got {self.context_len}")
         if self.context_frac is not None and not 0 < self.context_frac < 1:
-            raise ValueError(f"context_frac must be in (0, 1), got {self.context_frac}")
+            raise DataError(f"context_frac must be in (0, 1), got {self.context_frac}")
         if self.window not in ("start", "random"):
-            raise ValueError(f"window must be 'start' or 'random', got {self.window!r}")
+            raise DataError(f"window must be 'start' or 'random', got {self.window!r}")
         f = self.split
         if len(f) != 3 or any(not math.isfinite(x) or x < 0 for x in f) or abs(sum(f) - 1) > 1e-6 or f[0] <= 0:
-            raise ValueError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
+            raise DataError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
                              f"with train > 0, got {self.split}")
         for name, value, low in (("horizon", self.horizon, 1), ("batch_size", self.batch_size, 1),
                                  ("num_workers", self.num_workers, 0), ("val_subset", self.val_subset, 1),
                                  ("seed", self.seed, 0)):
             if value < low:
-                raise ValueError(f"{name} must be >= {low}, got {value}")
+                raise DataError(f"{name} must be >= {low}, got {value}")
         if self.train_samples_per_epoch is not None and self.train_samples_per_epoch < 1:
-            raise ValueError(f"train_samples_per_epoch must be >= 1, got {self.train_samples_per_epoch}")
+            raise DataError(f"train_samples_per_epoch must be >= 1, got {self.train_samples_per_epoch}")
 
     def setup(self, stage: str | None = None) -> None:
         """Opens and checks the stores, splits them and computes the training statistics.
@@ -288,10 +293,10 @@ class RoboMorphDataModule(L.LightningDataModule):
         for src in sources[1:]:
             for what, a, b in (("u_names", ref.u_names, src.u_names), ("y_names", ref.y_names, src.y_names)):
                 if a != b:
-                    raise ValueError(f"stores disagree on {what}: {ref.path} has {a}, {src.path} has {b}; "
+                    raise DataError(f"stores disagree on {what}: {ref.path} has {a}, {src.path} has {b}; "
                                      "all stores of one run must share u_names, y_names and dt")
             if not math.isclose(ref.dt, src.dt, rel_tol=1e-9):
-                raise ValueError(f"stores disagree on dt: {ref.path} has {ref.dt}, {src.path} has {src.dt}")
+                raise DataError(f"stores disagree on dt: {ref.path} has {ref.dt}, {src.path} has {src.dt}")
         self.u_names, self.y_names, self.dt = ref.u_names, ref.y_names, ref.dt
         self.n_u, self.n_y = len(ref.u_names), len(ref.y_names)
 
@@ -300,12 +305,13 @@ class RoboMorphDataModule(L.LightningDataModule):
             t_min = min(s.steps for s in sources)
             self.context_len = round(self.context_frac * t_min)
             if self.context_len < 1:
-                raise ValueError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
+                raise DataError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
         need = self.context_len + self.horizon
         for src in sources:
             if src.steps < need:
-                raise ValueError(f"{src.path} has trajectories of T={src.steps} steps, but context_len "
-                                 f"{self.context_len} + horizon {self.horizon} = {need} are needed")
+                raise DataError(f"{src.path} has trajectories of T={src.steps} steps, but context_len "
+                                 f"{self.context_len} + horizon {self.horizon} = {need} are needed: shorten "
+                                "--data.context_len / --data.horizon")
 
     def _make_splits(self, sources: list[_Source]) -> None:
         f = self.split
@@ -319,7 +325,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         w = np.asarray(self.weights if self.weights is not None else counts, dtype=float)
         for k, ck in enumerate(counts):
             if ck == 0:
-                raise ValueError(f"{self.stores[k]} has no training trajectories (n={sources[k].n}, split "
+                raise DataError(f"{self.stores[k]} has no training trajectories (n={sources[k].n}, split "
                                  f"{self.split}): add trajectories or change split")
         self.probs = w / w.sum()
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shutil
 import sys
 import time
 import warnings
@@ -24,9 +25,11 @@ from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.loggers import WandbLogger
 
+from robomorph.core.errors import run_command
 from robomorph.data.datamodule import RoboMorphDataModule
+from robomorph.training import preflight
 from robomorph.training.checkpoints import AtomicCheckpointIO, ResumableCSVLogger, prune_log
-from robomorph.training.module import VAL_LOSS, MetaModule, load_checkpoint_file
+from robomorph.training.module import VAL_LOSS, MetaModule
 
 _RUN_ENV = "ROBOMORPH_RUN_NAME"  # shared with DDP worker processes, which re-run this script
 
@@ -84,8 +87,9 @@ class RoboMorphCLI(LightningCLI):
         return os.path.join(cfg.runs_dir, name)
 
     def instantiate_trainer(self, **kwargs: Any):
+        # The folder is made by fit() once the pre-flight checks pass, not here: a refused
+        # fit leaves nothing behind.
         cfg, run_dir = self.config, self.run_dir()
-        os.makedirs(run_dir, exist_ok=True)
         self._run_dir = run_dir
         ckpt_dir = os.path.join(run_dir, "checkpoints")
         callbacks = [
@@ -163,18 +167,25 @@ def fit(args: list[str] | dict | None = None, callbacks: list | None = None) -> 
     cli = build_cli(args, callbacks)
     run_dir, trainer, module = cli._run_dir, cli.trainer, cli.model
     ckpt = _resume_path(cli, run_dir)
+    step = _preflight(cli, ckpt)
     module.resuming = ckpt is not None
-    if trainer.is_global_zero:
-        cli.parser.save(cli.config, os.path.join(run_dir, "config.yaml"), overwrite=True, multifile=False)
-        if ckpt:
-            step = load_checkpoint_file(ckpt)["global_step"]
-            prune_log(os.path.join(run_dir, "logs", "metrics.csv"), step)
-            print(f"resuming {run_dir} from {ckpt} (step {step})", file=sys.stderr)
+    created = not os.path.isdir(run_dir)
+    os.makedirs(run_dir, exist_ok=True)
     try:
-        trainer.fit(module, datamodule=cli.datamodule, ckpt_path=ckpt)
-    finally:
-        _save_wandb_id(trainer, run_dir)
-        _finish_wandb(trainer)
+        if trainer.is_global_zero:
+            # Written only now: a refused resume keeps the configuration its checkpoints belong to.
+            cli.parser.save(cli.config, os.path.join(run_dir, "config.yaml"), overwrite=True, multifile=False)
+            if ckpt:
+                prune_log(os.path.join(run_dir, "logs", "metrics.csv"), step)
+                print(f"resuming {run_dir} from {ckpt} (step {step})", file=sys.stderr)
+        try:
+            trainer.fit(module, datamodule=cli.datamodule, ckpt_path=ckpt)
+        finally:
+            _save_wandb_id(trainer, run_dir)
+            _finish_wandb(trainer)
+    except BaseException:
+        _remove_if_empty(run_dir, created)
+        raise
     cb = trainer.checkpoint_callback
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
     best = os.path.join(run_dir, "checkpoints", "best.ckpt")
@@ -184,7 +195,31 @@ def fit(args: list[str] | dict | None = None, callbacks: list | None = None) -> 
                      global_step=trainer.global_step)
 
 
+def _preflight(cli: RoboMorphCLI, ckpt: str | None) -> int:
+    """Every check that can fail before training (data, shapes, budget, checkpoints); the
+    step of the resumed checkpoint (0 for a new run)."""
+    trainer, module, dm = cli.trainer, cli.model, cli.datamodule
+    preflight.check_budget(trainer)
+    dm.setup("fit")  # idempotent: the trainer's own call then finds it done
+    preflight.check_windows(module, dm)
+    if ckpt:
+        return preflight.check_resume(module, dm, ckpt)
+    preflight.check_init(module)
+    return 0
+
+
+def _remove_if_empty(run_dir: str, created: bool) -> None:
+    """A run folder this call made and that holds no checkpoint goes again: a failed fit
+    leaves no husk for the next ``--run`` of that name to trip over."""
+    if created and not os.path.isfile(os.path.join(run_dir, "checkpoints", "last.ckpt")):
+        shutil.rmtree(run_dir, ignore_errors=True)
+
+
 def main(argv: list[str] | None = None) -> int:
+    return run_command(lambda: _main(argv))
+
+
+def _main(argv: list[str] | None) -> int:
     result = fit(argv)
     if result.metrics:
         shown = ", ".join(f"{k}={v:.4g}" for k, v in sorted(result.metrics.items()) if k.startswith("val/"))

@@ -41,6 +41,10 @@ class CheckpointError(RoboMorphError, RuntimeError):
     """A checkpoint is missing, corrupt, or does not fit the model asked for."""
 
 
+class ModelSettingsError(RoboMorphError, ValueError):
+    """Model or optimizer settings that cannot work; the message names the ``--model.`` flag."""
+
+
 def load_checkpoint_file(path: str) -> dict:
     """Reads a checkpoint with an error that says what is wrong with it."""
     if not os.path.isfile(path):
@@ -48,7 +52,8 @@ def load_checkpoint_file(path: str) -> dict:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as exc:  # noqa: BLE001  (any unreadable file)
-        raise CheckpointError(f"{path} is not a readable checkpoint (corrupt or truncated?): {exc}") from exc
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise CheckpointError(f"{path} is not a readable checkpoint (corrupt or truncated?): {first}") from exc
     if not isinstance(ckpt, dict) or "state_dict" not in ckpt or "hyper_parameters" not in ckpt:
         raise CheckpointError(f"{path} is not a RoboMorph/Lightning checkpoint (no state_dict/hyper_parameters)")
     return ckpt
@@ -79,6 +84,9 @@ class MetaModule(L.LightningModule):
         freeze: ``none``, ``encoder`` or ``all_but_head``.
         reinit_io: when the checkpoint's n_u / n_y differ, re-initialize the input
             embeddings and the head instead of failing.
+        normalization_from: with ``init_ckpt``, where the normalization statistics come
+            from: ``target`` (default), this run's training data; ``source``, the
+            checkpoint's (same channels only: with new channels they come from the data).
     """
 
     def __init__(
@@ -107,14 +115,21 @@ class MetaModule(L.LightningModule):
         init_ckpt: str | None = None,
         freeze: Literal["none", "encoder", "all_but_head"] = "none",
         reinit_io: bool = False,
+        normalization_from: Literal["source", "target"] = "target",
     ):
         super().__init__()
         if loss not in ("huber", "mse"):
-            raise ValueError(f"loss must be 'huber' or 'mse', got {loss!r}")
+            raise ModelSettingsError(f"--model.loss must be 'huber' or 'mse', got {loss!r}")
         if freeze not in FREEZE_MODES:
-            raise ValueError(f"freeze must be one of {FREEZE_MODES}, got {freeze!r}")
-        if lr <= 0 or not 0 <= min_lr_ratio <= 1 or warmup_steps < 0 or huber_delta <= 0:
-            raise ValueError("need lr > 0, 0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
+            raise ModelSettingsError(f"--model.freeze must be one of {FREEZE_MODES}, got {freeze!r}")
+        if normalization_from not in ("source", "target"):
+            raise ModelSettingsError(f"--model.normalization_from must be 'source' or 'target', got {normalization_from!r}")
+        for name, value, ok in (("lr", lr, lr > 0), ("min_lr_ratio", min_lr_ratio, 0 <= min_lr_ratio <= 1),
+                                ("warmup_steps", warmup_steps, warmup_steps >= 0),
+                                ("huber_delta", huber_delta, huber_delta > 0)):
+            if not ok:
+                raise ModelSettingsError(f"--model.{name} {value} is out of range: need lr > 0, "
+                                         "0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
         self.save_hyperparameters()
         self.net: MetaModel | None = None
         self.normalizer: Normalizer | None = None
@@ -130,10 +145,21 @@ class MetaModule(L.LightningModule):
     # ----------------------------------------------------------------- construction
     @property
     def model_config(self) -> ModelConfig:
+        return self.config_for(self.hparams.n_u, self.hparams.n_y)
+
+    def config_for(self, n_u: int, n_y: int) -> ModelConfig:
+        """The network's validated configuration for ``n_u`` inputs and ``n_y`` outputs.
+
+        Raises:
+            ModelSettingsError: shapes that cannot work (e.g. ``n_head`` not dividing ``d_model``).
+        """
         h = self.hparams
-        return ModelConfig(n_u=h.n_u, n_y=h.n_y, d_model=h.d_model, n_head=h.n_head, n_layer=h.n_layer,
-                           n_layer_dec=h.n_layer_dec, dropout=h.dropout, bias=h.bias, patch=h.patch,
-                           max_context=h.max_context, max_horizon=h.max_horizon)
+        try:
+            return ModelConfig(n_u=n_u, n_y=n_y, d_model=h.d_model, n_head=h.n_head, n_layer=h.n_layer,
+                               n_layer_dec=h.n_layer_dec, dropout=h.dropout, bias=h.bias, patch=h.patch,
+                               max_context=h.max_context, max_horizon=h.max_horizon)
+        except ValueError as exc:
+            raise ModelSettingsError(f"{str(exc).replace('ModelConfig.', '--model.')}") from exc
 
     def _build(self, n_u: int, n_y: int) -> None:
         self.hparams.n_u, self.hparams.n_y = int(n_u), int(n_y)
@@ -173,17 +199,24 @@ class MetaModule(L.LightningModule):
                 f"n_u={self.hparams.n_u}, n_y={self.hparams.n_y}. Set reinit_io=true to re-initialize the "
                 "input embeddings and the head (the rest transfers)."
             )
+        from_source = self.hparams.get("normalization_from", "target") == "source"
+        if from_source and not same_io:
+            raise CheckpointError(
+                f"normalization_from=source needs the checkpoint's channels, but {path} has n_u={src.get('n_u')}, "
+                f"n_y={src.get('n_y')} and this data n_u={self.hparams.n_u}, n_y={self.hparams.n_y}: "
+                "use --model.normalization_from target (statistics of the new training data)")
+        # The statistics (and their "ready" flag) come along only when the user keeps the
+        # source's normalization; otherwise setup() computes them from this run's data.
         state = {k: v for k, v in ckpt["state_dict"].items()
-                 if same_io or not (k.startswith("normalizer.") or _is_io(k))}
+                 if (from_source or not _is_stats(k)) and (same_io or not _is_io(k))}
         missing, unexpected = self.load_state_dict(state, strict=False)
-        allowed_missing = [k for k in missing if not same_io and (k.startswith("normalizer.") or _is_io(k))]
+        allowed_missing = [k for k in missing if (not from_source and _is_stats(k)) or (not same_io and _is_io(k))]
         if set(missing) - set(allowed_missing) - {"stats_ready"} or unexpected:
             raise CheckpointError(
                 f"{path} does not match this architecture (missing {sorted(set(missing) - set(allowed_missing))[:5]}, "
                 f"unexpected {sorted(unexpected)[:5]}): use the same d_model, n_head, layers and patch"
             )
-        if same_io:
-            self.stats_ready.fill_(True)
+        self.stats_ready.fill_(from_source)
         self._apply_freeze()
 
     def _apply_freeze(self) -> None:
@@ -265,6 +298,10 @@ def _lr_factor(step: int, warmup: int, total: int, floor: float) -> float:
         return (step + 1) / warmup
     progress = min(1.0, (step - warmup) / max(1, total - warmup))
     return floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * progress))
+
+
+def _is_stats(key: str) -> bool:
+    return key.startswith("normalizer.") or key == "stats_ready"
 
 
 def _is_io(key: str) -> bool:
