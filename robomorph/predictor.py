@@ -16,7 +16,12 @@ import inspect
 import numpy as np
 import torch
 
+from robomorph.core.errors import RoboMorphError
 from robomorph.training.module import CheckpointError, MetaModule, load_checkpoint_file
+
+
+class PredictionError(RoboMorphError, ValueError):
+    """Inputs the model cannot predict from (wrong shape, non-finite, or overflowing)."""
 
 
 class Predictor:
@@ -55,9 +60,22 @@ class Predictor:
 
     def _check(self, name: str, x: torch.Tensor, width: int) -> None:
         if x.shape[-1] != width:
-            raise ValueError(f"{name} has {x.shape[-1]} channels, the model expects {width}")
+            raise PredictionError(f"{name} has {x.shape[-1]} channels, the model expects {width}")
         if not torch.isfinite(x).all():
-            raise ValueError(f"{name} holds NaN or inf values")
+            raise PredictionError(f"{name} holds NaN or inf values")
+
+    def _check_output(self, y: torch.Tensor, inputs: list[torch.Tensor]) -> None:
+        """Refuses non-finite predictions instead of handing them on without a word."""
+        bad = (~torch.isfinite(y)).flatten(1).any(1)
+        if not bad.any():
+            return
+        rows = torch.nonzero(bad).flatten().tolist()
+        stats = self.module.normalizer
+        scale = max(float((inputs[0].abs() / stats.u_std).max()), float((inputs[2].abs() / stats.u_std).max()))
+        raise PredictionError(
+            f"the model's predictions are non-finite (NaN or inf) for batch rows {rows[:10]}: the inputs reach "
+            f"{scale:.3g} training standard deviations, far outside what the model was trained on; check their "
+            "units and scale (the checkpoint expects the training data's)")
 
     @torch.no_grad()
     def simulate(self, u_ctx, y_ctx, u_query):
@@ -77,12 +95,13 @@ class Predictor:
                                    dtype=torch.float32, device=self.device) for x in (u_ctx, y_ctx, u_query)]
         single = tensors[0].dim() == 2
         if any(t.dim() != (2 if single else 3) for t in tensors):
-            raise ValueError("give all three arrays unbatched (T, C) or all batched (B, T, C)")
+            raise PredictionError("give all three arrays unbatched (T, C) or all batched (B, T, C)")
         if single:
             tensors = [t.unsqueeze(0) for t in tensors]
         for name, t, w in zip(("u_ctx", "y_ctx", "u_query"), tensors, (self.n_u, self.n_y, self.n_u)):
             self._check(name, t, w)
         y = self.module(*tensors)
+        self._check_output(y, tensors)
         y = y[0] if single else y
         if as_numpy:
             return y.cpu().numpy().astype(dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32)

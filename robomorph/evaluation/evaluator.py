@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from robomorph.core.errors import RoboMorphError
 from robomorph.evaluation import metrics
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
@@ -186,6 +187,19 @@ def parse_range(text: str | None, low: int, high: int, what: str) -> list[int]:
     return values
 
 
+class EvaluationError(RoboMorphError, ValueError):
+    """Evaluation settings that cannot work; the message names the flag."""
+
+
+def check_counts(**values: int | None) -> None:
+    """Refuses a given (not None) step or trajectory count below 1: ``--context-len 0`` would
+    otherwise fall back to the checkpoint's length without a word."""
+    for name, value in values.items():
+        if value is not None and value < 1:
+            flag = "--" + name.replace("_", "-")
+            raise EvaluationError(f"{flag} {value}: give a positive number, or leave it out for the default")
+
+
 def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, horizon: int | None = None,
              n: int | None = None, baselines: tuple[str, ...] = BASELINES, sweep_horizon_spec: str | None = None,
              sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
@@ -197,6 +211,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     """
     from robomorph.predictor import Predictor  # noqa: PLC0415  (torch only here)
 
+    check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     for name in baselines:
         if name not in BASELINES + CEILINGS:
             raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")

@@ -169,3 +169,28 @@ def test_parse_range():
         parse_range("0:900:100", 1, 800, "horizon")
     with pytest.raises(ValueError, match="start:stop:step"):
         parse_range("a:b", 1, 800, "horizon")
+
+
+@pytest.mark.parametrize("flag, value", [("--context-len", "0"), ("--context-len", "-5"), ("--horizon", "0"),
+                                         ("--n", "0"), ("--batch-size", "0")])
+def test_non_positive_lengths_are_refused(setup, tmp_path, flag, value):
+    # --context-len 0 used to run silently with the checkpoint's length.
+    _, ckpt, test = setup
+    with pytest.raises(SystemExit, match=f"error: {flag} {value}: .*positive"):
+        main(["--ckpt", ckpt, "--data", test, flag, value, "--out", str(tmp_path / "bad"), "--baselines", "none"])
+    assert not os.path.exists(tmp_path / "bad")
+
+
+def test_overflowing_predictions_are_refused(setup):
+    from robomorph.data.store import open_store
+    from robomorph.predictor import PredictionError
+
+    _, ckpt, test = setup
+    ds = open_store(test)
+    u, y = ds.read("u", slice(0, 2)), ds.read("y", slice(0, 2))
+    pred = Predictor.from_checkpoint(ckpt, device="cpu")
+    assert np.isfinite(pred.simulate(u[:, :C], y[:, :C], u[:, C:])).all()
+    big = u * np.float32(1e30)
+    assert np.isfinite(big).all()  # finite inputs; the model's arithmetic overflows
+    with pytest.raises(PredictionError, match="non-finite"):
+        pred.simulate(big[:, :C], y[:, :C], big[:, C:])
