@@ -65,10 +65,29 @@ def _check_names(kind: str, names: list[str], width: int) -> None:
         raise ValueError(f"{kind} names must be unique, got {names}")
 
 
+class StorePathError(RoboMorphError, OSError):
+    """A store cannot be written where it was asked for (under a file, read-only, ...)."""
+
+
+def _check_creatable(path: str) -> None:
+    """Raises unless the folders down to ``path`` can be made: the nearest existing ancestor
+    must be a writable directory."""
+    parent = os.path.dirname(os.path.abspath(path))
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise StorePathError(f"cannot create {path}: {parent} is a file, not a folder; choose another --out")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise StorePathError(f"cannot create {path}: {parent} is not writable; choose another --out "
+                             "or change the folder's permissions")
+
+
 def check_writable(path: str, overwrite: bool) -> None:
     """Raises unless ``path`` may be (re)created: never a file or a store of another schema,
-    and an existing RoboMorph store only with ``overwrite``. Cheap: call it before long work."""
+    and an existing RoboMorph store only with ``overwrite``; its folder must be writable.
+    Cheap: call it before long work."""
     if not os.path.exists(path):
+        _check_creatable(path)
         return
     if os.path.isfile(path):
         raise FileExistsError(f"{path} is a file, not a dataset directory; choose another --out")
@@ -121,8 +140,15 @@ def create_store(
     if "dt" not in attrs or not float(attrs["dt"]) > 0:
         raise ValueError("attrs must carry a positive sample time 'dt' in seconds")
     check_writable(path, overwrite)
+    try:
+        return _create(path, n, steps, u_names, y_names, param_names, attrs, extras, max(1, min(chunk, n)))
+    except OSError as exc:  # e.g. a read-only file system, or a disk that is full
+        raise StorePathError(f"cannot write the store {path}: {exc.strerror or exc}; choose another --out") from exc
+
+
+def _create(path: str, n: int, steps: int, u_names: list[str], y_names: list[str], param_names: list[str],
+            attrs: dict[str, Any], extras: dict | None, chunk: int) -> "DatasetWriter":
     group = zarr.open_group(LocalStore(path), mode="w")
-    chunk = max(1, min(chunk, n))
     for name, width in (("u", len(u_names)), ("y", len(y_names))):
         group.create_array(name, shape=(n, steps, width), chunks=(chunk, steps, width),
                            dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
