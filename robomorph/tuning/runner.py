@@ -28,6 +28,7 @@ import lightning.pytorch as L
 import numpy as np
 import optuna
 
+from robomorph.core.errors import RoboMorphError
 from robomorph.tuning.space import Space, SpaceError, load_space
 from robomorph.tuning.storage import open_storage
 
@@ -278,8 +279,8 @@ def main(argv: list[str] | None = None) -> int:
         # Before any trial runs: a folder holding another study's summary is refused now.
         claim_summary_dir(out, a.study_name or space.name, a.storage)
         study = run_sweep(space, a.n_trials, storage, a.study_name, a.runs_dir, a.wandb)
-    except (SpaceError, FileNotFoundError) as exc:
-        sys.exit(f"error: {exc}")
+    except (RoboMorphError, FileNotFoundError) as exc:  # a bad space, storage or fit setting
+        sys.exit(f"error: {' '.join(str(exc).split())}")
     print(summarize(study, out))
     return 0
 

@@ -292,3 +292,10 @@ def test_summaries_go_beside_the_runs_and_never_overwrite_another_study(store, t
     # The summary command finds the study's runs folder by itself.
     assert main(["summary", "--study-name", "same", "--storage", b]) == 0
     assert (tmp_path / "rb" / "same-summary" / "trials.csv").is_file()
+
+
+def test_a_fit_setting_that_cannot_train_stops_the_sweep_in_one_line(store, tmp_path):
+    with pytest.raises(SystemExit, match=r"^error: --data.context_len 21 is not a multiple of --model.patch 5"):
+        main([CI_SPACE, "--n-trials", "1", "--storage", _sqlite(tmp_path), "--runs-dir", str(tmp_path / "runs"),
+              "--wandb", "disabled", "--set", f"data.stores={store}", "--set", "data.context_len=21"])
+    assert not (tmp_path / "runs" / "ci-t0000").exists()
