@@ -7,6 +7,8 @@ resumed run keeps its configuration and checkpoints as they were).
 
 from __future__ import annotations
 
+import os
+
 from robomorph.core.errors import RoboMorphError
 from robomorph.training.module import CheckpointError, load_checkpoint_file
 
@@ -54,8 +56,9 @@ def check_resume(module, dm, ckpt_path: str) -> int:
     try:
         ckpt = load_checkpoint_file(ckpt_path)
     except CheckpointError as exc:
-        raise CheckpointError(f"cannot resume: {exc}. Remove that file to start the run afresh, or pass "
-                              "--ckpt_path with another checkpoint (e.g. the run's checkpoints/best.ckpt)") from exc
+        fix = ("Remove that file to start the run afresh, or pass --ckpt_path with another checkpoint "
+               "(e.g. the run's checkpoints/best.ckpt)") if os.path.isfile(ckpt_path) else "Check --ckpt_path"
+        raise CheckpointError(f"cannot resume: {exc}. {fix}") from exc
     saved = ckpt["hyper_parameters"]
     ours = {**{k: module.hparams.get(k) for k in ARCHITECTURE}, "n_u": dm.n_u, "n_y": dm.n_y}
     differ = {k: (saved.get(k), ours[k]) for k in ARCHITECTURE if saved.get(k) != ours[k]}
