@@ -7,6 +7,11 @@
 This is what a model predictive controller calls: given a window of measured torques and
 outputs of the robot at hand (the context) and candidate future torques, it returns the
 predicted outputs. Normalization is handled inside (statistics stored in the checkpoint).
+
+A model trained with ``data.normalization: paper_window`` (the paper's protocol) rescales
+each window with the mean and std of the very outputs it predicts; ``simulate`` refuses it
+unless the caller passes those statistics explicitly (``y_query_stats``), which only an
+evaluation against recorded outputs can do.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ import numpy as np
 import torch
 
 from robomorph.core.errors import RoboMorphError
+from robomorph.data.statistics import NormalizationError, leaks_query_statistics
 from robomorph.training.module import CheckpointError, MetaModule, load_checkpoint_file
 
 
@@ -41,6 +47,12 @@ class Predictor:
         self.n_u, self.n_y = int(module.hparams.n_u), int(module.hparams.n_y)
         # Channel names, dt and the training window (None for checkpoints that predate it).
         self.data_info: dict | None = module.data_info
+        self.normalization: str = module.hparams.get("normalization", "train_stats")
+
+    @property
+    def leaks_query_statistics(self) -> bool:
+        """True when this model's predictions need the query outputs' statistics (``paper_window``)."""
+        return leaks_query_statistics(self.normalization)
 
     @classmethod
     def from_checkpoint(cls, path: str, device: str | torch.device | None = None) -> "Predictor":
@@ -77,17 +89,51 @@ class Predictor:
             f"{scale:.3g} training standard deviations, far outside what the model was trained on; check their "
             "units and scale (the checkpoint expects the training data's)")
 
+    def _query_stats(self, y_query_stats, batch: int):
+        """Checks ``y_query_stats`` against the normalization; (mean, std) tensors (B, n_y) or None."""
+        if not self.leaks_query_statistics:
+            if y_query_stats is not None:
+                raise NormalizationError(f"this model was trained with normalization {self.normalization!r}, which "
+                                         "uses no query statistics: drop y_query_stats")
+            return None
+        if y_query_stats is None:
+            raise NormalizationError(
+                "this model was trained with normalization 'paper_window' (the paper's protocol): it rescales each "
+                "window with the mean and std of the outputs it is asked to predict, which a deployed model cannot "
+                "know. Pass y_query_stats=(mean, std) of the query outputs "
+                "(robomorph.data.statistics.query_output_stats(y_query)) to score it as the paper did, or train "
+                "with data.normalization=train_stats for a model you can deploy")
+        if len(y_query_stats) != 2:
+            raise NormalizationError("y_query_stats must be a pair (mean, std) of the query outputs")
+        out = []
+        for name, v in zip(("mean", "std"), y_query_stats):
+            t = torch.as_tensor(np.asarray(v) if not isinstance(v, torch.Tensor) else v, dtype=torch.float32,
+                                device=self.device)
+            t = t.unsqueeze(0) if t.dim() == 1 else t
+            if t.shape not in ((1, self.n_y), (batch, self.n_y)) or not torch.isfinite(t).all():
+                raise NormalizationError(f"y_query_stats {name} must be finite, ({self.n_y},) or ({batch}, {self.n_y}); "
+                                         f"got {tuple(t.shape)}")
+            out.append(t.expand(batch, self.n_y))
+        return tuple(out)
+
     @torch.no_grad()
-    def simulate(self, u_ctx, y_ctx, u_query):
+    def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None):
         """Predicts the outputs over the query horizon.
 
         Args:
             u_ctx: (Tc, n_u) or (B, Tc, n_u) context inputs, numpy or torch.
             y_ctx: (Tc, n_y) or (B, Tc, n_y) context outputs.
             u_query: (Th, n_u) or (B, Th, n_u) future inputs.
+            y_query_stats: only for a ``paper_window`` model, and required there: ``(mean, std)``
+                over time of the query outputs, (n_y,) or (B, n_y) each. This is information
+                about the answer: scores obtained with it are not those of a deployable model.
 
         Returns:
             y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``.
+
+        Raises:
+            NormalizationError: ``y_query_stats`` missing for a ``paper_window`` model, given
+                for another, or of the wrong shape.
         """
         as_numpy = not isinstance(u_query, torch.Tensor)
         dtype = getattr(u_query, "dtype", None)
@@ -100,7 +146,7 @@ class Predictor:
             tensors = [t.unsqueeze(0) for t in tensors]
         for name, t, w in zip(("u_ctx", "y_ctx", "u_query"), tensors, (self.n_u, self.n_y, self.n_u)):
             self._check(name, t, w)
-        y = self.module(*tensors)
+        y = self.module(*tensors, self._query_stats(y_query_stats, len(tensors[0])))
         self._check_output(y, tensors)
         y = y[0] if single else y
         if as_numpy:

@@ -25,7 +25,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.data.statistics import Stats, StatsAccumulator
+from robomorph.data.statistics import Stats, StatsAccumulator, check_normalization
 from robomorph.data.store import open_store
 
 # Stores whose u and y together fit in this many bytes are read into memory once (a random
@@ -207,6 +207,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         num_workers: DataLoader worker processes (the data do not depend on it).
         in_memory: read stores fully into memory; default: when they all fit in 4 GiB.
         recenter: recorded for the model's Normalizer (context-mean recentring); not used here.
+        normalization: recorded for the model's Normalizer: ``train_stats`` (``stats`` below)
+            or ``paper_window`` (the paper's protocol, each window z-scored over context and
+            query; it leaks the query outputs' statistics and is labelled so wherever it is used).
         val_subset: at most this many validation trajectories (a fixed seeded subset).
         train_samples_per_epoch: windows per training epoch; default the number of training
             trajectories.
@@ -217,7 +220,8 @@ class RoboMorphDataModule(L.LightningDataModule):
                  horizon: int = 800, window: Literal["start", "random"] = "start",
                  split: tuple[float, float, float] = (0.8, 0.1, 0.1), seed: int = 0, batch_size: int = 16,
                  num_workers: int = 0, in_memory: bool | None = None, recenter: bool = False,
-                 val_subset: int = 256, train_samples_per_epoch: int | None = None):
+                 val_subset: int = 256, train_samples_per_epoch: int | None = None,
+                 normalization: Literal["train_stats", "paper_window"] = "train_stats"):
         super().__init__()
         self.save_hyperparameters()
         self.stores = [stores] if isinstance(stores, str) else list(stores)
@@ -226,6 +230,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.split, self.seed, self.batch_size, self.num_workers = tuple(split), seed, batch_size, num_workers
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
         self.train_samples_per_epoch = train_samples_per_epoch
+        self.normalization = normalization
         self._validate()
         self._ready = False
 
@@ -260,6 +265,7 @@ class RoboMorphDataModule(L.LightningDataModule):
                                  ("seed", self.seed, 0)):
             if value < low:
                 raise DataError(f"{name} must be >= {low}, got {value}")
+        check_normalization(self.normalization, self.recenter)
         if self.train_samples_per_epoch is not None and self.train_samples_per_epoch < 1:
             raise DataError(f"train_samples_per_epoch must be >= 1, got {self.train_samples_per_epoch}")
 
@@ -383,5 +389,5 @@ class RoboMorphDataModule(L.LightningDataModule):
             "test": len(self.test_set), "train_samples_per_epoch": len(self.train_sampler),
             "context_len": self.context_len, "horizon": self.horizon, "window": self.window,
             "n_u": self.n_u, "n_y": self.n_y, "dt": self.dt, "in_memory": bool(self.loaded),
-            "seed": self.seed, "split": list(self.split),
+            "seed": self.seed, "split": list(self.split), "normalization": self.normalization,
         }

@@ -10,6 +10,11 @@ evaluation approaches for the model and every baseline, the sweeps, and the run'
 meta-data), ``metrics.csv`` (one row per source, approach, channel and metric),
 ``table.md`` (per-channel table in the paper's fit colour convention) and PNG plots.
 
+A checkpoint trained with ``data.normalization: paper_window`` (the paper's protocol) is
+scored as the paper scored it: each window rescaled with its own query outputs' mean and
+std. ``metrics.json`` then says ``"leaks_query_statistics": true`` and ``table.md`` says so
+in its header.
+
 The horizon sweep predicts with shorter query windows after the same context; the context
 sweep keeps the predicted window fixed and gives the model only the last ``c`` steps
 before it, so every point of it scores the same targets.
@@ -26,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from robomorph.core.errors import RoboMorphError
+from robomorph.data.statistics import NormalizationError, leaks_query_statistics, query_output_stats
 from robomorph.evaluation import metrics
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
@@ -88,14 +94,23 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
                   ds.read("params", rows))
 
 
-def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model") -> np.ndarray:
-    """The model's predictions in batches, with a progress bar on stderr."""
+def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None) -> np.ndarray:
+    """The model's predictions in batches, with a progress bar on stderr.
+
+    ``y_query`` (the true outputs) is read only by a ``paper_window`` model, which needs
+    their statistics (the paper's protocol); any other model never receives them.
+    """
     from tqdm.auto import tqdm  # noqa: PLC0415
 
+    leaks = getattr(predictor, "leaks_query_statistics", False)
+    if leaks and y_query is None:
+        raise NormalizationError("a paper_window model needs the query outputs' statistics: pass y_query to predict()")
     out = []
     for s in tqdm(range(0, len(u_ctx), batch_size), desc=desc, unit="batch", leave=False,
                   disable=not sys.stderr.isatty() and len(u_ctx) <= batch_size):
-        out.append(predictor.simulate(u_ctx[s:s + batch_size], y_ctx[s:s + batch_size], u_query[s:s + batch_size]))
+        part = slice(s, s + batch_size)
+        stats = query_output_stats(y_query[part]) if leaks else None
+        out.append(predictor.simulate(u_ctx[part], y_ctx[part], u_query[part], y_query_stats=stats))
     return np.concatenate(out).astype(np.float64)
 
 
@@ -153,7 +168,7 @@ def sweep_horizon(predictor, w: Window, horizons: list[int], baselines: dict, ba
     for h in horizons:
         u_ctx, y_ctx, u_q, y_q = w.split(horizon=h)
         y_q = y_q.astype(np.float64)
-        row = {"horizon": h, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size, f"horizon {h}"))}
+        row = {"horizon": h, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size, f"horizon {h}", y_q))}
         row.update({name: _summary(y_q, p[:, :h]) for name, p in baselines.items()})
         rows.append(row)
     return rows
@@ -165,7 +180,8 @@ def sweep_context(predictor, w: Window, contexts: list[int], batch_size: int) ->
     for c in contexts:
         u_ctx, y_ctx, u_q, y_q = w.split(context_len=c)
         y_q = y_q.astype(np.float64)
-        rows.append({"context_len": c, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size, f"context {c}")),
+        rows.append({"context_len": c, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size,
+                                                                      f"context {c}", y_q)),
                      "hold": _summary(y_q, hold(u_ctx, y_ctx, u_q))})
     return rows
 
@@ -203,8 +219,13 @@ def check_counts(**values: int | None) -> None:
 def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, horizon: int | None = None,
              n: int | None = None, baselines: tuple[str, ...] = BASELINES, sweep_horizon_spec: str | None = None,
              sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
-             samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0) -> dict:
+             samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0,
+             normalization: str | None = None) -> dict:
     """Evaluates a checkpoint on a store and writes every output file into ``out``.
+
+    Args:
+        normalization: when given, the normalization the checkpoint must have been trained
+            with (``train_stats`` or ``paper_window``); default: whatever it was trained with.
 
     Returns:
         The ``metrics.json`` content.
@@ -216,6 +237,9 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
         if name not in BASELINES + CEILINGS:
             raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
     predictor = Predictor.from_checkpoint(ckpt, device=device)
+    if normalization is not None and normalization != predictor.normalization:
+        raise NormalizationError(f"{ckpt} was trained with normalization {predictor.normalization!r}, not "
+                                 f"{normalization!r}: the normalization is fixed at training time (data.normalization)")
     info = predictor.data_info
     context_len = context_len or (info or {}).get("context_len")
     horizon = horizon or (info or {}).get("horizon")
@@ -233,7 +257,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
 
     u_ctx, y_ctx, u_q, y_q = w.split()
     y_q = y_q.astype(np.float64)
-    preds = {"model": predict(predictor, u_ctx, y_ctx, u_q, batch_size)}
+    preds = {"model": predict(predictor, u_ctx, y_ctx, u_q, batch_size, y_query=y_q)}
     base, skipped, notes = run_baselines(w, tuple(baselines), arx_orders)
     preds.update(base)
     names = w.y_names
@@ -245,7 +269,10 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
               "meta": {"ckpt": ckpt, "data": data, "context_len": w.context_len,
                        "horizon": w.horizon, "n": len(w.u), "dt": w.dt, "y_names": names, "u_names": w.u_names,
                        "device": str(predictor.device), "baseline_notes": notes,
-                       "domain": w.attrs.get("domain"), "task": w.attrs.get("task")}}
+                       "domain": w.attrs.get("domain"), "task": w.attrs.get("task"),
+                       "normalization": predictor.normalization},
+              # The paper's protocol scales each window with its query outputs' statistics: say so first.
+              "leaks_query_statistics": leaks_query_statistics(predictor.normalization)}
     sweeps = {}
     if horizons:
         sweeps["horizon"] = sweep_horizon(predictor, w, horizons, base, batch_size)
@@ -292,6 +319,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--samples", type=int, default=3, help="sample trajectories to plot")
     p.add_argument("--arx-orders", default="2,2", help="ARX output and input lags na,nb")
     p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories")
+    p.add_argument("--normalization", choices=("train_stats", "paper_window"),
+                   help="require the checkpoint to have been trained with this normalization (default: its own)")
     a = p.parse_args(argv)
     baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
     out = a.out or default_out(a.ckpt, a.data)
@@ -303,7 +332,7 @@ def main(argv: list[str] | None = None) -> None:
         p.error(f"--arx-orders takes two integers na,nb, got {a.arx_orders!r}")
     try:
         res = evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
-                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed)
+                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed, a.normalization)
     except (ValueError, FileNotFoundError) as exc:
         sys.exit(f"error: {exc}")
     print(summary_text(res, out))
@@ -312,8 +341,11 @@ def main(argv: list[str] | None = None) -> None:
 def summary_text(res: dict, out: str) -> str:
     """A few lines for the terminal: mean approach-1 scores of the model and the baselines."""
     m, meta = res["approach1"]["mean"], res["meta"]
-    lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']} (approach 1 mean):",
-             f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}"]
+    lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']} (approach 1 mean):"]
+    if res.get("leaks_query_statistics"):
+        lines.append(f"  normalization {meta.get('normalization')}: scores use the query outputs' statistics (the "
+                     "paper's protocol), not those of a deployable model")
+    lines.append(f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}")
     for b, r in res["baselines"].items():
         mb = r["approach1"]["mean"]
         lines.append(f"  {b:16s} R2 {mb['r2']['mean']:8.3f}  FIT {mb['fit']['mean']:8.2f}  RMSE {mb['rmse']['mean']:.4g}")

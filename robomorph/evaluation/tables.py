@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import os
 
+from robomorph.data.statistics import leaks_query_statistics, normalization_label
 from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
 
 
@@ -13,24 +14,31 @@ def _sources(result: dict):
     yield from result.get("baselines", {}).items()
 
 
+def normalization_markdown(normalization: str | None) -> str:
+    """The normalization line of a markdown table header; a leaking one is bold and flagged."""
+    text = normalization_label(normalization)
+    return f"**⚠ {text}**" if leaks_query_statistics(normalization) else text
+
+
 def csv_rows(result: dict) -> list[dict]:
-    """One row per source, approach, channel (or ``mean``) and metric."""
+    """One row per source, approach, channel (or ``mean``) and metric, each with the normalization."""
+    norm = result.get("meta", {}).get("normalization") or "train_stats"
     rows = []
     for src, res in _sources(result):
         a1, a2 = res["approach1"], res["approach2"]
         for ch, vals in [*a1["channels"].items(), ("mean", a1["mean"])]:
-            rows += [{"source": src, "approach": 1, "channel": ch, "metric": m, "value": v["mean"], "std": v["std"]}
-                     for m, v in vals.items()]
+            rows += [{"source": src, "approach": 1, "channel": ch, "metric": m, "value": v["mean"], "std": v["std"],
+                      "normalization": norm} for m, v in vals.items()]
         for ch, vals in [*a2["channels"].items(), ("mean", a2["mean"])]:
-            rows += [{"source": src, "approach": 2, "channel": ch, "metric": m, "value": v, "std": ""}
-                     for m, v in vals.items()]
+            rows += [{"source": src, "approach": 2, "channel": ch, "metric": m, "value": v, "std": "",
+                      "normalization": norm} for m, v in vals.items()]
     return rows
 
 
 def write_csv(path: str, result: dict) -> None:
     tmp = f"{path}.tmp"
     with open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=["source", "approach", "channel", "metric", "value", "std"])
+        w = csv.DictWriter(f, fieldnames=["source", "approach", "channel", "metric", "value", "std", "normalization"])
         w.writeheader()
         w.writerows(csv_rows(result))
     os.replace(tmp, path)
@@ -48,6 +56,7 @@ def table_markdown(result: dict) -> str:
     lines = [f"Model `{os.path.basename(meta['ckpt'])}` on `{meta['data']}`: {meta['n']} trajectories, "
              f"context {meta['context_len']}, horizon {meta['horizon']} steps. (1): approach 1, mean ± std over "
              "trajectories; (2): approach 2, trajectories concatenated.", "",
+             normalization_markdown(meta.get("normalization")), "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for ch in a1["channels"]:
         r, f = a1["channels"][ch]["r2"], a1["channels"][ch]["fit"]

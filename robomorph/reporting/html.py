@@ -27,6 +27,7 @@ body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, Helvetica, Ari
 h1 { margin-bottom: .2rem; } h2 { border-bottom: 2px solid #d0d7de; padding-bottom: .2rem; margin-top: 2.2rem; }
 h3 { margin-top: 1.6rem; } h4 { margin: 1.2rem 0 .4rem; }
 .sub, .meta, .note { color: #57606a; font-size: .92rem; }
+.leak { color: #cf222e; }
 .warn { background: #fff8c5; border: 1px solid #d4a72c; border-radius: 6px; padding: .4rem .7rem; margin: .4rem 0; }
 nav a { margin-right: .8rem; }
 code, pre { font-family: ui-monospace, SFMono-Regular, Menlo, Consolas, monospace; font-size: .85rem; }
@@ -216,6 +217,20 @@ def img_tag(png: bytes, alt: str) -> str:
 def figure(png: bytes, caption: str) -> str:
     """An embedded image with its caption."""
     return f"<figure>{img_tag(png, caption)}<figcaption>{esc(caption)}</figcaption></figure>"
+
+
+def leak_badge(metrics: Any) -> str:
+    """A marker for scores that used the query outputs' statistics (``"leaks_query_statistics"``
+    in a ``metrics.json``: the paper's normalization); empty otherwise."""
+    leaks = isinstance(metrics, dict) and bool(metrics.get("leaks_query_statistics"))
+    return '<br><b class="leak">⚠ paper_window: uses query statistics</b>' if leaks else ""
+
+
+def leak_note(metrics: Any) -> str:
+    """The warning an evaluation section carries when :func:`leak_badge` marks it; empty otherwise."""
+    return warn("Scored with the paper's normalization (paper_window): each window z-scored over its context and "
+                "query, so the predictions used the query outputs' statistics; these are not the scores of a "
+                "model that could be deployed.") if leak_badge(metrics) else ""
 
 
 def warn(text: str) -> str:

@@ -16,8 +16,9 @@ import torch
 import torch.nn.functional as F
 
 from robomorph.core.errors import RoboMorphError
+from robomorph.data.statistics import check_normalization
 from robomorph.evaluation import metrics
-from robomorph.model.normalization import Normalizer
+from robomorph.model.normalization import Normalizer, query_stats
 from robomorph.model.transformer import MetaModel, ModelConfig
 
 # Log keys, defined once (namespaced as the lightning-hydra-template does).
@@ -77,6 +78,9 @@ class MetaModule(L.LightningModule):
         weight_decay: AdamW weight decay on matrices (not on biases, norms, embeddings).
         betas: AdamW betas.
         recenter: subtract the context mean of each trajectory (context-only statistics).
+        normalization: ``train_stats`` (training-split statistics) or ``paper_window`` (the
+            paper's protocol: each window z-scored over context and query; its predictions use
+            the query outputs' statistics). Linked from ``data.normalization`` by ``robomorph.fit``.
         anchor: the network predicts the deviation from the last context output, which
             is added back (a context value: nothing of the query leaks). The prediction
             then starts where the robot is instead of having to locate it first.
@@ -111,6 +115,7 @@ class MetaModule(L.LightningModule):
         weight_decay: float = 0.0,
         betas: tuple[float, float] = (0.9, 0.95),
         recenter: bool = False,
+        normalization: Literal["train_stats", "paper_window"] = "train_stats",
         anchor: bool = False,
         init_ckpt: str | None = None,
         freeze: Literal["none", "encoder", "all_but_head"] = "none",
@@ -130,6 +135,7 @@ class MetaModule(L.LightningModule):
             if not ok:
                 raise ModelSettingsError(f"--model.{name} {value} is out of range: need lr > 0, "
                                          "0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
+        check_normalization(normalization, recenter)
         self.save_hyperparameters()
         self.net: MetaModel | None = None
         self.normalizer: Normalizer | None = None
@@ -164,7 +170,8 @@ class MetaModule(L.LightningModule):
     def _build(self, n_u: int, n_y: int) -> None:
         self.hparams.n_u, self.hparams.n_y = int(n_u), int(n_y)
         self.net = MetaModel(self.model_config)
-        self.normalizer = Normalizer(n_u=n_u, n_y=n_y, recenter=self.hparams.recenter)
+        self.normalizer = Normalizer(n_u=n_u, n_y=n_y, recenter=self.hparams.recenter,
+                                     normalization=self.hparams.get("normalization", "train_stats"))
         self.register_buffer("stats_ready", torch.tensor(False))
         self._apply_freeze()
 
@@ -193,6 +200,10 @@ class MetaModule(L.LightningModule):
         ckpt = load_checkpoint_file(path)
         src = ckpt["hyper_parameters"]
         same_io = (src.get("n_u"), src.get("n_y")) == (self.hparams.n_u, self.hparams.n_y)
+        theirs, ours = src.get("normalization", "train_stats"), self.hparams.get("normalization", "train_stats")
+        if theirs != ours:
+            raise CheckpointError(f"{path} was trained with normalization {theirs!r}, this run uses {ours!r}: "
+                                  "transfer between the same protocol only (set data.normalization to match)")
         if not same_io and not self.hparams.reinit_io:
             raise CheckpointError(
                 f"{path} was trained with n_u={src.get('n_u')}, n_y={src.get('n_y')}; this model has "
@@ -235,10 +246,19 @@ class MetaModule(L.LightningModule):
         self.data_info = checkpoint.get(DATA_INFO_KEY, self.data_info)
 
     # --------------------------------------------------------------------- forward
-    def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor) -> torch.Tensor:
-        """Predicts y over the query horizon, in physical units."""
-        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, u_query)
-        return self.normalizer.decode(self._predict(uc, yc, uq), y_ctx)
+    def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
+                y_query_stats=None) -> torch.Tensor:
+        """Predicts y over the query horizon, in physical units.
+
+        ``y_query_stats`` (mean, std of the query outputs, (B, n_y) each) is needed, and used,
+        only under ``normalization="paper_window"``.
+        """
+        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, u_query, y_query_stats)
+        return self.normalizer.decode(self._predict(uc, yc, uq), y_ctx, y_query_stats)
+
+    def _query_stats(self, batch: dict):
+        """The batch's query-output statistics when the normalization uses them (the paper's leak), else None."""
+        return query_stats(batch["y_query"]) if self.normalizer.uses_query_stats else None
 
     def _predict(self, uc: torch.Tensor, yc: torch.Tensor, uq: torch.Tensor) -> torch.Tensor:
         """Normalized prediction (B, Th, n_y) from normalized inputs."""
@@ -246,8 +266,9 @@ class MetaModule(L.LightningModule):
         return pred + yc[:, -1:] if self.hparams.get("anchor", False) else pred
 
     def _step(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"])
-        target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"])
+        qs = self._query_stats(batch)
+        uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"], qs)
+        target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"], qs)
         pred = self._predict(uc, yc, uq)
         if self.hparams.loss == "mse":
             loss = F.mse_loss(pred, target)
@@ -264,7 +285,7 @@ class MetaModule(L.LightningModule):
     def _eval_step(self, batch: dict, keys: tuple[str, str, str]) -> None:
         loss, pred, _ = self._step(batch)
         y = batch["y_query"].double()
-        yhat = self.normalizer.decode(pred, batch["y_ctx"]).double()
+        yhat = self.normalizer.decode(pred, batch["y_ctx"], self._query_stats(batch)).double()
         n = len(y)
         self.log(keys[0], loss, batch_size=n, sync_dist=True, prog_bar=keys[0] == VAL_LOSS)
         # approach 1: per trajectory and channel over time, mean over channels, then over trajectories

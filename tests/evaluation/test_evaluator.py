@@ -194,3 +194,53 @@ def test_overflowing_predictions_are_refused(setup):
     assert np.isfinite(big).all()  # finite inputs; the model's arithmetic overflows
     with pytest.raises(PredictionError, match="non-finite"):
         pred.simulate(big[:, :C], y[:, :C], big[:, C:])
+
+
+@pytest.fixture(scope="module")
+def paper_window_ckpt(setup):
+    root, _, _ = setup
+    result = fit({
+        "data": {"stores": str(root / "train.zarr"), "context_len": C, "horizon": H, "batch_size": 8, "val_subset": 4,
+                 "normalization": "paper_window"},
+        "model": {"d_model": 16, "n_head": 2, "n_layer": 1, "patch": 5, "warmup_steps": 2, "max_context": 64,
+                  "max_horizon": 64},
+        "trainer": {"max_steps": 4, "val_check_interval": 2, "accelerator": "cpu", "devices": 1,
+                    "enable_progress_bar": False, "enable_model_summary": False},
+        "run": "pw", "runs_dir": str(root / "runs"), "wandb": "disabled",
+    })
+    return result.best_ckpt
+
+
+def test_paper_window_evaluation_says_it_leaks_everywhere(setup, paper_window_ckpt, tmp_path):
+    _, ckpt, test = setup
+    out = str(tmp_path / "pw")
+    res = evaluate(paper_window_ckpt, test, out, baselines=("hold",), samples=0, sweep_horizon_spec="30,60")
+    disk = json.load(open(os.path.join(out, "metrics.json")))
+    assert disk["leaks_query_statistics"] is True and disk["meta"]["normalization"] == "paper_window"
+    assert np.isfinite(res["approach1"]["mean"]["r2"]["mean"]) and len(disk["sweeps"]["horizon"]) == 2
+    table = open(os.path.join(out, "table.md")).read()
+    assert "**⚠ Normalization paper_window (the paper's protocol)" in table.split("| channel")[0]
+    assert {r.split(",")[-1] for r in open(os.path.join(out, "metrics.csv")).read().splitlines()[1:]} == {"paper_window"}
+    clean = evaluate(ckpt, test, str(tmp_path / "ts"), baselines=("hold",), samples=0)
+    assert clean["leaks_query_statistics"] is False and clean["meta"]["normalization"] == "train_stats"
+    assert "Normalization train_stats" in open(tmp_path / "ts" / "table.md").read()
+    from robomorph.data.statistics import NormalizationError
+
+    with pytest.raises(NormalizationError, match="trained with normalization 'train_stats', not 'paper_window'"):
+        evaluate(ckpt, test, str(tmp_path / "x"), normalization="paper_window", samples=0)
+
+
+@pytest.mark.parametrize("normalization", ["train_stats", "paper_window"])
+def test_poisoned_query_outputs_change_the_scored_prediction_only_under_paper_window(
+        setup, paper_window_ckpt, normalization):
+    from robomorph.data.store import open_store
+    from robomorph.evaluation.evaluator import predict
+
+    _, ckpt, test = setup
+    pred = Predictor.from_checkpoint(paper_window_ckpt if normalization == "paper_window" else ckpt, device="cpu")
+    ds = open_store(test)
+    u, y = ds.read("u"), ds.read("y")
+    args = (pred, u[:, :C], y[:, :C], u[:, C:C + H], 4)
+    clean = predict(*args, y_query=y[:, C:C + H])
+    poisoned = predict(*args, y_query=y[:, C:C + H] * 10 + 5)
+    assert np.allclose(clean, poisoned) == (normalization == "train_stats")
