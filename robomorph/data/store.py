@@ -30,6 +30,8 @@ from zarr.storage import LocalStore
 
 from robomorph import __version__
 from robomorph.core.errors import RoboMorphError
+from robomorph.data import chunks
+from robomorph.data.chunks import StoreDamagedError  # noqa: F401  (part of this module's API)
 
 SCHEMA_VERSION = 1
 SCHEMA_NAME = "robomorph.dataset"
@@ -43,15 +45,6 @@ _REQUIRED_ATTRS = ("schema", "schema_version", "u_names", "y_names", "param_name
 
 class SchemaError(RoboMorphError, ValueError):
     """A path is not a RoboMorph dataset of the supported schema."""
-
-
-class StoreDamagedError(SchemaError):
-    """A chunk of a store is missing or cannot be decoded; the message names it."""
-
-
-# What to do about a damaged chunk: the rows are lost, the command that wrote them is not.
-_REPAIR = ("rewrite the store: re-run the command that made it with --overwrite (generate: its recipe is in "
-           "the store's 'config' attribute; or ingest / merge), or copy it again from an intact source")
 
 
 def _now() -> str:
@@ -315,76 +308,24 @@ class Dataset:
             touched = np.arange(start, stop, step) // arr.chunks[0]
         damaged = self.damaged_chunks([name], set(np.unique(touched).tolist()))
         if damaged:
-            raise StoreDamagedError(_describe(self.path, damaged))
+            raise StoreDamagedError(chunks.describe(self.path, damaged))
         try:
             if isinstance(rows, np.ndarray):
                 return np.asarray(arr.get_orthogonal_selection((rows,)))
             return np.asarray(arr[start:stop:step])
         except Exception as exc:  # noqa: BLE001  (codec errors vary: blosc, zstd, json, ...)
-            raise self._undecodable(name, exc) from exc
-
-    def _chunks(self, name: str):
-        """``(index, key, first row, last row)`` of each chunk of ``name`` holding valid rows."""
-        arr = self.group[name]
-        if 0 in arr.shape[1:]:
-            return  # a zero-width array (P = 0) has no chunk files
-        step = int(arr.chunks[0])
-        for c in range(-(-self.n // step)):
-            key = arr.metadata.encode_chunk_key((c,) + (0,) * (arr.ndim - 1))
-            yield c, key, c * step, min(self.n, (c + 1) * step) - 1
-
-    def _problem(self, name: str, key: str) -> str | None:
-        """Why a chunk file cannot hold its rows: missing, or shorter than its blosc header says."""
-        path = os.path.join(self.path, name, *key.split("/"))
-        if not os.path.isfile(path):
-            # Zarr skips writing a chunk equal to its fill value, so only the arrays every
-            # valid row fills (u, y, params) must have a file per chunk.
-            return "missing" if name in ("u", "y", "params") else None
-        if not isinstance(self.group[name].metadata.codecs[-1], BloscCodec):
-            return None
-        size = os.path.getsize(path)
-        with open(path, "rb") as f:
-            head = f.read(16)
-        # A blosc frame records its own length (bytes 12..15); a truncated file decodes to
-        # garbage without an error when the data were stored uncompressed.
-        expected = int.from_bytes(head[12:16], "little") if len(head) == 16 else None
-        return None if expected == size else f"truncated ({size} of {expected or '?'} bytes)"
+            raise chunks.undecodable(self.path, self.group, self.n, name, exc) from exc
 
     def damaged_chunks(self, names: list[str] | None = None, indices: set[int] | None = None
                        ) -> list[tuple[str, str, int, int, str]]:
         """``(array, chunk key, first row, last row, problem)`` of every chunk of valid rows
         that is missing or truncated (all arrays and chunks unless narrowed)."""
-        found = []
-        for name in names or self.arrays:
-            for c, key, first, last in self._chunks(name):
-                if indices is None or c in indices:
-                    problem = self._problem(name, key)
-                    if problem:
-                        found.append((name, key, first, last, problem))
-        return found
+        return chunks.damaged(self.path, self.group, self.n, names or self.arrays, indices)
 
     def describe_damage(self) -> str | None:
         """One line naming the damaged chunks and what to do, or None when there are none."""
         damaged = self.damaged_chunks()
-        return _describe(self.path, damaged) if damaged else None
-
-    def _undecodable(self, name: str, exc: BaseException) -> StoreDamagedError:
-        """The first chunk of ``name`` that cannot be decoded, named with its trajectories."""
-        arr = self.group[name]
-        for _, key, first, last in self._chunks(name):
-            try:
-                arr[first:last + 1]
-            except Exception as bad:  # noqa: BLE001
-                why = (str(bad).strip().splitlines() or [type(bad).__name__])[0]
-                return StoreDamagedError(_describe(self.path, [(name, key, first, last, f"cannot be decoded: {why}")]))
-        why = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        return StoreDamagedError(f"{self.path}: reading array '{name}' failed ({why}); {_REPAIR}")
-
-
-def _describe(path: str, damaged: list[tuple[str, str, int, int, str]]) -> str:
-    shown = ", ".join(f"'{a}' chunk {k} (trajectories {f}..{l}) {why}" for a, k, f, l, why in damaged[:4])
-    more = f" and {len(damaged) - 4} more chunks" if len(damaged) > 4 else ""
-    return f"{path} is damaged: {shown}{more}; {_REPAIR}"
+        return chunks.describe(self.path, damaged) if damaged else None
 
 
 def open_store(path: str, allow_incomplete: bool = False) -> Dataset:
