@@ -1,4 +1,4 @@
-"""``metrics.csv`` and ``table.md`` from an evaluation's ``metrics.json`` content."""
+"""``metrics.csv``, ``horizons.csv`` and ``table.md`` from an evaluation's ``metrics.json`` content."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import os
 
 from robomorph.data.statistics import leaks_query_statistics, normalization_label
 from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
+from robomorph.evaluation.horizons import horizon_markdown
 
 
 def _sources(result: dict):
@@ -73,6 +74,10 @@ def table_markdown(result: dict) -> str:
     lines += ["", f"FIT colour convention (the paper's Table 3): {legend}."]
     for b, why in result.get("skipped_baselines", {}).items():
         lines.append(f"Skipped baseline `{b}`: {why}")
+    if "horizons" in result:
+        lines += ["", "RMS error by horizon over the trajectories, in physical units (step k is k dt after the last "
+                  f"context sample; windows from offset `{meta.get('offset', 'start')}`):", "",
+                  horizon_markdown(result["horizons"]).rstrip("\n")]
     return "\n".join(lines) + "\n"
 
 
@@ -83,3 +88,24 @@ def write_table(path: str, result: dict) -> None:
     os.replace(tmp, path)
 
 
+def horizon_rows(h: dict) -> list[dict]:
+    """One row per source, quantity and step (``rms``), then the model's coverage (``inside_1sigma`` ...)."""
+    rows = []
+    for src, by_q in h["rms"].items():
+        for q, values in by_q.items():
+            rows += [{"source": src, "quantity": q, "unit": h["quantities"][q]["unit"], "step": k, "seconds": t,
+                      "metric": "rms", "value": v} for k, t, v in zip(h["steps"], h["seconds"], values)]
+    for q, by_sigma in h.get("calibration", {}).items():
+        for sigma, values in by_sigma.items():
+            rows += [{"source": "model", "quantity": q, "unit": "fraction", "step": k, "seconds": t,
+                      "metric": f"inside_{sigma}", "value": v} for k, t, v in zip(h["steps"], h["seconds"], values)]
+    return rows
+
+
+def write_horizons_csv(path: str, h: dict) -> None:
+    tmp = f"{path}.tmp"
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["source", "quantity", "unit", "step", "seconds", "metric", "value"])
+        w.writeheader()
+        w.writerows(horizon_rows(h))
+    os.replace(tmp, path)

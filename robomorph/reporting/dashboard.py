@@ -253,7 +253,7 @@ def _anchor(i: int) -> str:
 
 def overview_html(runs: list[RunData]) -> str:
     """One row per run and evaluation: model size, windows, mean approach-1 scores."""
-    head = ["run", "evaluation", *FACTS, "A1 R²", "A1 FIT", "A1 RMSE", "best baseline (A1 FIT)"]
+    head = ["run", "evaluation", *FACTS, "A1 R²", "A1 FIT", "A1 RMSE", "best baseline (A1 FIT)", rh.HORIZON_HEAD]
     rows = []
     for i, run in enumerate(runs):
         facts = "".join(rh.td(rh.esc(rh.DASH if run.fact(k) is None else run.fact(k))) for k in FACTS)
@@ -261,7 +261,7 @@ def overview_html(runs: list[RunData]) -> str:
         scored = [ev for ev in run.evals if ev.metrics is not None]
         if not scored:
             why = "no evaluation" if not run.evals else "no readable metrics.json"
-            rows.append(f"<tr>{link}{rh.td(rh.esc(why), cls='name')}{facts}" + rh.td(rh.DASH) * 4 + "</tr>")
+            rows.append(f"<tr>{link}{rh.td(rh.esc(why), cls='name')}{facts}" + rh.td(rh.DASH) * 5 + "</tr>")
         for ev in scored:
             r2, fit, rmse = (rh.mean_stat(ev.metrics, "approach1", m) for m in ("r2", "fit", "rmse"))
             best = rh.best_baseline(ev.metrics)
@@ -270,7 +270,7 @@ def overview_html(runs: list[RunData]) -> str:
             rows.append(
                 f"<tr>{link}{rh.td(rh.esc(ev.name) + rh.leak_badge(ev.metrics), cls='name')}{facts}"
                 f"{rh.td(rh.esc(rh.fmt(*r2, 'r2')), colour)}{rh.td(rh.esc(rh.fmt(*fit, 'fit')), colour)}"
-                f"{rh.td(rh.esc(rh.fmt(*rmse, 'rmse')))}{best_cell}</tr>"
+                f"{rh.td(rh.esc(rh.fmt(*rmse, 'rmse')))}{best_cell}{rh.horizon_cell(ev.metrics)}</tr>"
             )
     return rh.table([rh.esc(h) for h in head], rows)
 
@@ -297,7 +297,7 @@ def eval_html(ev: EvalData) -> str:
         skipped = ev.metrics.get("skipped_baselines")
         if isinstance(skipped, dict):
             parts += [f'<p class="note">baseline <b>{rh.esc(k)}</b> skipped: {rh.esc(v)}</p>' for k, v in skipped.items()]
-        parts.append(rh.channel_table(ev.metrics))
+        parts += [rh.channel_table(ev.metrics), rh.horizon_table(ev.metrics)]
     parts += [rh.figure(png, name) for name, png in ev.pngs]
     if ev.table_md:
         parts.append(f"<details><summary>table.md</summary><pre>{rh.esc(ev.table_md)}</pre></details>")

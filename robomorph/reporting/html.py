@@ -197,6 +197,82 @@ def channel_table(metrics: dict) -> str:
     return table(sub, rows, head_rows=[f"<tr>{top}</tr>"])
 
 
+_BETTER, _WORSE = "rgb(204, 235, 204)", "rgb(248, 209, 204)"
+
+
+def _row_values(values: Any, width: int) -> list[float | None] | None:
+    if not isinstance(values, list) or len(values) != width:
+        return None
+    return [num(v) for v in values]
+
+
+def horizon_table(metrics: dict) -> str:
+    """RMS error by horizon in physical units (rows: quantity and source; columns: steps).
+
+    The model's cells are green where it beats ``hold`` (holding the last measured
+    output, what any prediction must beat) and red where it does not; the model's ±1σ /
+    ±2σ coverage follows when it predicted a standard deviation (ideal: 68 % / 95 %).
+    Returns an empty string when ``metrics`` has no readable ``horizons`` entry.
+    """
+    h = metrics.get("horizons")
+    steps, seconds = dig(h, "steps"), dig(h, "seconds")
+    rms, quantities = dig(h, "rms"), dig(h, "quantities")
+    if not (isinstance(steps, list) and isinstance(seconds, list) and isinstance(rms, dict) and isinstance(quantities, dict)):
+        return ""
+    width = len(steps)
+    head = ["quantity", "source"] + [esc(f"step {k} ({num(t) or 0:.3g} s)") for k, t in zip(steps, seconds)]
+    rows = []
+    for q, info in quantities.items():
+        unit = dig(info, "unit")
+        label = esc(f"{q} [{unit}]" if unit else q)
+        hold = _row_values(dig(rms, "hold", q), width)
+        for src in ["model", *sorted(s for s in rms if s != "model")]:
+            values = _row_values(dig(rms, src, q), width)
+            if values is None:
+                continue
+            cells = ""
+            for j, v in enumerate(values):
+                colour = None
+                if src == "model" and hold and v is not None and hold[j] is not None:
+                    colour = _BETTER if v <= hold[j] else _WORSE
+                cells += td(DASH if v is None else esc(f"{v:.4g}"), colour)
+            rows.append(f'<tr>{td(label, cls="name")}{td(esc(src), cls="name")}{cells}</tr>')
+    for sigma, ideal in (("1sigma", 68.3), ("2sigma", 95.4)):
+        values = _row_values(dig(h, "calibration", "all", sigma), width)
+        if values is not None:
+            cells = "".join(td(DASH if v is None else esc(f"{100 * v:.1f}")) for v in values)
+            label = esc(f"inside ±{sigma[0]}σ [%] (ideal {ideal})")
+            rows.append(f'<tr>{td(label, cls="name")}{td("model", cls="name")}{cells}</tr>')
+    note = ('<p class="note">RMS error by horizon over the test trajectories, in physical units; step k is k dt '
+            "after the last context sample (green: the model beats hold, red: it does not).</p>")
+    return note + table(head, rows)
+
+
+HORIZON_HEAD = "joints RMS [mrad] first step / 0.25 s / 1 s (hold)"
+
+
+def horizon_cell(metrics: dict) -> str:
+    """The overview's cell: the model's joint RMS error at the first step, 0.25 s and 1 s
+    (those of them that were reported), hold's in brackets; a dash without them."""
+    steps, seconds = dig(metrics, "horizons", "steps"), dig(metrics, "horizons", "seconds")
+    if not (isinstance(steps, list) and isinstance(seconds, list) and len(steps) == len(seconds) and steps):
+        return td(DASH)
+    model = _row_values(dig(metrics, "horizons", "rms", "model", "joints"), len(steps))
+    hold = _row_values(dig(metrics, "horizons", "rms", "hold", "joints"), len(steps))
+    pairs = [(num(k), num(t)) for k, t in zip(steps, seconds)]
+    if model is None or any(k is None or t is None or k <= 0 for k, t in pairs):
+        return td(DASH)
+    dt = pairs[0][1] / pairs[0][0]
+    picks = [j for j, (k, t) in enumerate(pairs) if k == 1 or min(abs(t - 0.25), abs(t - 1.0)) < dt / 2]
+    picks = [j for j in picks if model[j] is not None]
+    if not picks:
+        return td(DASH)
+    text = " / ".join(f"{model[j]:.3g}" for j in picks)
+    if hold and all(hold[j] is not None for j in picks):
+        text += " (" + " / ".join(f"{hold[j]:.3g}" for j in picks) + ")"
+    return td(esc(text))
+
+
 def best_baseline(metrics: dict) -> tuple[str, float] | None:
     """(name, mean approach-1 FIT) of the baseline with the highest such FIT, if any has one.
 
