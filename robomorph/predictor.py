@@ -23,7 +23,12 @@ import torch
 
 from robomorph.core.errors import RoboMorphError
 from robomorph.data.statistics import NormalizationError, leaks_query_statistics
+from robomorph.data.store import InputsError, check_inputs
 from robomorph.training.module import CheckpointError, MetaModule, load_checkpoint_file
+
+
+_MEANING = {"total": "total joint torque, gravity compensation included",
+            "command": "the command, without the gravity compensation the arm adds"}
 
 
 class PredictionError(RoboMorphError, ValueError):
@@ -36,6 +41,8 @@ class Predictor:
     Attributes:
         module: the LightningModule in eval mode.
         n_u, n_y: channel counts the model expects.
+        inputs: the input formulation it was trained on: ``total`` (total joint torque)
+            or ``command`` (the command without the arm's gravity compensation).
         device: where it runs.
     """
 
@@ -47,7 +54,18 @@ class Predictor:
         self.n_u, self.n_y = int(module.hparams.n_u), int(module.hparams.n_y)
         # Channel names, dt and the training window (None for checkpoints that predate it).
         self.data_info: dict | None = module.data_info
+        # Checkpoints written before the command formulation were all trained on total torque.
+        self.inputs: str = (self.data_info or {}).get("inputs", "total")
         self.normalization: str = module.hparams.get("normalization", "train_stats")
+
+    def check_inputs(self, inputs: str | None) -> None:
+        """Refuses inputs of the other formulation than the one the model was trained on."""
+        if inputs is not None and check_inputs(inputs) != self.inputs:
+            raise InputsError(
+                f"the model was trained on inputs={self.inputs} ({_MEANING[self.inputs]}) but was given "
+                f"inputs={inputs} ({_MEANING[inputs]}): feed it the {self.inputs} array "
+                f"({'u' if self.inputs == 'total' else 'u_cmd'}) or use a checkpoint trained with "
+                f"data.inputs={inputs}")
 
     @property
     def leaks_query_statistics(self) -> bool:
@@ -117,7 +135,7 @@ class Predictor:
         return tuple(out)
 
     @torch.no_grad()
-    def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None):
+    def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, inputs: str | None = None):
         """Predicts the outputs over the query horizon.
 
         Args:
@@ -127,6 +145,8 @@ class Predictor:
             y_query_stats: only for a ``paper_window`` model, and required there: ``(mean, std)``
                 over time of the query outputs, (n_y,) or (B, n_y) each. This is information
                 about the answer: scores obtained with it are not those of a deployable model.
+            inputs: which formulation the torques are (``total`` or ``command``); when
+                given, a mismatch with the training formulation is refused.
 
         Returns:
             y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``.
@@ -135,6 +155,7 @@ class Predictor:
             NormalizationError: ``y_query_stats`` missing for a ``paper_window`` model, given
                 for another, or of the wrong shape.
         """
+        self.check_inputs(inputs)
         as_numpy = not isinstance(u_query, torch.Tensor)
         dtype = getattr(u_query, "dtype", None)
         tensors = [torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x,

@@ -20,9 +20,9 @@ from robomorph.core.errors import RoboMorphError
 # What to do about a damaged chunk: the rows are lost, the command that wrote them is not.
 REPAIR = ("rewrite the store: re-run the command that made it with --overwrite (generate: its recipe is in "
           "the store's 'config' attribute; or ingest / merge), or copy it again from an intact source")
-# Arrays every valid row fills: Zarr skips writing a chunk equal to its fill value, so only
+# Arrays every valid row fills (u_cmd: stores of schema 2 made by generate): Zarr skips writing a chunk equal to its fill value, so only
 # these must have a file for every chunk of valid rows.
-_FILLED = ("u", "y", "params")
+_FILLED = ("u", "u_cmd", "y", "params")
 
 Damage = tuple[str, str, int, int, str]  # (array, chunk key, first row, last row, problem)
 

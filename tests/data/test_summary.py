@@ -147,3 +147,16 @@ def test_inspect_names_a_truncated_chunk_in_one_line(tmp_path, capsys):
     assert main([path]) == 2
     err = capsys.readouterr().err
     assert "'u' chunk c/1/0/0 (trajectories 6..11)" in err and len(err.strip().splitlines()) == 1
+
+
+def test_summary_shows_the_command_beside_the_total_torque(tmp_path):
+    n, steps = 4, 10
+    w = create_store(str(tmp_path / "c.zarr"), n, steps, U, Y, [], {"dt": 0.1}, u_cmd_names=["cmd0", "cmd1"])
+    u = np.ones((n, steps, 2), np.float32)
+    w.append(u, np.zeros((n, steps, 3), np.float32), np.zeros((n, 0), np.float32), extras={"u_cmd": u * 7.5})
+    w.finalize()
+    text = summarize(open_store(str(tmp_path / "c.zarr")))
+    assert "inputs (command) u_cmd" in text and "inputs (total torque) u" in text
+    line = next(ln for ln in text.splitlines() if ln.strip().startswith("cmd1"))
+    assert line.split()[1:] == ["7.5", "7.5", "0", "7.5"]
+    assert "u_cmd" not in summarize(open_store(_store(tmp_path / "s.zarr")[0]))
