@@ -21,171 +21,18 @@ from typing import Literal
 
 import lightning.pytorch as L
 import numpy as np
-import torch
-from torch.utils.data import DataLoader, Dataset, Sampler
+from torch.utils.data import DataLoader
 
-from robomorph.core.errors import RoboMorphError
-from robomorph.data.statistics import Stats, StatsAccumulator, check_normalization
-from robomorph.data.store import check_inputs, open_store
+from robomorph.core.inputs import check_inputs
+from robomorph.core.normalizations import check_normalization
+# DataError re-exported: callers catch it from here.
+from robomorph.data.sources import DataError, Source, check_lengths, compatible, scan  # noqa: F401
+from robomorph.data.statistics import Stats, StatsAccumulator
+from robomorph.data.windows import VAL_STREAM, MixtureSampler, WindowDataset, pairs, split_rows
 
-# Stores whose u and y together fit in this many bytes are read into memory once (a random
-# batch from disk costs 34-55 ms against 0.1 ms from memory, REFERENCE.md section 3).
+# Stores whose u and y together fit in this many bytes are read into memory once: a random
+# batch read from disk costs hundreds of times one taken from memory (README, section 9).
 MEMORY_BUDGET_BYTES = 4 * 2**30
-# SeedSequence spawn keys of the independent random streams drawn from ``seed``.
-_SPLIT_STREAM, _VAL_STREAM, _TRAIN_STREAM = 0, 1, 2
-
-
-class DataError(RoboMorphError, ValueError):
-    """Data settings or stores that cannot feed training; the message names the fix."""
-
-
-class _Source:
-    """One store's u and y: numpy arrays in memory, or read one chunk of rows at a time.
-
-    The on-demand mode keeps a one-chunk cache and reopens the store in each process (a
-    handle is never shared across fork or pickling), so DataLoader workers are safe.
-    """
-
-    def __init__(self, path: str, inputs: str = "total"):
-        ds = open_store(path)
-        if ds.n < 1:
-            raise DataError(f"{path} holds no trajectories (n=0)")
-        self.path, self.n, self.steps, self.chunk = path, ds.n, ds.steps, ds.chunk
-        # The array the model reads as u: the total torque or the command (data.inputs).
-        self.u_array = ds.check_inputs(inputs)
-        self.u_names, self.y_names, self.dt = ds.input_names(inputs), ds.y_names, ds.dt
-        self.u: np.ndarray | None = None
-        self.y: np.ndarray | None = None
-        self._ds, self._pid = ds, os.getpid()
-        self._cache: tuple[int, np.ndarray | None, np.ndarray | None] = (-1, None, None)
-
-    @property
-    def nbytes(self) -> int:
-        return self.n * self.steps * (len(self.u_names) + len(self.y_names)) * 4
-
-    @property
-    def n_blocks(self) -> int:
-        return -(-self.n // self.chunk)
-
-    def _store(self):
-        if self._ds is None or self._pid != os.getpid():
-            self._ds, self._pid, self._cache = open_store(self.path), os.getpid(), (-1, None, None)
-        return self._ds
-
-    def load(self) -> None:
-        """Reads all of u and y into memory."""
-        ds = self._store()
-        self.u, self.y = ds.read(self.u_array), ds.read("y")
-
-    def block(self, c: int) -> tuple[int, np.ndarray, np.ndarray]:
-        """Rows of chunk ``c``: ``(first row, u (k, T, n_u), y (k, T, n_y))``."""
-        c0, c1 = c * self.chunk, min(self.n, (c + 1) * self.chunk)
-        if self.u is not None:
-            return c0, self.u[c0:c1], self.y[c0:c1]
-        if self._cache[0] != c:
-            ds = self._store()
-            self._cache = (c, ds.read(self.u_array, slice(c0, c1)), ds.read("y", slice(c0, c1)))
-        return c0, self._cache[1], self._cache[2]
-
-    def window(self, i: int, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
-        """Steps ``[start, stop)`` of trajectory ``i``: ``(u (L, n_u), y (L, n_y))``."""
-        c0, u, y = self.block(i // self.chunk)
-        return u[i - c0, start:stop], y[i - c0, start:stop]
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        state["_ds"], state["_cache"] = None, (-1, None, None)
-        return state
-
-
-def _scan(src: _Source, train_rows: np.ndarray, stop: int, acc: StatsAccumulator | None) -> None:
-    """One pass over a store: refuses non-finite values and feeds training rows' steps
-    ``[0, stop)`` to ``acc``."""
-    in_train = np.zeros(src.n, dtype=bool)
-    in_train[train_rows] = True
-    for c in range(src.n_blocks):
-        c0, u, y = src.block(c)
-        for name, arr in (("u", u), ("y", y)):
-            bad = np.flatnonzero(~np.isfinite(arr).all(axis=(1, 2)))
-            if bad.size:
-                raise DataError(f"{src.path}: trajectory {c0 + int(bad[0])} has NaN/inf values in '{name}' "
-                                 f"({bad.size} bad trajectories in rows {c0}..{c0 + len(u) - 1}); "
-                                 "regenerate the store or drop those rows")
-        mask = in_train[c0:c0 + len(u)]
-        if acc is not None and mask.any():
-            acc.update(u[mask, :stop], y[mask, :stop])
-
-
-def _split_rows(n: int, fractions: tuple[float, float, float], seed: int, store_index: int
-                ) -> dict[str, np.ndarray]:
-    """Disjoint sorted trajectory indices ``{"train", "val", "test"}`` covering ``range(n)``."""
-    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_SPLIT_STREAM, store_index)))
-    perm = rng.permutation(n)
-    n_val, n_test = round(n * fractions[1]), round(n * fractions[2])
-    return {"val": np.sort(perm[:n_val]), "test": np.sort(perm[n_val:n_val + n_test]),
-            "train": np.sort(perm[n_val + n_test:])}
-
-
-def _pairs(per_store: list[np.ndarray]) -> np.ndarray:
-    """(M, 2) int64 rows ``(store index, trajectory index)``, grouped by store."""
-    parts = [np.stack([np.full(len(r), s), r], axis=1) for s, r in enumerate(per_store)]
-    return np.concatenate(parts).astype(np.int64) if parts else np.zeros((0, 2), np.int64)
-
-
-class _WindowDataset(Dataset):
-    """Windows of fixed trajectories; a key is a row of ``pairs`` or ``(row, offset)``."""
-
-    def __init__(self, sources: list[_Source], pairs: np.ndarray, context_len: int, horizon: int):
-        self.sources, self.pairs = sources, pairs
-        self.context_len, self.horizon = context_len, horizon
-
-    def __len__(self) -> int:
-        return len(self.pairs)
-
-    def __getitem__(self, key: int | tuple[int, int]) -> dict[str, torch.Tensor]:
-        row, offset = key if isinstance(key, tuple) else (key, 0)
-        s, i = self.pairs[row]
-        u, y = self.sources[s].window(int(i), offset, offset + self.context_len + self.horizon)
-        c = self.context_len
-        # Copies: a batch must not keep a view of a whole in-memory store alive.
-        return {k: torch.from_numpy(np.array(v, dtype=np.float32))
-                for k, v in (("u_ctx", u[:c]), ("y_ctx", y[:c]), ("u_query", u[c:]), ("y_query", y[c:]))}
-
-
-class _MixtureSampler(Sampler):
-    """Draws ``(row, offset)`` keys: store by weight, trajectory uniformly within the store,
-    offset uniformly over the valid range (``random`` windows) or 0.
-
-    Each pass uses a torch Generator seeded from ``(seed, epoch)``. Lightning calls
-    :meth:`set_epoch` before each epoch; without it the epoch advances by one per pass.
-    """
-
-    def __init__(self, base: np.ndarray, counts: np.ndarray, probs: np.ndarray, max_offsets: np.ndarray,
-                 n_samples: int, seed: int, random_window: bool):
-        self.base, self.counts = torch.as_tensor(base), torch.as_tensor(counts)
-        self.probs, self.max_offsets = torch.as_tensor(probs, dtype=torch.float64), torch.as_tensor(max_offsets)
-        self.n_samples, self.seed, self.random_window = n_samples, seed, random_window
-        self.epoch = 0
-
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = int(epoch)
-
-    def __len__(self) -> int:
-        return self.n_samples
-
-    def __iter__(self):
-        state = np.random.SeedSequence(self.seed, spawn_key=(_TRAIN_STREAM, self.epoch)).generate_state(1, np.uint64)
-        g = torch.Generator().manual_seed(int(state[0]))
-        self.epoch += 1
-        store = torch.multinomial(self.probs, self.n_samples, replacement=True, generator=g)
-        count = self.counts[store]
-        within = (torch.rand(self.n_samples, generator=g, dtype=torch.float64) * count).long()
-        row = self.base[store] + torch.minimum(within, count - 1)
-        offset = torch.zeros_like(row)
-        if self.random_window:
-            span = self.max_offsets[store] + 1
-            offset = torch.minimum((torch.rand(self.n_samples, generator=g, dtype=torch.float64) * span).long(), span - 1)
-        return iter(zip(row.tolist(), offset.tolist()))
 
 
 class RoboMorphDataModule(L.LightningDataModule):
@@ -232,50 +79,17 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.save_hyperparameters()
         self.stores = [stores] if isinstance(stores, str) else list(stores)
         self.weights, self.test_store = weights, test_store
-        self.context_len, self.context_frac, self.horizon, self.window = context_len, context_frac, horizon, window
+        # The argument; the resolved length (also from context_frac) is the property context_len.
+        self._context_len_arg = context_len
+        self.context_frac, self.horizon, self.window = context_frac, horizon, window
         self.split, self.seed, self.batch_size, self.num_workers = tuple(split), seed, batch_size, num_workers
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
         self.train_samples_per_epoch = train_samples_per_epoch
         self.inputs = inputs
         self.normalization = normalization
-        self._validate()
+        _check_arguments(self)
         self._ready = False
-
-    def _validate(self) -> None:
-        if not self.stores:
-            raise DataError("stores: give at least one store path")
-        check_inputs(self.inputs)
-        paths = [os.path.realpath(p) for p in self.stores]
-        if len(set(paths)) != len(paths):
-            raise DataError(f"stores lists a store twice: {self.stores}")
-        if self.test_store is not None and os.path.realpath(self.test_store) in paths:
-            raise DataError(f"test_store {self.test_store} is also a training store: its trajectories would leak")
-        if self.weights is not None:
-            w = np.asarray(self.weights, dtype=float)
-            if w.shape != (len(self.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
-                raise DataError(f"weights must be {len(self.stores)} non-negative numbers with a positive sum "
-                                 f"(one per store), got {self.weights}")
-        if (self.context_len is None) == (self.context_frac is None):
-            raise DataError("give exactly one of context_len and context_frac "
-                             f"(got context_len={self.context_len}, context_frac={self.context_frac})")
-        if self.context_len is not None and self.context_len < 1:
-            raise DataError(f"context_len must be >= 1, got {self.context_len}")
-        if self.context_frac is not None and not 0 < self.context_frac < 1:
-            raise DataError(f"context_frac must be in (0, 1), got {self.context_frac}")
-        if self.window not in ("start", "random"):
-            raise DataError(f"window must be 'start' or 'random', got {self.window!r}")
-        f = self.split
-        if len(f) != 3 or any(not math.isfinite(x) or x < 0 for x in f) or abs(sum(f) - 1) > 1e-6 or f[0] <= 0:
-            raise DataError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
-                             f"with train > 0, got {self.split}")
-        for name, value, low in (("horizon", self.horizon, 1), ("batch_size", self.batch_size, 1),
-                                 ("num_workers", self.num_workers, 0), ("val_subset", self.val_subset, 1),
-                                 ("seed", self.seed, 0)):
-            if value < low:
-                raise DataError(f"{name} must be >= {low}, got {value}")
-        check_normalization(self.normalization, self.recenter)
-        if self.train_samples_per_epoch is not None and self.train_samples_per_epoch < 1:
-            raise DataError(f"train_samples_per_epoch must be >= 1, got {self.train_samples_per_epoch}")
+        self._sources: list[Source] | None = None
 
     def setup(self, stage: str | None = None) -> None:
         """Opens and checks the stores, splits them and computes the training statistics.
@@ -287,11 +101,8 @@ class RoboMorphDataModule(L.LightningDataModule):
         """
         if self._ready:
             return
-        sources = [_Source(p, self.inputs) for p in self.stores]
-        if self.test_store is not None:
-            sources.append(_Source(self.test_store, self.inputs))
-        self._check_compatible(sources)
-        self._resolve_lengths(sources)
+        sources = self._open()
+        check_lengths(sources, self.context_len, self.horizon)
         total = sum(s.nbytes for s in sources)
         self.loaded = self.in_memory if self.in_memory is not None else total <= MEMORY_BUDGET_BYTES
         if self.loaded:
@@ -302,36 +113,51 @@ class RoboMorphDataModule(L.LightningDataModule):
         self._build_datasets(sources)
         self.sources, self._ready = sources, True
 
-    def _check_compatible(self, sources: list[_Source]) -> None:
-        ref = sources[0]
-        for src in sources[1:]:
-            for what, a, b in (("u_names", ref.u_names, src.u_names), ("y_names", ref.y_names, src.y_names)):
-                if a != b:
-                    raise DataError(f"stores disagree on {what}: {ref.path} has {a}, {src.path} has {b}; "
-                                     "all stores of one run must share u_names, y_names and dt")
-            if not math.isclose(ref.dt, src.dt, rel_tol=1e-9):
-                raise DataError(f"stores disagree on dt: {ref.path} has {ref.dt}, {src.path} has {src.dt}")
-        self.u_names, self.y_names, self.dt = ref.u_names, ref.y_names, ref.dt
-        self.n_u, self.n_y = len(ref.u_names), len(ref.y_names)
+    # The layout of the data, read from the stores' metadata without setup: robomorph fit
+    # links n_u, n_y and context_len into the model when it instantiates the two.
+    def _open(self) -> list[Source]:
+        """The training stores' sources (then the test store's), checked to agree; opened once."""
+        if self._sources is None:
+            paths = self.stores + ([self.test_store] if self.test_store is not None else [])
+            self._sources = compatible([Source(p, self.inputs) for p in paths])
+        return self._sources
 
-    def _resolve_lengths(self, sources: list[_Source]) -> None:
-        if self.context_frac is not None:
-            t_min = min(s.steps for s in sources)
-            self.context_len = round(self.context_frac * t_min)
-            if self.context_len < 1:
-                raise DataError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
-        need = self.context_len + self.horizon
-        for src in sources:
-            if src.steps < need:
-                raise DataError(f"{src.path} has trajectories of T={src.steps} steps, but context_len "
-                                 f"{self.context_len} + horizon {self.horizon} = {need} are needed: shorten "
-                                "--data.context_len / --data.horizon")
+    @property
+    def u_names(self) -> list[str]:
+        return self._open()[0].u_names
 
-    def _make_splits(self, sources: list[_Source]) -> None:
+    @property
+    def y_names(self) -> list[str]:
+        return self._open()[0].y_names
+
+    @property
+    def dt(self) -> float:
+        return self._open()[0].dt
+
+    @property
+    def n_u(self) -> int:
+        return len(self.u_names)
+
+    @property
+    def n_y(self) -> int:
+        return len(self.y_names)
+
+    @property
+    def context_len(self) -> int:
+        """Context steps: the argument, or ``round(context_frac * T)`` with T the shortest store's."""
+        if self._context_len_arg is not None:
+            return self._context_len_arg
+        t_min = min(s.steps for s in self._open())
+        n = round(self.context_frac * t_min)
+        if n < 1:
+            raise DataError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
+        return n
+
+    def _make_splits(self, sources: list[Source]) -> None:
         f = self.split
         if self.test_store is not None:
             f = (f[0] / (f[0] + f[1]), f[1] / (f[0] + f[1]), 0.0)
-        self.splits = [_split_rows(src.n, f, self.seed, k) for k, src in enumerate(sources[:len(self.stores)])]
+        self.splits = [split_rows(src.n, f, self.seed, k) for k, src in enumerate(sources[:len(self.stores)])]
         if self.test_store is not None:
             empty = np.zeros(0, dtype=np.int64)
             self.splits.append({"train": empty, "val": empty, "test": np.arange(sources[-1].n)})
@@ -340,28 +166,28 @@ class RoboMorphDataModule(L.LightningDataModule):
         for k, ck in enumerate(counts):
             if ck == 0:
                 raise DataError(f"{self.stores[k]} has no training trajectories (n={sources[k].n}, split "
-                                 f"{self.split}): add trajectories or change split")
+                                f"{self.split}): add trajectories or change split")
         self.probs = w / w.sum()
 
-    def _compute_stats(self, sources: list[_Source]) -> None:
+    def _compute_stats(self, sources: list[Source]) -> None:
         acc = StatsAccumulator(self.n_u, self.n_y)
         for k, src in enumerate(sources):
             stop = src.steps if self.window == "random" else self.context_len + self.horizon
-            _scan(src, self.splits[k]["train"], stop, acc if k < len(self.stores) else None)
+            scan(src, self.splits[k]["train"], stop, acc if k < len(self.stores) else None)
         self.stats: Stats = acc.finalize()
 
-    def _build_datasets(self, sources: list[_Source]) -> None:
-        train = _pairs([s["train"] for s in self.splits])
-        val = _pairs([s["val"] for s in self.splits])
+    def _build_datasets(self, sources: list[Source]) -> None:
+        train = pairs([s["train"] for s in self.splits])
+        val = pairs([s["val"] for s in self.splits])
         self.n_val_total = len(val)
         if len(val) > self.val_subset:
-            rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(_VAL_STREAM,)))
+            rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(VAL_STREAM,)))
             val = val[np.sort(rng.choice(len(val), self.val_subset, replace=False))]
-        test = _pairs([s["test"] for s in self.splits])
+        test = pairs([s["test"] for s in self.splits])
         ctx, h = self.context_len, self.horizon
-        self.train_set, self.val_set, self.test_set = (_WindowDataset(sources, p, ctx, h) for p in (train, val, test))
+        self.train_set, self.val_set, self.test_set = (WindowDataset(sources, p, ctx, h) for p in (train, val, test))
         counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
-        self.train_sampler = _MixtureSampler(
+        self.train_sampler = MixtureSampler(
             base=np.concatenate([[0], np.cumsum(counts)[:-1]]), counts=counts, probs=self.probs,
             max_offsets=np.array([src.steps - ctx - h for src in sources[:len(self.stores)]]),
             n_samples=self.train_samples_per_epoch or len(train), seed=self.seed,
@@ -400,3 +226,41 @@ class RoboMorphDataModule(L.LightningDataModule):
             "seed": self.seed, "split": list(self.split), "normalization": self.normalization,
             "inputs": self.inputs,
         }
+
+
+def _check_arguments(dm: RoboMorphDataModule) -> None:
+    """Refuses arguments that cannot work, naming the argument and the fix."""
+    if not dm.stores:
+        raise DataError("stores: give at least one store path")
+    check_inputs(dm.inputs)
+    paths = [os.path.realpath(p) for p in dm.stores]
+    if len(set(paths)) != len(paths):
+        raise DataError(f"stores lists a store twice: {dm.stores}")
+    if dm.test_store is not None and os.path.realpath(dm.test_store) in paths:
+        raise DataError(f"test_store {dm.test_store} is also a training store: its trajectories would leak")
+    if dm.weights is not None:
+        w = np.asarray(dm.weights, dtype=float)
+        if w.shape != (len(dm.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
+            raise DataError(f"weights must be {len(dm.stores)} non-negative numbers with a positive sum "
+                            f"(one per store), got {dm.weights}")
+    if (dm._context_len_arg is None) == (dm.context_frac is None):
+        raise DataError("give exactly one of context_len and context_frac "
+                        f"(got context_len={dm._context_len_arg}, context_frac={dm.context_frac})")
+    if dm._context_len_arg is not None and dm._context_len_arg < 1:
+        raise DataError(f"context_len must be >= 1, got {dm._context_len_arg}")
+    if dm.context_frac is not None and not 0 < dm.context_frac < 1:
+        raise DataError(f"context_frac must be in (0, 1), got {dm.context_frac}")
+    if dm.window not in ("start", "random"):
+        raise DataError(f"window must be 'start' or 'random', got {dm.window!r}")
+    f = dm.split
+    if len(f) != 3 or any(not math.isfinite(x) or x < 0 for x in f) or abs(sum(f) - 1) > 1e-6 or f[0] <= 0:
+        raise DataError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
+                        f"with train > 0, got {dm.split}")
+    for name, value, low in (("horizon", dm.horizon, 1), ("batch_size", dm.batch_size, 1),
+                             ("num_workers", dm.num_workers, 0), ("val_subset", dm.val_subset, 1),
+                             ("seed", dm.seed, 0)):
+        if value < low:
+            raise DataError(f"{name} must be >= {low}, got {value}")
+    check_normalization(dm.normalization, dm.recenter)
+    if dm.train_samples_per_epoch is not None and dm.train_samples_per_epoch < 1:
+        raise DataError(f"train_samples_per_epoch must be >= 1, got {dm.train_samples_per_epoch}")

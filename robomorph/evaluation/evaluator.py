@@ -34,14 +34,24 @@ import sys
 
 import numpy as np
 
+from robomorph.core import metrics as scores
 from robomorph.core.errors import RoboMorphError
-from robomorph.data.statistics import NormalizationError, leaks_query_statistics, query_output_stats
+from robomorph.core.normalizations import NormalizationError, leaks_query_statistics, query_output_stats
 from robomorph.evaluation import metrics
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
 from robomorph.evaluation.horizons import horizon_markdown, horizon_report, parse_horizons
 from robomorph.evaluation.tables import write_csv, write_horizons_csv, write_table
-from robomorph.evaluation.windows import Window, load_window, parse_offset  # noqa: F401  (Window re-exported)
+# Window, EvaluationError and parse_range re-exported: callers import them from here.
+from robomorph.evaluation.windows import (  # noqa: F401
+    EvaluationError,
+    Window,
+    check_counts,
+    check_patch,
+    load_window,
+    parse_offset,
+    parse_range,
+)
 
 
 def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None,
@@ -89,8 +99,6 @@ def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
     Asked of the first trajectory: a predictor without the keyword, one that refuses it
     (a model without a Gaussian head) or one that answers ``(mean, None)`` gives none.
     """
-    from robomorph.core.errors import RoboMorphError  # noqa: PLC0415
-
     try:
         params = inspect.signature(predictor.simulate).parameters
         if "return_std" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
@@ -156,7 +164,7 @@ def _batched(fn, u_ctx, y_ctx, u_q, desc: str, size: int = 16, params=None) -> n
 def _summary(y, yhat) -> dict:
     """Channel-mean R^2 and FIT: ``r2``/``fit`` by approach 1, ``r2_a2``/``fit_a2`` by approach 2."""
     a2 = [np.asarray(f(y.reshape(1, -1, y.shape[-1]), yhat.reshape(1, -1, y.shape[-1])))[0].mean()
-          for f in (metrics.r2, metrics.fit_index)]
+          for f in (scores.r2, scores.fit_index)]
     return {"r2": float(metrics.approach1_mean(y, yhat, "r2")), "fit": float(metrics.approach1_mean(y, yhat, "fit")),
             "r2_a2": float(a2[0]), "fit_a2": float(a2[1])}
 
@@ -185,36 +193,6 @@ def sweep_context(predictor, w: Window, contexts: list[int], batch_size: int) ->
     return rows
 
 
-def parse_range(text: str | None, low: int, high: int, what: str) -> list[int]:
-    """``a:b:s`` (b included) or ``a,b,c`` into a list within ``[low, high]``."""
-    if not text:
-        return []
-    try:
-        if ":" in text:
-            a, b, s = (int(v) for v in text.split(":"))
-            values = list(range(a, b + 1, s))
-        else:
-            values = [int(v) for v in text.split(",")]
-    except ValueError:
-        raise ValueError(f"--sweep-{what} takes start:stop:step or a comma list of integers, got {text!r}") from None
-    if not values or min(values) < low or max(values) > high:
-        raise ValueError(f"--sweep-{what} {text!r} must lie within [{low}, {high}]")
-    return values
-
-
-class EvaluationError(RoboMorphError, ValueError):
-    """Evaluation settings that cannot work; the message names the flag."""
-
-
-def check_counts(**values: int | None) -> None:
-    """Refuses a given (not None) step or trajectory count below 1: ``--context-len 0`` would
-    otherwise fall back to the checkpoint's length without a word."""
-    for name, value in values.items():
-        if value is not None and value < 1:
-            flag = "--" + name.replace("_", "-")
-            raise EvaluationError(f"{flag} {value}: give a positive number, or leave it out for the default")
-
-
 def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, horizon: int | None = None,
              n: int | None = None, baselines: tuple[str, ...] = BASELINES, sweep_horizon_spec: str | None = None,
              sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
@@ -238,7 +216,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     Returns:
         The ``metrics.json`` content.
     """
-    from robomorph.predictor import Predictor  # noqa: PLC0415  (torch only here)
+    from robomorph.model.predictor import Predictor  # noqa: PLC0415  (torch only here)
 
     check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     for name in baselines:
@@ -260,22 +238,11 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     steps = parse_horizons(horizons_spec, w.horizon, w.dt)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
     contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")
-    patch = int(predictor.module.hparams.get("patch", 1))
-    odd = [c for c in [w.context_len, *contexts] if c % patch]
-    if odd:
-        raise ValueError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "
-                         f"{odd} are not (--context-len / --sweep-context)")
+    check_patch(predictor.patch, [w.context_len, *contexts])
     os.makedirs(out, exist_ok=True)
     result, preds, std, base = score(predictor, w, tuple(baselines), arx_orders, batch_size, steps)
     result["meta"] = {"ckpt": ckpt, "data": data, **result["meta"], "offset": offset, "seed": seed}
-    sweeps = {}
-    if horizons:
-        sweeps["horizon"] = sweep_horizon(predictor, w, horizons, base, batch_size)
-        eval_plots.plot_sweep(os.path.join(out, "sweep_horizon.png"), sweeps["horizon"], "horizon")
-    if contexts:
-        sweeps["context"] = sweep_context(predictor, w, contexts, batch_size)
-        eval_plots.plot_sweep(os.path.join(out, "sweep_context.png"), sweeps["context"], "context_len")
-    result["sweeps"] = sweeps
+    result["sweeps"] = _sweeps(predictor, w, horizons, contexts, base, batch_size, out)
     _, y_ctx, _, y_q = w.split()
     eval_plots.write_all(out, y_ctx, y_q.astype(np.float64), preds, w.y_names, w.dt, samples, seed,
                          std=std, steps=steps, y_units=w.attrs.get("y_units"))
@@ -284,6 +251,19 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     write_table(os.path.join(out, "table.md"), result)
     _write_json(os.path.join(out, "metrics.json"), result)
     return result
+
+
+def _sweeps(predictor, w: Window, horizons: list[int], contexts: list[int], base: dict, batch_size: int,
+            out: str) -> dict:
+    """The horizon and context sweeps asked for, each with its plot in ``out``."""
+    sweeps = {}
+    if horizons:
+        sweeps["horizon"] = sweep_horizon(predictor, w, horizons, base, batch_size)
+        eval_plots.plot_sweep(os.path.join(out, "sweep_horizon.png"), sweeps["horizon"], "horizon")
+    if contexts:
+        sweeps["context"] = sweep_context(predictor, w, contexts, batch_size)
+        eval_plots.plot_sweep(os.path.join(out, "sweep_context.png"), sweeps["context"], "context_len")
+    return sweeps
 
 
 def score(predictor, w: Window, baselines: tuple[str, ...], arx_orders: tuple[int, int], batch_size: int,

@@ -8,16 +8,23 @@ arrive in physical units from :class:`robomorph.data.datamodule.RoboMorphDataMod
 from __future__ import annotations
 
 import math
-import os
 from typing import Literal
 
 import lightning.pytorch as L
 import torch
 import torch.nn.functional as F
 
+from robomorph.core import metrics
 from robomorph.core.errors import RoboMorphError
-from robomorph.data.statistics import check_normalization
-from robomorph.evaluation import metrics
+from robomorph.core.normalizations import check_normalization
+from robomorph.model.checkpoint import (
+    DATA_INFO_KEY,
+    CheckpointError,
+    load_checkpoint_file,
+    model_config,
+    predict_normalized,
+    simulate,
+)
 from robomorph.model.normalization import Normalizer, query_stats
 from robomorph.model.transformer import MetaModel, ModelConfig
 
@@ -25,10 +32,10 @@ from robomorph.model.transformer import MetaModel, ModelConfig
 TRAIN_LOSS, VAL_LOSS, VAL_R2, VAL_FIT, LR = "train/loss", "val/loss", "val/r2", "val/fit", "lr"
 TEST_LOSS, TEST_R2, TEST_FIT = "test/loss", "test/r2", "test/fit"
 FREEZE_MODES = ("none", "encoder", "all_but_head")
+# Constructor arguments that the data decide: robomorph fit links them from the datamodule.
+FROM_DATA = ("n_u", "n_y", "context_len")
 # Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
 IO_LAYERS = ("encoder.embed", "decoder.embed", "head")
-# Checkpoint entry holding what the model was trained on (see ``data_info``).
-DATA_INFO_KEY = "robomorph_data"
 
 
 def data_info(dm) -> dict:
@@ -38,37 +45,21 @@ def data_info(dm) -> dict:
             "stores": [str(s) for s in dm.stores], "inputs": str(getattr(dm, "inputs", "total"))}
 
 
-class CheckpointError(RoboMorphError, RuntimeError):
-    """A checkpoint is missing, corrupt, or does not fit the model asked for."""
-
-
 class ModelSettingsError(RoboMorphError, ValueError):
     """Model or optimizer settings that cannot work; the message names the ``--model.`` flag."""
-
-
-def load_checkpoint_file(path: str) -> dict:
-    """Reads a checkpoint with an error that says what is wrong with it."""
-    if not os.path.isfile(path):
-        raise CheckpointError(f"checkpoint not found: {path}")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # noqa: BLE001  (any unreadable file)
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise CheckpointError(f"{path} is not a readable checkpoint (corrupt or truncated?): {first}") from exc
-    if not isinstance(ckpt, dict) or "state_dict" not in ckpt or "hyper_parameters" not in ckpt:
-        raise CheckpointError(f"{path} is not a RoboMorph/Lightning checkpoint (no state_dict/hyper_parameters)")
-    return ckpt
 
 
 class MetaModule(L.LightningModule):
     """Trains a :class:`MetaModel` to predict y over the horizon from a context of (u, y).
 
     Args:
-        n_u, n_y: channel counts (filled in from the data when left unset).
+        n_u, n_y: channel counts. ``robomorph fit`` links them from the datamodule's
+            stores; a module built without them cannot train or predict.
+        context_len: the training context in steps (linked from the datamodule as well);
+            checked against ``patch`` and ``max_context`` when given.
         d_model, n_head, n_layer, n_layer_dec, dropout, bias, patch, max_context, max_horizon:
-            the network (see :class:`robomorph.model.transformer.ModelConfig`). The defaults are the
-            CPU-sized model: d 128, 4 + 4 layers, 4 heads, patches of 10 steps (13x faster
-            per step than one token per step on 2 cores; ``benchmarks/train.py``).
+            the network; defaults and meaning in :class:`robomorph.model.transformer.ModelConfig`
+            (the CPU-sized model: d 128, 4 + 4 layers, 4 heads, patches of 10 steps).
         loss: ``huber`` or ``mse``, on normalized outputs.
         huber_delta: Huber transition point in normalized units.
         lr: peak learning rate (AdamW).
@@ -97,15 +88,17 @@ class MetaModule(L.LightningModule):
         self,
         n_u: int | None = None,
         n_y: int | None = None,
-        d_model: int = 128,
-        n_head: int = 4,
-        n_layer: int = 4,
-        n_layer_dec: int | None = None,
-        dropout: float = 0.0,
-        bias: bool = True,
-        patch: int = 10,
-        max_context: int = 1024,
-        max_horizon: int = 1024,
+        context_len: int | None = None,
+        # The architecture's defaults are ModelConfig's, defined there once.
+        d_model: int = ModelConfig.d_model,
+        n_head: int = ModelConfig.n_head,
+        n_layer: int = ModelConfig.n_layer,
+        n_layer_dec: int | None = ModelConfig.n_layer_dec,
+        dropout: float = ModelConfig.dropout,
+        bias: bool = ModelConfig.bias,
+        patch: int = ModelConfig.patch,
+        max_context: int = ModelConfig.max_context,
+        max_horizon: int = ModelConfig.max_horizon,
         loss: Literal["huber", "mse"] = "huber",
         huber_delta: float = 1.0,
         lr: float = 1e-3,
@@ -123,18 +116,8 @@ class MetaModule(L.LightningModule):
         normalization_from: Literal["source", "target"] = "target",
     ):
         super().__init__()
-        if loss not in ("huber", "mse"):
-            raise ModelSettingsError(f"--model.loss must be 'huber' or 'mse', got {loss!r}")
-        if freeze not in FREEZE_MODES:
-            raise ModelSettingsError(f"--model.freeze must be one of {FREEZE_MODES}, got {freeze!r}")
-        if normalization_from not in ("source", "target"):
-            raise ModelSettingsError(f"--model.normalization_from must be 'source' or 'target', got {normalization_from!r}")
-        for name, value, ok in (("lr", lr, lr > 0), ("min_lr_ratio", min_lr_ratio, 0 <= min_lr_ratio <= 1),
-                                ("warmup_steps", warmup_steps, warmup_steps >= 0),
-                                ("huber_delta", huber_delta, huber_delta > 0)):
-            if not ok:
-                raise ModelSettingsError(f"--model.{name} {value} is out of range: need lr > 0, "
-                                         "0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
+        _check_training(loss, freeze, normalization_from, lr, min_lr_ratio, warmup_steps, huber_delta)
+        check_context(context_len, patch, max_context)
         check_normalization(normalization, recenter)
         self.save_hyperparameters()
         self.net: MetaModel | None = None
@@ -154,24 +137,13 @@ class MetaModule(L.LightningModule):
         return self.config_for(self.hparams.n_u, self.hparams.n_y)
 
     def config_for(self, n_u: int, n_y: int) -> ModelConfig:
-        """The network's validated configuration for ``n_u`` inputs and ``n_y`` outputs.
-
-        Raises:
-            ModelSettingsError: shapes that cannot work (e.g. ``n_head`` not dividing ``d_model``).
-        """
-        h = self.hparams
-        try:
-            return ModelConfig(n_u=n_u, n_y=n_y, d_model=h.d_model, n_head=h.n_head, n_layer=h.n_layer,
-                               n_layer_dec=h.n_layer_dec, dropout=h.dropout, bias=h.bias, patch=h.patch,
-                               max_context=h.max_context, max_horizon=h.max_horizon)
-        except ValueError as exc:
-            raise ModelSettingsError(f"{str(exc).replace('ModelConfig.', '--model.')}") from exc
+        """The network's validated configuration for ``n_u`` inputs and ``n_y`` outputs (:func:`settings_config`)."""
+        return settings_config({**dict(self.hparams), "n_u": n_u, "n_y": n_y})
 
     def _build(self, n_u: int, n_y: int) -> None:
-        self.hparams.n_u, self.hparams.n_y = int(n_u), int(n_y)
         self.net = MetaModel(self.model_config)
         self.normalizer = Normalizer(n_u=n_u, n_y=n_y, recenter=self.hparams.recenter,
-                                     normalization=self.hparams.get("normalization", "train_stats"))
+                                     normalization=self.hparams.normalization)
         self.register_buffer("stats_ready", torch.tensor(False))
         self._apply_freeze()
 
@@ -180,8 +152,8 @@ class MetaModule(L.LightningModule):
         if dm is None:
             return
         if self.net is None:
-            self._build(dm.n_u, dm.n_y)
-        elif (dm.n_u, dm.n_y) != (self.hparams.n_u, self.hparams.n_y):
+            raise RoboMorphError("the model has no n_u/n_y: pass them (robomorph fit links them from the data)")
+        if (dm.n_u, dm.n_y) != (self.hparams.n_u, self.hparams.n_y):
             raise CheckpointError(
                 f"the data has n_u={dm.n_u}, n_y={dm.n_y} but the model was built for "
                 f"n_u={self.hparams.n_u}, n_y={self.hparams.n_y}"
@@ -197,46 +169,12 @@ class MetaModule(L.LightningModule):
             self.stats_ready.fill_(True)
 
     def _transfer(self, path: str) -> None:
-        ckpt = load_checkpoint_file(path)
-        src = ckpt["hyper_parameters"]
-        same_io = (src.get("n_u"), src.get("n_y")) == (self.hparams.n_u, self.hparams.n_y)
-        theirs, ours = src.get("normalization", "train_stats"), self.hparams.get("normalization", "train_stats")
-        if theirs != ours:
-            raise CheckpointError(f"{path} was trained with normalization {theirs!r}, this run uses {ours!r}: "
-                                  "transfer between the same protocol only (set data.normalization to match)")
-        if not same_io and not self.hparams.reinit_io:
-            raise CheckpointError(
-                f"{path} was trained with n_u={src.get('n_u')}, n_y={src.get('n_y')}; this model has "
-                f"n_u={self.hparams.n_u}, n_y={self.hparams.n_y}. Set reinit_io=true to re-initialize the "
-                "input embeddings and the head (the rest transfers)."
-            )
-        from_source = self.hparams.get("normalization_from", "target") == "source"
-        if from_source and not same_io:
-            raise CheckpointError(
-                f"normalization_from=source needs the checkpoint's channels, but {path} has n_u={src.get('n_u')}, "
-                f"n_y={src.get('n_y')} and this data n_u={self.hparams.n_u}, n_y={self.hparams.n_y}: "
-                "use --model.normalization_from target (statistics of the new training data)")
-        # The statistics (and their "ready" flag) come along only when the user keeps the
-        # source's normalization; otherwise setup() computes them from this run's data.
-        state = {k: v for k, v in ckpt["state_dict"].items()
-                 if (from_source or not _is_stats(k)) and (same_io or not _is_io(k))}
-        missing, unexpected = self.load_state_dict(state, strict=False)
-        allowed_missing = [k for k in missing if (not from_source and _is_stats(k)) or (not same_io and _is_io(k))]
-        if set(missing) - set(allowed_missing) - {"stats_ready"} or unexpected:
-            raise CheckpointError(
-                f"{path} does not match this architecture (missing {sorted(set(missing) - set(allowed_missing))[:5]}, "
-                f"unexpected {sorted(unexpected)[:5]}): use the same d_model, n_head, layers and patch"
-            )
-        self.stats_ready.fill_(from_source)
+        from_source = _load_transferred(self, path)
+        self.stats_ready.fill_(from_source)  # the pretrained normalization came along only with source
         self._apply_freeze()
 
     def _apply_freeze(self) -> None:
-        mode = self.hparams.freeze
-        for name, p in self.net.named_parameters():
-            if mode == "encoder":
-                p.requires_grad = not name.startswith("enc")
-            elif mode == "all_but_head":
-                p.requires_grad = name.startswith("head")
+        _freeze(self.net, self.hparams.freeze)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.data_info is not None:
@@ -248,28 +186,22 @@ class MetaModule(L.LightningModule):
     # --------------------------------------------------------------------- forward
     def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
                 y_query_stats=None) -> torch.Tensor:
-        """Predicts y over the query horizon, in physical units.
+        """Predicts y over the query horizon, in physical units (the Predictor's computation).
 
         ``y_query_stats`` (mean, std of the query outputs, (B, n_y) each) is needed, and used,
         only under ``normalization="paper_window"``.
         """
-        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, u_query, y_query_stats)
-        return self.normalizer.decode(self._predict(uc, yc, uq), y_ctx, y_query_stats)
+        return simulate(self.net, self.normalizer, self.hparams.anchor, u_ctx, y_ctx, u_query, y_query_stats)
 
     def _query_stats(self, batch: dict):
         """The batch's query-output statistics when the normalization uses them (the paper's leak), else None."""
         return query_stats(batch["y_query"]) if self.normalizer.uses_query_stats else None
 
-    def _predict(self, uc: torch.Tensor, yc: torch.Tensor, uq: torch.Tensor) -> torch.Tensor:
-        """Normalized prediction (B, Th, n_y) from normalized inputs."""
-        pred = self.net(uc, yc, uq)
-        return pred + yc[:, -1:] if self.hparams.get("anchor", False) else pred
-
     def _step(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         qs = self._query_stats(batch)
         uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"], qs)
         target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"], qs)
-        pred = self._predict(uc, yc, uq)
+        pred = predict_normalized(self.net, self.hparams.anchor, uc, yc, uq)
         if self.hparams.loss == "mse":
             loss = F.mse_loss(pred, target)
         else:
@@ -311,6 +243,101 @@ class MetaModule(L.LightningModule):
         total = h.decay_steps or (self.trainer.max_steps if self.trainer.max_steps > 0 else 10_000)
         sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda step: _lr_factor(step, h.warmup_steps, total, h.min_lr_ratio))
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+
+def _check_training(loss: str, freeze: str, normalization_from: str, lr: float, min_lr_ratio: float,
+                    warmup_steps: int, huber_delta: float) -> None:
+    """Refuses loss, freeze, transfer and optimizer settings that cannot work, naming the flag."""
+    if loss not in ("huber", "mse"):
+        raise ModelSettingsError(f"--model.loss must be 'huber' or 'mse', got {loss!r}")
+    if freeze not in FREEZE_MODES:
+        raise ModelSettingsError(f"--model.freeze must be one of {FREEZE_MODES}, got {freeze!r}")
+    if normalization_from not in ("source", "target"):
+        raise ModelSettingsError(f"--model.normalization_from must be 'source' or 'target', got {normalization_from!r}")
+    for name, value, ok in (("lr", lr, lr > 0), ("min_lr_ratio", min_lr_ratio, 0 <= min_lr_ratio <= 1),
+                            ("warmup_steps", warmup_steps, warmup_steps >= 0),
+                            ("huber_delta", huber_delta, huber_delta > 0)):
+        if not ok:
+            raise ModelSettingsError(f"--model.{name} {value} is out of range: need lr > 0, "
+                                     "0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
+
+
+def settings_config(hparams: dict) -> ModelConfig:
+    """:func:`model_config` of a module's hyper-parameters, its errors naming the ``--model.`` flags.
+
+    Raises:
+        ModelSettingsError: shapes that cannot work (e.g. ``n_head`` not dividing ``d_model``).
+    """
+    try:
+        return model_config(hparams)
+    except ValueError as exc:
+        raise ModelSettingsError(f"{str(exc).replace('ModelConfig.', '--model.')}") from exc
+
+
+def _freeze(net: torch.nn.Module, mode: str) -> None:
+    """Leaves trainable only what ``freeze`` mode ``mode`` trains."""
+    for name, p in net.named_parameters():
+        if mode == "encoder":
+            p.requires_grad = not name.startswith("enc")
+        elif mode == "all_but_head":
+            p.requires_grad = name.startswith("head")
+
+
+def _load_transferred(module: MetaModule, path: str) -> bool:
+    """Loads a pretrained checkpoint's weights into ``module``; True when its normalization came too.
+
+    The statistics (and their "ready" flag) come along only with ``normalization_from=source``;
+    otherwise ``setup`` computes them from this run's data. Refuses another protocol, other
+    channels without ``reinit_io``, ``source`` statistics for other channels and another
+    architecture.
+    """
+    ckpt = load_checkpoint_file(path)
+    src = ckpt["hyper_parameters"]
+    same_io = (src.get("n_u"), src.get("n_y")) == (module.hparams.n_u, module.hparams.n_y)
+    theirs, ours = src.get("normalization", "train_stats"), module.hparams.get("normalization", "train_stats")
+    if theirs != ours:
+        raise CheckpointError(f"{path} was trained with normalization {theirs!r}, this run uses {ours!r}: "
+                              "transfer between the same protocol only (set data.normalization to match)")
+    if not same_io and not module.hparams.reinit_io:
+        raise CheckpointError(
+            f"{path} was trained with n_u={src.get('n_u')}, n_y={src.get('n_y')}; this model has "
+            f"n_u={module.hparams.n_u}, n_y={module.hparams.n_y}. Set reinit_io=true to re-initialize the "
+            "input embeddings and the head (the rest transfers)."
+        )
+    from_source = module.hparams.get("normalization_from", "target") == "source"
+    if from_source and not same_io:
+        raise CheckpointError(
+            f"normalization_from=source needs the checkpoint's channels, but {path} has n_u={src.get('n_u')}, "
+            f"n_y={src.get('n_y')} and this data n_u={module.hparams.n_u}, n_y={module.hparams.n_y}: "
+            "use --model.normalization_from target (statistics of the new training data)")
+    state = {k: v for k, v in ckpt["state_dict"].items()
+             if (from_source or not _is_stats(k)) and (same_io or not _is_io(k))}
+    missing, unexpected = module.load_state_dict(state, strict=False)
+    allowed_missing = [k for k in missing if (not from_source and _is_stats(k)) or (not same_io and _is_io(k))]
+    if set(missing) - set(allowed_missing) - {"stats_ready"} or unexpected:
+        raise CheckpointError(
+            f"{path} does not match this architecture (missing {sorted(set(missing) - set(allowed_missing))[:5]}, "
+            f"unexpected {sorted(unexpected)[:5]}): use the same d_model, n_head, layers and patch"
+        )
+    return from_source
+
+
+def check_context(context_len: int | None, patch: int, max_context: int) -> None:
+    """The encoder needs whole patches and a positional table that covers the context.
+
+    Raises:
+        ModelSettingsError: naming the ``--data.context_len`` and ``--model.`` flags to change.
+    """
+    if context_len is None:
+        return
+    if context_len % patch:
+        lower, upper = context_len - context_len % patch, context_len - context_len % patch + patch
+        hint = f"use {upper}" if lower < 1 else f"use {lower} or {upper}"
+        raise ModelSettingsError(f"--data.context_len {context_len} is not a multiple of --model.patch {patch} "
+                                 f"(steps per token): {hint}, or another patch")
+    if context_len > max_context:
+        raise ModelSettingsError(f"--data.context_len {context_len} exceeds --model.max_context {max_context} (the "
+                                 f"positional table's length): raise --model.max_context to at least {context_len}")
 
 
 def _lr_factor(step: int, warmup: int, total: int, floor: float) -> float:

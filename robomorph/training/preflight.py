@@ -10,7 +10,8 @@ from __future__ import annotations
 import os
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.training.module import CheckpointError, load_checkpoint_file
+from robomorph.model.checkpoint import CheckpointError, load_checkpoint_file
+from robomorph.training.module import check_context
 
 # Hyper-parameters that fix the network's tensors: a resume must agree on all of them.
 ARCHITECTURE = ("n_u", "n_y", "d_model", "n_head", "n_layer", "n_layer_dec", "bias", "patch",
@@ -32,19 +33,17 @@ def check_budget(trainer) -> None:
 
 
 def check_windows(module, dm) -> None:
-    """The network for the data's channels exists and the windows fit it (after ``dm.setup``)."""
+    """The network for the data's channels exists and the windows fit it (after ``dm.setup``).
+
+    The context is checked by the module's own :func:`check_context` (also run by its
+    constructor when ``context_len`` is linked from the data); here again for a context
+    the datamodule only knows after ``setup`` (``context_frac``).
+    """
     cfg = module.config_for(dm.n_u, dm.n_y)
-    c, h = dm.context_len, dm.horizon
-    if c % cfg.patch:
-        lower, upper = c - c % cfg.patch, c - c % cfg.patch + cfg.patch
-        hint = f"use {upper}" if lower < 1 else f"use {lower} or {upper}"
-        raise FitError(f"--data.context_len {c} is not a multiple of --model.patch {cfg.patch} "
-                       f"(steps per token): {hint}, or another patch")
-    for what, value, flag, limit in (("context_len", c, "max_context", cfg.max_context),
-                                     ("horizon", h, "max_horizon", cfg.max_horizon)):
-        if value > limit:
-            raise FitError(f"--data.{what} {value} exceeds --model.{flag} {limit} (the positional table's "
-                           f"length): raise --model.{flag} to at least {value}")
+    check_context(dm.context_len, cfg.patch, cfg.max_context)
+    if dm.horizon > cfg.max_horizon:
+        raise FitError(f"--data.horizon {dm.horizon} exceeds --model.max_horizon {cfg.max_horizon} (the positional "
+                       f"table's length): raise --model.max_horizon to at least {dm.horizon}")
 
 
 def check_resume(module, dm, ckpt_path: str) -> int:

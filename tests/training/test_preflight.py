@@ -5,11 +5,11 @@ import os
 import numpy as np
 import pytest
 
+from robomorph.data.generation import generate
 from robomorph.data.store import create_store
-from robomorph.sim.generation import generate
+from robomorph.model.checkpoint import CheckpointError, load_checkpoint_file
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit, main
-from robomorph.training.module import CheckpointError, load_checkpoint_file
 from robomorph.training.preflight import FitError
 
 os.environ.setdefault("WANDB_MODE", "offline")

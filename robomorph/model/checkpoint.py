@@ -1,0 +1,124 @@
+"""Reading a trained model back from a checkpoint, without the training code.
+
+A checkpoint written by ``robomorph fit`` holds ``hyper_parameters`` (the architecture and
+``n_u``/``n_y``), a ``state_dict`` with ``net.*`` (the :class:`MetaModel`) and
+``normalizer.*`` (its :class:`Normalizer`) entries, and what the model was trained on under
+:data:`DATA_INFO_KEY`. :func:`load_trained` rebuilds the plain modules from it, so
+inference needs only ``robomorph.model`` and ``robomorph.core`` (no Lightning).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import torch
+from torch import nn
+
+from robomorph.core.errors import RoboMorphError
+from robomorph.model.normalization import Normalizer
+from robomorph.model.transformer import MetaModel, ModelConfig
+
+# Checkpoint entry holding what the model was trained on (channel names, dt, window lengths).
+DATA_INFO_KEY = "robomorph_data"
+# State entries of the training wrapper that inference does not need.
+_TRAINING_ONLY = ("stats_ready",)
+
+
+class CheckpointError(RoboMorphError, RuntimeError):
+    """A checkpoint is missing, corrupt, or does not fit the model asked for."""
+
+
+def load_checkpoint_file(path: str) -> dict:
+    """Reads a checkpoint with an error that says what is wrong with it."""
+    if not os.path.isfile(path):
+        raise CheckpointError(f"checkpoint not found: {path}")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # noqa: BLE001  (any unreadable file)
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise CheckpointError(f"{path} is not a readable checkpoint (corrupt or truncated?): {first}") from exc
+    if not isinstance(ckpt, dict) or "state_dict" not in ckpt or "hyper_parameters" not in ckpt:
+        raise CheckpointError(f"{path} is not a RoboMorph/Lightning checkpoint (no state_dict/hyper_parameters)")
+    return ckpt
+
+
+def model_config(hparams: dict) -> ModelConfig:
+    """The architecture named by a model's hyper-parameters (absent fields take the defaults)."""
+    names = {f.name for f in dataclasses.fields(ModelConfig)}
+    return ModelConfig(**{k: v for k, v in hparams.items() if k in names})
+
+
+def predict_normalized(net: MetaModel, anchor: bool, uc: torch.Tensor, yc: torch.Tensor,
+                       uq: torch.Tensor) -> torch.Tensor:
+    """Normalized prediction (B, Th, n_y) from normalized inputs.
+
+    With ``anchor`` the network predicts the deviation from the last context output, which is
+    added back (a context value: nothing of the query leaks).
+    """
+    pred = net(uc, yc, uq)
+    return pred + yc[:, -1:] if anchor else pred
+
+
+def simulate(net: MetaModel, normalizer: Normalizer, anchor: bool, u_ctx: torch.Tensor,
+             y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None) -> torch.Tensor:
+    """Predicts y over the query horizon in physical units: normalize, predict, decode.
+
+    ``y_query_stats`` (mean, std of the query outputs) only under the ``paper_window`` protocol.
+    """
+    uc, yc, uq = normalizer.encode(u_ctx, y_ctx, u_query, y_query_stats)
+    return normalizer.decode(predict_normalized(net, anchor, uc, yc, uq), y_ctx, y_query_stats)
+
+
+class TrainedModel(nn.Module):
+    """The network with the normalization it was trained with: physical units in and out.
+
+    Its state has the same ``net.*`` and ``normalizer.*`` names as the training module's,
+    so a checkpoint's ``state_dict`` loads into it directly.
+
+    Args:
+        config: the architecture.
+        recenter: the normalizer subtracts each trajectory's context mean.
+        anchor: predictions are offsets from the last context output.
+        normalization: ``train_stats`` or ``paper_window`` (see :class:`Normalizer`).
+    """
+
+    def __init__(self, config: ModelConfig, recenter: bool = False, anchor: bool = False,
+                 normalization: str = "train_stats"):
+        super().__init__()
+        self.config, self.anchor = config, bool(anchor)
+        self.net = MetaModel(config)
+        self.normalizer = Normalizer(n_u=config.n_u, n_y=config.n_y, recenter=recenter, normalization=normalization)
+
+    def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
+                y_query_stats=None) -> torch.Tensor:
+        """(B, Tc, n_u), (B, Tc, n_y), (B, Th, n_u) in physical units -> (B, Th, n_y)."""
+        return simulate(self.net, self.normalizer, self.anchor, u_ctx, y_ctx, u_query, y_query_stats)
+
+
+def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
+    """Rebuilds the trained model of a checkpoint.
+
+    Returns:
+        ``(model in eval mode on the CPU, data info or None)``; the data info (channel names,
+        dt, training window) is None for checkpoints written before it was recorded.
+
+    Raises:
+        CheckpointError: the file is missing, unreadable, or not a model written by ``fit``.
+    """
+    ckpt = load_checkpoint_file(path)
+    hp = ckpt["hyper_parameters"]
+    if hp.get("n_u") is None or hp.get("n_y") is None:
+        raise CheckpointError(f"{path} lacks n_u/n_y: it was not written by robomorph fit")
+    try:
+        model = TrainedModel(model_config(hp), recenter=bool(hp.get("recenter", False)),
+                             anchor=bool(hp.get("anchor", False)),
+                             normalization=hp.get("normalization", "train_stats"))
+    except ValueError as exc:
+        raise CheckpointError(f"{path} holds an invalid architecture: {exc}") from exc
+    state = {k: v for k, v in ckpt["state_dict"].items() if k not in _TRAINING_ONLY}
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as exc:
+        raise CheckpointError(f"{path} does not match its own hyper-parameters: {exc}") from exc
+    return model.eval(), ckpt.get(DATA_INFO_KEY)
