@@ -25,7 +25,9 @@ from torch.utils.data import DataLoader
 
 from robomorph.core.inputs import check_inputs
 from robomorph.core.normalizations import check_normalization
-from robomorph.data.sources import Source, check_lengths, compatible, scan
+
+# DataError re-exported: callers catch it from here.
+from robomorph.data.sources import DataError, Source, check_lengths, compatible, scan  # noqa: F401
 from robomorph.data.splits import check_held_out, held_out_fractions, split_rows
 from robomorph.data.statistics import Stats, StatsAccumulator
 from robomorph.data.windows import VAL_STREAM, MixtureSampler, WindowDataset, pairs
@@ -155,7 +157,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         t_min = min(s.steps for s in self._open())
         n = round(self.context_frac * t_min)
         if n < 1:
-            raise ValueError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
+            raise DataError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
         return n
 
     def _make_splits(self, sources: list[Source]) -> None:
@@ -172,8 +174,8 @@ class RoboMorphDataModule(L.LightningDataModule):
         w = np.asarray(self.weights if self.weights is not None else counts, dtype=float)
         for k, ck in enumerate(counts):
             if ck == 0:
-                raise ValueError(f"{self.stores[k]} has no training trajectories (n={sources[k].n}, split "
-                                 f"{self.split}): add trajectories or change split")
+                raise DataError(f"{self.stores[k]} has no training trajectories (n={sources[k].n}, split "
+                                f"{self.split}): add trajectories or change split")
         self.probs = w / w.sum()
 
     def _compute_stats(self, sources: list[Source]) -> None:
@@ -240,35 +242,35 @@ class RoboMorphDataModule(L.LightningDataModule):
 def _check_arguments(dm: RoboMorphDataModule) -> None:
     """Refuses arguments that cannot work, naming the argument and the fix."""
     if not dm.stores:
-        raise ValueError("stores: give at least one store path")
+        raise DataError("stores: give at least one store path")
     check_inputs(dm.inputs)
     paths = [os.path.realpath(p) for p in dm.stores]
     if len(set(paths)) != len(paths):
-        raise ValueError(f"stores lists a store twice: {dm.stores}")
+        raise DataError(f"stores lists a store twice: {dm.stores}")
     check_held_out(paths, dm.val_store, dm.test_store)
     if dm.weights is not None:
         w = np.asarray(dm.weights, dtype=float)
         if w.shape != (len(dm.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
-            raise ValueError(f"weights must be {len(dm.stores)} non-negative numbers with a positive sum "
-                             f"(one per store), got {dm.weights}")
+            raise DataError(f"weights must be {len(dm.stores)} non-negative numbers with a positive sum "
+                            f"(one per store), got {dm.weights}")
     if (dm._context_len_arg is None) == (dm.context_frac is None):
-        raise ValueError("give exactly one of context_len and context_frac "
-                         f"(got context_len={dm._context_len_arg}, context_frac={dm.context_frac})")
+        raise DataError("give exactly one of context_len and context_frac "
+                        f"(got context_len={dm._context_len_arg}, context_frac={dm.context_frac})")
     if dm._context_len_arg is not None and dm._context_len_arg < 1:
-        raise ValueError(f"context_len must be >= 1, got {dm._context_len_arg}")
+        raise DataError(f"context_len must be >= 1, got {dm._context_len_arg}")
     if dm.context_frac is not None and not 0 < dm.context_frac < 1:
-        raise ValueError(f"context_frac must be in (0, 1), got {dm.context_frac}")
+        raise DataError(f"context_frac must be in (0, 1), got {dm.context_frac}")
     if dm.window not in ("start", "random"):
-        raise ValueError(f"window must be 'start' or 'random', got {dm.window!r}")
+        raise DataError(f"window must be 'start' or 'random', got {dm.window!r}")
     f = dm.split
     if len(f) != 3 or any(not math.isfinite(x) or x < 0 for x in f) or abs(sum(f) - 1) > 1e-6 or f[0] <= 0:
-        raise ValueError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
-                         f"with train > 0, got {dm.split}")
+        raise DataError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
+                        f"with train > 0, got {dm.split}")
     for name, value, low in (("horizon", dm.horizon, 1), ("batch_size", dm.batch_size, 1),
                              ("num_workers", dm.num_workers, 0), ("val_subset", dm.val_subset, 1),
                              ("seed", dm.seed, 0)):
         if value < low:
-            raise ValueError(f"{name} must be >= {low}, got {value}")
+            raise DataError(f"{name} must be >= {low}, got {value}")
     check_normalization(dm.normalization, dm.recenter)
     if dm.train_samples_per_epoch is not None and dm.train_samples_per_epoch < 1:
-        raise ValueError(f"train_samples_per_epoch must be >= 1, got {dm.train_samples_per_epoch}")
+        raise DataError(f"train_samples_per_epoch must be >= 1, got {dm.train_samples_per_epoch}")

@@ -35,13 +35,24 @@ import sys
 import numpy as np
 
 from robomorph.core import metrics as scores
+from robomorph.core.errors import RoboMorphError
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics, query_output_stats
 from robomorph.evaluation import metrics, references, training_data
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
 from robomorph.evaluation.horizons import horizon_markdown, horizon_report, parse_horizons
 from robomorph.evaluation.tables import diverged_note, write_csv, write_horizons_csv, write_table
-from robomorph.evaluation.windows import Window, load_window, parse_offset  # noqa: F401  (Window re-exported)
+
+# Window, EvaluationError and parse_range re-exported: callers import them from here.
+from robomorph.evaluation.windows import (  # noqa: F401
+    EvaluationError,
+    Window,
+    check_counts,
+    check_patch,
+    load_window,
+    parse_offset,
+    parse_range,
+)
 
 
 def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None,
@@ -89,8 +100,6 @@ def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
     Asked of the first trajectory: a predictor without the keyword, one that refuses it
     (a model without a Gaussian head) or one that answers ``(mean, None)`` gives none.
     """
-    from robomorph.core.errors import RoboMorphError  # noqa: PLC0415
-
     try:
         params = inspect.signature(predictor.simulate).parameters
         if "return_std" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
@@ -192,23 +201,6 @@ def sweep_context(predictor, w: Window, contexts: list[int], batch_size: int) ->
     return rows
 
 
-def parse_range(text: str | None, low: int, high: int, what: str) -> list[int]:
-    """``a:b:s`` (b included) or ``a,b,c`` into a list within ``[low, high]``."""
-    if not text:
-        return []
-    try:
-        if ":" in text:
-            a, b, s = (int(v) for v in text.split(":"))
-            values = list(range(a, b + 1, s))
-        else:
-            values = [int(v) for v in text.split(",")]
-    except ValueError:
-        raise ValueError(f"--sweep-{what} takes start:stop:step or a comma list of integers, got {text!r}") from None
-    if not values or min(values) < low or max(values) > high:
-        raise ValueError(f"--sweep-{what} {text!r} must lie within [{low}, {high}]")
-    return values
-
-
 def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, horizon: int | None = None,
              n: int | None = None, baselines: tuple[str, ...] = BASELINES, sweep_horizon_spec: str | None = None,
              sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
@@ -239,6 +231,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     """
     from robomorph.model.predictor import Predictor  # noqa: PLC0415  (torch only here)
 
+    check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     for name in baselines:
         if name not in BASELINES + CEILINGS:
             raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
@@ -258,7 +251,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     steps = parse_horizons(horizons_spec, w.horizon, w.dt)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
     contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")
-    _check_patch(predictor.patch, [w.context_len, *contexts])
+    check_patch(predictor.patch, [w.context_len, *contexts])
     os.makedirs(out, exist_ok=True)
     others = {name: references.load_other(name, other, w, device) for name, other in (compare or {}).items()}
     result, preds, std, base = score(predictor, w, tuple(baselines), arx_orders, batch_size, steps,
@@ -274,13 +267,6 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     write_table(os.path.join(out, "table.md"), result)
     _write_json(os.path.join(out, "metrics.json"), result)
     return result
-
-
-def _check_patch(patch: int, contexts: list[int]) -> None:
-    odd = [c for c in contexts if c % patch]
-    if odd:
-        raise ValueError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "
-                         f"{odd} are not (--context-len / --sweep-context)")
 
 
 def _sweeps(predictor, w: Window, horizons: list[int], contexts: list[int], base: dict, batch_size: int,

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shutil
 import sys
 import time
 import warnings
@@ -25,8 +26,10 @@ from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.loggers import WandbLogger
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 
+from robomorph.core.errors import run_command
 from robomorph.data.datamodule import RoboMorphDataModule
 from robomorph.model.checkpoint import load_checkpoint_file
+from robomorph.training import preflight
 from robomorph.training.callbacks import BestAndLast, FinalValidation, SaveOnSigterm
 from robomorph.training.checkpoints import AtomicCheckpointIO, ResumableCSVLogger, prune_log
 from robomorph.training.module import FROM_DATA, SCHEDULE_KEY, VAL_LOSS, MetaModule, schedule_change
@@ -102,8 +105,9 @@ class RoboMorphCLI(LightningCLI):
         return os.path.join(cfg.runs_dir, name)
 
     def instantiate_trainer(self, **kwargs: Any):
+        # The folder is made by fit() once the pre-flight checks pass, not here: a refused
+        # fit leaves nothing behind.
         cfg, run_dir = self.config, self.run_dir()
-        os.makedirs(run_dir, exist_ok=True)
         self._run_dir = run_dir
         ckpt_dir = os.path.join(run_dir, "checkpoints")
         callbacks = [
@@ -210,19 +214,27 @@ def fit(args: list[str] | dict | None = None, callbacks: list | None = None) -> 
     cli = build_cli(args, callbacks)
     run_dir, trainer, module = cli._run_dir, cli.trainer, cli.model
     ckpt = _resume_path(cli, run_dir)
+    _preflight(cli, ckpt)
     module.resuming = ckpt is not None
-    if trainer.is_global_zero:
-        if ckpt:
-            _announce_resume(cli, run_dir, ckpt)
-        cli.parser.save(cli.config, os.path.join(run_dir, "config.yaml"), overwrite=True, multifile=False)
+    created = not os.path.isdir(run_dir)
+    os.makedirs(run_dir, exist_ok=True)
     try:
-        trainer.fit(module, datamodule=cli.datamodule, ckpt_path=ckpt)
-    except SIGTERMException:
-        saver = _callback(trainer, SaveOnSigterm)
-        raise StoppedBySignal(run_dir, saver.path, saver.saved_step) from None
-    finally:
-        _save_wandb_id(trainer, run_dir)
-        _finish_wandb(trainer)
+        if trainer.is_global_zero:
+            if ckpt:
+                _announce_resume(cli, run_dir, ckpt)
+            # Written only now: a refused resume keeps the configuration its checkpoints belong to.
+            cli.parser.save(cli.config, os.path.join(run_dir, "config.yaml"), overwrite=True, multifile=False)
+        try:
+            trainer.fit(module, datamodule=cli.datamodule, ckpt_path=ckpt)
+        except SIGTERMException:
+            saver = _callback(trainer, SaveOnSigterm)
+            raise StoppedBySignal(run_dir, saver.path, saver.saved_step) from None
+        finally:
+            _save_wandb_id(trainer, run_dir)
+            _finish_wandb(trainer)
+    except BaseException:
+        _remove_if_empty(run_dir, created)
+        raise
     cb = trainer.checkpoint_callback
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
     best = os.path.join(run_dir, "checkpoints", "best.ckpt")
@@ -232,7 +244,31 @@ def fit(args: list[str] | dict | None = None, callbacks: list | None = None) -> 
                      global_step=trainer.global_step, val_step=_callback(trainer, FinalValidation).last_val_step)
 
 
+def _preflight(cli: RoboMorphCLI, ckpt: str | None) -> int:
+    """Every check that can fail before training (data, shapes, budget, checkpoints); the
+    step of the resumed checkpoint (0 for a new run)."""
+    trainer, module, dm = cli.trainer, cli.model, cli.datamodule
+    preflight.check_budget(trainer)
+    dm.setup("fit")  # idempotent: the trainer's own call then finds it done
+    preflight.check_windows(module, dm)
+    if ckpt:
+        return preflight.check_resume(module, dm, ckpt)
+    preflight.check_init(module)
+    return 0
+
+
+def _remove_if_empty(run_dir: str, created: bool) -> None:
+    """A run folder this call made and that holds no checkpoint goes again: a failed fit
+    leaves no husk for the next ``--run`` of that name to trip over."""
+    if created and not os.path.isfile(os.path.join(run_dir, "checkpoints", "last.ckpt")):
+        shutil.rmtree(run_dir, ignore_errors=True)
+
+
 def main(argv: list[str] | None = None) -> int:
+    return run_command(lambda: _main(argv))
+
+
+def _main(argv: list[str] | None) -> int:
     try:
         result = fit(argv)
     except StoppedBySignal as stop:

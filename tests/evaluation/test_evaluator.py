@@ -212,6 +212,29 @@ def test_compare_scores_another_checkpoint_beside_the_baselines(setup, tmp_path)
     assert res["baselines"]["again"]["approach1"] == res["approach1"]  # the same model scores the same
     with pytest.raises(ValueError, match="names a baseline"):
         evaluate(ckpt, test, str(tmp_path / "d"), baselines=(), samples=0, compare={"hold": ckpt})
+@pytest.mark.parametrize("flag, value", [("--context-len", "0"), ("--context-len", "-5"), ("--horizon", "0"),
+                                         ("--n", "0"), ("--batch-size", "0")])
+def test_non_positive_lengths_are_refused(setup, tmp_path, flag, value):
+    # --context-len 0 used to run silently with the checkpoint's length.
+    _, ckpt, test = setup
+    with pytest.raises(SystemExit, match=f"error: {flag} {value}: .*positive"):
+        main(["--ckpt", ckpt, "--data", test, flag, value, "--out", str(tmp_path / "bad"), "--baselines", "none"])
+    assert not os.path.exists(tmp_path / "bad")
+
+
+def test_overflowing_predictions_are_refused(setup):
+    from robomorph.data.store import open_store
+    from robomorph.predictor import PredictionError
+
+    _, ckpt, test = setup
+    ds = open_store(test)
+    u, y = ds.read("u", slice(0, 2)), ds.read("y", slice(0, 2))
+    pred = Predictor.from_checkpoint(ckpt, device="cpu")
+    assert np.isfinite(pred.simulate(u[:, :C], y[:, :C], u[:, C:])).all()
+    big = u * np.float32(1e30)
+    assert np.isfinite(big).all()  # finite inputs; the model's arithmetic overflows
+    with pytest.raises(PredictionError, match="non-finite"):
+        pred.simulate(big[:, :C], y[:, :C], big[:, C:])
 
 
 def test_evaluate_reports_errors_by_horizon_from_random_offsets(setup, tmp_path):
