@@ -40,6 +40,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="require the checkpoint to have been trained with this normalization (default: its own)")
     p.add_argument("--inputs", choices=INPUTS,
                    help="input formulation of the data (default: the checkpoint's; a different one is refused)")
+    p.add_argument("--compare", action="append", default=[], metavar="NAME=CKPT",
+                   help="another checkpoint scored beside the baselines (repeatable), e.g. scratch=runs/a/checkpoints/best.ckpt")
+    p.add_argument("--arx-train-data", help="comma list of stores to fit arx_train on, whole (default: the "
+                                            "checkpoint's training split, read back from its stores)")
     return p
 
 
@@ -51,12 +55,21 @@ def _orders(text: str) -> tuple[int, int]:
     return na, nb
 
 
+def _compare(items: list[str]) -> dict[str, str]:
+    compare = dict(c.split("=", 1) for c in items if "=" in c)
+    if len(compare) != len(items):
+        raise UsageError(f"--compare takes NAME=CKPT, got {items}")
+    return compare
+
+
 def run(a: argparse.Namespace) -> int:
     baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
     out = a.out or evaluator.default_out(a.ckpt, a.data)
     res = evaluator.evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
                              a.sweep_context, a.batch_size, a.device, a.samples, _orders(a.arx_orders), a.seed,
-                             a.normalization, horizons_spec=a.horizons, offset=a.offset, inputs=a.inputs)
+                             a.normalization, horizons_spec=a.horizons, offset=a.offset, inputs=a.inputs,
+                             arx_train_data=[s.strip() for s in a.arx_train_data.split(",") if s.strip()]
+                             if a.arx_train_data else None, compare=_compare(a.compare))
     print(evaluator.summary_text(res, out))
     return 0
 

@@ -8,15 +8,17 @@ from __future__ import annotations
 import sys
 
 from robomorph.core.errors import run_command
-from robomorph.training.fitting import fit
+from robomorph.training.fitting import StoppedBySignal, final_line, fit
 
 
 def run(argv: list[str] | None) -> int:
-    result = fit(argv)  # LightningCLI parses argv (sys.argv when None) and exits 2 itself on a bad flag
-    if result.metrics:
-        shown = ", ".join(f"{k}={v:.4g}" for k, v in sorted(result.metrics.items()) if k.startswith("val/"))
-        print(f"{result.run_dir}: step {result.global_step}, {shown}")
+    try:
+        result = fit(argv)  # LightningCLI parses argv (sys.argv when None) and exits 2 itself on a bad flag
+    except StoppedBySignal as stop:
+        print(stop, file=sys.stderr)
+        return 128 + 15  # the shell's code for a SIGTERM stop: schedulers may requeue on it
     print(f"best checkpoint: {result.best_ckpt}\nrun directory: {result.run_dir}")
+    print(final_line(result))
     return 0
 
 

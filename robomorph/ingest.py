@@ -17,6 +17,11 @@ def _names(text: str) -> list[str]:
     return [c.strip() for c in text.split(",") if c.strip()]
 
 
+def _units(text: str) -> list[str]:
+    # Empty entries are kept: "N m,,rad" leaves the second column without a unit.
+    return [c.strip() for c in text.split(",")]
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m robomorph.ingest", description=ingest.__doc__.split("\n")[0])
     p.add_argument("files", nargs="+", help="log files, one recording each (.csv, .npz, .mat)")
@@ -35,6 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output store directory (e.g. data/real.zarr)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing RoboMorph store")
     p.add_argument("--name", help="domain name recorded in the store (default: real)")
+    p.add_argument("--u-units", type=_units, help="unit of each --u-cols column, comma-separated (e.g. 'N m,N m')")
+    p.add_argument("--y-units", type=_units, help="unit of each --y-cols column, comma-separated (e.g. rad,rad)")
     return p
 
 
@@ -48,10 +55,13 @@ def run(args: argparse.Namespace) -> int:
             ds = ingest.ingest(args.files, args.u_cols, args.y_cols, args.out, args.steps, dt=args.dt,
                                time_col=args.time_col, stride=args.stride, fmt=args.fmt,
                                overwrite=args.overwrite, name=args.name, time_tol=args.time_tol,
-                               u_cmd_cols=args.u_cmd_cols)
+                               u_cmd_cols=args.u_cmd_cols, u_units=args.u_units, y_units=args.y_units)
     finally:
         _print_warnings(caught)
     used = len(args.files) - len(ds.attrs["skipped_recordings"])
+    for r in ds.attrs["recordings"]:
+        print(f"  {r['source']}: {r['samples']} samples -> {r['windows']} windows, "
+              f"{r['tail_dropped']} tail samples dropped")
     print(f"{args.out}: {ds.n} windows x {ds.steps} steps (dt={ds.dt:.6g} s, n_u={len(ds.u_names)}, "
           f"n_y={len(ds.y_names)}) from {used} of {len(args.files)} recordings")
     return 0

@@ -10,7 +10,7 @@ import sys
 
 from robomorph.core.errors import run_command
 from robomorph.data import summary
-from robomorph.data.store import open_store
+from robomorph.data.store import StoreDamagedError, open_store
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,6 +25,9 @@ def build_parser() -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     ds = open_store(args.store, allow_incomplete=args.allow_incomplete)
     print(summary.summarize(ds))
+    damage = ds.describe_damage()
+    if damage:
+        raise StoreDamagedError(damage)
     if args.plot:
         for path in summary.plot(ds, args.plot, args.n_traj):
             print(f"wrote {path}")

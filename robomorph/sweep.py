@@ -7,13 +7,12 @@ The door only; the machinery is :mod:`robomorph.tuning.runner` and :mod:`robomor
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 from robomorph.core.errors import UsageError, run_command
 from robomorph.tuning import runner, summary
 from robomorph.tuning.space import load_space
-from robomorph.tuning.storage import DEFAULT_DIR, open_storage
+from robomorph.tuning.storage import open_storage
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -36,7 +35,8 @@ def build_summary_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m robomorph.sweep summary", description=summary.__doc__.split("\n")[0])
     p.add_argument("--study-name", required=True)
     p.add_argument("--storage", help="SQLAlchemy URL (default: sqlite:///results/sweeps/optuna.db)")
-    p.add_argument("--out", help="folder for summary.md and trials.csv (default: results/sweeps/<study>)")
+    p.add_argument("--out", help="folder for summary.md and trials.csv (default: <runs-dir>/<study>-summary)")
+    p.add_argument("--runs-dir", help="where the study's runs are (default: read from its trials)")
     return p
 
 
@@ -45,14 +45,19 @@ def run(a: argparse.Namespace) -> int:
         raise UsageError("--n-trials must be >= 1")
     space = runner.with_overrides(load_space(a.space), a.set)
     storage = open_storage(a.storage, a.heartbeat, a.grace)
+    out = summary.summary_dir(a.runs_dir, a.study_name or space.name)
+    # Before any trial runs: a folder holding another study's summary is refused now.
+    summary.claim_summary_dir(out, a.study_name or space.name, a.storage)
     study = runner.run_sweep(space, a.n_trials, storage, a.study_name, a.runs_dir, a.wandb)
-    print(summary.summarize(study, os.path.join(DEFAULT_DIR, study.study_name)))
+    print(summary.summarize(study, out))
     return 0
 
 
 def run_summary(a: argparse.Namespace) -> int:
     study = summary.load_study(a.study_name, a.storage)
-    print(summary.summarize(study, a.out or os.path.join(DEFAULT_DIR, a.study_name)))
+    out = a.out or summary.summary_dir(a.runs_dir or summary.runs_dir_of(study), a.study_name)
+    summary.claim_summary_dir(out, a.study_name, a.storage)
+    print(summary.summarize(study, out))
     return 0
 
 

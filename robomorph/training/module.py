@@ -15,7 +15,6 @@ import torch
 import torch.nn.functional as F
 
 from robomorph.core import metrics
-from robomorph.core.config import ConfigError
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.names import (FREEZE_MODES, LOSSES, LR, NORMALIZATIONS, TEST_FIT, TEST_LOSS, TEST_R2, TRAIN_LOSS, VAL_FIT,
                                   VAL_LOSS, VAL_R2)
@@ -35,6 +34,8 @@ from robomorph.model.transformer import MetaModel, ModelConfig
 FROM_DATA = ("n_u", "n_y", "context_len")
 # Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
 IO_LAYERS = ("encoder.embed", "decoder.embed", "head")
+# Checkpoint entry holding the trainer's max_steps, so a resume can say how the schedule changes.
+SCHEDULE_KEY = "robomorph_schedule"
 
 
 def data_info(dm) -> dict:
@@ -42,6 +43,10 @@ def data_info(dm) -> dict:
     return {"u_names": list(dm.u_names), "y_names": list(dm.y_names), "dt": float(dm.dt),
             "context_len": int(dm.context_len), "horizon": int(dm.horizon),
             "stores": [str(s) for s in dm.stores], "inputs": str(getattr(dm, "inputs", "total"))}
+
+
+class ModelSettingsError(RoboMorphError, ValueError):
+    """Model or optimizer settings that cannot work; the message names the ``--model.`` flag."""
 
 
 class MetaModule(L.LightningModule):
@@ -74,6 +79,9 @@ class MetaModule(L.LightningModule):
         freeze: ``none``, ``encoder`` or ``all_but_head``.
         reinit_io: when the checkpoint's n_u / n_y differ, re-initialize the input
             embeddings and the head instead of failing.
+        normalization_from: with ``init_ckpt``, where the normalization statistics come
+            from: ``target`` (default), this run's training data; ``source``, the
+            checkpoint's (same channels only: with new channels they come from the data).
     """
 
     def __init__(
@@ -105,15 +113,11 @@ class MetaModule(L.LightningModule):
         init_ckpt: str | None = None,
         freeze: Literal[FREEZE_MODES] = "none",
         reinit_io: bool = False,
+        normalization_from: Literal["source", "target"] = "target",
     ):
         super().__init__()
-        if loss not in LOSSES:
-            raise ConfigError(f"loss must be one of {LOSSES}, got {loss!r}")
-        if freeze not in FREEZE_MODES:
-            raise ConfigError(f"freeze must be one of {FREEZE_MODES}, got {freeze!r}")
-        if lr <= 0 or not 0 <= min_lr_ratio <= 1 or warmup_steps < 0 or huber_delta <= 0:
-            raise ConfigError("need lr > 0, 0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
-        _check_context(context_len, patch, max_context)
+        _check_training(loss, freeze, normalization_from, lr, min_lr_ratio, warmup_steps, huber_delta)
+        check_context(context_len, patch, max_context)
         check_normalization(normalization, recenter)
         self.save_hyperparameters()
         self.net: MetaModel | None = None
@@ -130,7 +134,11 @@ class MetaModule(L.LightningModule):
     # ----------------------------------------------------------------- construction
     @property
     def model_config(self) -> ModelConfig:
-        return model_config(dict(self.hparams))
+        return self.config_for(self.hparams.n_u, self.hparams.n_y)
+
+    def config_for(self, n_u: int, n_y: int) -> ModelConfig:
+        """The network's validated configuration for ``n_u`` inputs and ``n_y`` outputs (:func:`settings_config`)."""
+        return settings_config({**dict(self.hparams), "n_u": n_u, "n_y": n_y})
 
     def _build(self, n_u: int, n_y: int) -> None:
         self.net = MetaModel(self.model_config)
@@ -161,21 +169,18 @@ class MetaModule(L.LightningModule):
             self.stats_ready.fill_(True)
 
     def _transfer(self, path: str) -> None:
-        if _load_transferred(self, path):
-            self.stats_ready.fill_(True)  # same channels: the pretrained normalization came along
+        from_source = _load_transferred(self, path)
+        self.stats_ready.fill_(from_source)  # the pretrained normalization came along only with source
         self._apply_freeze()
 
     def _apply_freeze(self) -> None:
-        mode = self.hparams.freeze
-        for name, p in self.net.named_parameters():
-            if mode == "encoder":
-                p.requires_grad = not name.startswith("enc")
-            elif mode == "all_but_head":
-                p.requires_grad = name.startswith("head")
+        _freeze(self.net, self.hparams.freeze)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.data_info is not None:
             checkpoint[DATA_INFO_KEY] = self.data_info
+        if self._trainer is not None:
+            checkpoint[SCHEDULE_KEY] = {"max_steps": int(self.trainer.max_steps)}
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         self.data_info = checkpoint.get(DATA_INFO_KEY, self.data_info)
@@ -242,10 +247,51 @@ class MetaModule(L.LightningModule):
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
 
+def _check_training(loss: str, freeze: str, normalization_from: str, lr: float, min_lr_ratio: float,
+                    warmup_steps: int, huber_delta: float) -> None:
+    """Refuses loss, freeze, transfer and optimizer settings that cannot work, naming the flag."""
+    if loss not in LOSSES:
+        raise ModelSettingsError(f"--model.loss must be one of {LOSSES}, got {loss!r}")
+    if freeze not in FREEZE_MODES:
+        raise ModelSettingsError(f"--model.freeze must be one of {FREEZE_MODES}, got {freeze!r}")
+    if normalization_from not in ("source", "target"):
+        raise ModelSettingsError(f"--model.normalization_from must be 'source' or 'target', got {normalization_from!r}")
+    for name, value, ok in (("lr", lr, lr > 0), ("min_lr_ratio", min_lr_ratio, 0 <= min_lr_ratio <= 1),
+                            ("warmup_steps", warmup_steps, warmup_steps >= 0),
+                            ("huber_delta", huber_delta, huber_delta > 0)):
+        if not ok:
+            raise ModelSettingsError(f"--model.{name} {value} is out of range: need lr > 0, "
+                                     "0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
+
+
+def settings_config(hparams: dict) -> ModelConfig:
+    """:func:`model_config` of a module's hyper-parameters, its errors naming the ``--model.`` flags.
+
+    Raises:
+        ModelSettingsError: shapes that cannot work (e.g. ``n_head`` not dividing ``d_model``).
+    """
+    try:
+        return model_config(hparams)
+    except ValueError as exc:
+        raise ModelSettingsError(f"{str(exc).replace('ModelConfig.', '--model.')}") from exc
+
+
+def _freeze(net: torch.nn.Module, mode: str) -> None:
+    """Leaves trainable only what ``freeze`` mode ``mode`` trains."""
+    for name, p in net.named_parameters():
+        if mode == "encoder":
+            p.requires_grad = not name.startswith("enc")
+        elif mode == "all_but_head":
+            p.requires_grad = name.startswith("head")
+
+
 def _load_transferred(module: MetaModule, path: str) -> bool:
     """Loads a pretrained checkpoint's weights into ``module``; True when its normalization came too.
 
-    Refuses another protocol, other channels without ``reinit_io`` and another architecture.
+    The statistics (and their "ready" flag) come along only with ``normalization_from=source``;
+    otherwise ``setup`` computes them from this run's data. Refuses another protocol, other
+    channels without ``reinit_io``, ``source`` statistics for other channels and another
+    architecture.
     """
     ckpt = load_checkpoint_file(path)
     src = ckpt["hyper_parameters"]
@@ -260,25 +306,40 @@ def _load_transferred(module: MetaModule, path: str) -> bool:
             f"n_u={module.hparams.n_u}, n_y={module.hparams.n_y}. Set reinit_io=true to re-initialize the "
             "input embeddings and the head (the rest transfers)."
         )
+    from_source = module.hparams.get("normalization_from", "target") == "source"
+    if from_source and not same_io:
+        raise CheckpointError(
+            f"normalization_from=source needs the checkpoint's channels, but {path} has n_u={src.get('n_u')}, "
+            f"n_y={src.get('n_y')} and this data n_u={module.hparams.n_u}, n_y={module.hparams.n_y}: "
+            "use --model.normalization_from target (statistics of the new training data)")
     state = {k: v for k, v in ckpt["state_dict"].items()
-             if same_io or not (k.startswith("normalizer.") or _is_io(k))}
+             if (from_source or not _is_stats(k)) and (same_io or not _is_io(k))}
     missing, unexpected = module.load_state_dict(state, strict=False)
-    allowed_missing = [k for k in missing if not same_io and (k.startswith("normalizer.") or _is_io(k))]
+    allowed_missing = [k for k in missing if (not from_source and _is_stats(k)) or (not same_io and _is_io(k))]
     if set(missing) - set(allowed_missing) - {"stats_ready"} or unexpected:
         raise CheckpointError(
             f"{path} does not match this architecture (missing {sorted(set(missing) - set(allowed_missing))[:5]}, "
             f"unexpected {sorted(unexpected)[:5]}): use the same d_model, n_head, layers and patch"
         )
-    return same_io
+    return from_source
 
 
-def _check_context(context_len: int | None, patch: int, max_context: int) -> None:
-    """The encoder needs whole patches and a positional table that covers the context."""
+def check_context(context_len: int | None, patch: int, max_context: int) -> None:
+    """The encoder needs whole patches and a positional table that covers the context.
+
+    Raises:
+        ModelSettingsError: naming the ``--data.context_len`` and ``--model.`` flags to change.
+    """
     if context_len is None:
         return
-    if context_len % patch or context_len > max_context:
-        raise RoboMorphError(f"context_len {context_len} must be a multiple of patch ({patch}) and at most "
-                             f"max_context ({max_context}): change data.context_len or model.patch")
+    if context_len % patch:
+        lower, upper = context_len - context_len % patch, context_len - context_len % patch + patch
+        hint = f"use {upper}" if lower < 1 else f"use {lower} or {upper}"
+        raise ModelSettingsError(f"--data.context_len {context_len} is not a multiple of --model.patch {patch} "
+                                 f"(steps per token): {hint}, or another patch")
+    if context_len > max_context:
+        raise ModelSettingsError(f"--data.context_len {context_len} exceeds --model.max_context {max_context} (the "
+                                 f"positional table's length): raise --model.max_context to at least {context_len}")
 
 
 def _lr_factor(step: int, warmup: int, total: int, floor: float) -> float:
@@ -287,6 +348,31 @@ def _lr_factor(step: int, warmup: int, total: int, floor: float) -> float:
         return (step + 1) / warmup
     progress = min(1.0, (step - warmup) / max(1, total - warmup))
     return floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * progress))
+
+
+def schedule_change(old_hparams: dict, old_max_steps: int | None, new_hparams, new_max_steps: int,
+                    step: int) -> str | None:
+    """One line on how a resume at ``step`` changes the run, or None when nothing changes.
+
+    The cosine runs over ``decay_steps`` or, by default, ``max_steps``: resuming with another
+    ``max_steps`` then stretches or shrinks the rest of it, and the learning rate jumps.
+    """
+    if old_max_steps is None or old_max_steps == new_max_steps:
+        return None
+
+    def total(h, max_steps: int) -> int:
+        return h.get("decay_steps") or (max_steps if max_steps > 0 else 10_000)
+
+    old_total, new_total = total(old_hparams, old_max_steps), total(new_hparams, new_max_steps)
+    head = f"max_steps {old_max_steps} -> {new_max_steps}, resuming at step {step}"
+    if old_total == new_total:
+        return f"{head}: the learning-rate schedule is unchanged (decay_steps {new_total})"
+    lrs = [h["lr"] * _lr_factor(step, h["warmup_steps"], t, h["min_lr_ratio"])
+           for h, t in ((old_hparams, old_total), (new_hparams, new_total))]
+    return (f"{head}: the cosine learning-rate decay now ends at step {new_total} instead of {old_total} "
+            f"(lr at step {step}: {lrs[0]:.3g} -> {lrs[1]:.3g}); pin --model.decay_steps to keep it")
+def _is_stats(key: str) -> bool:
+    return key.startswith("normalizer.") or key == "stats_ready"
 
 
 def _is_io(key: str) -> bool:

@@ -2,8 +2,10 @@
 
     python -m robomorph.sweep summary --study-name architecture-cpu [--storage URL]
 
-Prints a markdown table and writes it (``summary.md``) with ``trials.csv`` into
-``results/sweeps/<study>/``. The same storage opens in the Optuna dashboard::
+Prints a markdown table and writes it (``summary.md``) with ``trials.csv`` beside the
+study's runs, into ``<runs_dir>/<study>-summary/`` (``study.json`` there records which
+study of which storage the folder holds, so a same-named study of another storage never
+overwrites it). The same storage opens in the Optuna dashboard::
 
     optuna-dashboard sqlite:///results/sweeps/optuna.db
 """
@@ -11,14 +13,15 @@ Prints a markdown table and writes it (``summary.md``) with ``trials.csv`` into
 from __future__ import annotations
 
 import csv
+import json
 import math
 import os
 
 import optuna
 
-from robomorph.core.atomic import atomic_open, write_text
+from robomorph.core.atomic import atomic_open, write_json, write_text
 from robomorph.tuning.space import SpaceError
-from robomorph.tuning.storage import open_storage
+from robomorph.tuning.storage import open_storage, storage_identity
 
 COLUMNS = ("number", "state", "value", "duration_s", "run_dir")
 
@@ -73,12 +76,53 @@ def summarize(study: optuna.Study, out_dir: str | None = None) -> str:
                                                         ", ".join(f"{k} {v:.3f}" for k, v in imp.items()))]
     text = "\n".join(lines) + "\n"
     if out_dir:
+        os.makedirs(out_dir, exist_ok=True)
         write_text(os.path.join(out_dir, "summary.md"), text)
         with atomic_open(os.path.join(out_dir, "trials.csv")) as f:
             w = csv.DictWriter(f, fieldnames=head, extrasaction="ignore")
             w.writeheader()
             w.writerows(rows)
     return text
+
+
+def summary_dir(runs_dir: str, study_name: str) -> str:
+    """Where a study's summary goes: beside its runs (``<runs_dir>/<study>-summary``)."""
+    return os.path.join(runs_dir, f"{study_name}-summary")
+
+
+def runs_dir_of(study: optuna.Study, default: str = "results/runs") -> str:
+    """The folder the study's trials ran in (from their recorded run directories)."""
+    for t in study.get_trials(deepcopy=False):
+        if t.user_attrs.get("run_dir"):
+            return os.path.dirname(t.user_attrs["run_dir"])
+    return default
+
+
+def claim_summary_dir(out_dir: str, study_name: str, storage_url: str | None) -> None:
+    """Records in ``out_dir/study.json`` which study it summarizes; refuses another study's folder.
+
+    Raises:
+        SpaceError: ``out_dir`` already holds the summary of a study of that name in another
+            storage (or of another study).
+    """
+    ident = {"study_name": study_name, "storage": storage_identity(storage_url)}
+    marker = os.path.join(out_dir, "study.json")
+    if os.path.isfile(marker):
+        try:
+            with open(marker) as f:
+                held = json.load(f)
+        except (OSError, ValueError):
+            held = None
+        if held != ident:
+            raise SpaceError(
+                f"{out_dir} holds the summary of another study ({held}); this is study {study_name!r} of "
+                f"{ident['storage']}: pass another --runs-dir (or --out for the summary) or --study-name")
+        return
+    if os.path.isfile(os.path.join(out_dir, "summary.md")):
+        raise SpaceError(f"{out_dir} holds a summary of unknown origin (no study.json); pass another "
+                         "--runs-dir (or --out) or remove that folder")
+    os.makedirs(out_dir, exist_ok=True)
+    write_json(marker, ident)
 
 
 def load_study(study_name: str, storage_url: str | None = None) -> optuna.Study:
