@@ -15,7 +15,7 @@ def fit_arx_train(orders: tuple[int, int], train_blocks) -> TrainedARX:
 
 def load_other(name: str, ckpt: str, w, device: str | None):  # w: evaluation.windows.Window
     """Another checkpoint (``--compare name=ckpt``), checked against the evaluated windows."""
-    from robomorph.predictor import Predictor  # noqa: PLC0415
+    from robomorph.model.predictor import Predictor  # noqa: PLC0415
 
     if name in BASELINES + CEILINGS + ("model",):
         raise ValueError(f"--compare {name}=...: {name!r} names a baseline; choose another name")
