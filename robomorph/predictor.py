@@ -36,6 +36,8 @@ class Predictor:
         self.n_u, self.n_y = int(module.hparams.n_u), int(module.hparams.n_y)
         # Channel names, dt and the training window (None for checkpoints that predate it).
         self.data_info: dict | None = module.data_info
+        # Whether the model has a Gaussian head (simulate(..., return_std=True) works).
+        self.has_std = bool(module.hparams.get("gaussian", False))
 
     @classmethod
     def from_checkpoint(cls, path: str, device: str | torch.device | None = None) -> "Predictor":
@@ -60,17 +62,26 @@ class Predictor:
             raise ValueError(f"{name} holds NaN or inf values")
 
     @torch.no_grad()
-    def simulate(self, u_ctx, y_ctx, u_query):
+    def simulate(self, u_ctx, y_ctx, u_query, return_std: bool = False):
         """Predicts the outputs over the query horizon.
 
         Args:
             u_ctx: (Tc, n_u) or (B, Tc, n_u) context inputs, numpy or torch.
             y_ctx: (Tc, n_y) or (B, Tc, n_y) context outputs.
             u_query: (Th, n_u) or (B, Th, n_u) future inputs.
+            return_std: also return the predicted standard deviation (models trained with
+                ``gaussian: true`` only).
 
         Returns:
-            y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``.
+            y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``;
+            with ``return_std``, ``(mean, std)``, both in the outputs' physical units.
+
+        Raises:
+            CheckpointError: ``return_std`` for a model without a Gaussian head.
         """
+        if return_std and not self.has_std:
+            raise CheckpointError("this model has no Gaussian head, so it predicts no standard deviation; "
+                                  "train one with --model.gaussian true --model.loss nll, or drop return_std")
         as_numpy = not isinstance(u_query, torch.Tensor)
         dtype = getattr(u_query, "dtype", None)
         tensors = [torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x,
@@ -82,8 +93,11 @@ class Predictor:
             tensors = [t.unsqueeze(0) for t in tensors]
         for name, t, w in zip(("u_ctx", "y_ctx", "u_query"), tensors, (self.n_u, self.n_y, self.n_u)):
             self._check(name, t, w)
-        y = self.module(*tensors)
-        y = y[0] if single else y
+        mean, std = self.module.forward_dist(*tensors)
+        out = [t[0] if single else t for t in (mean, std)]
         if as_numpy:
-            return y.cpu().numpy().astype(dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32)
-        return y.to(u_query.device, u_query.dtype)
+            kind = dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32
+            out = [t.cpu().numpy().astype(kind) for t in out if t is not None]
+        else:
+            out = [t.to(u_query.device, u_query.dtype) for t in out if t is not None]
+        return tuple(out) if return_std else out[0]

@@ -126,7 +126,8 @@ def _pairs(per_store: list[np.ndarray]) -> np.ndarray:
 
 
 class _WindowDataset(Dataset):
-    """Windows of fixed trajectories; a key is a row of ``pairs`` or ``(row, offset)``."""
+    """Windows of fixed trajectories; a key is a row of ``pairs``, ``(row, offset)`` or
+    ``(row, offset, context_len, horizon)`` (horizon-aware training draws the lengths)."""
 
     def __init__(self, sources: list[_Source], pairs: np.ndarray, context_len: int, horizon: int):
         self.sources, self.pairs = sources, pairs
@@ -136,28 +137,33 @@ class _WindowDataset(Dataset):
         return len(self.pairs)
 
     def __getitem__(self, key: int | tuple[int, int]) -> dict[str, torch.Tensor]:
-        row, offset = key if isinstance(key, tuple) else (key, 0)
+        row, offset, c, h = (key + (self.context_len, self.horizon))[:4] if isinstance(key, tuple) else \
+            (key, 0, self.context_len, self.horizon)
         s, i = self.pairs[row]
-        u, y = self.sources[s].window(int(i), offset, offset + self.context_len + self.horizon)
-        c = self.context_len
+        u, y = self.sources[s].window(int(i), offset, offset + c + h)
         # Copies: a batch must not keep a view of a whole in-memory store alive.
         return {k: torch.from_numpy(np.array(v, dtype=np.float32))
                 for k, v in (("u_ctx", u[:c]), ("y_ctx", y[:c]), ("u_query", u[c:]), ("y_query", y[c:]))}
 
 
 class _MixtureSampler(Sampler):
-    """Draws ``(row, offset)`` keys: store by weight, trajectory uniformly within the store,
-    offset uniformly over the valid range (``random`` windows) or 0.
+    """Draws ``(row, offset, context_len, horizon)`` keys: store by weight, trajectory
+    uniformly within the store, lengths uniformly within ``lengths`` (one pair per run of
+    ``batch_size`` consecutive keys, i.e. per batch, so a batch stacks), offset uniformly
+    over the valid range for those lengths (``random`` windows) or 0.
 
     Each pass uses a torch Generator seeded from ``(seed, epoch)``. Lightning calls
     :meth:`set_epoch` before each epoch; without it the epoch advances by one per pass.
+    Fixed lengths draw nothing for them, so the stream equals that of fixed-length windows.
     """
 
-    def __init__(self, base: np.ndarray, counts: np.ndarray, probs: np.ndarray, max_offsets: np.ndarray,
-                 n_samples: int, seed: int, random_window: bool):
+    def __init__(self, base: np.ndarray, counts: np.ndarray, probs: np.ndarray, steps: np.ndarray,
+                 n_samples: int, seed: int, random_window: bool,
+                 lengths: tuple[int, int, int, int], batch_size: int):
         self.base, self.counts = torch.as_tensor(base), torch.as_tensor(counts)
-        self.probs, self.max_offsets = torch.as_tensor(probs, dtype=torch.float64), torch.as_tensor(max_offsets)
+        self.probs, self.steps = torch.as_tensor(probs, dtype=torch.float64), torch.as_tensor(steps)
         self.n_samples, self.seed, self.random_window = n_samples, seed, random_window
+        self.lengths, self.batch_size = lengths, batch_size
         self.epoch = 0
 
     def set_epoch(self, epoch: int) -> None:
@@ -174,11 +180,24 @@ class _MixtureSampler(Sampler):
         count = self.counts[store]
         within = (torch.rand(self.n_samples, generator=g, dtype=torch.float64) * count).long()
         row = self.base[store] + torch.minimum(within, count - 1)
+        c, h = self._draw_lengths(g)
         offset = torch.zeros_like(row)
         if self.random_window:
-            span = self.max_offsets[store] + 1
+            span = self.steps[store] - c - h + 1
             offset = torch.minimum((torch.rand(self.n_samples, generator=g, dtype=torch.float64) * span).long(), span - 1)
-        return iter(zip(row.tolist(), offset.tolist()))
+        return iter(zip(row.tolist(), offset.tolist(), c.tolist(), h.tolist()))
+
+    def _draw_lengths(self, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """Context lengths and horizons (n_samples,), constant within each batch."""
+        c_min, c_max, h_min, h_max = self.lengths
+        n_batches = -(-self.n_samples // self.batch_size)
+        out = []
+        for low, high in ((c_min, c_max), (h_min, h_max)):
+            per_batch = torch.full((n_batches,), high, dtype=torch.long)
+            if low < high:
+                per_batch = torch.randint(low, high + 1, (n_batches,), generator=g)
+            out.append(per_batch.repeat_interleave(self.batch_size)[:self.n_samples])
+        return out[0], out[1]
 
 
 class RoboMorphDataModule(L.LightningDataModule):
@@ -196,6 +215,10 @@ class RoboMorphDataModule(L.LightningDataModule):
         horizon: query steps predicted after the context.
         window: ``start``: windows begin at step 0 (the paper: 200 + 800 of 1000); ``random``:
             a seeded random offset per training sample (validation and test still use ``start``).
+        context_min, horizon_min: horizon-aware training: each training batch draws its context
+            length from ``[context_min, context_len]`` and its horizon from ``[horizon_min,
+            horizon]`` (seeded; validation and test keep the maxima), so short horizons are
+            trained for as well. ``None``: always the maxima.
         split: (train, val, test) fractions of each store's trajectories; they sum to 1.
         seed: root seed of the splits, the validation subset and the training stream.
         batch_size: trajectories per batch.
@@ -210,6 +233,7 @@ class RoboMorphDataModule(L.LightningDataModule):
     def __init__(self, stores: list[str] | str = "data/demo/multisine.zarr", weights: list[float] | None = None,
                  test_store: str | None = None, context_len: int | None = 200, context_frac: float | None = None,
                  horizon: int = 800, window: Literal["start", "random"] = "start",
+                 context_min: int | None = None, horizon_min: int | None = None,
                  split: tuple[float, float, float] = (0.8, 0.1, 0.1), seed: int = 0, batch_size: int = 16,
                  num_workers: int = 0, in_memory: bool | None = None, recenter: bool = False,
                  val_subset: int = 256, train_samples_per_epoch: int | None = None):
@@ -218,6 +242,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.stores = [stores] if isinstance(stores, str) else list(stores)
         self.weights, self.test_store = weights, test_store
         self.context_len, self.context_frac, self.horizon, self.window = context_len, context_frac, horizon, window
+        self.context_min, self.horizon_min = context_min, horizon_min
         self.split, self.seed, self.batch_size, self.num_workers = tuple(split), seed, batch_size, num_workers
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
         self.train_samples_per_epoch = train_samples_per_epoch
@@ -255,6 +280,11 @@ class RoboMorphDataModule(L.LightningDataModule):
                                  ("seed", self.seed, 0)):
             if value < low:
                 raise ValueError(f"{name} must be >= {low}, got {value}")
+        if self.horizon_min is not None and not 1 <= self.horizon_min <= self.horizon:
+            raise ValueError(f"horizon_min must be in [1, horizon={self.horizon}], got {self.horizon_min}")
+        if self.context_min is not None and (self.context_min < 1 or (
+                self.context_len is not None and self.context_min > self.context_len)):
+            raise ValueError(f"context_min must be in [1, context_len={self.context_len}], got {self.context_min}")
         if self.train_samples_per_epoch is not None and self.train_samples_per_epoch < 1:
             raise ValueError(f"train_samples_per_epoch must be >= 1, got {self.train_samples_per_epoch}")
 
@@ -301,6 +331,9 @@ class RoboMorphDataModule(L.LightningDataModule):
             self.context_len = round(self.context_frac * t_min)
             if self.context_len < 1:
                 raise ValueError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
+            if self.context_min is not None and self.context_min > self.context_len:
+                raise ValueError(f"context_min {self.context_min} exceeds the context of {self.context_len} steps "
+                                 f"that context_frac {self.context_frac} gives")
         need = self.context_len + self.horizon
         for src in sources:
             if src.steps < need:
@@ -343,9 +376,10 @@ class RoboMorphDataModule(L.LightningDataModule):
         counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
         self.train_sampler = _MixtureSampler(
             base=np.concatenate([[0], np.cumsum(counts)[:-1]]), counts=counts, probs=self.probs,
-            max_offsets=np.array([src.steps - ctx - h for src in sources[:len(self.stores)]]),
+            steps=np.array([src.steps for src in sources[:len(self.stores)]]),
             n_samples=self.train_samples_per_epoch or len(train), seed=self.seed,
-            random_window=self.window == "random")
+            random_window=self.window == "random", batch_size=self.batch_size,
+            lengths=(self.context_min or ctx, ctx, self.horizon_min or h, h))
 
     def _loader(self, split: str) -> DataLoader:
         self.setup()
@@ -376,6 +410,7 @@ class RoboMorphDataModule(L.LightningDataModule):
             "train": len(self.train_set), "val": self.n_val_total, "val_used": len(self.val_set),
             "test": len(self.test_set), "train_samples_per_epoch": len(self.train_sampler),
             "context_len": self.context_len, "horizon": self.horizon, "window": self.window,
+            "context_min": self.context_min, "horizon_min": self.horizon_min,
             "n_u": self.n_u, "n_y": self.n_y, "dt": self.dt, "in_memory": bool(self.loaded),
             "seed": self.seed, "split": list(self.split),
         }

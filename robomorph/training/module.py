@@ -25,7 +25,8 @@ TRAIN_LOSS, VAL_LOSS, VAL_R2, VAL_FIT, LR = "train/loss", "val/loss", "val/r2", 
 TEST_LOSS, TEST_R2, TEST_FIT = "test/loss", "test/r2", "test/fit"
 FREEZE_MODES = ("none", "encoder", "all_but_head")
 # Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
-IO_LAYERS = ("encoder.embed", "decoder.embed", "head")
+IO_LAYERS = ("encoder.embed", "decoder.embed", "decoder.init_embed", "head")
+LOSSES = ("huber", "mse", "nll")
 # Checkpoint entry holding what the model was trained on (see ``data_info``).
 DATA_INFO_KEY = "robomorph_data"
 
@@ -39,6 +40,10 @@ def data_info(dm) -> dict:
 
 class CheckpointError(RoboMorphError, RuntimeError):
     """A checkpoint is missing, corrupt, or does not fit the model asked for."""
+
+
+class ModelOptionError(RoboMorphError, ValueError):
+    """Model or loss options that do not fit together."""
 
 
 def load_checkpoint_file(path: str) -> dict:
@@ -63,8 +68,15 @@ class MetaModule(L.LightningModule):
             the network (see :class:`robomorph.model.transformer.ModelConfig`). The defaults are the
             CPU-sized model: d 128, 4 + 4 layers, 4 heads, patches of 10 steps (13x faster
             per step than one token per step on 2 cores; ``benchmarks/train.py``).
-        loss: ``huber`` or ``mse``, on normalized outputs.
+        n_init: last context steps fed to the decoder as initial-condition tokens (0 = off;
+            a multiple of ``patch``).
+        gaussian: the head also predicts a log-variance per step and channel.
+        loss: ``huber``, ``mse`` or ``nll`` (Gaussian negative log-likelihood, needs
+            ``gaussian``), on normalized outputs.
         huber_delta: Huber transition point in normalized units.
+        horizon_weight, horizon_tau: loss weight of query step t is
+            ``1 + horizon_weight * exp(-t / horizon_tau)``, rescaled to mean 1 over the horizon
+            (0 = uniform): the first steps, which a predictive controller uses most, count more.
         lr: peak learning rate (AdamW).
         min_lr_ratio: the cosine decays to ``lr * min_lr_ratio``.
         warmup_steps: linear warmup length.
@@ -94,8 +106,12 @@ class MetaModule(L.LightningModule):
         patch: int = 10,
         max_context: int = 1024,
         max_horizon: int = 1024,
-        loss: Literal["huber", "mse"] = "huber",
+        n_init: int = 0,
+        gaussian: bool = False,
+        loss: Literal["huber", "mse", "nll"] = "huber",
         huber_delta: float = 1.0,
+        horizon_weight: float = 0.0,
+        horizon_tau: float = 60.0,
         lr: float = 1e-3,
         min_lr_ratio: float = 0.1,
         warmup_steps: int = 200,
@@ -109,8 +125,12 @@ class MetaModule(L.LightningModule):
         reinit_io: bool = False,
     ):
         super().__init__()
-        if loss not in ("huber", "mse"):
-            raise ValueError(f"loss must be 'huber' or 'mse', got {loss!r}")
+        if loss not in LOSSES:
+            raise ModelOptionError(f"loss must be one of {LOSSES}, got {loss!r}")
+        if loss == "nll" and not gaussian:
+            raise ModelOptionError("loss 'nll' needs the Gaussian head: set gaussian=true (--model.gaussian true)")
+        if not horizon_weight >= 0 or not horizon_tau > 0:
+            raise ModelOptionError(f"need horizon_weight >= 0 and horizon_tau > 0, got {horizon_weight}, {horizon_tau}")
         if freeze not in FREEZE_MODES:
             raise ValueError(f"freeze must be one of {FREEZE_MODES}, got {freeze!r}")
         if lr <= 0 or not 0 <= min_lr_ratio <= 1 or warmup_steps < 0 or huber_delta <= 0:
@@ -131,9 +151,11 @@ class MetaModule(L.LightningModule):
     @property
     def model_config(self) -> ModelConfig:
         h = self.hparams
+        # .get: checkpoints written before these options existed lack them (old behaviour).
         return ModelConfig(n_u=h.n_u, n_y=h.n_y, d_model=h.d_model, n_head=h.n_head, n_layer=h.n_layer,
                            n_layer_dec=h.n_layer_dec, dropout=h.dropout, bias=h.bias, patch=h.patch,
-                           max_context=h.max_context, max_horizon=h.max_horizon)
+                           max_context=h.max_context, max_horizon=h.max_horizon, n_init=h.get("n_init", 0),
+                           gaussian=h.get("gaussian", False))
 
     def _build(self, n_u: int, n_y: int) -> None:
         self.hparams.n_u, self.hparams.n_y = int(n_u), int(n_y)
@@ -205,22 +227,50 @@ class MetaModule(L.LightningModule):
     def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor) -> torch.Tensor:
         """Predicts y over the query horizon, in physical units."""
         uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, u_query)
-        return self.normalizer.decode(self._predict(uc, yc, uq), y_ctx)
+        return self.normalizer.decode(self._predict(uc, yc, uq)[0], y_ctx)
 
-    def _predict(self, uc: torch.Tensor, yc: torch.Tensor, uq: torch.Tensor) -> torch.Tensor:
-        """Normalized prediction (B, Th, n_y) from normalized inputs."""
-        pred = self.net(uc, yc, uq)
-        return pred + yc[:, -1:] if self.hparams.get("anchor", False) else pred
+    def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor
+                     ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Mean and standard deviation (None without a Gaussian head), both in physical units."""
+        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, u_query)
+        mean, logvar = self._predict(uc, yc, uq)
+        # Recentring and anchoring shift the outputs; only the z-score scales them.
+        std = None if logvar is None else torch.exp(0.5 * logvar) * self.normalizer.y_std
+        return self.normalizer.decode(mean, y_ctx), std
+
+    def _predict(self, uc: torch.Tensor, yc: torch.Tensor, uq: torch.Tensor
+                 ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Normalized mean (B, Th, n_y) and log-variance (or None) from normalized inputs."""
+        mean, logvar = self.net.forward_dist(uc, yc, uq)
+        if self.hparams.get("anchor", False):
+            mean = mean + yc[:, -1:]
+        return mean, logvar
+
+    def horizon_weights(self, horizon: int) -> torch.Tensor:
+        """Loss weight of each query step (horizon,), mean 1."""
+        t = torch.arange(horizon, dtype=torch.float32, device=self.device)
+        w = 1 + self.hparams.get("horizon_weight", 0.0) * torch.exp(-t / self.hparams.get("horizon_tau", 60.0))
+        return w / w.mean()
 
     def _step(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"])
-        target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"])
-        pred = self._predict(uc, yc, uq)
-        if self.hparams.loss == "mse":
-            loss = F.mse_loss(pred, target)
-        else:
-            loss = F.huber_loss(pred, target, delta=self.hparams.huber_delta)
+        u_ctx, y_ctx = batch["u_ctx"], batch["y_ctx"]
+        # Random context lengths need not be multiples of patch: the oldest steps go.
+        drop = u_ctx.shape[1] % self.hparams.patch
+        u_ctx, y_ctx = u_ctx[:, drop:], y_ctx[:, drop:]
+        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, batch["u_query"])
+        target = self.normalizer.encode_target(batch["y_query"], y_ctx)
+        pred, logvar = self._predict(uc, yc, uq)
+        loss = (self.elementwise_loss(pred, logvar, target) * self.horizon_weights(target.shape[1])[:, None]).mean()
         return loss, pred, target
+
+    def elementwise_loss(self, pred: torch.Tensor, logvar: torch.Tensor | None, target: torch.Tensor) -> torch.Tensor:
+        """Per step and channel loss (B, Th, n_y) on normalized outputs."""
+        kind = self.hparams.loss
+        if kind == "nll":
+            return 0.5 * (logvar + (target - pred) ** 2 * torch.exp(-logvar) + math.log(2 * math.pi))
+        if kind == "mse":
+            return (pred - target) ** 2
+        return F.huber_loss(pred, target, delta=self.hparams.huber_delta, reduction="none")
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         loss, _, _ = self._step(batch)
@@ -231,7 +281,8 @@ class MetaModule(L.LightningModule):
     def _eval_step(self, batch: dict, keys: tuple[str, str, str]) -> None:
         loss, pred, _ = self._step(batch)
         y = batch["y_query"].double()
-        yhat = self.normalizer.decode(pred, batch["y_ctx"]).double()
+        drop = batch["y_ctx"].shape[1] % self.hparams.patch
+        yhat = self.normalizer.decode(pred, batch["y_ctx"][:, drop:]).double()
         n = len(y)
         self.log(keys[0], loss, batch_size=n, sync_dist=True, prog_bar=keys[0] == VAL_LOSS)
         # approach 1: per trajectory and channel over time, mean over channels, then over trajectories
