@@ -20,7 +20,8 @@ channels and robots) over the 800 steps and, for a Gaussian head, the fraction o
 joint angles inside +-1 and +-2 sigma. Per-step curves go to ``--curves``.
 
     python benchmarks/horizon_ablation.py --minutes 8            # the screening, all variants
-    python benchmarks/horizon_ablation.py --minutes 60 --variants full --csv results/benchmarks/confirm60.csv
+    python benchmarks/horizon_ablation.py --minutes 60 --variants full --score-every 10 \
+        --csv results/benchmarks/confirm60.csv --runs-dir data/quality/confirm_runs
 
 Data (gitignored): ``data/quality/ms_train.zarr`` (1024 robots, seed 0) and
 ``data/quality/ms_heldout.zarr`` (64 robots, seed 1), generated when missing.
@@ -54,7 +55,11 @@ STEPS = (0, 15, 60, 300, 799)  # first step, 0.25 s, 1 s, 5 s, end of the horizo
 CONTEXT, HORIZON = 200, 800
 HORIZON_AWARE = {"data": {"context_min": 60, "horizon_min": 100, "window": "random"},
                  "model": {"horizon_weight": 4.0, "horizon_tau": 60.0}}
-# name -> overrides of datamodules/train_cpu.yaml ({"data": ..., "model": ...}).
+# The model before issue 11 (explicit, so that the baseline stays put whatever
+# datamodules/train_cpu.yaml makes the default).
+BEFORE = {"data": {"context_min": None, "horizon_min": None, "window": "start"},
+          "model": {"anchor": False, "n_init": 0, "gaussian": False, "loss": "huber", "horizon_weight": 0.0}}
+# name -> overrides of datamodules/train_cpu.yaml ({"data": ..., "model": ...}) on top of BEFORE.
 VARIANTS: dict[str, dict] = {
     "default": {},
     "anchor": {"model": {"anchor": True}},
@@ -68,18 +73,28 @@ VARIANTS: dict[str, dict] = {
 
 class CpuBudget(L.Callback):
     """Sets the learning rate from the spent fraction of a CPU-time budget before each step
-    and stops training when it is spent."""
+    and stops training when it is spent. With ``every`` (CPU seconds) it calls
+    ``report(module, cpu_seconds, step)`` each time that much more is spent; the report's own
+    CPU time is left out of the budget."""
 
-    def __init__(self, cpu_seconds: float, warmup: float = 0.05, floor: float = 0.1):
+    def __init__(self, cpu_seconds: float, warmup: float = 0.05, floor: float = 0.1,
+                 every: float | None = None, report=None):
         self.seconds, self.warmup, self.floor, self.t0 = cpu_seconds, warmup, floor, None
+        self.every, self.report, self.excluded, self.next = every, report, 0.0, every
 
     def spent(self) -> float:
-        return time.process_time() - self.t0
+        return time.process_time() - self.t0 - self.excluded
 
     def on_train_start(self, trainer, pl_module):
         self.t0 = time.process_time()
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+        if self.every and self.spent() >= min(self.next, self.seconds):
+            t = time.process_time()
+            self.report(pl_module, self.spent(), trainer.global_step)
+            pl_module.train()
+            self.excluded += time.process_time() - t
+            self.next += self.every
         if self.spent() >= self.seconds:
             trainer.should_stop = True
 
@@ -103,8 +118,9 @@ def _data(train: str, test: str) -> None:
 def _config(name: str, train: str, test: str, runs_dir: str) -> dict:
     with open("datamodules/train_cpu.yaml") as f:
         cfg = yaml.safe_load(f)
-    for section, values in VARIANTS[name].items():
-        cfg[section] = {**cfg.get(section, {}), **values}
+    for overrides in (BEFORE, VARIANTS[name]):
+        for section, values in overrides.items():
+            cfg[section] = {**cfg.get(section, {}), **values}
     cfg["data"].update({"stores": train, "test_store": test, "split": [0.95, 0.05, 0.0],
                         "context_len": CONTEXT, "horizon": HORIZON, "seed": 0})
     # The CPU-budget callback drives the rate and the stop; the step schedule stays flat at lr.
@@ -113,12 +129,11 @@ def _config(name: str, train: str, test: str, runs_dir: str) -> dict:
     return {**cfg, "run": name, "runs_dir": runs_dir, "wandb": "disabled", "seed_everything": 0}
 
 
-def score(ckpt: str, test: str) -> dict:
+def score(pred: Predictor, test: str) -> dict:
     """Per-horizon joint RMS [mrad] of model and hold, R^2 and sigma coverage on ``test``."""
     ds = open_store(test)
     u, y = ds.read("u"), ds.read("y")
     joints = [i for i, n in enumerate(ds.y_names) if n.startswith("q")]
-    pred = Predictor.from_checkpoint(ckpt, device="cpu")
     u_ctx, y_ctx, u_q, y_q = u[:, :CONTEXT], y[:, :CONTEXT], u[:, CONTEXT:CONTEXT + HORIZON], y[:, CONTEXT:CONTEXT + HORIZON]
     means, stds = [], []
     for b in range(0, len(u), 16):
@@ -172,6 +187,8 @@ def main() -> None:
     p.add_argument("--runs-dir", default="data/quality/ablation_runs")
     p.add_argument("--csv", default="results/benchmarks/horizon_ablation.csv")
     p.add_argument("--curves", default=None, help="per-step curves CSV (default: <csv stem>_curves.csv)")
+    p.add_argument("--score-every", type=float, default=None,
+                   help="also score the held-out robots every this many 2-core minutes of training (a row each)")
     args = p.parse_args()
     names = args.variants.split(",")
     if unknown := [n for n in names if n not in VARIANTS]:
@@ -182,10 +199,17 @@ def main() -> None:
     curves = {}
     for name in names:
         t0 = time.perf_counter()
-        budget = CpuBudget(args.minutes * 60 * 2)
+
+        def report(module, cpu, step, name=name, t0=t0):
+            s = score(Predictor(module, device="cpu"), args.test)
+            row = _row(name, round(cpu / 120, 1), round(cpu / 60, 1), round((time.perf_counter() - t0) / 60, 1), step, s)
+            _append(args.csv, row)
+            print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
+
+        budget = CpuBudget(args.minutes * 60 * 2, every=args.score_every and args.score_every * 120, report=report)
         result = fit(_config(name, args.train, args.test, args.runs_dir), callbacks=[budget])
         cpu, wall = budget.spent() / 60, (time.perf_counter() - t0) / 60
-        s = score(result.last_ckpt, args.test)
+        s = score(Predictor.from_checkpoint(result.last_ckpt, device="cpu"), args.test)
         row = _row(name, args.minutes, round(cpu, 1), round(wall, 1), result.global_step, s)
         _append(args.csv, row)
         print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)

@@ -94,7 +94,7 @@ class Predictor:
         for name, t, w in zip(("u_ctx", "y_ctx", "u_query"), tensors, (self.n_u, self.n_y, self.n_u)):
             self._check(name, t, w)
         mean, std = self.module.forward_dist(*tensors)
-        out = [t[0] if single else t for t in (mean, std)]
+        out = [t[0] if single and t is not None else t for t in (mean, std)]
         if as_numpy:
             kind = dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32
             out = [t.cpu().numpy().astype(kind) for t in out if t is not None]
