@@ -22,16 +22,18 @@ from typing import Literal
 import lightning.pytorch as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset, Sampler
+from torch.utils.data import DataLoader, Dataset
 
+from robomorph.data.sampling import TRAIN_STREAM, MixtureSampler
 from robomorph.data.statistics import Stats, StatsAccumulator
 from robomorph.data.store import open_store
 
 # Stores whose u and y together fit in this many bytes are read into memory once (a random
 # batch from disk costs 34-55 ms against 0.1 ms from memory, REFERENCE.md section 3).
 MEMORY_BUDGET_BYTES = 4 * 2**30
-# SeedSequence spawn keys of the independent random streams drawn from ``seed``.
-_SPLIT_STREAM, _VAL_STREAM, _TRAIN_STREAM = 0, 1, 2
+# SeedSequence spawn keys of the independent random streams drawn from ``seed``
+# (the training stream's key, TRAIN_STREAM = 2, lives with its sampler).
+_SPLIT_STREAM, _VAL_STREAM = 0, 1
 
 
 class _Source:
@@ -144,60 +146,6 @@ class _WindowDataset(Dataset):
         # Copies: a batch must not keep a view of a whole in-memory store alive.
         return {k: torch.from_numpy(np.array(v, dtype=np.float32))
                 for k, v in (("u_ctx", u[:c]), ("y_ctx", y[:c]), ("u_query", u[c:]), ("y_query", y[c:]))}
-
-
-class _MixtureSampler(Sampler):
-    """Draws ``(row, offset, context_len, horizon)`` keys: store by weight, trajectory
-    uniformly within the store, lengths uniformly within ``lengths`` (one pair per run of
-    ``batch_size`` consecutive keys, i.e. per batch, so a batch stacks), offset uniformly
-    over the valid range for those lengths (``random`` windows) or 0.
-
-    Each pass uses a torch Generator seeded from ``(seed, epoch)``. Lightning calls
-    :meth:`set_epoch` before each epoch; without it the epoch advances by one per pass.
-    Fixed lengths draw nothing for them, so the stream equals that of fixed-length windows.
-    """
-
-    def __init__(self, base: np.ndarray, counts: np.ndarray, probs: np.ndarray, steps: np.ndarray,
-                 n_samples: int, seed: int, random_window: bool,
-                 lengths: tuple[int, int, int, int], batch_size: int):
-        self.base, self.counts = torch.as_tensor(base), torch.as_tensor(counts)
-        self.probs, self.steps = torch.as_tensor(probs, dtype=torch.float64), torch.as_tensor(steps)
-        self.n_samples, self.seed, self.random_window = n_samples, seed, random_window
-        self.lengths, self.batch_size = lengths, batch_size
-        self.epoch = 0
-
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = int(epoch)
-
-    def __len__(self) -> int:
-        return self.n_samples
-
-    def __iter__(self):
-        state = np.random.SeedSequence(self.seed, spawn_key=(_TRAIN_STREAM, self.epoch)).generate_state(1, np.uint64)
-        g = torch.Generator().manual_seed(int(state[0]))
-        self.epoch += 1
-        store = torch.multinomial(self.probs, self.n_samples, replacement=True, generator=g)
-        count = self.counts[store]
-        within = (torch.rand(self.n_samples, generator=g, dtype=torch.float64) * count).long()
-        row = self.base[store] + torch.minimum(within, count - 1)
-        c, h = self._draw_lengths(g)
-        offset = torch.zeros_like(row)
-        if self.random_window:
-            span = self.steps[store] - c - h + 1
-            offset = torch.minimum((torch.rand(self.n_samples, generator=g, dtype=torch.float64) * span).long(), span - 1)
-        return iter(zip(row.tolist(), offset.tolist(), c.tolist(), h.tolist()))
-
-    def _draw_lengths(self, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-        """Context lengths and horizons (n_samples,), constant within each batch."""
-        c_min, c_max, h_min, h_max = self.lengths
-        n_batches = -(-self.n_samples // self.batch_size)
-        out = []
-        for low, high in ((c_min, c_max), (h_min, h_max)):
-            per_batch = torch.full((n_batches,), high, dtype=torch.long)
-            if low < high:
-                per_batch = torch.randint(low, high + 1, (n_batches,), generator=g)
-            out.append(per_batch.repeat_interleave(self.batch_size)[:self.n_samples])
-        return out[0], out[1]
 
 
 class RoboMorphDataModule(L.LightningDataModule):
@@ -374,7 +322,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         ctx, h = self.context_len, self.horizon
         self.train_set, self.val_set, self.test_set = (_WindowDataset(sources, p, ctx, h) for p in (train, val, test))
         counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
-        self.train_sampler = _MixtureSampler(
+        self.train_sampler = MixtureSampler(
             base=np.concatenate([[0], np.cumsum(counts)[:-1]]), counts=counts, probs=self.probs,
             steps=np.array([src.steps for src in sources[:len(self.stores)]]),
             n_samples=self.train_samples_per_epoch or len(train), seed=self.seed,
