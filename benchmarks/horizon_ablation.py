@@ -58,7 +58,7 @@ HORIZON_AWARE = {"data": {"context_min": 60, "horizon_min": 100, "window": "rand
 # The model before issue 11 (explicit, so that the baseline stays put whatever
 # datamodules/train_cpu.yaml makes the default).
 BEFORE = {"data": {"context_min": None, "horizon_min": None, "window": "start"},
-          "model": {"anchor": False, "n_init": 0, "gaussian": False, "loss": "huber", "horizon_weight": 0.0}}
+          "model": {"anchor": False, "integrate": False, "n_init": 0, "gaussian": False, "loss": "huber", "horizon_weight": 0.0}}
 # name -> overrides of datamodules/train_cpu.yaml ({"data": ..., "model": ...}) on top of BEFORE.
 VARIANTS: dict[str, dict] = {
     "default": {},
@@ -68,6 +68,9 @@ VARIANTS: dict[str, dict] = {
                             "model": {"anchor": True, "n_init": 20, **HORIZON_AWARE["model"]}},
     "full": {"data": HORIZON_AWARE["data"],
              "model": {"anchor": True, "n_init": 20, "gaussian": True, "loss": "nll", **HORIZON_AWARE["model"]}},
+    "full_integrate": {"data": HORIZON_AWARE["data"],
+                       "model": {"anchor": True, "integrate": True, "n_init": 20, "gaussian": True, "loss": "nll",
+                                 **HORIZON_AWARE["model"]}},
 }
 
 

@@ -27,6 +27,11 @@ FREEZE_MODES = ("none", "encoder", "all_but_head")
 # Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
 IO_LAYERS = ("encoder.embed", "decoder.embed", "decoder.init_embed", "head")
 LOSSES = ("huber", "mse", "nll")
+# Per-step change of the normalized outputs that one unit of network output means with
+# ``integrate``: of the order of the arm's per-step motion at 60 Hz (about 0.01 of a
+# channel's standard deviation), so that an untrained network's random walk over 800 steps
+# stays within a few standard deviations.
+INTEGRATE_SCALE = 0.05
 # Checkpoint entry holding what the model was trained on (see ``data_info``).
 DATA_INFO_KEY = "robomorph_data"
 
@@ -87,6 +92,9 @@ class MetaModule(L.LightningModule):
         anchor: the network predicts the deviation from the last context output, which
             is added back (a context value: nothing of the query leaks). The prediction
             then starts where the robot is instead of having to locate it first.
+        integrate: the network predicts per-step changes (scaled by ``INTEGRATE_SCALE``), summed
+            from the last context output: the first predicted step is the last measured one
+            plus one small change, so the prediction cannot jump away from the robot.
         init_ckpt: start from this checkpoint's weights and normalization (transfer).
         freeze: ``none``, ``encoder`` or ``all_but_head``.
         reinit_io: when the checkpoint's n_u / n_y differ, re-initialize the input
@@ -120,6 +128,7 @@ class MetaModule(L.LightningModule):
         betas: tuple[float, float] = (0.9, 0.95),
         recenter: bool = False,
         anchor: bool = False,
+        integrate: bool = False,
         init_ckpt: str | None = None,
         freeze: Literal["none", "encoder", "all_but_head"] = "none",
         reinit_io: bool = False,
@@ -242,7 +251,10 @@ class MetaModule(L.LightningModule):
                  ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Normalized mean (B, Th, n_y) and log-variance (or None) from normalized inputs."""
         mean, logvar = self.net.forward_dist(uc, yc, uq)
-        if self.hparams.get("anchor", False):
+        if self.hparams.get("integrate", False):
+            # A running sum over steps <= t: causal, like the decoder it follows.
+            mean = INTEGRATE_SCALE * mean.cumsum(dim=1)
+        if self.hparams.get("anchor", False) or self.hparams.get("integrate", False):
             mean = mean + yc[:, -1:]
         return mean, logvar
 

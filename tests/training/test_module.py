@@ -108,3 +108,21 @@ def test_a_checkpoint_from_before_the_new_options_predicts_as_before():
     assert not pred.has_std
     out = pred.simulate(ref["u_ctx"], ref["y_ctx"], ref["u_query"])
     np.testing.assert_allclose(out, ref["y_query"], rtol=0, atol=1e-6)
+
+
+def test_integrate_sums_small_changes_from_the_last_context_output_causally():
+    from robomorph.training.module import INTEGRATE_SCALE
+
+    m = _module(integrate=True, n_init=2)
+    b = _batch(Th=12)
+    uc, yc, uq = m.normalizer.encode(b["u_ctx"], b["y_ctx"], b["u_query"])
+    with torch.no_grad():
+        raw = m.net(uc, yc, uq)
+        pred = m._predict(uc, yc, uq)[0]
+        uq2 = uq.clone()
+        uq2[:, 6:] += 1.0  # patch 2: steps 6.. are patches 3..
+        pred2 = m._predict(uc, yc, uq2)[0]
+    torch.testing.assert_close(pred, yc[:, -1:] + INTEGRATE_SCALE * raw.cumsum(dim=1))
+    torch.testing.assert_close(pred[:, 0], yc[:, -1] + INTEGRATE_SCALE * raw[:, 0])
+    torch.testing.assert_close(pred[:, :6], pred2[:, :6])
+    assert (pred[:, 6:] - pred2[:, 6:]).abs().amax() > 1e-4
