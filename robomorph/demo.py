@@ -6,6 +6,8 @@
 3. Evaluates it on held-out robots it never saw (context alone), beside the baselines,
    with the horizon and context sweeps, and prints the per-channel table.
 4. Writes the HTML report of all runs (``results/report.html``) and prints its path.
+5. Ends with the RMS errors by horizon in physical units (joint angles [mrad], end-effector
+   position [mm] and orientation [mrad]) of the model, ``hold`` and ``nominal_physics``.
 
 Re-running skips datasets that are complete and resumes the training run.
 """
@@ -61,7 +63,7 @@ def train(out_dir: str, robots: int, minutes: float, runs_dir: str) -> tuple[str
     return result.run_dir, result.best_ckpt, test
 
 
-def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str]:
+def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str, dict]:
     """Scores held-out robots (model and baselines, both sweeps) and builds the HTML report."""
     from robomorph.evaluation.evaluator import default_out, evaluate, summary_text  # noqa: PLC0415
     from robomorph.reporting.dashboard import build_report  # noqa: PLC0415
@@ -70,9 +72,9 @@ def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str]:
     res = evaluate(ckpt, test, out, sweep_horizon_spec="100:800:100", sweep_context_spec="20:200:20")
     with open(os.path.join(out, "table.md")) as f:
         print("\n" + f.read())
-    print(summary_text(res, out))
+    print(summary_text(res, out, horizons=False))  # the demo closes with the horizon table
     report = build_report(runs_dir, os.path.join(os.path.dirname(os.path.abspath(runs_dir)), "report.html"))
-    return out, report
+    return out, report, res
 
 
 def _ddhhmmss(seconds: float) -> str:
@@ -93,12 +95,23 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     paths = make_data(args.out_dir, args.robots, args.steps, args.workers)
     run_dir, ckpt, test = train(args.out_dir, args.train_robots, args.minutes, args.runs_dir)
-    eval_dir, report = evaluate_and_report(ckpt, test, args.runs_dir)
+    eval_dir, report, res = evaluate_and_report(ckpt, test, args.runs_dir)
     print(f"\ndatasets: {', '.join(paths)}")
     print(f"training run: {run_dir} (config.yaml, checkpoints/best.ckpt, logs/metrics.csv, wandb/)")
     print(f"evaluation: {eval_dir} (metrics.json, metrics.csv, table.md, plots)")
     print(f"report: {report}  (open it in a browser; it works offline)")
+    print(horizon_summary(res))
     return 0
+
+
+def horizon_summary(res: dict) -> str:
+    """The closing table: RMS error by horizon of the model, hold and nominal physics."""
+    from robomorph.evaluation.horizons import horizon_markdown  # noqa: PLC0415
+
+    meta = res["meta"]
+    return (f"\nRMS error by horizon on {meta['n']} held-out robots (context {meta['context_len']} steps; "
+            "step k is k dt after the last context sample):\n"
+            + horizon_markdown(res["horizons"], ("model", "hold", "nominal_physics")))
 
 
 if __name__ == "__main__":

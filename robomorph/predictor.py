@@ -7,6 +7,11 @@
 This is what a model predictive controller calls: given a window of measured torques and
 outputs of the robot at hand (the context) and candidate future torques, it returns the
 predicted outputs. Normalization is handled inside (statistics stored in the checkpoint).
+
+A model trained with ``data.normalization: paper_window`` (the paper's protocol) rescales
+each window with the mean and std of the very outputs it predicts; ``simulate`` refuses it
+unless the caller passes those statistics explicitly (``y_query_stats``), which only an
+evaluation against recorded outputs can do.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import inspect
 import numpy as np
 import torch
 
+from robomorph.data.statistics import NormalizationError, leaks_query_statistics
 from robomorph.training.module import CheckpointError, MetaModule, load_checkpoint_file
 
 
@@ -38,6 +44,12 @@ class Predictor:
         self.data_info: dict | None = module.data_info
         # Whether the model has a Gaussian head (simulate(..., return_std=True) works).
         self.has_std = bool(module.hparams.get("gaussian", False))
+        self.normalization: str = module.hparams.get("normalization", "train_stats")
+
+    @property
+    def leaks_query_statistics(self) -> bool:
+        """True when this model's predictions need the query outputs' statistics (``paper_window``)."""
+        return leaks_query_statistics(self.normalization)
 
     @classmethod
     def from_checkpoint(cls, path: str, device: str | torch.device | None = None) -> "Predictor":
@@ -61,14 +73,44 @@ class Predictor:
         if not torch.isfinite(x).all():
             raise ValueError(f"{name} holds NaN or inf values")
 
+    def _query_stats(self, y_query_stats, batch: int):
+        """Checks ``y_query_stats`` against the normalization; (mean, std) tensors (B, n_y) or None."""
+        if not self.leaks_query_statistics:
+            if y_query_stats is not None:
+                raise NormalizationError(f"this model was trained with normalization {self.normalization!r}, which "
+                                         "uses no query statistics: drop y_query_stats")
+            return None
+        if y_query_stats is None:
+            raise NormalizationError(
+                "this model was trained with normalization 'paper_window' (the paper's protocol): it rescales each "
+                "window with the mean and std of the outputs it is asked to predict, which a deployed model cannot "
+                "know. Pass y_query_stats=(mean, std) of the query outputs "
+                "(robomorph.data.statistics.query_output_stats(y_query)) to score it as the paper did, or train "
+                "with data.normalization=train_stats for a model you can deploy")
+        if len(y_query_stats) != 2:
+            raise NormalizationError("y_query_stats must be a pair (mean, std) of the query outputs")
+        out = []
+        for name, v in zip(("mean", "std"), y_query_stats):
+            t = torch.as_tensor(np.asarray(v) if not isinstance(v, torch.Tensor) else v, dtype=torch.float32,
+                                device=self.device)
+            t = t.unsqueeze(0) if t.dim() == 1 else t
+            if t.shape not in ((1, self.n_y), (batch, self.n_y)) or not torch.isfinite(t).all():
+                raise NormalizationError(f"y_query_stats {name} must be finite, ({self.n_y},) or ({batch}, {self.n_y}); "
+                                         f"got {tuple(t.shape)}")
+            out.append(t.expand(batch, self.n_y))
+        return tuple(out)
+
     @torch.no_grad()
-    def simulate(self, u_ctx, y_ctx, u_query, return_std: bool = False):
+    def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, return_std: bool = False):
         """Predicts the outputs over the query horizon.
 
         Args:
             u_ctx: (Tc, n_u) or (B, Tc, n_u) context inputs, numpy or torch.
             y_ctx: (Tc, n_y) or (B, Tc, n_y) context outputs.
             u_query: (Th, n_u) or (B, Th, n_u) future inputs.
+            y_query_stats: only for a ``paper_window`` model, and required there: ``(mean, std)``
+                over time of the query outputs, (n_y,) or (B, n_y) each. This is information
+                about the answer: scores obtained with it are not those of a deployable model.
             return_std: also return the predicted standard deviation (models trained with
                 ``gaussian: true`` only).
 
@@ -77,6 +119,8 @@ class Predictor:
             with ``return_std``, ``(mean, std)``, both in the outputs' physical units.
 
         Raises:
+            NormalizationError: ``y_query_stats`` missing for a ``paper_window`` model, given
+                for another, or of the wrong shape.
             CheckpointError: ``return_std`` for a model without a Gaussian head.
         """
         if return_std and not self.has_std:
@@ -93,7 +137,7 @@ class Predictor:
             tensors = [t.unsqueeze(0) for t in tensors]
         for name, t, w in zip(("u_ctx", "y_ctx", "u_query"), tensors, (self.n_u, self.n_y, self.n_u)):
             self._check(name, t, w)
-        mean, std = self.module.forward_dist(*tensors)
+        mean, std = self.module.forward_dist(*tensors, self._query_stats(y_query_stats, len(tensors[0])))
         out = [t[0] if single and t is not None else t for t in (mean, std)]
         if as_numpy:
             kind = dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32

@@ -25,7 +25,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from robomorph.data.sampling import TRAIN_STREAM, MixtureSampler
-from robomorph.data.statistics import Stats, StatsAccumulator
+from robomorph.data.statistics import Stats, StatsAccumulator, check_normalization
 from robomorph.data.store import open_store
 
 # Stores whose u and y together fit in this many bytes are read into memory once (a random
@@ -173,6 +173,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         num_workers: DataLoader worker processes (the data do not depend on it).
         in_memory: read stores fully into memory; default: when they all fit in 4 GiB.
         recenter: recorded for the model's Normalizer (context-mean recentring); not used here.
+        normalization: recorded for the model's Normalizer: ``train_stats`` (``stats`` below)
+            or ``paper_window`` (the paper's protocol, each window z-scored over context and
+            query; it leaks the query outputs' statistics and is labelled so wherever it is used).
         val_subset: at most this many validation trajectories (a fixed seeded subset).
         train_samples_per_epoch: windows per training epoch; default the number of training
             trajectories.
@@ -184,7 +187,8 @@ class RoboMorphDataModule(L.LightningDataModule):
                  context_min: int | None = None, horizon_min: int | None = None,
                  split: tuple[float, float, float] = (0.8, 0.1, 0.1), seed: int = 0, batch_size: int = 16,
                  num_workers: int = 0, in_memory: bool | None = None, recenter: bool = False,
-                 val_subset: int = 256, train_samples_per_epoch: int | None = None):
+                 val_subset: int = 256, train_samples_per_epoch: int | None = None,
+                 normalization: Literal["train_stats", "paper_window"] = "train_stats"):
         super().__init__()
         self.save_hyperparameters()
         self.stores = [stores] if isinstance(stores, str) else list(stores)
@@ -194,6 +198,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.split, self.seed, self.batch_size, self.num_workers = tuple(split), seed, batch_size, num_workers
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
         self.train_samples_per_epoch = train_samples_per_epoch
+        self.normalization = normalization
         self._validate()
         self._ready = False
 
@@ -233,6 +238,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         if self.context_min is not None and (self.context_min < 1 or (
                 self.context_len is not None and self.context_min > self.context_len)):
             raise ValueError(f"context_min must be in [1, context_len={self.context_len}], got {self.context_min}")
+        check_normalization(self.normalization, self.recenter)
         if self.train_samples_per_epoch is not None and self.train_samples_per_epoch < 1:
             raise ValueError(f"train_samples_per_epoch must be >= 1, got {self.train_samples_per_epoch}")
 
@@ -360,5 +366,5 @@ class RoboMorphDataModule(L.LightningDataModule):
             "context_len": self.context_len, "horizon": self.horizon, "window": self.window,
             "context_min": self.context_min, "horizon_min": self.horizon_min,
             "n_u": self.n_u, "n_y": self.n_y, "dt": self.dt, "in_memory": bool(self.loaded),
-            "seed": self.seed, "split": list(self.split),
+            "seed": self.seed, "split": list(self.split), "normalization": self.normalization,
         }

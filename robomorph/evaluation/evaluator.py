@@ -4,11 +4,20 @@
         --data data/ms_test.zarr --out results/runs/ms/eval/ms_test \\
         --sweep-horizon 200:800:50 --sweep-context 20:200:20
 
-Each trajectory's first ``context_len`` steps are the context; the next ``horizon`` steps
-are predicted from the query torques alone. Writes ``metrics.json`` (both of the paper's
-evaluation approaches for the model and every baseline, the sweeps, and the run's
-meta-data), ``metrics.csv`` (one row per source, approach, channel and metric),
-``table.md`` (per-channel table in the paper's fit colour convention) and PNG plots.
+Each trajectory's first ``context_len`` steps are the context (or, with ``--offset random``
+or ``--offset N``, those of a window starting later); the next ``horizon`` steps are
+predicted from the query torques alone. Writes ``metrics.json`` (both of the paper's
+evaluation approaches for the model and every baseline, the RMS errors by horizon in
+physical units and, when the model gives a standard deviation, its ±1σ/±2σ coverage, the
+sweeps, and the run's meta-data), ``metrics.csv`` (one row per source, approach, channel
+and metric), ``horizons.csv`` (one row per source, quantity and horizon), ``table.md``
+(per-channel table in the paper's fit colour convention, then the per-horizon table) and
+PNG plots.
+
+A checkpoint trained with ``data.normalization: paper_window`` (the paper's protocol) is
+scored as the paper scored it: each window rescaled with its own query outputs' mean and
+std. ``metrics.json`` then says ``"leaks_query_statistics": true`` and ``table.md`` says so
+in its header.
 
 The horizon sweep predicts with shorter query windows after the same context; the context
 sweep keeps the predicted window fixed and gives the model only the last ``c`` steps
@@ -18,84 +27,77 @@ before it, so every point of it scores the same targets.
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import sys
-from dataclasses import dataclass
 
 import numpy as np
 
+from robomorph.data.statistics import NormalizationError, leaks_query_statistics, query_output_stats
 from robomorph.evaluation import metrics
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
-from robomorph.evaluation.tables import write_csv, write_table
+from robomorph.evaluation.horizons import horizon_markdown, horizon_report, parse_horizons
+from robomorph.evaluation.tables import write_csv, write_horizons_csv, write_table
+from robomorph.evaluation.windows import Window, load_window, parse_offset  # noqa: F401  (Window re-exported)
 
 
-@dataclass
-class Window:
-    """What one evaluation scores: ``n`` trajectories split at ``context_len``."""
+def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None,
+            with_std: bool = False):
+    """The model's predictions in batches, with a progress bar on stderr.
 
-    u: np.ndarray  # (N, context_len + horizon, n_u)
-    y: np.ndarray  # (N, context_len + horizon, n_y)
-    context_len: int
-    horizon: int
-    u_names: list[str]
-    y_names: list[str]
-    dt: float
-    attrs: dict
-    params: np.ndarray  # (N, P) the stored physical parameters (P may be 0)
+    ``y_query`` (the true outputs) is read only by a ``paper_window`` model, which needs
+    their statistics (the paper's protocol); any other model never receives them.
 
-    def split(self, context_len: int | None = None, horizon: int | None = None):
-        """``u_ctx, y_ctx, u_query, y_query`` with the query always starting at ``self.context_len``."""
-        c, h, c0 = context_len or self.context_len, horizon or self.horizon, self.context_len
-        return self.u[:, c0 - c:c0], self.y[:, c0 - c:c0], self.u[:, c0:c0 + h], self.y[:, c0:c0 + h]
-
-
-def load_window(data: str, context_len: int, horizon: int, n: int | None, info: dict | None,
-                n_u: int, n_y: int) -> Window:
-    """Reads and checks the first ``n`` trajectories of a store against the model.
-
-    Raises:
-        ValueError: empty store, channels that differ from the checkpoint's, a window longer
-            than the trajectories, or non-finite values (the trajectories are named).
+    Returns:
+        (N, H, n_y) means, or with ``with_std`` the pair (means, standard deviations).
     """
-    from robomorph.data.store import open_store  # noqa: PLC0415
-
-    ds = open_store(data, allow_incomplete=True)
-    total = int(ds.attrs.get("n", 0))
-    if total == 0:
-        raise ValueError(f"{data} holds no trajectories: generate or import data into it first")
-    ds = open_store(data)  # a half-written store: the error says how to finish it
-    if info is not None:
-        for what, ours, theirs in (("u_names", ds.u_names, info["u_names"]), ("y_names", ds.y_names, info["y_names"])):
-            if list(ours) != list(theirs):
-                raise ValueError(f"{data} has {what} {list(ours)} but the checkpoint was trained on {list(theirs)}")
-    elif (len(ds.u_names), len(ds.y_names)) != (n_u, n_y):
-        raise ValueError(f"{data} has n_u={len(ds.u_names)}, n_y={len(ds.y_names)} but the checkpoint expects "
-                         f"n_u={n_u}, n_y={n_y}")
-    if context_len < 1 or horizon < 1 or context_len + horizon > ds.steps:
-        raise ValueError(f"context_len {context_len} + horizon {horizon} must fit in the store's T={ds.steps} steps "
-                         "(both >= 1): pass shorter --context-len / --horizon")
-    rows = slice(0, min(n or total, total))
-    u = ds.read("u", rows)[:, : context_len + horizon]
-    y = ds.read("y", rows)[:, : context_len + horizon]
-    bad = np.flatnonzero(~(np.isfinite(u).all((1, 2)) & np.isfinite(y).all((1, 2))))
-    if len(bad):
-        raise ValueError(f"{data}: trajectories {bad[:10].tolist()} hold NaN or inf in the evaluated window; "
-                         "drop them (robomorph.merge) or fix the import")
-    return Window(u, y, context_len, horizon, list(ds.u_names), list(ds.y_names), ds.dt, ds.attrs,
-                  ds.read("params", rows))
-
-
-def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model") -> np.ndarray:
-    """The model's predictions in batches, with a progress bar on stderr."""
     from tqdm.auto import tqdm  # noqa: PLC0415
 
-    out = []
+    leaks = getattr(predictor, "leaks_query_statistics", False)
+    if leaks and y_query is None:
+        raise NormalizationError("a paper_window model needs the query outputs' statistics: pass y_query to predict()")
+    means, stds = [], []
     for s in tqdm(range(0, len(u_ctx), batch_size), desc=desc, unit="batch", leave=False,
                   disable=not sys.stderr.isatty() and len(u_ctx) <= batch_size):
-        out.append(predictor.simulate(u_ctx[s:s + batch_size], y_ctx[s:s + batch_size], u_query[s:s + batch_size]))
-    return np.concatenate(out).astype(np.float64)
+        part = slice(s, s + batch_size)
+        out = predictor.simulate(u_ctx[part], y_ctx[part], u_query[part], **_extra(predictor, y_query, part, with_std))
+        mean = out[0] if with_std else out
+        if with_std:
+            stds.append(out[1])
+        means.append(mean)
+    mean = np.concatenate(means).astype(np.float64)
+    return (mean, np.concatenate(stds).astype(np.float64)) if with_std else mean
+
+
+def _extra(predictor, y_query, part: slice, with_std: bool) -> dict:
+    """Keyword arguments of ``simulate`` beyond the three arrays: only those this call needs,
+    so any object with ``simulate(u_ctx, y_ctx, u_query)`` can be evaluated."""
+    kwargs = {}
+    if getattr(predictor, "leaks_query_statistics", False):
+        kwargs["y_query_stats"] = query_output_stats(y_query[part])
+    if with_std:
+        kwargs["return_std"] = True
+    return kwargs
+
+
+def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
+    """Whether ``predictor.simulate(..., return_std=True)`` returns a standard deviation.
+
+    Asked of the first trajectory: a predictor without the keyword, one that refuses it
+    (a model without a Gaussian head) or one that answers ``(mean, None)`` gives none.
+    """
+    from robomorph.core.errors import RoboMorphError  # noqa: PLC0415
+
+    try:
+        params = inspect.signature(predictor.simulate).parameters
+        if "return_std" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+            return False
+        out = predictor.simulate(u_ctx[:1], y_ctx[:1], u_query[:1], **_extra(predictor, y_query, slice(0, 1), True))
+    except (NotImplementedError, RoboMorphError, ValueError, TypeError):
+        return False
+    return isinstance(out, tuple) and len(out) == 2 and out[1] is not None
 
 
 def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]) -> tuple[dict, dict, dict]:
@@ -122,11 +124,23 @@ def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]
             except NotApplicable as exc:
                 skipped[name] = str(exc)
                 continue
-            params = w.params if name == "true_physics" else None
+            params = w.params if name == "true_physics" else _nominal_params(sim, w)
             preds[name] = _batched(sim, u_ctx, y_ctx, u_q, name.replace("_", " "), params=params)
         else:
             raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
     return preds, skipped, notes
+
+
+def _nominal_params(sim, w: Window) -> np.ndarray | None:
+    """Nominal parameters with the joint springs anchored where each robot started (its
+    trajectory's first sample), as the generator anchored them; None (the simulator anchors
+    at the context's first sample) when every window opens its trajectory, where they agree."""
+    from robomorph.sim import panda  # noqa: PLC0415  (NominalPhysics checked the Panda layout)
+
+    if not w.starts.any():
+        return None
+    q = w.y_first[:, [w.y_names.index(f"q{i}") for i in range(panda.N_JOINT)]]
+    return np.stack([sim.params(q0.astype(np.float64)) for q0 in q])
 
 
 def _batched(fn, u_ctx, y_ctx, u_q, desc: str, size: int = 16, params=None) -> np.ndarray:
@@ -152,7 +166,7 @@ def sweep_horizon(predictor, w: Window, horizons: list[int], baselines: dict, ba
     for h in horizons:
         u_ctx, y_ctx, u_q, y_q = w.split(horizon=h)
         y_q = y_q.astype(np.float64)
-        row = {"horizon": h, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size, f"horizon {h}"))}
+        row = {"horizon": h, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size, f"horizon {h}", y_q))}
         row.update({name: _summary(y_q, p[:, :h]) for name, p in baselines.items()})
         rows.append(row)
     return rows
@@ -164,7 +178,8 @@ def sweep_context(predictor, w: Window, contexts: list[int], batch_size: int) ->
     for c in contexts:
         u_ctx, y_ctx, u_q, y_q = w.split(context_len=c)
         y_q = y_q.astype(np.float64)
-        rows.append({"context_len": c, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size, f"context {c}")),
+        rows.append({"context_len": c, "model": _summary(y_q, predict(predictor, u_ctx, y_ctx, u_q, batch_size,
+                                                                      f"context {c}", y_q)),
                      "hold": _summary(y_q, hold(u_ctx, y_ctx, u_q))})
     return rows
 
@@ -189,8 +204,18 @@ def parse_range(text: str | None, low: int, high: int, what: str) -> list[int]:
 def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, horizon: int | None = None,
              n: int | None = None, baselines: tuple[str, ...] = BASELINES, sweep_horizon_spec: str | None = None,
              sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
-             samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0) -> dict:
+             samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0,
+             normalization: str | None = None, horizons_spec: str | None = None,
+             offset: str | int | None = "start") -> dict:
     """Evaluates a checkpoint on a store and writes every output file into ``out``.
+
+    Args:
+        normalization: when given, the normalization the checkpoint must have been trained
+            with (``train_stats`` or ``paper_window``); default: whatever it was trained with.
+        horizons_spec: the steps of the per-horizon errors (:func:`parse_horizons`; default
+            first step, 0.25 s, 1 s, 5 s and the end of the horizon).
+        offset: where each window starts (:func:`parse_offset`): ``start``, ``random``
+            (seeded by ``seed``) or a fixed step.
 
     Returns:
         The ``metrics.json`` content.
@@ -200,13 +225,18 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     for name in baselines:
         if name not in BASELINES + CEILINGS:
             raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
+    offset = parse_offset(offset)
     predictor = Predictor.from_checkpoint(ckpt, device=device)
+    if normalization is not None and normalization != predictor.normalization:
+        raise NormalizationError(f"{ckpt} was trained with normalization {predictor.normalization!r}, not "
+                                 f"{normalization!r}: the normalization is fixed at training time (data.normalization)")
     info = predictor.data_info
     context_len = context_len or (info or {}).get("context_len")
     horizon = horizon or (info or {}).get("horizon")
     if context_len is None or horizon is None:
         raise ValueError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
-    w = load_window(data, int(context_len), int(horizon), n, info, predictor.n_u, predictor.n_y)
+    w = load_window(data, int(context_len), int(horizon), n, info, predictor.n_u, predictor.n_y, offset, seed)
+    steps = parse_horizons(horizons_spec, w.horizon, w.dt)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
     contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")
     patch = int(predictor.module.hparams.get("patch", 1))
@@ -215,22 +245,8 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
         raise ValueError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "
                          f"{odd} are not (--context-len / --sweep-context)")
     os.makedirs(out, exist_ok=True)
-
-    u_ctx, y_ctx, u_q, y_q = w.split()
-    y_q = y_q.astype(np.float64)
-    preds = {"model": predict(predictor, u_ctx, y_ctx, u_q, batch_size)}
-    base, skipped, notes = run_baselines(w, tuple(baselines), arx_orders)
-    preds.update(base)
-    names = w.y_names
-    result = {"approach1": metrics.approach1(y_q, preds["model"], names),
-              "approach2": metrics.approach2(y_q, preds["model"], names),
-              "baselines": {b: {"approach1": metrics.approach1(y_q, p, names), "approach2": metrics.approach2(y_q, p, names)}
-                            for b, p in base.items()},
-              "skipped_baselines": skipped,
-              "meta": {"ckpt": ckpt, "data": data, "context_len": w.context_len,
-                       "horizon": w.horizon, "n": len(w.u), "dt": w.dt, "y_names": names, "u_names": w.u_names,
-                       "device": str(predictor.device), "baseline_notes": notes,
-                       "domain": w.attrs.get("domain"), "task": w.attrs.get("task")}}
+    result, preds, std, base = score(predictor, w, tuple(baselines), arx_orders, batch_size, steps)
+    result["meta"] = {"ckpt": ckpt, "data": data, **result["meta"], "offset": offset, "seed": seed}
     sweeps = {}
     if horizons:
         sweeps["horizon"] = sweep_horizon(predictor, w, horizons, base, batch_size)
@@ -239,11 +255,51 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
         sweeps["context"] = sweep_context(predictor, w, contexts, batch_size)
         eval_plots.plot_sweep(os.path.join(out, "sweep_context.png"), sweeps["context"], "context_len")
     result["sweeps"] = sweeps
-    eval_plots.write_all(out, y_ctx, y_q, preds, names, w.dt, samples, seed)
+    _, y_ctx, _, y_q = w.split()
+    eval_plots.write_all(out, y_ctx, y_q.astype(np.float64), preds, w.y_names, w.dt, samples, seed,
+                         std=std, steps=steps, y_units=w.attrs.get("y_units"))
     write_csv(os.path.join(out, "metrics.csv"), result)
+    write_horizons_csv(os.path.join(out, "horizons.csv"), result["horizons"])
     write_table(os.path.join(out, "table.md"), result)
     _write_json(os.path.join(out, "metrics.json"), result)
     return result
+
+
+def score(predictor, w: Window, baselines: tuple[str, ...], arx_orders: tuple[int, int], batch_size: int,
+          steps: list[int]) -> tuple[dict, dict, np.ndarray | None, dict]:
+    """Scores the model and the baselines on one window set.
+
+    Returns:
+        ``(result, preds, std, baseline preds)``: the ``metrics.json`` content without the
+        sweeps, every source's predictions, and the model's standard deviation (None when
+        the predictor gives none).
+    """
+    u_ctx, y_ctx, u_q, y_q = w.split()
+    y_q = y_q.astype(np.float64)
+    normalization = getattr(predictor, "normalization", None)
+    std = None
+    if gives_std(predictor, u_ctx, y_ctx, u_q, y_q):
+        model, std = predict(predictor, u_ctx, y_ctx, u_q, batch_size, y_query=y_q, with_std=True)
+    else:
+        model = predict(predictor, u_ctx, y_ctx, u_q, batch_size, y_query=y_q)
+    preds = {"model": model}
+    base, skipped, notes = run_baselines(w, baselines, arx_orders)
+    preds.update(base)
+    names = w.y_names
+    result = {"approach1": metrics.approach1(y_q, model, names),
+              "approach2": metrics.approach2(y_q, model, names),
+              "baselines": {b: {"approach1": metrics.approach1(y_q, p, names), "approach2": metrics.approach2(y_q, p, names)}
+                            for b, p in base.items()},
+              "skipped_baselines": skipped,
+              "horizons": horizon_report(y_q, preds, names, w.dt, steps, std, w.attrs.get("y_units")),
+              "window_starts": w.starts.tolist(),
+              "meta": {"context_len": w.context_len, "horizon": w.horizon, "n": len(w.u), "dt": w.dt,
+                       "y_names": names, "u_names": w.u_names, "device": str(getattr(predictor, "device", "")),
+                       "baseline_notes": notes, "domain": w.attrs.get("domain"), "task": w.attrs.get("task"),
+                       "normalization": normalization, "std": std is not None},
+              # The paper's protocol scales each window with its query outputs' statistics: say so first.
+              "leaks_query_statistics": leaks_query_statistics(normalization)}
+    return result, preds, std, base
 
 
 def _write_json(path: str, obj: dict) -> None:
@@ -276,7 +332,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
     p.add_argument("--samples", type=int, default=3, help="sample trajectories to plot")
     p.add_argument("--arx-orders", default="2,2", help="ARX output and input lags na,nb")
-    p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories")
+    p.add_argument("--horizons", help="steps of the per-horizon errors: steps (15), seconds (0.25s) or 'end', "
+                   "comma-separated (default: 1,0.25s,1s,5s,end)")
+    p.add_argument("--offset", default="start", help="where each window starts: 'start' (the paper's), 'random' "
+                   "(seeded by --seed, within the data) or a step number")
+    p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories and the random offsets")
+    p.add_argument("--normalization", choices=("train_stats", "paper_window"),
+                   help="require the checkpoint to have been trained with this normalization (default: its own)")
     a = p.parse_args(argv)
     baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
     out = a.out or default_out(a.ckpt, a.data)
@@ -288,22 +350,29 @@ def main(argv: list[str] | None = None) -> None:
         p.error(f"--arx-orders takes two integers na,nb, got {a.arx_orders!r}")
     try:
         res = evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
-                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed)
+                       a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed, a.normalization,
+                       horizons_spec=a.horizons, offset=a.offset)
     except (ValueError, FileNotFoundError) as exc:
         sys.exit(f"error: {exc}")
     print(summary_text(res, out))
 
 
-def summary_text(res: dict, out: str) -> str:
-    """A few lines for the terminal: mean approach-1 scores of the model and the baselines."""
+def summary_text(res: dict, out: str, horizons: bool = True) -> str:
+    """A few lines for the terminal: mean approach-1 scores of the model and the baselines,
+    then (with ``horizons``) the RMS errors by horizon in physical units."""
     m, meta = res["approach1"]["mean"], res["meta"]
-    lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']} (approach 1 mean):",
-             f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}"]
+    lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']} (approach 1 mean):"]
+    if res.get("leaks_query_statistics"):
+        lines.append(f"  normalization {meta.get('normalization')}: scores use the query outputs' statistics (the "
+                     "paper's protocol), not those of a deployable model")
+    lines.append(f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}")
     for b, r in res["baselines"].items():
         mb = r["approach1"]["mean"]
         lines.append(f"  {b:16s} R2 {mb['r2']['mean']:8.3f}  FIT {mb['fit']['mean']:8.2f}  RMSE {mb['rmse']['mean']:.4g}")
     lines += [f"  skipped {b}: {why}" for b, why in res["skipped_baselines"].items()]
-    lines.append(f"written: {out}/ (metrics.json, metrics.csv, table.md, *.png)")
+    if horizons and "horizons" in res:
+        lines += ["RMS error by horizon (step k: k dt after the last context sample):", horizon_markdown(res["horizons"])]
+    lines.append(f"written: {out}/ (metrics.json, metrics.csv, horizons.csv, table.md, *.png)")
     return "\n".join(lines)
 
 

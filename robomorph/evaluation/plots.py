@@ -1,4 +1,5 @@
-"""The figures ``robomorph.evaluate`` writes: samples, error growth, R^2 spread, sweeps.
+"""The figures ``robomorph.evaluate`` writes: samples (with the model's ±σ bands when it
+gives a standard deviation), error growth in physical units, R^2 spread, sweeps.
 
 Every function takes arrays in physical units (predictions keyed by source: ``model``
 and the baselines) and writes one PNG, returning its path.
@@ -10,7 +11,7 @@ import os
 
 import numpy as np
 
-from robomorph.evaluation import metrics
+from robomorph.evaluation import horizons, metrics
 
 _STYLE = {"model": dict(color="C0", lw=1.4), "hold": dict(color="C7", ls=":"),
           "arx": dict(color="C2", ls="--", lw=1.0), "nominal_physics": dict(color="C3", ls="-.", lw=1.0),
@@ -32,8 +33,12 @@ def _grid(n: int) -> tuple[int, int]:
 
 
 def plot_samples(path: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[str, np.ndarray],
-                 names: list[str], dt: float, index: int) -> str:
-    """Context, truth and every source's prediction of trajectory ``index``, all channels."""
+                 names: list[str], dt: float, index: int, std: np.ndarray | None = None) -> str:
+    """Context, truth and every source's prediction of trajectory ``index``, all channels.
+
+    With ``std`` (the model's predicted standard deviation, same shape as its prediction)
+    the model's ±1σ and ±2σ bands are shaded around its mean.
+    """
     plt = _plt()
     rows, cols = _grid(len(names))
     fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.2 * rows), sharex=True, squeeze=False)
@@ -43,6 +48,11 @@ def plot_samples(path: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[s
         ax.axvspan(0, tc * dt, color="0.92", lw=0)
         ax.plot(t_ctx, y_ctx[index, :, i], color="k", lw=1.0)
         ax.plot(t_q, y_true[index, :, i], color="k", lw=1.0, label="truth")
+        if std is not None and "model" in preds:
+            mean, sd = preds["model"][index, :, i], std[index, :, i]
+            for k, alpha in ((2, 0.12), (1, 0.25)):
+                ax.fill_between(t_q, mean - k * sd, mean + k * sd, color=_STYLE["model"]["color"], alpha=alpha, lw=0,
+                                label=f"model ±{k}σ")
         for src, y in preds.items():
             ax.plot(t_q, y[index, :, i], label=src, **_STYLE.get(src, {}))
         ax.set_title(name, fontsize=9)
@@ -58,19 +68,33 @@ def plot_samples(path: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[s
     return path
 
 
-def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray], dt: float) -> str:
-    """RMSE over trajectories at each query step, divided by each channel's std, channel mean."""
+def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray], dt: float,
+                      names: list[str], steps: list[int] = (), y_units: list[str] | None = None) -> str:
+    """RMS error over trajectories against time into the horizon, in physical units, log-log.
+
+    One panel per quantity of :func:`robomorph.evaluation.horizons.groups_for` (for the
+    Panda: joints [mrad], end-effector position [mm] and orientation [mrad]); dotted
+    vertical lines mark the reported ``steps``.
+    """
     plt = _plt()
-    scale = np.maximum(y_true.reshape(-1, y_true.shape[-1]).std(0), metrics.EPS)
-    steps = np.arange(1, y_true.shape[1] + 1) * dt
-    fig, ax = plt.subplots(figsize=(6.5, 3.6))
-    for src, y in preds.items():
-        err = np.sqrt(((y - y_true) ** 2).mean(0)) / scale  # (H, C)
-        ax.plot(steps, err.mean(-1), label=src, **_STYLE.get(src, {}))
-    ax.set(xlabel="time into the horizon [s]", ylabel="RMSE / std(y), mean over channels", yscale="log",
-           title="error growth over the prediction horizon")
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8)
+    groups = horizons.groups_for(names, y_units)
+    cols = min(3, len(groups))
+    rows = (len(groups) + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.4 * rows), squeeze=False)
+    t = np.arange(1, y_true.shape[1] + 1) * dt
+    for ax, g in zip(axes.flat, groups):
+        for src, y in preds.items():
+            ax.plot(t, np.maximum(horizons.error_curve(y_true, y, g), 1e-12), label=src, **_STYLE.get(src, {}))
+        for k in steps:
+            ax.axvline(k * dt, color="0.6", ls=":", lw=0.8)
+        # Log time too: the first second, what a controller uses, would be a sliver otherwise.
+        ax.set(xlabel="time into the horizon [s]", ylabel=f"RMS error [{g.unit}]" if g.unit else "RMS error",
+               xscale="log", yscale="log", title=g.label)
+        ax.grid(alpha=0.3, which="both")
+    for ax in list(axes.flat)[len(groups):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=8)
+    fig.suptitle("error growth over the prediction horizon (RMS over trajectories)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -128,11 +152,12 @@ def plot_sweep(path: str, rows: list[dict], key: str) -> str:
 
 
 def write_all(out: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[str, np.ndarray],
-              names: list[str], dt: float, samples: int, seed: int = 0) -> list[str]:
+              names: list[str], dt: float, samples: int, seed: int = 0, std: np.ndarray | None = None,
+              steps: list[int] = (), y_units: list[str] | None = None) -> list[str]:
     """The standard set: ``samples`` sample trajectories, error growth, R^2 distribution."""
     rng = np.random.default_rng(seed)
     picks = sorted(rng.choice(len(y_true), size=min(samples, len(y_true)), replace=False).tolist())
-    paths = [plot_samples(os.path.join(out, f"sample_{i}.png"), y_ctx, y_true, preds, names, dt, i) for i in picks]
-    paths.append(plot_error_growth(os.path.join(out, "error_growth.png"), y_true, preds, dt))
+    paths = [plot_samples(os.path.join(out, f"sample_{i}.png"), y_ctx, y_true, preds, names, dt, i, std) for i in picks]
+    paths.append(plot_error_growth(os.path.join(out, "error_growth.png"), y_true, preds, dt, names, steps, y_units))
     paths.append(plot_r2_distribution(os.path.join(out, "r2_distribution.png"), y_true, preds, names))
     return paths

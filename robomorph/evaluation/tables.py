@@ -1,11 +1,13 @@
-"""``metrics.csv`` and ``table.md`` from an evaluation's ``metrics.json`` content."""
+"""``metrics.csv``, ``horizons.csv`` and ``table.md`` from an evaluation's ``metrics.json`` content."""
 
 from __future__ import annotations
 
 import csv
 import os
 
+from robomorph.data.statistics import leaks_query_statistics, normalization_label
 from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
+from robomorph.evaluation.horizons import horizon_markdown
 
 
 def _sources(result: dict):
@@ -13,24 +15,31 @@ def _sources(result: dict):
     yield from result.get("baselines", {}).items()
 
 
+def normalization_markdown(normalization: str | None) -> str:
+    """The normalization line of a markdown table header; a leaking one is bold and flagged."""
+    text = normalization_label(normalization)
+    return f"**⚠ {text}**" if leaks_query_statistics(normalization) else text
+
+
 def csv_rows(result: dict) -> list[dict]:
-    """One row per source, approach, channel (or ``mean``) and metric."""
+    """One row per source, approach, channel (or ``mean``) and metric, each with the normalization."""
+    norm = result.get("meta", {}).get("normalization") or "train_stats"
     rows = []
     for src, res in _sources(result):
         a1, a2 = res["approach1"], res["approach2"]
         for ch, vals in [*a1["channels"].items(), ("mean", a1["mean"])]:
-            rows += [{"source": src, "approach": 1, "channel": ch, "metric": m, "value": v["mean"], "std": v["std"]}
-                     for m, v in vals.items()]
+            rows += [{"source": src, "approach": 1, "channel": ch, "metric": m, "value": v["mean"], "std": v["std"],
+                      "normalization": norm} for m, v in vals.items()]
         for ch, vals in [*a2["channels"].items(), ("mean", a2["mean"])]:
-            rows += [{"source": src, "approach": 2, "channel": ch, "metric": m, "value": v, "std": ""}
-                     for m, v in vals.items()]
+            rows += [{"source": src, "approach": 2, "channel": ch, "metric": m, "value": v, "std": "",
+                      "normalization": norm} for m, v in vals.items()]
     return rows
 
 
 def write_csv(path: str, result: dict) -> None:
     tmp = f"{path}.tmp"
     with open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=["source", "approach", "channel", "metric", "value", "std"])
+        w = csv.DictWriter(f, fieldnames=["source", "approach", "channel", "metric", "value", "std", "normalization"])
         w.writeheader()
         w.writerows(csv_rows(result))
     os.replace(tmp, path)
@@ -48,6 +57,7 @@ def table_markdown(result: dict) -> str:
     lines = [f"Model `{os.path.basename(meta['ckpt'])}` on `{meta['data']}`: {meta['n']} trajectories, "
              f"context {meta['context_len']}, horizon {meta['horizon']} steps. (1): approach 1, mean ± std over "
              "trajectories; (2): approach 2, trajectories concatenated.", "",
+             normalization_markdown(meta.get("normalization")), "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for ch in a1["channels"]:
         r, f = a1["channels"][ch]["r2"], a1["channels"][ch]["fit"]
@@ -64,6 +74,10 @@ def table_markdown(result: dict) -> str:
     lines += ["", f"FIT colour convention (the paper's Table 3): {legend}."]
     for b, why in result.get("skipped_baselines", {}).items():
         lines.append(f"Skipped baseline `{b}`: {why}")
+    if "horizons" in result:
+        lines += ["", "RMS error by horizon over the trajectories, in physical units (step k is k dt after the last "
+                  f"context sample; windows from offset `{meta.get('offset', 'start')}`):", "",
+                  horizon_markdown(result["horizons"]).rstrip("\n")]
     return "\n".join(lines) + "\n"
 
 
@@ -74,3 +88,24 @@ def write_table(path: str, result: dict) -> None:
     os.replace(tmp, path)
 
 
+def horizon_rows(h: dict) -> list[dict]:
+    """One row per source, quantity and step (``rms``), then the model's coverage (``inside_1sigma`` ...)."""
+    rows = []
+    for src, by_q in h["rms"].items():
+        for q, values in by_q.items():
+            rows += [{"source": src, "quantity": q, "unit": h["quantities"][q]["unit"], "step": k, "seconds": t,
+                      "metric": "rms", "value": v} for k, t, v in zip(h["steps"], h["seconds"], values)]
+    for q, by_sigma in h.get("calibration", {}).items():
+        for sigma, values in by_sigma.items():
+            rows += [{"source": "model", "quantity": q, "unit": "fraction", "step": k, "seconds": t,
+                      "metric": f"inside_{sigma}", "value": v} for k, t, v in zip(h["steps"], h["seconds"], values)]
+    return rows
+
+
+def write_horizons_csv(path: str, h: dict) -> None:
+    tmp = f"{path}.tmp"
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["source", "quantity", "unit", "step", "seconds", "metric", "value"])
+        w.writeheader()
+        w.writerows(horizon_rows(h))
+    os.replace(tmp, path)

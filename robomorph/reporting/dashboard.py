@@ -8,9 +8,9 @@ opens offline: CSS inline, no script, every image embedded as a base64 ``data:``
 The page has an overview (one row per run and evaluation), the training curves of all
 runs in shared figures, and per run its facts, checkpoints, config and evaluations, each
 with a per-channel table of the model beside every baseline, coloured with the paper's
-fit-index convention (:func:`fit_colour`). A file that cannot be read becomes a visible
-warning on the page (and on stderr), never a crash: a report is most wanted exactly when
-some run went wrong.
+fit-index convention (:func:`fit_colour`); scores of the paper's normalization are marked.
+A file that cannot be read becomes a visible warning on the page (and on stderr), never a
+crash: a report is most wanted exactly when some run went wrong.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ __all__ = ["build_report", "fit_colour", "load_run", "main", "read_curves", "Run
 
 CURVES = ("train/loss", "val/loss", "val/r2")
 # Run-level facts shown in the overview, looked up anywhere in the resolved config.
-FACTS = ("d_model", "n_layer", "n_head", "patch", "context_len", "horizon")
+FACTS = ("d_model", "n_layer", "n_head", "patch", "context_len", "horizon", "normalization")
 RUN_MARKERS = ("config.yaml", "logs", "checkpoints", "eval")
 
 
@@ -253,7 +253,7 @@ def _anchor(i: int) -> str:
 
 def overview_html(runs: list[RunData]) -> str:
     """One row per run and evaluation: model size, windows, mean approach-1 scores."""
-    head = ["run", "evaluation", *FACTS, "A1 R²", "A1 FIT", "A1 RMSE", "best baseline (A1 FIT)"]
+    head = ["run", "evaluation", *FACTS, "A1 R²", "A1 FIT", "A1 RMSE", "best baseline (A1 FIT)", rh.HORIZON_HEAD]
     rows = []
     for i, run in enumerate(runs):
         facts = "".join(rh.td(rh.esc(rh.DASH if run.fact(k) is None else run.fact(k))) for k in FACTS)
@@ -261,16 +261,16 @@ def overview_html(runs: list[RunData]) -> str:
         scored = [ev for ev in run.evals if ev.metrics is not None]
         if not scored:
             why = "no evaluation" if not run.evals else "no readable metrics.json"
-            rows.append(f"<tr>{link}{rh.td(rh.esc(why), cls='name')}{facts}" + rh.td(rh.DASH) * 4 + "</tr>")
+            rows.append(f"<tr>{link}{rh.td(rh.esc(why), cls='name')}{facts}" + rh.td(rh.DASH) * 5 + "</tr>")
         for ev in scored:
             r2, fit, rmse = (rh.mean_stat(ev.metrics, "approach1", m) for m in ("r2", "fit", "rmse"))
             best = rh.best_baseline(ev.metrics)
             best_cell = rh.td(rh.esc(f"{best[0]}: {best[1]:.1f}"), fit_colour(best[1])) if best else rh.td(rh.DASH)
             colour = fit_colour(fit[0])
             rows.append(
-                f"<tr>{link}{rh.td(rh.esc(ev.name), cls='name')}{facts}"
+                f"<tr>{link}{rh.td(rh.esc(ev.name) + rh.leak_badge(ev.metrics), cls='name')}{facts}"
                 f"{rh.td(rh.esc(rh.fmt(*r2, 'r2')), colour)}{rh.td(rh.esc(rh.fmt(*fit, 'fit')), colour)}"
-                f"{rh.td(rh.esc(rh.fmt(*rmse, 'rmse')))}{best_cell}</tr>"
+                f"{rh.td(rh.esc(rh.fmt(*rmse, 'rmse')))}{best_cell}{rh.horizon_cell(ev.metrics)}</tr>"
             )
     return rh.table([rh.esc(h) for h in head], rows)
 
@@ -287,7 +287,7 @@ def _plain(value) -> str:
 def eval_html(ev: EvalData) -> str:
     """One evaluation: summary line, warnings, per-channel table, plots, raw table.md."""
     parts = [f"<h4>Evaluation <code>{rh.esc(ev.name)}</code></h4>"]
-    parts += [rh.warn(w) for w in ev.warnings]
+    parts += [rh.warn(w) for w in ev.warnings] + [rh.leak_note(ev.metrics)]
     if ev.metrics is not None:
         meta = ev.metrics.get("meta")
         if isinstance(meta, dict):
@@ -297,7 +297,7 @@ def eval_html(ev: EvalData) -> str:
         skipped = ev.metrics.get("skipped_baselines")
         if isinstance(skipped, dict):
             parts += [f'<p class="note">baseline <b>{rh.esc(k)}</b> skipped: {rh.esc(v)}</p>' for k, v in skipped.items()]
-        parts.append(rh.channel_table(ev.metrics))
+        parts += [rh.channel_table(ev.metrics), rh.horizon_table(ev.metrics)]
     parts += [rh.figure(png, name) for name, png in ev.pngs]
     if ev.table_md:
         parts.append(f"<details><summary>table.md</summary><pre>{rh.esc(ev.table_md)}</pre></details>")

@@ -27,6 +27,7 @@ body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, Helvetica, Ari
 h1 { margin-bottom: .2rem; } h2 { border-bottom: 2px solid #d0d7de; padding-bottom: .2rem; margin-top: 2.2rem; }
 h3 { margin-top: 1.6rem; } h4 { margin: 1.2rem 0 .4rem; }
 .sub, .meta, .note { color: #57606a; font-size: .92rem; }
+.leak { color: #cf222e; }
 .warn { background: #fff8c5; border: 1px solid #d4a72c; border-radius: 6px; padding: .4rem .7rem; margin: .4rem 0; }
 nav a { margin-right: .8rem; }
 code, pre { font-family: ui-monospace, SFMono-Regular, Menlo, Consolas, monospace; font-size: .85rem; }
@@ -196,6 +197,82 @@ def channel_table(metrics: dict) -> str:
     return table(sub, rows, head_rows=[f"<tr>{top}</tr>"])
 
 
+_BETTER, _WORSE = "rgb(204, 235, 204)", "rgb(248, 209, 204)"
+
+
+def _row_values(values: Any, width: int) -> list[float | None] | None:
+    if not isinstance(values, list) or len(values) != width:
+        return None
+    return [num(v) for v in values]
+
+
+def horizon_table(metrics: dict) -> str:
+    """RMS error by horizon in physical units (rows: quantity and source; columns: steps).
+
+    The model's cells are green where it beats ``hold`` (holding the last measured
+    output, what any prediction must beat) and red where it does not; the model's ±1σ /
+    ±2σ coverage follows when it predicted a standard deviation (ideal: 68 % / 95 %).
+    Returns an empty string when ``metrics`` has no readable ``horizons`` entry.
+    """
+    h = metrics.get("horizons")
+    steps, seconds = dig(h, "steps"), dig(h, "seconds")
+    rms, quantities = dig(h, "rms"), dig(h, "quantities")
+    if not (isinstance(steps, list) and isinstance(seconds, list) and isinstance(rms, dict) and isinstance(quantities, dict)):
+        return ""
+    width = len(steps)
+    head = ["quantity", "source"] + [esc(f"step {k} ({num(t) or 0:.3g} s)") for k, t in zip(steps, seconds)]
+    rows = []
+    for q, info in quantities.items():
+        unit = dig(info, "unit")
+        label = esc(f"{q} [{unit}]" if unit else q)
+        hold = _row_values(dig(rms, "hold", q), width)
+        for src in ["model", *sorted(s for s in rms if s != "model")]:
+            values = _row_values(dig(rms, src, q), width)
+            if values is None:
+                continue
+            cells = ""
+            for j, v in enumerate(values):
+                colour = None
+                if src == "model" and hold and v is not None and hold[j] is not None:
+                    colour = _BETTER if v <= hold[j] else _WORSE
+                cells += td(DASH if v is None else esc(f"{v:.4g}"), colour)
+            rows.append(f'<tr>{td(label, cls="name")}{td(esc(src), cls="name")}{cells}</tr>')
+    for sigma, ideal in (("1sigma", 68.3), ("2sigma", 95.4)):
+        values = _row_values(dig(h, "calibration", "all", sigma), width)
+        if values is not None:
+            cells = "".join(td(DASH if v is None else esc(f"{100 * v:.1f}")) for v in values)
+            label = esc(f"inside ±{sigma[0]}σ [%] (ideal {ideal})")
+            rows.append(f'<tr>{td(label, cls="name")}{td("model", cls="name")}{cells}</tr>')
+    note = ('<p class="note">RMS error by horizon over the test trajectories, in physical units; step k is k dt '
+            "after the last context sample (green: the model beats hold, red: it does not).</p>")
+    return note + table(head, rows)
+
+
+HORIZON_HEAD = "joints RMS [mrad] first step / 0.25 s / 1 s (hold)"
+
+
+def horizon_cell(metrics: dict) -> str:
+    """The overview's cell: the model's joint RMS error at the first step, 0.25 s and 1 s
+    (those of them that were reported), hold's in brackets; a dash without them."""
+    steps, seconds = dig(metrics, "horizons", "steps"), dig(metrics, "horizons", "seconds")
+    if not (isinstance(steps, list) and isinstance(seconds, list) and len(steps) == len(seconds) and steps):
+        return td(DASH)
+    model = _row_values(dig(metrics, "horizons", "rms", "model", "joints"), len(steps))
+    hold = _row_values(dig(metrics, "horizons", "rms", "hold", "joints"), len(steps))
+    pairs = [(num(k), num(t)) for k, t in zip(steps, seconds)]
+    if model is None or any(k is None or t is None or k <= 0 for k, t in pairs):
+        return td(DASH)
+    dt = pairs[0][1] / pairs[0][0]
+    picks = [j for j, (k, t) in enumerate(pairs) if k == 1 or min(abs(t - 0.25), abs(t - 1.0)) < dt / 2]
+    picks = [j for j in picks if model[j] is not None]
+    if not picks:
+        return td(DASH)
+    text = " / ".join(f"{model[j]:.3g}" for j in picks)
+    if hold and all(hold[j] is not None for j in picks):
+        text += " (" + " / ".join(f"{hold[j]:.3g}" for j in picks) + ")"
+    return td(esc(text))
+
+
 def best_baseline(metrics: dict) -> tuple[str, float] | None:
     """(name, mean approach-1 FIT) of the baseline with the highest such FIT, if any has one.
 
@@ -216,6 +293,20 @@ def img_tag(png: bytes, alt: str) -> str:
 def figure(png: bytes, caption: str) -> str:
     """An embedded image with its caption."""
     return f"<figure>{img_tag(png, caption)}<figcaption>{esc(caption)}</figcaption></figure>"
+
+
+def leak_badge(metrics: Any) -> str:
+    """A marker for scores that used the query outputs' statistics (``"leaks_query_statistics"``
+    in a ``metrics.json``: the paper's normalization); empty otherwise."""
+    leaks = isinstance(metrics, dict) and bool(metrics.get("leaks_query_statistics"))
+    return '<br><b class="leak">⚠ paper_window: uses query statistics</b>' if leaks else ""
+
+
+def leak_note(metrics: Any) -> str:
+    """The warning an evaluation section carries when :func:`leak_badge` marks it; empty otherwise."""
+    return warn("Scored with the paper's normalization (paper_window): each window z-scored over its context and "
+                "query, so the predictions used the query outputs' statistics; these are not the scores of a "
+                "model that could be deployed.") if leak_badge(metrics) else ""
 
 
 def warn(text: str) -> str:

@@ -42,7 +42,7 @@ def write_context_figure(out: str, sweeps: dict[str, list[dict]], meta: dict, in
     if not sweeps.get("horizon") or not sweeps.get("context"):
         raise ValueError("the context figure needs both sweeps: evaluate with sweep_horizon_spec and sweep_context_spec")
     rows = sweep_rows(sweeps)
-    doc = {"info": info, "meta": {k: meta.get(k) for k in ("ckpt", "data", "context_len", "horizon", "n")},
+    doc = {"info": info, "meta": {k: meta.get(k) for k in ("ckpt", "data", "context_len", "horizon", "n", "normalization")},
            "sweeps": sweeps}
     write_json(os.path.join(out, "context_horizon.json"), doc)
     table = io.StringIO()
@@ -76,9 +76,11 @@ def _plot(path: str, sweeps: dict[str, list[dict]], meta: dict, info: dict) -> s
             ax.set(xlabel=label, ylabel=f"mean {name}", ylim=(floor - 0.05 * (top - floor), top + 0.05 * (top - floor)))
             ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)
+    leak = ("\nnormalization paper_window (the paper's protocol): predictions use the query outputs' statistics"
+            if info.get("normalization") == "paper_window" else "")
     fig.suptitle(f"context and horizon (scale {info['scale']}; {meta.get('n')} test trajectories, trained with context "
-                 f"{meta.get('context_len')} + horizon {meta.get('horizon')}; scores below the floor drawn on it)",
-                 fontsize=9)
+                 f"{meta.get('context_len')} + horizon {meta.get('horizon')}; scores below the floor drawn on it){leak}",
+                 fontsize=9, color="firebrick" if leak else "black")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -3,6 +3,8 @@
     python -m robomorph.reproduce table1 --scale ci
     python -m robomorph.reproduce all --scale small --out results/paper/small
     python -m robomorph.reproduce table2 --scale paper --steps-factor 0.1
+    python -m robomorph.reproduce table1 --scale small --normalization paper_window
+    python -m robomorph.reproduce compare --scale small
 
 Targets:
 
@@ -14,6 +16,15 @@ Targets:
 - ``context``: R² and FIT against the predicted horizon and the context length, for
   Table 1's middle model.
 - ``all``: the three in order, sharing data and models.
+- ``compare``: Table 1 under both normalizations side by side with the paper's figures,
+  from the ``table1.json`` of a ``train_stats`` and a ``paper_window`` output folder
+  (:mod:`robomorph.reproduction.protocols`); trains nothing.
+
+``--normalization paper_window`` trains and scores every model with the paper's protocol
+(each window z-scored over context and query, so predictions use the query outputs'
+statistics); its runs are named ``...-paper_window`` beside the leak-free ones on the same
+stores, its tables go to ``results/paper/<scale>_paper_window`` by default, and every table
+header says which protocol produced it.
 
 Generated stores and training runs (each with its evaluations in ``<run>/eval/``) go to
 ``--work`` (default ``data/reproduce/<scale>``, not committed), with a dashboard of them all
@@ -38,12 +49,16 @@ import sys
 import time
 from dataclasses import dataclass
 
+from robomorph.core.errors import RoboMorphError
+from robomorph.core.errors import report as report_error
+from robomorph.data.statistics import leaks_query_statistics
 from robomorph.reproduction import skip as resume
 from robomorph.reproduction.scales import SCALES, Scale
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.transfer import REGIMES, merge, regime_overrides
 
-TARGETS = ("table1", "table2", "context", "all")
+TARGETS = ("table1", "table2", "context", "all", "compare")
+NORMALIZATIONS = ("train_stats", "paper_window")
 # (recipe, robots field of the scale, seed): disjoint seeds, so no test robot is a training robot.
 STORES = {
     "ms_train": ("multisine", "train_robots", 0),
@@ -66,11 +81,17 @@ class Plan:
     workers: int | None = None
     device: str | None = None
     wandb: str = "offline"
+    normalization: str = "train_stats"
     started: float = dataclasses.field(default_factory=time.time)  # for the tables' elapsed time
 
     def path(self, *parts: str) -> str:
         """A path inside the work folder."""
         return os.path.join(self.work, *parts)
+
+    def run_name(self, name: str) -> str:
+        """``name``, suffixed with the normalization unless it is the default: runs of both
+        protocols share the work folder's stores without sharing a run directory."""
+        return name if self.normalization == "train_stats" else f"{name}-{self.normalization}"
 
 
 def say(target: str, message: str) -> None:
@@ -104,18 +125,19 @@ def recipe_path(name: str) -> str:
 
 def base_args(plan: Plan, depth: int, stores: list[str], run: str, steps: int) -> dict:
     """The :func:`robomorph.training.fitting.fit` arguments of a run at this scale."""
-    s = plan.scale
+    s, paper = plan.scale, plan.normalization == "paper_window"
     return {
+        # The paper's protocol z-scores each window itself: no recentring on top (refused otherwise).
         "data": {"stores": stores, "context_len": s.context_len, "horizon": s.horizon, "batch_size": s.batch_size,
-                 "split": [1 - s.val_fraction, s.val_fraction, 0.0], "val_subset": s.val_subset, "recenter": True,
-                 "seed": 0},
+                 "split": [1 - s.val_fraction, s.val_fraction, 0.0], "val_subset": s.val_subset, "recenter": not paper,
+                 "normalization": plan.normalization, "seed": 0},
         "model": {"d_model": s.d_model, "n_head": s.n_head, "n_layer": depth, "patch": s.patch, "lr": s.lr,
                   "warmup_steps": s.warmup_steps, "max_context": s.context_len, "max_horizon": s.horizon,
                   "loss": "huber"},
         "trainer": {"max_steps": steps, "val_check_interval": min(s.val_every, steps), "accelerator": s.accelerator,
                     "devices": 1, "max_time": s.max_time, "enable_progress_bar": sys.stderr.isatty(),
                     "enable_model_summary": False},
-        "run": run, "runs_dir": plan.path("runs"), "wandb": plan.wandb,
+        "run": plan.run_name(run), "runs_dir": plan.path("runs"), "wandb": plan.wandb,
     }
 
 
@@ -158,7 +180,7 @@ def score(plan: Plan, target: str, ckpt: str, data: str, name: str, sweeps: bool
     s = plan.scale
     return evaluate(ckpt, data, out, n=s.eval_n, baselines=("hold",), batch_size=64, device=plan.device,
                     samples=s.samples, sweep_horizon_spec=s.sweep_horizon if sweeps else None,
-                    sweep_context_spec=s.sweep_context if sweeps else None)
+                    sweep_context_spec=s.sweep_context if sweeps else None, normalization=plan.normalization)
 
 
 def table1_model(plan: Plan, depth: int, train_store: str, target: str = "table1") -> str:
@@ -221,7 +243,8 @@ def context(plan: Plan) -> dict:
 def run_info(plan: Plan) -> dict:
     """Provenance for the table headers: scale, command, date, minutes since the command
     started (steps skipped as done cost nothing), machine, budgets."""
-    return {"scale": plan.scale.name, "command": plan.command,
+    return {"scale": plan.scale.name, "command": plan.command, "normalization": plan.normalization,
+            "leaks_query_statistics": leaks_query_statistics(plan.normalization),
             "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "elapsed_min": round((time.time() - plan.started) / 60, 1),
             "machine": machine(), "budgets": plan.scale.budgets()}
@@ -240,17 +263,39 @@ def machine() -> str:
     return f"{platform.platform()}, {os.cpu_count()} CPUs, {gpu}"
 
 
+def default_out(scale: Scale, normalization: str = "train_stats") -> str:
+    """``results/paper/<scale>``, or ``results/paper/<scale>_paper_window`` for the paper's protocol
+    (so that it never overwrites the leak-free tables)."""
+    suffix = "" if normalization == "train_stats" else f"_{normalization}"
+    return os.path.join("results", "paper", scale.name + suffix)
+
+
 def reproduce(target: str, scale: Scale, out: str | None = None, work: str | None = None, command: str = "",
-              workers: int | None = None, device: str | None = None, wandb: str = "offline") -> dict[str, dict]:
-    """Runs ``target`` (``table1``, ``table2``, ``context`` or ``all``) at ``scale``.
+              workers: int | None = None, device: str | None = None, wandb: str = "offline",
+              normalization: str = "train_stats", leak_free: str | None = None) -> dict[str, dict]:
+    """Runs ``target`` (``table1``, ``table2``, ``context``, ``all`` or ``compare``) at ``scale``.
+
+    Args:
+        normalization: ``train_stats`` (default, leak-free) or ``paper_window`` (the paper's protocol).
+        leak_free: ``compare`` only: the ``train_stats`` output folder (default ``results/paper/<scale>``);
+            ``out`` is then the ``paper_window`` one and receives the side-by-side table.
 
     Returns:
         ``{target: the JSON content written}`` for each target run.
     """
     if target not in TARGETS:
         raise ValueError(f"unknown target {target!r}; choose from {list(TARGETS)}")
-    plan = Plan(scale, work or os.path.join("data", "reproduce", scale.name),
-                out or os.path.join("results", "paper", scale.name), command, workers, device, wandb)
+    if normalization not in NORMALIZATIONS:
+        raise ValueError(f"unknown normalization {normalization!r}; choose from {list(NORMALIZATIONS)}")
+    if target == "compare":
+        from robomorph.reproduction.protocols import FILE, compare  # noqa: PLC0415
+
+        out = out or default_out(scale, "paper_window")
+        doc = compare(leak_free or default_out(scale), out, scale=scale.name)
+        say("compare", f"written {os.path.join(out, FILE + '.md')} (.json)")
+        return {"compare": doc}
+    plan = Plan(scale, work or os.path.join("data", "reproduce", scale.name), out or default_out(scale, normalization),
+                command, workers, device, wandb, normalization)
     os.makedirs(plan.out, exist_ok=True)
     steps = {"table1": table1, "table2": table2, "context": context}
     chosen = list(steps) if target == "all" else [target]
@@ -273,20 +318,29 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m robomorph.reproduce", description=__doc__.split("\n")[0])
     p.add_argument("target", choices=TARGETS, help="what to reproduce")
     p.add_argument("--scale", choices=list(SCALES), default="small", help="sizes and budgets (robomorph.reproduction.scales)")
-    p.add_argument("--out", help="tables and figures (default results/paper/<scale>)")
+    p.add_argument("--out", help="tables and figures (default results/paper/<scale>, or <scale>_paper_window)")
     p.add_argument("--work", help="stores, runs and evaluations (default data/reproduce/<scale>)")
     p.add_argument("--scratch-ratio", type=float, help="scratch budget / fine-tuning budget (default: the scale's)")
     p.add_argument("--steps-factor", type=float, default=1.0, help="multiply every training budget (e.g. 0.1)")
     p.add_argument("--workers", type=int, help="generation threads/processes (default: all cores)")
     p.add_argument("--device", help="evaluation device: cpu, cuda, ... (default: cuda when available)")
     p.add_argument("--wandb", choices=("offline", "online", "disabled"), default=os.environ.get("WANDB_MODE", "offline"))
+    p.add_argument("--normalization", choices=NORMALIZATIONS, default="train_stats",
+                   help="train_stats (leak-free) or paper_window (the paper's protocol: each window z-scored over "
+                        "context and query; its scores use the query outputs' statistics)")
+    p.add_argument("--leak-free", help="compare: the train_stats output folder (default results/paper/<scale>); "
+                                       "--out is the paper_window one")
     args = p.parse_args(argv)
     try:
         scale = SCALES[args.scale].scaled(args.steps_factor, args.scratch_ratio)
     except ValueError as exc:
         p.error(str(exc))
     command = " ".join(["python -m robomorph.reproduce", *(sys.argv[1:] if argv is None else argv)])
-    reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb)
+    try:
+        reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb,
+                  args.normalization, args.leak_free)
+    except RoboMorphError as exc:
+        return report_error(exc)
     return 0
 
 

@@ -11,6 +11,7 @@ import math
 import os
 
 from robomorph.core.atomic import write_json, write_text
+from robomorph.data.statistics import leaks_query_statistics, normalization_label
 from robomorph.evaluation.fit_bands import FIT_BANDS, LATEX_COLORS, fit_band
 
 TABLE1_COLUMNS = ("r2", "r2_std", "rmse", "rmse_std")
@@ -21,12 +22,18 @@ _TEX_NAMES = {"ee_x": "$x$", "ee_y": "$y$", "ee_z": "$z$", "ee_qx": "$X$", "ee_q
               "ee_qw": "$W$", **{f"q{i}": f"$q_{i}$" for i in range(10)}}
 
 
-def header_markdown(info: dict) -> str:
-    """The provenance line every table starts with."""
+def header_markdown(info: dict, with_normalization: bool = True) -> str:
+    """The provenance line every table starts with, ending with its normalization (flagged
+    in bold when it leaks the query outputs' statistics, as the paper's protocol does)."""
     budgets = ", ".join(f"{k} {v}" for k, v in info["budgets"].items() if v is not None)
     elapsed = f" ({info['elapsed_min']} min into the command)" if info.get("elapsed_min") is not None else ""
-    return (f"Scale `{info['scale']}`; command `{info['command']}`; {info['date']}{elapsed}; "
+    line = (f"Scale `{info['scale']}`; command `{info['command']}`; {info['date']}{elapsed}; "
             f"machine: {info['machine']}; budgets: {budgets}.")
+    if not with_normalization:
+        return line
+    norm = info.get("normalization")  # absent in tables written before the option: train_stats
+    label = normalization_label(norm)
+    return f"{line} **⚠ {label}**" if leaks_query_statistics(norm) else f"{line} {label}"
 
 
 def _layers(n: int) -> str:

@@ -76,6 +76,7 @@ class RoboMorphCLI(LightningCLI):
         parser.add_argument("--group", type=str | None, default=None, help="wandb group (e.g. a sweep study)")
         # One setting, two users: the data records it, the model's normalizer applies it.
         parser.link_arguments("data.recenter", "model.recenter")
+        parser.link_arguments("data.normalization", "model.normalization")
 
     def run_dir(self) -> str:
         cfg = self.config

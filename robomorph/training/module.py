@@ -16,8 +16,9 @@ import torch
 import torch.nn.functional as F
 
 from robomorph.core.errors import RoboMorphError
+from robomorph.data.statistics import check_normalization
 from robomorph.evaluation import metrics
-from robomorph.model.normalization import Normalizer
+from robomorph.model.normalization import Normalizer, query_stats
 from robomorph.model.transformer import MetaModel, ModelConfig
 
 # Log keys, defined once (namespaced as the lightning-hydra-template does).
@@ -89,6 +90,9 @@ class MetaModule(L.LightningModule):
         weight_decay: AdamW weight decay on matrices (not on biases, norms, embeddings).
         betas: AdamW betas.
         recenter: subtract the context mean of each trajectory (context-only statistics).
+        normalization: ``train_stats`` (training-split statistics) or ``paper_window`` (the
+            paper's protocol: each window z-scored over context and query; its predictions use
+            the query outputs' statistics). Linked from ``data.normalization`` by ``robomorph.fit``.
         anchor: the network predicts the deviation from the last context output, which
             is added back (a context value: nothing of the query leaks). The prediction
             then starts where the robot is instead of having to locate it first.
@@ -127,6 +131,7 @@ class MetaModule(L.LightningModule):
         weight_decay: float = 0.0,
         betas: tuple[float, float] = (0.9, 0.95),
         recenter: bool = False,
+        normalization: Literal["train_stats", "paper_window"] = "train_stats",
         anchor: bool = False,
         integrate: bool = False,
         init_ckpt: str | None = None,
@@ -144,6 +149,7 @@ class MetaModule(L.LightningModule):
             raise ValueError(f"freeze must be one of {FREEZE_MODES}, got {freeze!r}")
         if lr <= 0 or not 0 <= min_lr_ratio <= 1 or warmup_steps < 0 or huber_delta <= 0:
             raise ValueError("need lr > 0, 0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
+        check_normalization(normalization, recenter)
         self.save_hyperparameters()
         self.net: MetaModel | None = None
         self.normalizer: Normalizer | None = None
@@ -169,7 +175,8 @@ class MetaModule(L.LightningModule):
     def _build(self, n_u: int, n_y: int) -> None:
         self.hparams.n_u, self.hparams.n_y = int(n_u), int(n_y)
         self.net = MetaModel(self.model_config)
-        self.normalizer = Normalizer(n_u=n_u, n_y=n_y, recenter=self.hparams.recenter)
+        self.normalizer = Normalizer(n_u=n_u, n_y=n_y, recenter=self.hparams.recenter,
+                                     normalization=self.hparams.get("normalization", "train_stats"))
         self.register_buffer("stats_ready", torch.tensor(False))
         self._apply_freeze()
 
@@ -198,6 +205,10 @@ class MetaModule(L.LightningModule):
         ckpt = load_checkpoint_file(path)
         src = ckpt["hyper_parameters"]
         same_io = (src.get("n_u"), src.get("n_y")) == (self.hparams.n_u, self.hparams.n_y)
+        theirs, ours = src.get("normalization", "train_stats"), self.hparams.get("normalization", "train_stats")
+        if theirs != ours:
+            raise CheckpointError(f"{path} was trained with normalization {theirs!r}, this run uses {ours!r}: "
+                                  "transfer between the same protocol only (set data.normalization to match)")
         if not same_io and not self.hparams.reinit_io:
             raise CheckpointError(
                 f"{path} was trained with n_u={src.get('n_u')}, n_y={src.get('n_y')}; this model has "
@@ -233,19 +244,29 @@ class MetaModule(L.LightningModule):
         self.data_info = checkpoint.get(DATA_INFO_KEY, self.data_info)
 
     # --------------------------------------------------------------------- forward
-    def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor) -> torch.Tensor:
-        """Predicts y over the query horizon, in physical units."""
-        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, u_query)
-        return self.normalizer.decode(self._predict(uc, yc, uq)[0], y_ctx)
+    def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
+                y_query_stats=None) -> torch.Tensor:
+        """Predicts y over the query horizon, in physical units.
 
-    def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor
+        ``y_query_stats`` (mean, std of the query outputs, (B, n_y) each) is needed, and used,
+        only under ``normalization="paper_window"``.
+        """
+        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, u_query, y_query_stats)
+        return self.normalizer.decode(self._predict(uc, yc, uq)[0], y_ctx, y_query_stats)
+
+    def _query_stats(self, batch: dict):
+        """The batch's query-output statistics when the normalization uses them (the paper's leak), else None."""
+        return query_stats(batch["y_query"]) if self.normalizer.uses_query_stats else None
+
+    def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None
                      ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Mean and standard deviation (None without a Gaussian head), both in physical units."""
-        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, u_query)
+        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, u_query, y_query_stats)
         mean, logvar = self._predict(uc, yc, uq)
         # Recentring and anchoring shift the outputs; only the z-score scales them.
-        std = None if logvar is None else torch.exp(0.5 * logvar) * self.normalizer.y_std
-        return self.normalizer.decode(mean, y_ctx), std
+        std = None if logvar is None else torch.exp(0.5 * logvar) * self.normalizer.decode_scale(
+            y_ctx, y_query_stats, u_query.shape[1])
+        return self.normalizer.decode(mean, y_ctx, y_query_stats), std
 
     def _predict(self, uc: torch.Tensor, yc: torch.Tensor, uq: torch.Tensor
                  ) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -269,8 +290,9 @@ class MetaModule(L.LightningModule):
         # Random context lengths need not be multiples of patch: the oldest steps go.
         drop = u_ctx.shape[1] % self.hparams.patch
         u_ctx, y_ctx = u_ctx[:, drop:], y_ctx[:, drop:]
-        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, batch["u_query"])
-        target = self.normalizer.encode_target(batch["y_query"], y_ctx)
+        qs = self._query_stats(batch)
+        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, batch["u_query"], qs)
+        target = self.normalizer.encode_target(batch["y_query"], y_ctx, qs)
         pred, logvar = self._predict(uc, yc, uq)
         loss = (self.elementwise_loss(pred, logvar, target) * self.horizon_weights(target.shape[1])[:, None]).mean()
         return loss, pred, target
@@ -294,7 +316,7 @@ class MetaModule(L.LightningModule):
         loss, pred, _ = self._step(batch)
         y = batch["y_query"].double()
         drop = batch["y_ctx"].shape[1] % self.hparams.patch
-        yhat = self.normalizer.decode(pred, batch["y_ctx"][:, drop:]).double()
+        yhat = self.normalizer.decode(pred, batch["y_ctx"][:, drop:], self._query_stats(batch)).double()
         n = len(y)
         self.log(keys[0], loss, batch_size=n, sync_dist=True, prog_bar=keys[0] == VAL_LOSS)
         # approach 1: per trajectory and channel over time, mean over channels, then over trajectories

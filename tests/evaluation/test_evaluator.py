@@ -51,7 +51,7 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
     res = evaluate(ckpt, test, out, sweep_horizon_spec="20:60:20", sweep_context_spec="10,30", samples=2,
                    arx_orders=(1, 1))
     names = res["meta"]["y_names"]
-    for f in ("metrics.json", "metrics.csv", "table.md", "error_growth.png", "r2_distribution.png",
+    for f in ("metrics.json", "metrics.csv", "horizons.csv", "table.md", "error_growth.png", "r2_distribution.png",
               "sweep_horizon.png", "sweep_context.png"):
         assert os.path.getsize(os.path.join(out, f)) > 0, f
     assert len([f for f in os.listdir(out) if f.startswith("sample_")]) == 2
@@ -159,6 +159,12 @@ def test_bad_input_gives_clear_errors(setup, tmp_path):
         evaluate(ckpt, test, str(tmp_path / "bad"), baselines=("oracle",))
     with pytest.raises(SystemExit, match="error: .*must fit"):
         main(["--ckpt", ckpt, "--data", test, "--horizon", "999", "--out", str(tmp_path / "bad")])
+    with pytest.raises(SystemExit, match="error: --offset takes 'start', 'random' or a step number"):
+        main(["--ckpt", ckpt, "--data", test, "--offset", "later", "--out", str(tmp_path / "bad")])
+    with pytest.raises(SystemExit, match=r"error: --offset 5 \+ context_len \+ horizon = 95 steps exceeds"):
+        main(["--ckpt", ckpt, "--data", test, "--offset", "5", "--out", str(tmp_path / "bad")])
+    with pytest.raises(SystemExit, match="error: --horizons item '2s' is step 120, outside"):
+        main(["--ckpt", ckpt, "--data", test, "--horizons", "1,2s", "--out", str(tmp_path / "bad")])
     assert not os.path.exists(os.path.join(tmp_path, "bad", "metrics.json"))
 
 
@@ -169,3 +175,137 @@ def test_parse_range():
         parse_range("0:900:100", 1, 800, "horizon")
     with pytest.raises(ValueError, match="start:stop:step"):
         parse_range("a:b", 1, 800, "horizon")
+
+
+def test_evaluate_reports_errors_by_horizon_from_random_offsets(setup, tmp_path):
+    _, ckpt, test = setup
+    from robomorph.data.store import open_store
+
+    out = str(tmp_path / "off")
+    res = evaluate(ckpt, test, out, context_len=20, horizon=30, baselines=("hold",), samples=1,
+                   horizons_spec="1,0.25s,end", offset="random", seed=4)
+    starts = np.array(res["window_starts"])
+    assert res["meta"]["offset"] == "random" and len(starts) == 6
+    assert starts.min() >= 0 and starts.max() <= C + H - 50 and len(set(starts.tolist())) > 1
+    h = res["horizons"]
+    assert h["steps"] == [1, 15, 30] and set(h["rms"]) == {"model", "hold"} and "calibration" not in h
+    # The hold error at the first step, by hand: joints against the last context sample, in mrad.
+    y = open_store(test).read("y").astype(np.float64)
+    last = np.stack([y[i, s + 19, 7:] for i, s in enumerate(starts)])
+    first = np.stack([y[i, s + 20, 7:] for i, s in enumerate(starts)])
+    assert h["rms"]["hold"]["joints"][0] == pytest.approx(np.sqrt(((first - last) ** 2).mean()) * 1e3)
+    assert json.load(open(os.path.join(out, "metrics.json")))["horizons"] == h
+    rows = open(os.path.join(out, "horizons.csv")).read().splitlines()
+    assert rows[0] == "source,quantity,unit,step,seconds,metric,value" and len(rows) == 1 + 2 * 3 * 3
+    assert "RMS error by horizon" in open(os.path.join(out, "table.md")).read()
+    with pytest.raises(ValueError, match="outside the evaluated horizon"):
+        evaluate(ckpt, test, str(tmp_path / "bad"), horizon=30, horizons_spec="5s", samples=0)
+
+
+class StandIn:
+    """A predictor with a Gaussian head in miniature: mean = last context output + 0.01, std 0.01."""
+
+    n_u, n_y, device = 7, 14, "cpu"
+
+    def simulate(self, u_ctx, y_ctx, u_query, return_std=False):
+        mean = np.repeat(y_ctx[:, -1:], u_query.shape[1], axis=1) + 0.01
+        return (mean, np.full_like(mean, 0.01)) if return_std else mean
+
+
+class NoStd(StandIn):
+    def simulate(self, u_ctx, y_ctx, u_query):
+        return super().simulate(u_ctx, y_ctx, u_query)
+
+
+def test_calibration_of_a_predicted_std_equals_a_direct_count(setup, tmp_path):
+    from robomorph.data.store import open_store
+    from robomorph.evaluation.evaluator import gives_std, score
+    from robomorph.evaluation.plots import write_all
+    from robomorph.evaluation.windows import load_window
+
+    _, _, test = setup
+    ds = open_store(test)
+    w = load_window(test, C, H, None, None, 7, 14)
+    res, preds, std, _ = score(StandIn(), w, ("hold",), (1, 1), 4, [1, 10, H])
+    assert std is not None and res["meta"]["std"] is True
+    y_q = w.y[:, C:].astype(np.float64)
+    mean = np.repeat(w.y[:, C - 1:C], H, axis=1) + 0.01
+    cal = res["horizons"]["calibration"]
+    for j, k in enumerate([1, 10, H]):
+        err = np.abs(y_q[:, k - 1] - mean[:, k - 1])
+        assert cal["all"]["1sigma"][j] == pytest.approx(np.count_nonzero(err <= 0.01) / err.size)
+        assert cal["all"]["2sigma"][j] == pytest.approx(np.count_nonzero(err <= 0.02) / err.size)
+        assert cal["joints"]["1sigma"][j] == pytest.approx(np.count_nonzero(err[:, 7:] <= 0.01) / err[:, 7:].size)
+    paths = write_all(str(tmp_path), w.y[:, :C], y_q, preds, list(ds.y_names), ds.dt, 1, std=std)
+    assert all(os.path.getsize(p) > 0 for p in paths)
+    assert not gives_std(NoStd(), w.u[:, :C], w.y[:, :C], w.u[:, C:])
+    res, _, std, _ = score(NoStd(), w, (), (1, 1), 4, [1])
+    assert std is None and "calibration" not in res["horizons"]
+
+
+def test_nominal_physics_from_offsets_anchors_the_springs_where_the_robot_started(setup):
+    from robomorph.data.store import open_store
+    from robomorph.evaluation.evaluator import _nominal_params
+    from robomorph.evaluation.physics import NominalPhysics
+    from robomorph.evaluation.windows import load_window
+
+    _, _, test = setup
+    ds = open_store(test)
+    sim = NominalPhysics(ds.attrs)
+    w = load_window(test, 20, 30, None, None, 7, 14, offset="random", seed=4)
+    assert w.starts.any()
+    params = _nominal_params(sim, w)
+    first_q = ds.read("y")[:, 0, 7:14].astype(np.float64)
+    assert np.allclose(params[:, -7:], first_q)  # the parameter vector ends with the spring anchor
+    assert np.allclose(params, np.stack([sim.params(q) for q in first_q]))
+    assert _nominal_params(sim, load_window(test, 20, 30, None, None, 7, 14)) is None
+
+
+@pytest.fixture(scope="module")
+def paper_window_ckpt(setup):
+    root, _, _ = setup
+    result = fit({
+        "data": {"stores": str(root / "train.zarr"), "context_len": C, "horizon": H, "batch_size": 8, "val_subset": 4,
+                 "normalization": "paper_window"},
+        "model": {"d_model": 16, "n_head": 2, "n_layer": 1, "patch": 5, "warmup_steps": 2, "max_context": 64,
+                  "max_horizon": 64},
+        "trainer": {"max_steps": 4, "val_check_interval": 2, "accelerator": "cpu", "devices": 1,
+                    "enable_progress_bar": False, "enable_model_summary": False},
+        "run": "pw", "runs_dir": str(root / "runs"), "wandb": "disabled",
+    })
+    return result.best_ckpt
+
+
+def test_paper_window_evaluation_says_it_leaks_everywhere(setup, paper_window_ckpt, tmp_path):
+    _, ckpt, test = setup
+    out = str(tmp_path / "pw")
+    res = evaluate(paper_window_ckpt, test, out, baselines=("hold",), samples=0, sweep_horizon_spec="30,60")
+    disk = json.load(open(os.path.join(out, "metrics.json")))
+    assert disk["leaks_query_statistics"] is True and disk["meta"]["normalization"] == "paper_window"
+    assert np.isfinite(res["approach1"]["mean"]["r2"]["mean"]) and len(disk["sweeps"]["horizon"]) == 2
+    table = open(os.path.join(out, "table.md")).read()
+    assert "**⚠ Normalization paper_window (the paper's protocol)" in table.split("| channel")[0]
+    assert {r.split(",")[-1] for r in open(os.path.join(out, "metrics.csv")).read().splitlines()[1:]} == {"paper_window"}
+    clean = evaluate(ckpt, test, str(tmp_path / "ts"), baselines=("hold",), samples=0)
+    assert clean["leaks_query_statistics"] is False and clean["meta"]["normalization"] == "train_stats"
+    assert "Normalization train_stats" in open(tmp_path / "ts" / "table.md").read()
+    from robomorph.data.statistics import NormalizationError
+
+    with pytest.raises(NormalizationError, match="trained with normalization 'train_stats', not 'paper_window'"):
+        evaluate(ckpt, test, str(tmp_path / "x"), normalization="paper_window", samples=0)
+
+
+@pytest.mark.parametrize("normalization", ["train_stats", "paper_window"])
+def test_poisoned_query_outputs_change_the_scored_prediction_only_under_paper_window(
+        setup, paper_window_ckpt, normalization):
+    from robomorph.data.store import open_store
+    from robomorph.evaluation.evaluator import predict
+
+    _, ckpt, test = setup
+    pred = Predictor.from_checkpoint(paper_window_ckpt if normalization == "paper_window" else ckpt, device="cpu")
+    ds = open_store(test)
+    u, y = ds.read("u"), ds.read("y")
+    args = (pred, u[:, :C], y[:, :C], u[:, C:C + H], 4)
+    clean = predict(*args, y_query=y[:, C:C + H])
+    poisoned = predict(*args, y_query=y[:, C:C + H] * 10 + 5)
+    assert np.allclose(clean, poisoned) == (normalization == "train_stats")

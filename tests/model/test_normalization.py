@@ -166,3 +166,57 @@ def test_shapes_and_widths_are_checked():
         norm.encode(u_ctx, y_ctx[..., :2], u_q)
     with pytest.raises(ValueError, match="u_query"):
         norm.encode(u_ctx, y_ctx, u_q[0])
+
+
+# --------------------------------------------------------------- paper_window (the paper's protocol)
+def test_paper_window_is_the_z_score_of_each_whole_window():
+    from robomorph.model.normalization import query_stats
+
+    norm = Normalizer(_stats(), normalization="paper_window")
+    u_ctx, y_ctx, u_q, y_q = _batch()
+    u_ctx_n, y_ctx_n, u_q_n = norm.encode(u_ctx, y_ctx, u_q, query_stats(y_q))
+    target = norm.encode_target(y_q, y_ctx)
+    # Context and query together: zero mean and unit (population) std per trajectory and channel.
+    for ctx_n, q_n in ((u_ctx_n, u_q_n), (y_ctx_n, target)):
+        window = torch.cat([ctx_n, q_n], dim=1)
+        torch.testing.assert_close(window.mean(dim=1), torch.zeros(4, window.shape[-1]), atol=1e-4, rtol=0)
+        torch.testing.assert_close(window.std(dim=1, unbiased=False), torch.ones(4, window.shape[-1]), atol=1e-4, rtol=0)
+    # Decoding with the same statistics inverts the target transform.
+    torch.testing.assert_close(norm.decode(target, y_ctx, query_stats(y_q)), y_q, rtol=1e-5, atol=1e-4)
+
+
+def test_pooled_moments_equal_the_moments_of_the_concatenated_window():
+    from robomorph.model.normalization import pooled_moments, query_stats, window_moments
+
+    _, y_ctx, _, y_q = _batch(tc=5, th=13)
+    m, s = pooled_moments(y_ctx, *query_stats(y_q), y_q.shape[1])
+    ref_m, ref_s = window_moments(torch.cat([y_ctx, y_q], dim=1))
+    torch.testing.assert_close(m, ref_m, rtol=1e-5, atol=1e-4)
+    torch.testing.assert_close(s, ref_s, rtol=1e-5, atol=1e-4)
+
+
+def test_paper_window_prediction_depends_on_the_query_outputs():
+    # The documented leak: the same normalized prediction decodes differently when the
+    # query outputs (the answer) change, because their statistics set the scale.
+    from robomorph.model.normalization import query_stats
+
+    norm = Normalizer(_stats(), normalization="paper_window")
+    _, y_ctx, _, y_q = _batch()
+    pred = torch.randn(4, 9, 3)
+    poisoned = y_q * 10 + 5
+    assert not torch.allclose(norm.decode(pred, y_ctx, query_stats(y_q)), norm.decode(pred, y_ctx, query_stats(poisoned)))
+
+
+def test_paper_window_needs_the_query_statistics_and_no_recenter():
+    from robomorph.data.statistics import NormalizationError
+
+    norm = Normalizer(_stats(), normalization="paper_window")
+    u_ctx, y_ctx, u_q, _ = _batch()
+    with pytest.raises(NormalizationError, match="y_query_stats"):
+        norm.encode(u_ctx, y_ctx, u_q)
+    with pytest.raises(NormalizationError, match="y_query_stats"):
+        norm.decode(torch.randn(4, 9, 3), y_ctx)
+    with pytest.raises(NormalizationError, match="recenter: false"):
+        Normalizer(_stats(), recenter=True, normalization="paper_window")
+    with pytest.raises(NormalizationError, match="one of"):
+        Normalizer(_stats(), normalization="per_window")

@@ -146,6 +146,26 @@ def test_report_shows_every_run_channel_baseline_and_fact(report):
     assert "arx: 50.0" in overview  # best baseline by mean approach-1 FIT ((70+45+35)/3)
 
 
+def test_paper_window_evaluations_are_marked_and_others_are_not(tmp_path):
+    root = tmp_path / "runs"
+    make_run(root, "clean")
+    leaky = make_run(root, "leaky", evals=("test0",))
+    path = leaky / "eval" / "test0" / "metrics.json"
+    metrics = json.loads(path.read_text())
+    metrics["leaks_query_statistics"] = True
+    metrics["meta"]["normalization"] = "paper_window"
+    path.write_text(json.dumps(metrics))
+    config = leaky / "config.yaml"
+    config.write_text(config.read_text().replace("horizon: 800\n", "horizon: 800\n  normalization: paper_window\n"))
+    page = Path(build_report(str(root), str(tmp_path / "report.html"))).read_text()
+    rows = page.split("<h2>Overview</h2>")[1].split("<h2>")[0].split("<tr>")[1:]
+    marked = [r for r in rows if "paper_window: uses query statistics" in r]
+    assert len(marked) == 1 and "leaky" in marked[0] and "test0" in marked[0]
+    assert "<td>paper_window</td>" in marked[0]  # the run's normalization, a fact from its config
+    sections = page.split('<section id="run-')[1:]
+    assert "the query outputs&#x27; statistics" in sections[1] and "query outputs" not in sections[0]
+
+
 def test_report_escapes_file_text(report):
     page = report.read_text()
     assert "<script>alert(1)</script>" not in page

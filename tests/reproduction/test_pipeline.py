@@ -178,3 +178,53 @@ def test_a_run_stopped_short_of_its_budget_is_not_marked_finished(tmp_path, monk
     with pytest.raises(RuntimeError, match="stopped at step 3 of 10: re-run the same command"):
         reproduce.train(plan, "t", args, "model")
     assert not resume.run_finished(str(ckpt.parent.parent), {"max_steps": 10, "max_time": None})
+
+
+def test_paper_window_table1_is_labelled_shares_the_stores_and_compares_side_by_side(table1_run, capsys):
+    root, _ = table1_run
+    out, out_pw = root / "out", root / "out_pw"
+    assert reproduce.default_out(SCALES["ci"], "paper_window") == os.path.join("results", "paper", "ci_paper_window")
+    argv = [*_argv("table1", root), "--normalization", "paper_window"]
+    argv[argv.index("--out") + 1] = str(out_pw)
+    with spied() as calls:
+        assert reproduce.main(argv) == 0
+    # Its own runs beside the leak-free ones (the stores are shared: same data), never theirs.
+    assert calls["fit"] == [f"table1-L{d}-s{SCALES['ci'].train_steps}-paper_window" for d in CI_DEPTHS]
+    assert all(c.startswith(str(root / "work" / "runs")) and "-paper_window" in c for c in calls["evaluate"])
+    doc = json.load(open(out_pw / "table1.json"))
+    assert doc["info"]["normalization"] == "paper_window" and doc["info"]["leaks_query_statistics"] is True
+    text = open(out_pw / "table1.md").read()
+    assert "**⚠ Normalization paper_window (the paper's protocol)" in text.split("| Layers")[0]
+    assert "Normalization paper_window" in open(out_pw / "table1.tex").read().splitlines()[0]
+    assert "Normalization train_stats" in open(out / "table1.md").read()
+    config = open(root / "work" / "runs" / calls["fit"][0] / "config.yaml").read()
+    assert "normalization: paper_window" in config and "recenter: false" in config
+
+    assert reproduce.main(["compare", "--scale", "ci", "--out", str(out_pw), "--leak-free", str(out)]) == 0
+    cmp = json.load(open(out_pw / "table1_protocols.json"))
+    assert [(r["n_layer"], r["paper_n_layer"], r["test"]) for r in cmp["rows"]] == [
+        (d, p, t) for d, p in zip(CI_DEPTHS, (10, 12, 16)) for t in TESTS]
+    ts, pw = json.load(open(out / "table1.json"))["rows"], doc["rows"]
+    for row, a, b in zip(cmp["rows"], ts, pw):
+        assert row["train_stats"]["r2"] == a["r2"] and row["paper_window"]["rmse"] == b["rmse"]
+    assert cmp["rows"][4]["paper"] == {"r2": 0.787, "rmse": 0.0454}  # 12 layers, test1 in the paper
+    head, rows = _md_table(out_pw / "table1_protocols.md")
+    assert head[2:5] == ["R² train_stats", "R² paper_window", "R² paper"] and len(rows) == 10
+    # Swapped folders: one line, exit code 2, saying what to pass.
+    capsys.readouterr()
+    assert reproduce.main(["compare", "--scale", "ci", "--out", str(out), "--leak-free", str(out_pw)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "produced with normalization 'paper_window', expected 'train_stats'" in err
+
+
+def test_gap_closed_is_the_share_of_the_distance_to_the_paper():
+    from robomorph.reproduction.protocols import summary
+
+    rows = [{"train_stats": {"r2": 0.3, "rmse": 0.04}, "paper_window": {"r2": 0.5, "rmse": 0.03},
+             "paper": {"r2": 0.7, "rmse": 0.05}},
+            {"train_stats": {"r2": 0.5, "rmse": 0.02}, "paper_window": {"r2": 0.7, "rmse": 0.01},
+             "paper": {"r2": 0.9, "rmse": 0.05}}]
+    s = summary(rows)
+    assert s["train_stats"]["r2"] == pytest.approx(0.4) and s["paper"]["rmse"] == pytest.approx(0.05)
+    assert s["gap_closed"] == pytest.approx(0.5)
+    assert summary([{**rows[0], "paper": None}])["gap_closed"] is None

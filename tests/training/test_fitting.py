@@ -254,3 +254,65 @@ def test_an_interrupted_checkpoint_write_keeps_the_previous_checkpoint(tmp_path,
     assert path.read_bytes() == before
     assert torch.load(path, weights_only=False)["global_step"] == 1
 
+
+
+@pytest.fixture(scope="module")
+def paper_window(store, tmp_path_factory):
+    runs = tmp_path_factory.mktemp("pw")
+    return fit(_args(store, runs, "pw", steps=5, data={"normalization": "paper_window"}))
+
+
+def _window_batch(store, n=4):
+    from robomorph.data.store import open_store
+
+    ds = open_store(store)
+    u, y = torch.as_tensor(ds.read("u", slice(0, n))), torch.as_tensor(ds.read("y", slice(0, n)))
+    return {"u_ctx": u[:, :20], "y_ctx": y[:, :20], "u_query": u[:, 20:60], "y_query": y[:, 20:60]}
+
+
+def test_paper_window_is_recorded_and_its_predictions_see_the_query_outputs(paper_window, store):
+    # The paper's protocol, as documented: poisoning the query outputs changes the prediction.
+    ckpt = load_checkpoint_file(paper_window.last_ckpt)
+    assert ckpt["hyper_parameters"]["normalization"] == "paper_window"
+    module = Predictor.from_checkpoint(paper_window.last_ckpt, device="cpu").module
+    batch = _window_batch(store)
+    with torch.no_grad():
+        _, pred, _ = module._step(batch)
+        _, pred2, _ = module._step({**batch, "y_query": batch["y_query"] * 10 + 5})
+        yhat = module.normalizer.decode(pred, batch["y_ctx"], module._query_stats(batch))
+    assert not torch.allclose(pred, pred2)
+    assert torch.isfinite(yhat).all() and yhat.shape == batch["y_query"].shape
+
+
+def test_predictor_refuses_paper_window_without_the_query_statistics(paper_window, trained, store):
+    from robomorph.data.statistics import NormalizationError, query_output_stats
+
+    pred = Predictor.from_checkpoint(paper_window.last_ckpt, device="cpu")
+    assert pred.normalization == "paper_window" and pred.leaks_query_statistics
+    b = {k: v.numpy() for k, v in _window_batch(store).items()}
+    with pytest.raises(NormalizationError, match="a deployed model cannot know"):
+        pred.simulate(b["u_ctx"], b["y_ctx"], b["u_query"])
+    y = pred.simulate(b["u_ctx"], b["y_ctx"], b["u_query"], y_query_stats=query_output_stats(b["y_query"]))
+    poisoned = pred.simulate(b["u_ctx"], b["y_ctx"], b["u_query"],
+                             y_query_stats=query_output_stats(b["y_query"] * 10 + 5))
+    assert y.shape == b["y_query"].shape and not np.allclose(y, poisoned)
+    # unbatched, with (n_y,) statistics
+    single = pred.simulate(b["u_ctx"][1], b["y_ctx"][1], b["u_query"][1],
+                           y_query_stats=query_output_stats(b["y_query"][1]))
+    np.testing.assert_allclose(single, y[1], atol=1e-5)
+    with pytest.raises(NormalizationError, match="must be finite"):
+        pred.simulate(b["u_ctx"], b["y_ctx"], b["u_query"], y_query_stats=(np.zeros(3), np.ones(3)))
+    base = Predictor.from_checkpoint(trained[0].best_ckpt, device="cpu")
+    assert base.normalization == "train_stats" and not base.leaks_query_statistics
+    with pytest.raises(NormalizationError, match="drop y_query_stats"):
+        base.simulate(b["u_ctx"], b["y_ctx"], b["u_query"], y_query_stats=query_output_stats(b["y_query"]))
+
+
+def test_paper_window_refuses_recenter_and_transfer_across_protocols(paper_window, trained, store, tmp_path):
+    from robomorph.data.statistics import NormalizationError
+
+    with pytest.raises(NormalizationError, match="recenter"):
+        fit(_args(store, tmp_path, "both", steps=1, data={"normalization": "paper_window", "recenter": True}))
+    with pytest.raises(CheckpointError, match="normalization 'train_stats'"):
+        fit(_args(store, tmp_path, "cross", steps=1, data={"normalization": "paper_window"},
+                  model={"init_ckpt": trained[0].best_ckpt}))

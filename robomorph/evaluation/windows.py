@@ -1,0 +1,127 @@
+"""The windows an evaluation scores: ``context_len + horizon`` steps of each trajectory.
+
+By default every window opens the trajectory (the paper's protocol: the robot starts at
+rest). ``--offset random`` starts each trajectory's window at its own random step, drawn
+from a seeded stream, so the model is scored mid-motion as a controller meets it;
+``--offset N`` starts every window at step ``N``. Windows always lie inside the data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from robomorph.core.errors import RoboMorphError
+
+
+class WindowError(RoboMorphError, ValueError):
+    """An evaluation window that the store cannot supply; the message says what to change."""
+
+
+@dataclass
+class Window:
+    """What one evaluation scores: ``n`` trajectory windows split at ``context_len``."""
+
+    u: np.ndarray  # (N, context_len + horizon, n_u)
+    y: np.ndarray  # (N, context_len + horizon, n_y)
+    context_len: int
+    horizon: int
+    u_names: list[str]
+    y_names: list[str]
+    dt: float
+    attrs: dict
+    params: np.ndarray  # (N, P) the stored physical parameters (P may be 0)
+    starts: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (N,) first step of each window
+    y_first: np.ndarray | None = None  # (N, n_y) each trajectory's first output (where the robot started)
+
+    def split(self, context_len: int | None = None, horizon: int | None = None):
+        """``u_ctx, y_ctx, u_query, y_query`` with the query always starting at ``self.context_len``."""
+        c, h, c0 = context_len or self.context_len, horizon or self.horizon, self.context_len
+        return self.u[:, c0 - c:c0], self.y[:, c0 - c:c0], self.u[:, c0:c0 + h], self.y[:, c0:c0 + h]
+
+
+def parse_offset(text: str | int | None) -> str | int:
+    """``start`` (or None), ``random``, or a non-negative step: the ``--offset`` option.
+
+    Raises:
+        WindowError: anything else.
+    """
+    if text is None or (isinstance(text, str) and text.strip().lower() in ("", "start", "0")):
+        return "start"
+    if isinstance(text, str) and text.strip().lower() == "random":
+        return "random"
+    try:
+        value = int(text)
+    except (TypeError, ValueError):
+        raise WindowError(f"--offset takes 'start', 'random' or a step number >= 0, got {text!r}") from None
+    if value < 0:
+        raise WindowError(f"--offset must be >= 0, got {value}")
+    return value or "start"
+
+
+def window_starts(offset: str | int, n: int, steps: int, length: int, seed: int = 0) -> np.ndarray:
+    """The first step of each of ``n`` windows of ``length`` steps in trajectories of ``steps``.
+
+    ``random`` draws each start uniformly from every start that keeps the window inside
+    the trajectory, from a stream of its own under ``seed`` (``SeedSequence(seed)``'s
+    first child, so other uses of the same seed draw independently).
+
+    Raises:
+        WindowError: a fixed offset that pushes the window past the end of the data.
+    """
+    room = steps - length  # the largest start that still fits
+    if offset == "start":
+        return np.zeros(n, dtype=np.int64)
+    if offset == "random":
+        rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
+        return rng.integers(0, room + 1, size=n).astype(np.int64)
+    if int(offset) > room:
+        raise WindowError(f"--offset {offset} + context_len + horizon = {int(offset) + length} steps exceeds the "
+                          f"store's T={steps}: use an offset <= {room} or a shorter window")
+    return np.full(n, int(offset), dtype=np.int64)
+
+
+def cut(a: np.ndarray, starts: np.ndarray, length: int) -> np.ndarray:
+    """``a[i, starts[i]:starts[i] + length]`` for every row ``i`` of ``a`` (N, T, C)."""
+    idx = starts[:, None] + np.arange(length)[None, :]
+    return a[np.arange(len(a))[:, None], idx]
+
+
+def load_window(data: str, context_len: int, horizon: int, n: int | None, info: dict | None,
+                n_u: int, n_y: int, offset: str | int = "start", seed: int = 0) -> Window:
+    """Reads and checks the first ``n`` trajectories of a store against the model.
+
+    Raises:
+        ValueError: empty store, channels that differ from the checkpoint's, a window longer
+            than the trajectories, or non-finite values (the trajectories are named).
+    """
+    from robomorph.data.store import open_store  # noqa: PLC0415
+
+    ds = open_store(data, allow_incomplete=True)
+    total = int(ds.attrs.get("n", 0))
+    if total == 0:
+        raise WindowError(f"{data} holds no trajectories: generate or import data into it first")
+    ds = open_store(data)  # a half-written store: the error says how to finish it
+    if info is not None:
+        for what, ours, theirs in (("u_names", ds.u_names, info["u_names"]), ("y_names", ds.y_names, info["y_names"])):
+            if list(ours) != list(theirs):
+                raise WindowError(f"{data} has {what} {list(ours)} but the checkpoint was trained on {list(theirs)}")
+    elif (len(ds.u_names), len(ds.y_names)) != (n_u, n_y):
+        raise WindowError(f"{data} has n_u={len(ds.u_names)}, n_y={len(ds.y_names)} but the checkpoint expects "
+                          f"n_u={n_u}, n_y={n_y}")
+    length = context_len + horizon
+    if context_len < 1 or horizon < 1 or length > ds.steps:
+        raise WindowError(f"context_len {context_len} + horizon {horizon} must fit in the store's T={ds.steps} steps "
+                          "(both >= 1): pass shorter --context-len / --horizon")
+    rows = slice(0, min(n or total, total))
+    u, y = ds.read("u", rows), ds.read("y", rows)
+    starts = window_starts(offset, len(u), ds.steps, length, seed)
+    y_first = y[:, 0].copy()
+    u, y = cut(u, starts, length), cut(y, starts, length)
+    bad = np.flatnonzero(~(np.isfinite(u).all((1, 2)) & np.isfinite(y).all((1, 2))))
+    if len(bad):
+        raise WindowError(f"{data}: trajectories {bad[:10].tolist()} hold NaN or inf in the evaluated window; "
+                          "drop them (robomorph.merge) or fix the import")
+    return Window(u, y, context_len, horizon, list(ds.u_names), list(ds.y_names), ds.dt, ds.attrs,
+                  ds.read("params", rows), starts, y_first)

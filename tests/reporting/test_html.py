@@ -1,0 +1,66 @@
+"""The per-horizon table of the report, from what ``evaluate`` writes into metrics.json."""
+
+import json
+import re
+
+import numpy as np
+
+from robomorph.evaluation.horizons import horizon_report
+from robomorph.reporting.dashboard import build_report
+from robomorph.reporting.html import horizon_table
+
+NAMES = ["ee_x", "ee_y", "ee_z", "ee_qx", "ee_qy", "ee_qz", "ee_qw"] + [f"q{i}" for i in range(7)]
+
+
+def _horizons(with_std: bool) -> dict:
+    rng = np.random.default_rng(0)
+    y = rng.normal(size=(4, 20, len(NAMES)))
+    # The model is better than hold at the first step, worse at the last two.
+    model = y + np.linspace(0.0, 0.5, 20)[None, :, None]
+    hold = y + 0.2
+    std = np.full_like(y, 0.1) if with_std else None
+    return horizon_report(y, {"model": model, "hold": hold}, NAMES, 0.05, [1, 10, 20], std)
+
+
+def test_horizon_table_marks_where_the_model_beats_hold_and_shows_coverage():
+    html = horizon_table({"horizons": _horizons(True)})
+    assert "step 10 (0.5 s)" in html and "joints [mrad]" in html and "ee_pos [mm]" in html
+    model_rows = re.findall(r'<tr><td class="name">joints \[mrad\]</td><td class="name">model</td>(.*?)</tr>', html)
+    assert len(model_rows) == 1
+    colours = re.findall(r'style="background:([^"]+)"', model_rows[0])
+    assert colours == ["rgb(204, 235, 204)", "rgb(248, 209, 204)", "rgb(248, 209, 204)"]
+    assert "inside ±1σ [%] (ideal 68.3)" in html and "inside ±2σ [%] (ideal 95.4)" in html
+    assert "inside ±1σ" not in horizon_table({"horizons": _horizons(False)})
+
+
+def test_horizon_table_is_empty_without_a_readable_horizons_entry():
+    assert horizon_table({}) == ""
+    assert horizon_table({"horizons": {"steps": "x"}}) == ""
+    broken = _horizons(False)
+    broken["rms"]["hold"]["joints"] = [1.0]  # wrong length: shown without colours, not a crash
+    assert "joints [mrad]" in horizon_table({"horizons": broken})
+
+
+def test_report_shows_the_horizon_table_of_an_evaluation(tmp_path):
+    folder = tmp_path / "runs" / "r" / "eval" / "heldout"
+    folder.mkdir(parents=True)
+    metrics = {"approach1": {"channels": {"q0": {"r2": {"mean": 0.5, "std": 0.1}, "fit": {"mean": 30.0, "std": 1.0}}}},
+               "approach2": {"channels": {"q0": {"r2": 0.5, "fit": 30.0}}}, "horizons": _horizons(True)}
+    (folder / "metrics.json").write_text(json.dumps(metrics))
+    page = open(build_report(str(tmp_path / "runs"), str(tmp_path / "report.html"))).read()
+    assert "RMS error by horizon" in page and "ee_rot [mrad]" in page and "inside ±2σ" in page
+    overview = page.split("<h2>Overview</h2>")[1].split("<h2>")[0]
+    assert "joints RMS [mrad] first step / 0.25 s / 1 s (hold)" in overview
+
+
+def test_overview_cell_gives_the_models_joint_error_at_the_first_step_quarter_second_and_second():
+    from robomorph.reporting.html import horizon_cell
+
+    y = np.zeros((2, 80, len(NAMES)))
+    preds = {"model": y + 0.001 * np.arange(1, 81)[None, :, None], "hold": y + 0.002}
+    h = horizon_report(y, preds, NAMES, 1 / 60, [1, 15, 60, 80])
+    assert horizon_cell({"horizons": h}) == "<td>1 / 15 / 60 (2 / 2 / 2)</td>"
+    del h["rms"]["hold"]
+    assert horizon_cell({"horizons": h}) == "<td>1 / 15 / 60</td>"
+    assert horizon_cell({}) == "<td>—</td>"
+    assert horizon_cell({"horizons": {"steps": [1], "seconds": ["x"], "rms": {"model": {"joints": [1.0]}}}}) == "<td>—</td>"

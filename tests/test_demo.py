@@ -1,0 +1,19 @@
+"""The demo's closing table (the rest of the demo is the commands it calls, tested in their rooms)."""
+
+import numpy as np
+
+from robomorph.demo import horizon_summary
+from robomorph.evaluation.horizons import horizon_report
+
+NAMES = ["ee_x", "ee_y", "ee_z", "ee_qx", "ee_qy", "ee_qz", "ee_qw"] + [f"q{i}" for i in range(7)]
+
+
+def test_demo_ends_with_the_horizon_table_of_model_hold_and_nominal_physics():
+    y = np.random.default_rng(0).normal(size=(3, 12, len(NAMES)))
+    preds = {name: y + 0.001 * (k + 1) for k, name in enumerate(("model", "hold", "arx", "nominal_physics"))}
+    res = {"meta": {"n": 3, "context_len": 20}, "horizons": horizon_report(y, preds, NAMES, 0.1, [1, 12])}
+    text = horizon_summary(res)
+    assert "3 held-out robots" in text and "| step 1 (0.1 s) | step 12 (1.2 s) |" in text
+    rows = [line for line in text.splitlines() if line.startswith("| joints")]
+    assert [r.split("|")[2].strip() for r in rows] == ["model", "hold", "nominal_physics"]
+    assert rows[1].endswith("| 2 | 2 |")  # hold is off by 2 mrad on every joint here
