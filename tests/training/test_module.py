@@ -126,3 +126,18 @@ def test_integrate_sums_small_changes_from_the_last_context_output_causally():
     torch.testing.assert_close(pred[:, 0], yc[:, -1] + INTEGRATE_SCALE * raw[:, 0])
     torch.testing.assert_close(pred[:, :6], pred2[:, :6])
     assert (pred[:, 6:] - pred2[:, 6:]).abs().amax() > 1e-4
+
+
+def test_std_under_the_paper_window_protocol_scales_by_each_window():
+    from robomorph.model.normalization import query_stats
+
+    m = _module(gaussian=True, loss="nll", normalization="paper_window")
+    b = _batch()
+    qs = query_stats(b["y_query"])
+    with torch.no_grad():
+        mean, std = m.forward_dist(b["u_ctx"], b["y_ctx"], b["u_query"], qs)
+        uc, yc, uq = m.normalizer.encode(b["u_ctx"], b["y_ctx"], b["u_query"], qs)
+        _, logvar = m._predict(uc, yc, uq)
+    window_std = torch.cat([b["y_ctx"], b["y_query"]], dim=1).std(dim=1, unbiased=False, keepdim=True)
+    torch.testing.assert_close(std, torch.exp(0.5 * logvar) * window_std)
+    torch.testing.assert_close(mean, m(b["u_ctx"], b["y_ctx"], b["u_query"], qs))
