@@ -22,7 +22,12 @@ import numpy as np
 import torch
 
 from robomorph.data.statistics import NormalizationError, leaks_query_statistics
+from robomorph.data.store import InputsError, check_inputs
 from robomorph.training.module import CheckpointError, MetaModule, load_checkpoint_file
+
+
+_MEANING = {"total": "total joint torque, gravity compensation included",
+            "command": "the command, without the gravity compensation the arm adds"}
 
 
 class Predictor:
@@ -31,6 +36,8 @@ class Predictor:
     Attributes:
         module: the LightningModule in eval mode.
         n_u, n_y: channel counts the model expects.
+        inputs: the input formulation it was trained on: ``total`` (total joint torque)
+            or ``command`` (the command without the arm's gravity compensation).
         device: where it runs.
     """
 
@@ -44,7 +51,18 @@ class Predictor:
         self.data_info: dict | None = module.data_info
         # Whether the model has a Gaussian head (simulate(..., return_std=True) works).
         self.has_std = bool(module.hparams.get("gaussian", False))
+        # Checkpoints written before the command formulation were all trained on total torque.
+        self.inputs: str = (self.data_info or {}).get("inputs", "total")
         self.normalization: str = module.hparams.get("normalization", "train_stats")
+
+    def check_inputs(self, inputs: str | None) -> None:
+        """Refuses inputs of the other formulation than the one the model was trained on."""
+        if inputs is not None and check_inputs(inputs) != self.inputs:
+            raise InputsError(
+                f"the model was trained on inputs={self.inputs} ({_MEANING[self.inputs]}) but was given "
+                f"inputs={inputs} ({_MEANING[inputs]}): feed it the {self.inputs} array "
+                f"({'u' if self.inputs == 'total' else 'u_cmd'}) or use a checkpoint trained with "
+                f"data.inputs={inputs}")
 
     @property
     def leaks_query_statistics(self) -> bool:
@@ -101,7 +119,8 @@ class Predictor:
         return tuple(out)
 
     @torch.no_grad()
-    def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, return_std: bool = False):
+    def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, inputs: str | None = None,
+                 return_std: bool = False):
         """Predicts the outputs over the query horizon.
 
         Args:
@@ -111,6 +130,8 @@ class Predictor:
             y_query_stats: only for a ``paper_window`` model, and required there: ``(mean, std)``
                 over time of the query outputs, (n_y,) or (B, n_y) each. This is information
                 about the answer: scores obtained with it are not those of a deployable model.
+            inputs: which formulation the torques are (``total`` or ``command``); when
+                given, a mismatch with the training formulation is refused.
             return_std: also return the predicted standard deviation (models trained with
                 ``gaussian: true`` only).
 
@@ -123,6 +144,7 @@ class Predictor:
                 for another, or of the wrong shape.
             CheckpointError: ``return_std`` for a model without a Gaussian head.
         """
+        self.check_inputs(inputs)
         if return_std and not self.has_std:
             raise CheckpointError("this model has no Gaussian head, so it predicts no standard deviation; "
                                   "train one with --model.gaussian true --model.loss nll, or drop return_std")

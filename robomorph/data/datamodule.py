@@ -26,7 +26,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from robomorph.data.sampling import TRAIN_STREAM, MixtureSampler
 from robomorph.data.statistics import Stats, StatsAccumulator, check_normalization
-from robomorph.data.store import open_store
+from robomorph.data.store import check_inputs, open_store
 
 # Stores whose u and y together fit in this many bytes are read into memory once (a random
 # batch from disk costs 34-55 ms against 0.1 ms from memory, REFERENCE.md section 3).
@@ -43,12 +43,14 @@ class _Source:
     handle is never shared across fork or pickling), so DataLoader workers are safe.
     """
 
-    def __init__(self, path: str):
+    def __init__(self, path: str, inputs: str = "total"):
         ds = open_store(path)
         if ds.n < 1:
             raise ValueError(f"{path} holds no trajectories (n=0)")
         self.path, self.n, self.steps, self.chunk = path, ds.n, ds.steps, ds.chunk
-        self.u_names, self.y_names, self.dt = ds.u_names, ds.y_names, ds.dt
+        # The array the model reads as u: the total torque or the command (data.inputs).
+        self.u_array = ds.check_inputs(inputs)
+        self.u_names, self.y_names, self.dt = ds.input_names(inputs), ds.y_names, ds.dt
         self.u: np.ndarray | None = None
         self.y: np.ndarray | None = None
         self._ds, self._pid = ds, os.getpid()
@@ -70,7 +72,7 @@ class _Source:
     def load(self) -> None:
         """Reads all of u and y into memory."""
         ds = self._store()
-        self.u, self.y = ds.read("u"), ds.read("y")
+        self.u, self.y = ds.read(self.u_array), ds.read("y")
 
     def block(self, c: int) -> tuple[int, np.ndarray, np.ndarray]:
         """Rows of chunk ``c``: ``(first row, u (k, T, n_u), y (k, T, n_y))``."""
@@ -79,7 +81,7 @@ class _Source:
             return c0, self.u[c0:c1], self.y[c0:c1]
         if self._cache[0] != c:
             ds = self._store()
-            self._cache = (c, ds.read("u", slice(c0, c1)), ds.read("y", slice(c0, c1)))
+            self._cache = (c, ds.read(self.u_array, slice(c0, c1)), ds.read("y", slice(c0, c1)))
         return c0, self._cache[1], self._cache[2]
 
     def window(self, i: int, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
@@ -177,6 +179,9 @@ class RoboMorphDataModule(L.LightningDataModule):
             or ``paper_window`` (the paper's protocol, each window z-scored over context and
             query; it leaks the query outputs' statistics and is labelled so wherever it is used).
         val_subset: at most this many validation trajectories (a fixed seeded subset).
+        inputs: ``total``: u is the total joint torque (the paper's input, array ``u``);
+            ``command``: u is the command without the gravity compensation the arm adds
+            (array ``u_cmd``; stores of schema 2 on). The checkpoint records the choice.
         train_samples_per_epoch: windows per training epoch; default the number of training
             trajectories.
     """
@@ -188,7 +193,8 @@ class RoboMorphDataModule(L.LightningDataModule):
                  split: tuple[float, float, float] = (0.8, 0.1, 0.1), seed: int = 0, batch_size: int = 16,
                  num_workers: int = 0, in_memory: bool | None = None, recenter: bool = False,
                  val_subset: int = 256, train_samples_per_epoch: int | None = None,
-                 normalization: Literal["train_stats", "paper_window"] = "train_stats"):
+                 normalization: Literal["train_stats", "paper_window"] = "train_stats",
+                 inputs: Literal["total", "command"] = "total"):
         super().__init__()
         self.save_hyperparameters()
         self.stores = [stores] if isinstance(stores, str) else list(stores)
@@ -198,6 +204,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.split, self.seed, self.batch_size, self.num_workers = tuple(split), seed, batch_size, num_workers
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
         self.train_samples_per_epoch = train_samples_per_epoch
+        self.inputs = inputs
         self.normalization = normalization
         self._validate()
         self._ready = False
@@ -205,6 +212,7 @@ class RoboMorphDataModule(L.LightningDataModule):
     def _validate(self) -> None:
         if not self.stores:
             raise ValueError("stores: give at least one store path")
+        check_inputs(self.inputs)
         paths = [os.path.realpath(p) for p in self.stores]
         if len(set(paths)) != len(paths):
             raise ValueError(f"stores lists a store twice: {self.stores}")
@@ -252,9 +260,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         """
         if self._ready:
             return
-        sources = [_Source(p) for p in self.stores]
+        sources = [_Source(p, self.inputs) for p in self.stores]
         if self.test_store is not None:
-            sources.append(_Source(self.test_store))
+            sources.append(_Source(self.test_store, self.inputs))
         self._check_compatible(sources)
         self._resolve_lengths(sources)
         total = sum(s.nbytes for s in sources)
@@ -367,4 +375,5 @@ class RoboMorphDataModule(L.LightningDataModule):
             "context_min": self.context_min, "horizon_min": self.horizon_min,
             "n_u": self.n_u, "n_y": self.n_y, "dt": self.dt, "in_memory": bool(self.loaded),
             "seed": self.seed, "split": list(self.split), "normalization": self.normalization,
+            "inputs": self.inputs,
         }

@@ -20,6 +20,10 @@ Input formats (``--format auto`` picks by extension):
 
 All inputs are read and checked (columns, missing values, sample time) before the store
 is created, so a bad log never leaves a half-written dataset behind.
+
+``--u-cols`` names the total joint torque (the store's ``u``); ``--u-cmd-cols`` optionally
+names the command sent before the gravity compensation the arm's controller adds (the
+store's ``u_cmd``, read by ``data.inputs: command``), one column per joint as well.
 """
 
 from __future__ import annotations
@@ -217,10 +221,16 @@ def _window_starts(length: int, steps: int, stride: int) -> np.ndarray:
 
 
 def _check_args(files: list[str], u_cols: list[str], y_cols: list[str], steps: int,
-                dt: float | None, time_col: str | None, stride: int, time_tol: float) -> None:
+                dt: float | None, time_col: str | None, stride: int, time_tol: float,
+                u_cmd_cols: list[str] | None = None) -> None:
     if not files:
         raise IngestError("give at least one log file")
-    for kind, cols in (("--u-cols", u_cols), ("--y-cols", y_cols)):
+    if u_cmd_cols is not None and len(u_cmd_cols) != len(u_cols):
+        raise IngestError(f"--u-cmd-cols names {len(u_cmd_cols)} columns but --u-cols {len(u_cols)}: the command "
+                          "and the total torque need one column per joint each, in the same joint order")
+    for kind, cols in (("--u-cols", u_cols), ("--u-cmd-cols", u_cmd_cols), ("--y-cols", y_cols)):
+        if cols is None:
+            continue
         if not cols:
             raise IngestError(f"{kind} must name at least one column")
         dup = sorted({c for c in cols if cols.count(c) > 1})
@@ -236,13 +246,13 @@ def _check_args(files: list[str], u_cols: list[str], y_cols: list[str], steps: i
         raise IngestError(f"--time-tol must be >= 0, got {time_tol}")
 
 
-def _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol):
-    """Reads and checks every log; returns (recordings, sample times, skipped names)."""
+def _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol, u_cmd_cols=None):
+    """Reads and checks every log: ``([(file index, u, y, starts, u_cmd)], dts, skipped)``."""
     recs, dts, skipped = [], [], []
     for index, path in enumerate(files):
         cols = read_log(path, fmt)
         # Checked even for recordings skipped below: a wrong name is wrong in every file.
-        _check_columns(cols, [*u_cols, *y_cols, *([time_col] if time_col else [])], path)
+        _check_columns(cols, [*u_cols, *(u_cmd_cols or []), *y_cols, *([time_col] if time_col else [])], path)
         length = len(cols[u_cols[0]])
         if length < steps:
             warnings.warn(f"skipping {path}: {length} samples, fewer than --steps {steps}",
@@ -253,7 +263,8 @@ def _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_t
             dts.append((path, _sample_time(cols[time_col], path, time_tol)))
         u = np.stack([cols[c] for c in u_cols], axis=1).astype(np.float32)  # (L, n_u)
         y = np.stack([cols[c] for c in y_cols], axis=1).astype(np.float32)  # (L, n_y)
-        recs.append((index, u, y, _window_starts(length, steps, stride)))
+        u_cmd = None if u_cmd_cols is None else np.stack([cols[c] for c in u_cmd_cols], axis=1).astype(np.float32)
+        recs.append((index, u, y, _window_starts(length, steps, stride), u_cmd))
     return recs, dts, skipped
 
 
@@ -272,12 +283,12 @@ def _common_dt(dts: list[tuple[str, float]], tol: float) -> float:
 def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, steps: int,
            dt: float | None = None, time_col: str | None = None, stride: int | None = None,
            fmt: str = "auto", overwrite: bool = False, name: str | None = None,
-           time_tol: float = 0.01) -> Dataset:
+           time_tol: float = 0.01, u_cmd_cols: list[str] | None = None) -> Dataset:
     """Cuts recorded logs into windows and writes them as a RoboMorph dataset.
 
     Args:
         files: log files, one recording each (CSV, NPZ or MAT; see the module docstring).
-        u_cols: input columns, in the order of the store's ``u`` channels.
+        u_cols: total joint torque columns, in the order of the store's ``u`` channels.
         y_cols: output columns, in the order of the store's ``y`` channels.
         out: the store directory to create.
         steps: samples per window (T).
@@ -288,6 +299,9 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
         overwrite: replace an existing RoboMorph store at ``out`` (never anything else).
         name: the store's ``domain`` attribute (default ``real``).
         time_tol: largest relative deviation of a time step from the mean sample time.
+        u_cmd_cols: command columns (what was commanded, before the gravity compensation
+            the arm's controller adds), in the joint order of ``u_cols``; the store's
+            ``u_cmd`` (``data.inputs: command``). None: the store has only ``u``.
 
     Returns:
         The finished dataset, opened for reading.
@@ -299,14 +313,15 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
             ``overwrite``) an existing dataset.
     """
     dt_arg, stride = dt, (steps if stride is None else stride)
-    _check_args(files, u_cols, y_cols, steps, dt, time_col, stride, time_tol)
+    _check_args(files, u_cols, y_cols, steps, dt, time_col, stride, time_tol, u_cmd_cols)
     check_writable(out, overwrite)  # refuse a bad --out before reading large logs
-    recs, dts, skipped = _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol)
-    total = sum(len(starts) for _, _, _, starts in recs)
+    recs, dts, skipped = _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol, u_cmd_cols)
+    total = sum(len(r[3]) for r in recs)
     if total == 0:
         raise IngestError(f"no windows: every recording is shorter than --steps {steps}; lower --steps")
     dt = _common_dt(dts, time_tol) if time_col else float(dt)
-    config = {"files": list(files), "u_cols": list(u_cols), "y_cols": list(y_cols), "steps": steps,
+    cmd_names = None if u_cmd_cols is None else list(u_cmd_cols)
+    config = {"files": list(files), "u_cols": list(u_cols), "u_cmd_cols": cmd_names, "y_cols": list(y_cols), "steps": steps,
               "stride": stride, "dt": dt_arg, "time_col": time_col, "fmt": fmt,
               "name": name, "time_tol": time_tol}
     attrs = {"dt": dt, "domain": name or "real", "task": "ingested", "config": config, "seed": None,
@@ -314,14 +329,15 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
              "requested": total, "attempted": total, "kept": total, "rejected": {}}
     writer = create_store(out, total, steps, list(u_cols), list(y_cols), [], attrs,
                           extras={"recording_index": ((), "int32"), "window_start": ((), "int64")},
-                          overwrite=overwrite)
-    for index, u, y, starts in recs:
+                          overwrite=overwrite, u_cmd_names=cmd_names)
+    for index, u, y, starts, u_cmd in recs:
         for b in range(0, len(starts), _WRITE_BLOCK):
             block = starts[b:b + _WRITE_BLOCK]
             rows = block[:, None] + np.arange(steps)  # (k, T) sample indices
-            writer.append(u[rows], y[rows], np.zeros((len(block), 0), np.float32),
-                          extras={"recording_index": np.full(len(block), index, np.int32),
-                                  "window_start": block})
+            extras = {"recording_index": np.full(len(block), index, np.int32), "window_start": block}
+            if u_cmd is not None:
+                extras["u_cmd"] = u_cmd[rows]
+            writer.append(u[rows], y[rows], np.zeros((len(block), 0), np.float32), extras=extras)
     writer.finalize()
     return open_store(out)
 
@@ -333,7 +349,10 @@ def _names(text: str) -> list[str]:
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m robomorph.ingest", description=__doc__.split("\n")[0])
     p.add_argument("files", nargs="+", help="log files, one recording each (.csv, .npz, .mat)")
-    p.add_argument("--u-cols", required=True, type=_names, help="input columns, comma-separated")
+    p.add_argument("--u-cols", required=True, type=_names,
+                   help="total joint torque columns (the store's u), comma-separated")
+    p.add_argument("--u-cmd-cols", type=_names, help="command columns before the arm's gravity compensation "
+                   "(the store's u_cmd, for data.inputs: command), comma-separated, joint order of --u-cols")
     p.add_argument("--y-cols", required=True, type=_names, help="output columns, comma-separated")
     p.add_argument("--steps", required=True, type=int, help="samples per window (T)")
     p.add_argument("--stride", type=int, help="samples between window starts (default: --steps)")
@@ -355,7 +374,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             ds = ingest(args.files, args.u_cols, args.y_cols, args.out, args.steps, dt=args.dt,
                         time_col=args.time_col, stride=args.stride, fmt=args.fmt,
-                        overwrite=args.overwrite, name=args.name, time_tol=args.time_tol)
+                        overwrite=args.overwrite, name=args.name, time_tol=args.time_tol,
+                        u_cmd_cols=args.u_cmd_cols)
         except (ValueError, OSError) as exc:  # IngestError, SchemaError, FileExistsError, ...
             _print_warnings(caught)
             print(f"error: {exc}", file=sys.stderr)

@@ -22,7 +22,7 @@ def merge(parts: list[str], out: str, overwrite: bool = False, chunk: int = 64) 
     shards = sorted(tuple(s.attrs.get("shard", [0, 1])) for s in stores)
     for s in stores[1:]:
         a = s.attrs
-        for key in ("config", "u_names", "y_names", "param_names", "dt"):
+        for key in ("config", "u_names", "u_cmd_names", "y_names", "param_names", "dt"):
             if a.get(key) != first.get(key):
                 raise ValueError(f"{s.path} differs from {stores[0].path} in {key}: shards must share one recipe")
     if len(set(shards)) != len(shards):
@@ -30,19 +30,21 @@ def merge(parts: list[str], out: str, overwrite: bool = False, chunk: int = 64) 
     total = sum(s.n for s in stores)
     extras = {k: (tuple(stores[0].group[k].shape[1:]), str(stores[0].group[k].dtype))
               for k in stores[0].arrays if k not in ("u", "y", "params")}
+    u_cmd_names = first.get("u_cmd_names") if "u_cmd" in extras else None
     rejected: dict[str, int] = {}
     for s in stores:
         for k, v in s.attrs.get("rejected", {}).items():
             rejected[k] = rejected.get(k, 0) + v
     keep = {k: v for k, v in first.items() if k not in (
-        "schema", "schema_version", "u_names", "y_names", "param_names", "status", "n", "capacity",
+        "schema", "schema_version", "u_names", "u_cmd_names", "y_names", "param_names", "status", "n", "capacity",
         "created", "finished", "shard", "cursor")}
     keep.update(requested=sum(s.attrs.get("requested", s.n) for s in stores),
                 attempted=sum(s.attrs.get("attempted", s.n) for s in stores),
                 kept=total, rejected=rejected, merged_from=[list(x) for x in shards],
                 merged_paths=list(parts))
     writer = create_store(out, total, stores[0].steps, stores[0].u_names, stores[0].y_names,
-                          stores[0].param_names, keep, extras=extras, chunk=chunk, overwrite=overwrite)
+                          stores[0].param_names, keep, extras=extras, chunk=chunk, overwrite=overwrite,
+                          u_cmd_names=u_cmd_names)
     for s in stores:
         for start in range(0, s.n, chunk):
             rows = slice(start, min(start + chunk, s.n))

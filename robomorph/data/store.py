@@ -3,11 +3,14 @@
 Layout (DESIGN.md)::
 
     <name>.zarr/
-      u       float32 (N, T, n_u)
+      u       float32 (N, T, n_u)   inputs: total joint torque (the paper's input)
+      u_cmd   float32 (N, T, n_u)   the command without the compensation the arm adds
+                                    (schema 2 on; generated stores always, ingested ones
+                                    when the log names its command columns)
       y       float32 (N, T, n_y)
       params  float32 (N, P)
       <extra> optional arrays with N as first axis (e.g. ``target``, ``task_index``)
-      attrs   schema_version, u_names, y_names, param_names, dt, domain, task, config,
+      attrs   schema_version, u_names, [u_cmd_names,] y_names, param_names, dt, domain, task, config,
               seed, status, n, requested, attempted, rejected, package_version, ...
 
 Arrays are allocated at their final capacity and filled in row blocks; ``attrs['n']`` says
@@ -31,7 +34,13 @@ from zarr.storage import LocalStore
 from robomorph import __version__
 from robomorph.core.errors import RoboMorphError
 
-SCHEMA_VERSION = 1
+# 2 added ``u_cmd`` (the command formulation). Version 1 stores read as before; they
+# have only the total torque, and asking them for the command says to regenerate.
+SCHEMA_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+# The two input formulations and the array each reads.
+INPUTS = ("total", "command")
+INPUT_ARRAYS = {"total": "u", "command": "u_cmd"}
 SCHEMA_NAME = "robomorph.dataset"
 STATUS_IN_PROGRESS = "in_progress"
 STATUS_COMPLETE = "complete"
@@ -43,6 +52,18 @@ _REQUIRED_ATTRS = ("schema", "schema_version", "u_names", "y_names", "param_name
 
 class SchemaError(RoboMorphError, ValueError):
     """A path is not a RoboMorph dataset of the supported schema."""
+
+
+class InputsError(SchemaError):
+    """A store does not hold the input formulation asked for."""
+
+
+def check_inputs(inputs: str) -> str:
+    """``inputs`` if it names a formulation, else a :class:`InputsError` listing them."""
+    if inputs not in INPUTS:
+        raise InputsError(f"inputs must be one of {', '.join(INPUTS)} (total joint torque, or the command "
+                          f"without the arm's gravity compensation), got {inputs!r}")
+    return inputs
 
 
 def _now() -> str:
@@ -94,6 +115,7 @@ def create_store(
     extras: dict[str, tuple[tuple[int, ...], str]] | None = None,
     chunk: int = 64,
     overwrite: bool = False,
+    u_cmd_names: list[str] | None = None,
 ) -> "DatasetWriter":
     """Creates an empty store of capacity ``n`` trajectories of ``steps`` samples.
 
@@ -106,6 +128,8 @@ def create_store(
         extras: optional arrays ``name -> (trailing shape, dtype)``.
         chunk: trajectories per chunk along N.
         overwrite: replace an existing RoboMorph store (never anything else).
+        u_cmd_names: names of the command channels; given, the store gets a ``u_cmd``
+            array (as wide as ``u``) that :meth:`DatasetWriter.append` fills from ``extras``.
     """
     if n < 1 or steps < 1:
         raise ValueError(f"a dataset needs n >= 1 and steps >= 1, got n={n}, steps={steps}")
@@ -114,12 +138,17 @@ def create_store(
     check_writable(path, overwrite)
     group = zarr.open_group(LocalStore(path), mode="w")
     chunk = max(1, min(chunk, n))
-    for name, width in (("u", len(u_names)), ("y", len(y_names))):
+    extras = {k: v for k, v in (extras or {}).items() if k != "u_cmd"}
+    widths = [("u", len(u_names)), ("y", len(y_names))]
+    if u_cmd_names is not None:
+        _check_names("u_cmd", list(u_cmd_names), len(u_names))
+        widths.append(("u_cmd", len(u_names)))
+    for name, width in widths:
         group.create_array(name, shape=(n, steps, width), chunks=(chunk, steps, width),
                            dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
     group.create_array("params", shape=(n, len(param_names)), chunks=(chunk, max(1, len(param_names))),
                        dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
-    for name, (tail, dtype) in (extras or {}).items():
+    for name, (tail, dtype) in extras.items():
         group.create_array(name, shape=(n, *tail), chunks=(chunk, *tail), dtype=dtype,
                            compressors=_COMPRESSORS)
     meta = {
@@ -127,6 +156,7 @@ def create_store(
         "schema": SCHEMA_NAME,
         "schema_version": SCHEMA_VERSION,
         "u_names": list(u_names),
+        **({"u_cmd_names": list(u_cmd_names)} if u_cmd_names is not None else {}),
         "y_names": list(y_names),
         "param_names": list(param_names),
         "dt": float(attrs["dt"]),
@@ -172,6 +202,8 @@ class DatasetWriter:
         k = len(u)
         if not (len(y) == len(params) == k):
             raise ValueError(f"row counts differ: u {len(u)}, y {len(y)}, params {len(params)}")
+        if "u_cmd" in self.group and "u_cmd" not in (extras or {}):
+            raise ValueError(f"{self.path} has a u_cmd array: give its rows in extras['u_cmd']")
         if self.n + k > self.capacity:
             raise ValueError(f"appending {k} rows would exceed capacity {self.capacity} (n={self.n})")
         for name, arr in (("u", u), ("y", y), ("params", params), *(extras or {}).items()):
@@ -208,10 +240,10 @@ def _open_group(path: str, mode: str = "r") -> zarr.Group:
             f"{path} is not a RoboMorph dataset (schema={attrs.get('schema')!r}); create one with "
             "`python -m robomorph.generate` or `python -m robomorph.ingest`"
         )
-    if attrs.get("schema_version") != SCHEMA_VERSION:
+    if attrs.get("schema_version") not in READABLE_VERSIONS:
         raise SchemaError(
             f"{path} has schema_version {attrs.get('schema_version')}, this robomorph reads "
-            f"{SCHEMA_VERSION}; regenerate it with this version"
+            f"{', '.join(map(str, READABLE_VERSIONS))}; regenerate it with this version"
         )
     missing = [a for a in _REQUIRED_ATTRS if a not in attrs]
     missing += [a for a in ("u", "y", "params") if a not in group]
@@ -256,6 +288,31 @@ class Dataset:
     def chunk(self) -> int:
         """Trajectories per chunk along N (read whole chunks for speed)."""
         return int(self.group["u"].chunks[0])
+
+    def has_inputs(self, inputs: str) -> bool:
+        """Whether the store holds the input array of formulation ``inputs``."""
+        return INPUT_ARRAYS[check_inputs(inputs)] in self.group
+
+    def check_inputs(self, inputs: str) -> str:
+        """The array name of formulation ``inputs``, or an error that says how to get it."""
+        name = INPUT_ARRAYS[check_inputs(inputs)]
+        if name not in self.group:
+            raise InputsError(
+                f"{self.path} has no command inputs (u_cmd): it was written "
+                f"{'before schema 2' if self.attrs.get('schema_version', 1) < 2 else 'without command columns'}"
+                ". Regenerate it with this robomorph (`robomorph generate` with the same recipe) or, for "
+                "ingested logs, re-ingest naming the command with --u-cmd-cols; or use inputs=total")
+        return name
+
+    def input_names(self, inputs: str) -> list[str]:
+        """Channel names of formulation ``inputs`` (``u_names`` or ``u_cmd_names``)."""
+        if self.check_inputs(inputs) == "u":
+            return self.u_names
+        return list(self.group.attrs.get("u_cmd_names", self.u_names))
+
+    def read_inputs(self, inputs: str, rows: slice | np.ndarray | None = None) -> np.ndarray:
+        """Reads the input array of formulation ``inputs`` (``u`` or ``u_cmd``)."""
+        return self.read(self.check_inputs(inputs), rows)
 
     @property
     def arrays(self) -> list[str]:

@@ -120,7 +120,10 @@ def _channels(ds: Dataset, sample: int) -> list[str]:
     used = sum(b.stop - b.start for b in blocks)
     how = "all" if used == ds.n else f"sampled: {used} of {ds.n}, whole chunks spread evenly"
     lines = []
-    for kind, name, names in (("inputs", "u", ds.u_names), ("outputs", "y", ds.y_names)):
+    arrays = [("inputs (total torque)", "u", ds.u_names), ("outputs", "y", ds.y_names)]
+    if ds.has_inputs("command"):
+        arrays.insert(1, ("inputs (command)", "u_cmd", ds.input_names("command")))
+    for kind, name, names in arrays:
         lines.append(f"{kind} {name} over {used} trajectories ({how}):")
         lines += _table(names, channel_stats(ds, name, blocks), ("min", "mean", "std", "max"))
     return lines

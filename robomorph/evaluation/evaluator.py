@@ -118,7 +118,7 @@ def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]
             from robomorph.evaluation.physics import NominalPhysics, NotApplicable, check_params  # noqa: PLC0415
 
             try:
-                sim = NominalPhysics(w.attrs)
+                sim = NominalPhysics(w.attrs, inputs=w.inputs)
                 if name == "true_physics":
                     check_params(w.attrs)
             except NotApplicable as exc:
@@ -206,7 +206,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
              sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
              samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0,
              normalization: str | None = None, horizons_spec: str | None = None,
-             offset: str | int | None = "start") -> dict:
+             offset: str | int | None = "start", inputs: str | None = None) -> dict:
     """Evaluates a checkpoint on a store and writes every output file into ``out``.
 
     Args:
@@ -216,6 +216,10 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
             first step, 0.25 s, 1 s, 5 s and the end of the horizon).
         offset: where each window starts (:func:`parse_offset`): ``start``, ``random``
             (seeded by ``seed``) or a fixed step.
+        inputs: when given, the input formulation the checkpoint must have been trained on
+            (``total``: the store's ``u``, ``command``: its ``u_cmd``); the store's input
+            array is always the checkpoint's, and a store without ``u_cmd`` is refused for a
+            command model with a message saying to regenerate it.
 
     Returns:
         The ``metrics.json`` content.
@@ -227,6 +231,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
             raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
     offset = parse_offset(offset)
     predictor = Predictor.from_checkpoint(ckpt, device=device)
+    predictor.check_inputs(inputs)
     if normalization is not None and normalization != predictor.normalization:
         raise NormalizationError(f"{ckpt} was trained with normalization {predictor.normalization!r}, not "
                                  f"{normalization!r}: the normalization is fixed at training time (data.normalization)")
@@ -235,7 +240,8 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     horizon = horizon or (info or {}).get("horizon")
     if context_len is None or horizon is None:
         raise ValueError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
-    w = load_window(data, int(context_len), int(horizon), n, info, predictor.n_u, predictor.n_y, offset, seed)
+    w = load_window(data, int(context_len), int(horizon), n, info, predictor.n_u, predictor.n_y, offset, seed,
+                    predictor.inputs)
     steps = parse_horizons(horizons_spec, w.horizon, w.dt)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
     contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")
@@ -296,7 +302,7 @@ def score(predictor, w: Window, baselines: tuple[str, ...], arx_orders: tuple[in
               "meta": {"context_len": w.context_len, "horizon": w.horizon, "n": len(w.u), "dt": w.dt,
                        "y_names": names, "u_names": w.u_names, "device": str(getattr(predictor, "device", "")),
                        "baseline_notes": notes, "domain": w.attrs.get("domain"), "task": w.attrs.get("task"),
-                       "normalization": normalization, "std": std is not None},
+                       "normalization": normalization, "std": std is not None, "inputs": w.inputs},
               # The paper's protocol scales each window with its query outputs' statistics: say so first.
               "leaks_query_statistics": leaks_query_statistics(normalization)}
     return result, preds, std, base
@@ -339,6 +345,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seed", type=int, default=0, help="picks the plotted sample trajectories and the random offsets")
     p.add_argument("--normalization", choices=("train_stats", "paper_window"),
                    help="require the checkpoint to have been trained with this normalization (default: its own)")
+    p.add_argument("--inputs", choices=("total", "command"),
+                   help="input formulation of the data (default: the checkpoint's; a different one is refused)")
     a = p.parse_args(argv)
     baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
     out = a.out or default_out(a.ckpt, a.data)
@@ -351,7 +359,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         res = evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
                        a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed, a.normalization,
-                       horizons_spec=a.horizons, offset=a.offset)
+                       horizons_spec=a.horizons, offset=a.offset, inputs=a.inputs)
     except (ValueError, FileNotFoundError) as exc:
         sys.exit(f"error: {exc}")
     print(summary_text(res, out))
@@ -361,7 +369,8 @@ def summary_text(res: dict, out: str, horizons: bool = True) -> str:
     """A few lines for the terminal: mean approach-1 scores of the model and the baselines,
     then (with ``horizons``) the RMS errors by horizon in physical units."""
     m, meta = res["approach1"]["mean"], res["meta"]
-    lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']} (approach 1 mean):"]
+    lines = [f"{meta['n']} trajectories, context {meta['context_len']}, horizon {meta['horizon']}, "
+             f"inputs {meta.get('inputs', 'total')} (approach 1 mean):"]
     if res.get("leaks_query_statistics"):
         lines.append(f"  normalization {meta.get('normalization')}: scores use the query outputs' statistics (the "
                      "paper's protocol), not those of a deployable model")

@@ -8,12 +8,20 @@ in ``y``; it is estimated from the context positions (a cubic through the last s
 so even on an un-randomized store the prediction differs from the truth by what that
 estimate misses.
 
-The recorded ``u`` is the full torque at the joints at the start of each frame. When the
-recipe compensated gravity through the actuators (``true_model``), that compensation
-followed the state through the frame's physics substeps; the baseline does the same with
-the nominal model's gravity (command = u - g_nominal(q) at the frame start), so on an
-un-randomized robot it reproduces the recorded torques. Otherwise ``u`` is held over the
-frame as recorded.
+Two input formulations (``inputs``):
+
+* ``total``: the recorded ``u`` is the full torque at the joints at the start of each
+  frame. When the recipe compensated gravity through the actuators (``true_model``), that
+  compensation followed the state through the frame's physics substeps; the baseline does
+  the same with the simulated model's gravity (command = u - g(q) at the frame start), so
+  on an un-randomized robot it reproduces the recorded torques. Otherwise ``u`` is held
+  over the frame as recorded. g(q) is paid at the *recorded* state, so any deviation
+  feels gravity uncompensated and grows (about tenfold every 57 steps): no simulation
+  follows this formulation far.
+* ``command``: ``u`` is the command ``u_cmd``, simulated on an arm that compensates its own
+  gravity at its current state, as the generator does: ``true_model`` through the
+  actuators (the simulated model's own g(q)), ``nominal_model`` by adding the catalogue
+  robot's g(q) at each frame start, ``none`` not at all. Deviations do not grow.
 """
 
 from __future__ import annotations
@@ -42,17 +50,20 @@ class NominalPhysics:
 
     Args:
         attrs: the store's attributes (domain, channel names and generator config).
+        inputs: ``total`` (torques given are ``u``) or ``command`` (they are ``u_cmd``).
 
     Raises:
         NotApplicable: the store is not a simulated Panda store (imported real logs,
             other domains, another channel layout).
     """
 
-    def __init__(self, attrs: dict):
+    def __init__(self, attrs: dict, inputs: str = "total"):
         import mujoco  # noqa: PLC0415
 
         from robomorph.core.config import from_dict  # noqa: PLC0415  (MuJoCo only when used)
+        from robomorph.data.store import check_inputs  # noqa: PLC0415
         from robomorph.sim import panda  # noqa: PLC0415
+        from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
         from robomorph.sim.randomize import Randomizer  # noqa: PLC0415
         from robomorph.sim.recipe import Recipe  # noqa: PLC0415
 
@@ -63,7 +74,11 @@ class NominalPhysics:
             raise NotApplicable("needs the Panda channel layout (u = tau0..tau6, y = EE pose and q0..q6)")
         recipe = from_dict(Recipe, attrs["config"], "store config")
         self.dt, self.substeps = float(recipe.dt), int(recipe.substeps)
+        self.inputs = check_inputs(inputs)
         self.gravity_in_actuators = recipe.gravity_compensation == "true_model"
+        # nominal_model: the arm's controller adds the catalogue robot's g(q) to the command.
+        self._catalogue_gravity = (NominalGravity(recipe) if inputs == "command"
+                                   and recipe.gravity_compensation == "nominal_model" else None)
         self.model = panda.build_model(recipe.substeps, recipe.dt, self.gravity_in_actuators)
         self.data = mujoco.MjData(self.model)
         self._randomizer = Randomizer(self.model, recipe.randomization)
@@ -96,21 +111,41 @@ class NominalPhysics:
                                    None if params is None else np.asarray(params[b], dtype=np.float64))
                          for b in range(len(torque))])
 
-    def _one(self, q_ctx: np.ndarray, qvel0: np.ndarray, torque: np.ndarray, quat_last: np.ndarray,
-             params: np.ndarray | None) -> np.ndarray:
+    def rollout(self, torque: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray | None = None,
+                params: np.ndarray | None = None) -> np.ndarray:
+        """Simulates ``torque`` (T, 7), in this baseline's formulation, from joint state
+        ``(qpos0, qvel0)``; returns y (T, 14) at the start of each frame (row 0: the start).
+
+        ``params`` are the robot's own parameters (default: the catalogue robot with its
+        springs anchored at ``qpos0``).
+        """
         from robomorph.sim.closed_loop import simulate_closed_loop  # noqa: PLC0415
         from robomorph.sim.filters import to_outputs  # noqa: PLC0415
 
+        self._randomizer.apply(self.model, self.params(qpos0) if params is None else params)
+        sens = simulate_closed_loop(self.model, self.data, qpos0, len(torque), self.substeps,
+                                    self._controller(np.asarray(torque, dtype=np.float64)), qvel0)
+        return to_outputs(sens)[1]
+
+    def _one(self, q_ctx: np.ndarray, qvel0: np.ndarray, torque: np.ndarray, quat_last: np.ndarray,
+             params: np.ndarray | None) -> np.ndarray:
         # The stiffness springs pull toward where the robot started: the first context
         # sample when the context opens the trajectory (stiffness is small either way).
-        self._randomizer.apply(self.model, self.params(q_ctx[0]) if params is None else params)
-        nj, gravity = self._nj, self.gravity_in_actuators
-
-        def command(data, t):
-            return torque[t] - data.qfrc_gravcomp[:nj] if gravity else torque[t]
-
-        sens = simulate_closed_loop(self.model, self.data, q_ctx[-1], len(torque), self.substeps, command, qvel0)
-        _, y = to_outputs(sens)  # row f: the start of frame c-1+f
+        if params is None:
+            params = self.params(q_ctx[0])
+        y = self.rollout(torque, q_ctx[-1], qvel0, params)  # row f: the start of frame c-1+f
         if np.dot(y[0, self._quat], quat_last) < 0:  # the context's sign convention
             y[:, self._quat] *= -1.0
         return y[1:]
+
+    def _controller(self, torque: np.ndarray):
+        """``(data, t) -> ctrl`` that applies ``torque`` in this baseline's formulation."""
+        nj, grav = self._nj, self._catalogue_gravity
+        if self.inputs == "command":
+            if grav is None:  # true_model: the actuators add g(q) each substep; none: nothing
+                return lambda data, t: torque[t]
+            return lambda data, t: torque[t] + grav(data.qpos[:nj])
+        if self.gravity_in_actuators:
+            # Total torque: take off the gravcomp the actuators are about to add back.
+            return lambda data, t: torque[t] - data.qfrc_gravcomp[:nj]
+        return lambda data, t: torque[t]

@@ -34,6 +34,7 @@ class Window:
     params: np.ndarray  # (N, P) the stored physical parameters (P may be 0)
     starts: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (N,) first step of each window
     y_first: np.ndarray | None = None  # (N, n_y) each trajectory's first output (where the robot started)
+    inputs: str = "total"  # which array u is: the total torque (u) or the command (u_cmd)
 
     def split(self, context_len: int | None = None, horizon: int | None = None):
         """``u_ctx, y_ctx, u_query, y_query`` with the query always starting at ``self.context_len``."""
@@ -89,8 +90,11 @@ def cut(a: np.ndarray, starts: np.ndarray, length: int) -> np.ndarray:
 
 
 def load_window(data: str, context_len: int, horizon: int, n: int | None, info: dict | None,
-                n_u: int, n_y: int, offset: str | int = "start", seed: int = 0) -> Window:
+                n_u: int, n_y: int, offset: str | int = "start", seed: int = 0, inputs: str = "total") -> Window:
     """Reads and checks the first ``n`` trajectories of a store against the model.
+
+    ``inputs`` picks the input array (``total``: ``u``, ``command``: ``u_cmd``); a store
+    without the command is refused with a message saying to regenerate it.
 
     Raises:
         ValueError: empty store, channels that differ from the checkpoint's, a window longer
@@ -103,8 +107,9 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
     if total == 0:
         raise WindowError(f"{data} holds no trajectories: generate or import data into it first")
     ds = open_store(data)  # a half-written store: the error says how to finish it
+    u_names = ds.input_names(inputs)
     if info is not None:
-        for what, ours, theirs in (("u_names", ds.u_names, info["u_names"]), ("y_names", ds.y_names, info["y_names"])):
+        for what, ours, theirs in (("u_names", u_names, info["u_names"]), ("y_names", ds.y_names, info["y_names"])):
             if list(ours) != list(theirs):
                 raise WindowError(f"{data} has {what} {list(ours)} but the checkpoint was trained on {list(theirs)}")
     elif (len(ds.u_names), len(ds.y_names)) != (n_u, n_y):
@@ -115,7 +120,7 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
         raise WindowError(f"context_len {context_len} + horizon {horizon} must fit in the store's T={ds.steps} steps "
                           "(both >= 1): pass shorter --context-len / --horizon")
     rows = slice(0, min(n or total, total))
-    u, y = ds.read("u", rows), ds.read("y", rows)
+    u, y = ds.read_inputs(inputs, rows), ds.read("y", rows)
     starts = window_starts(offset, len(u), ds.steps, length, seed)
     y_first = y[:, 0].copy()
     u, y = cut(u, starts, length), cut(y, starts, length)
@@ -123,5 +128,5 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
     if len(bad):
         raise WindowError(f"{data}: trajectories {bad[:10].tolist()} hold NaN or inf in the evaluated window; "
                           "drop them (robomorph.merge) or fix the import")
-    return Window(u, y, context_len, horizon, list(ds.u_names), list(ds.y_names), ds.dt, ds.attrs,
-                  ds.read("params", rows), starts, y_first)
+    return Window(u, y, context_len, horizon, list(u_names), list(ds.y_names), ds.dt, ds.attrs,
+                  ds.read("params", rows), starts, y_first, inputs)

@@ -3,6 +3,7 @@
     python -m robomorph.reproduce table1 --scale ci
     python -m robomorph.reproduce all --scale small --out results/paper/small
     python -m robomorph.reproduce table2 --scale paper --steps-factor 0.1
+    python -m robomorph.reproduce table1 --scale small --inputs command
     python -m robomorph.reproduce table1 --scale small --normalization paper_window
     python -m robomorph.reproduce compare --scale small
 
@@ -33,6 +34,11 @@ in ``<work>/report.html``; the tables and the figure go to ``--out`` (default
 stores, runs that reached their budget, evaluations newer than their checkpoint), and an
 interrupted run resumes from its last checkpoint: re-run the same command.
 
+``--inputs command`` trains and scores every model on the command formulation (``u_cmd``,
+the torque without the gravity compensation the arm adds) instead of the total joint
+torque: its runs are named ``...-command``, its tables go to ``results/paper/<scale>-command``
+by default and name the formulation in their header.
+
 Run times of ``all``: ``ci`` about 25 s on 2 CPU cores and ``small`` 1 h 59 min on 2 CPU
 cores (both measured), ``paper`` about 38 hours of training on one H100 (from measured
 step times). Sizes, budgets and how the estimates were made: :mod:`robomorph.reproduction.scales`.
@@ -52,6 +58,7 @@ from dataclasses import dataclass
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.errors import report as report_error
 from robomorph.data.statistics import leaks_query_statistics
+from robomorph.data.store import INPUTS
 from robomorph.reproduction import skip as resume
 from robomorph.reproduction.scales import SCALES, Scale
 from robomorph.sim.recipe import load_recipe
@@ -82,6 +89,7 @@ class Plan:
     device: str | None = None
     wandb: str = "offline"
     normalization: str = "train_stats"
+    inputs: str = "total"  # the input formulation of every model: total torque or command
     started: float = dataclasses.field(default_factory=time.time)  # for the tables' elapsed time
 
     def path(self, *parts: str) -> str:
@@ -89,9 +97,11 @@ class Plan:
         return os.path.join(self.work, *parts)
 
     def run_name(self, name: str) -> str:
-        """``name``, suffixed with the normalization unless it is the default: runs of both
-        protocols share the work folder's stores without sharing a run directory."""
-        return name if self.normalization == "train_stats" else f"{name}-{self.normalization}"
+        """``name``, suffixed with the normalization unless it is the default and with the input
+        formulation unless it is ``total``: runs of every protocol and formulation share the
+        work folder's stores without sharing a run directory."""
+        name = name if self.normalization == "train_stats" else f"{name}-{self.normalization}"
+        return name if self.inputs == "total" else f"{name}-{self.inputs}"
 
 
 def say(target: str, message: str) -> None:
@@ -105,12 +115,13 @@ def store(plan: Plan, key: str, target: str) -> str:
     s = plan.scale
     recipe = load_recipe(recipe_path(task), {"robots": getattr(s, robots_field), "steps": s.steps, "seed": seed})
     path = plan.path("data", f"{key}.zarr")
-    state = resume.store_state(path, recipe)
+    need = plan.inputs == "command"
+    state = resume.store_state(path, recipe, need)
     if state == "complete":
         say(target, f"data {key}: complete ({recipe.robots} robots x {s.steps} steps), kept")
     else:
         say(target, f"data {key}: generating {recipe.robots} {recipe.task_label} robots x {s.steps} steps ({state}) ...")
-        resume.ensure_store(recipe, path, workers=plan.workers, progress=sys.stderr.isatty())
+        resume.ensure_store(recipe, path, workers=plan.workers, progress=sys.stderr.isatty(), need_command=need)
     return path
 
 
@@ -130,7 +141,7 @@ def base_args(plan: Plan, depth: int, stores: list[str], run: str, steps: int) -
         # The paper's protocol z-scores each window itself: no recentring on top (refused otherwise).
         "data": {"stores": stores, "context_len": s.context_len, "horizon": s.horizon, "batch_size": s.batch_size,
                  "split": [1 - s.val_fraction, s.val_fraction, 0.0], "val_subset": s.val_subset, "recenter": not paper,
-                 "normalization": plan.normalization, "seed": 0},
+                 "normalization": plan.normalization, "seed": 0, "inputs": plan.inputs},
         "model": {"d_model": s.d_model, "n_head": s.n_head, "n_layer": depth, "patch": s.patch, "lr": s.lr,
                   "warmup_steps": s.warmup_steps, "max_context": s.context_len, "max_horizon": s.horizon,
                   "loss": "huber"},
@@ -247,7 +258,7 @@ def run_info(plan: Plan) -> dict:
             "leaks_query_statistics": leaks_query_statistics(plan.normalization),
             "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "elapsed_min": round((time.time() - plan.started) / 60, 1),
-            "machine": machine(), "budgets": plan.scale.budgets()}
+            "machine": machine(), "budgets": plan.scale.budgets(), "inputs": plan.inputs}
 
 
 def machine() -> str:
@@ -263,22 +274,27 @@ def machine() -> str:
     return f"{platform.platform()}, {os.cpu_count()} CPUs, {gpu}"
 
 
-def default_out(scale: Scale, normalization: str = "train_stats") -> str:
+def default_out(scale: Scale, normalization: str = "train_stats", inputs: str = "total") -> str:
     """``results/paper/<scale>``, or ``results/paper/<scale>_paper_window`` for the paper's protocol
-    (so that it never overwrites the leak-free tables)."""
+    (so that it never overwrites the leak-free tables), with ``-command`` for the command formulation."""
     suffix = "" if normalization == "train_stats" else f"_{normalization}"
+    suffix += "" if inputs == "total" else f"-{inputs}"
     return os.path.join("results", "paper", scale.name + suffix)
 
 
 def reproduce(target: str, scale: Scale, out: str | None = None, work: str | None = None, command: str = "",
               workers: int | None = None, device: str | None = None, wandb: str = "offline",
-              normalization: str = "train_stats", leak_free: str | None = None) -> dict[str, dict]:
+              normalization: str = "train_stats", leak_free: str | None = None,
+              inputs: str = "total") -> dict[str, dict]:
     """Runs ``target`` (``table1``, ``table2``, ``context``, ``all`` or ``compare``) at ``scale``.
 
     Args:
         normalization: ``train_stats`` (default, leak-free) or ``paper_window`` (the paper's protocol).
         leak_free: ``compare`` only: the ``train_stats`` output folder (default ``results/paper/<scale>``);
             ``out`` is then the ``paper_window`` one and receives the side-by-side table.
+        inputs: the formulation every model trains on: ``total`` (the paper's) or ``command``.
+
+    ``inputs`` is the formulation every model trains on: ``total`` (the paper's) or ``command``.
 
     Returns:
         ``{target: the JSON content written}`` for each target run.
@@ -287,15 +303,17 @@ def reproduce(target: str, scale: Scale, out: str | None = None, work: str | Non
         raise ValueError(f"unknown target {target!r}; choose from {list(TARGETS)}")
     if normalization not in NORMALIZATIONS:
         raise ValueError(f"unknown normalization {normalization!r}; choose from {list(NORMALIZATIONS)}")
+    if inputs not in INPUTS:
+        raise ValueError(f"inputs must be one of {INPUTS}, got {inputs!r}")
     if target == "compare":
         from robomorph.reproduction.protocols import FILE, compare  # noqa: PLC0415
 
-        out = out or default_out(scale, "paper_window")
-        doc = compare(leak_free or default_out(scale), out, scale=scale.name)
+        out = out or default_out(scale, "paper_window", inputs)
+        doc = compare(leak_free or default_out(scale, inputs=inputs), out, scale=scale.name)
         say("compare", f"written {os.path.join(out, FILE + '.md')} (.json)")
         return {"compare": doc}
-    plan = Plan(scale, work or os.path.join("data", "reproduce", scale.name), out or default_out(scale, normalization),
-                command, workers, device, wandb, normalization)
+    plan = Plan(scale, work or os.path.join("data", "reproduce", scale.name),
+                out or default_out(scale, normalization, inputs), command, workers, device, wandb, normalization, inputs)
     os.makedirs(plan.out, exist_ok=True)
     steps = {"table1": table1, "table2": table2, "context": context}
     chosen = list(steps) if target == "all" else [target]
@@ -330,6 +348,9 @@ def main(argv: list[str] | None = None) -> int:
                         "context and query; its scores use the query outputs' statistics)")
     p.add_argument("--leak-free", help="compare: the train_stats output folder (default results/paper/<scale>); "
                                        "--out is the paper_window one")
+    p.add_argument("--inputs", choices=INPUTS, default="total",
+                   help="input formulation: total joint torque (the paper's) or command (without the arm's "
+                        "gravity compensation); tables go to results/paper/<scale>-command by default")
     args = p.parse_args(argv)
     try:
         scale = SCALES[args.scale].scaled(args.steps_factor, args.scratch_ratio)
@@ -338,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
     command = " ".join(["python -m robomorph.reproduce", *(sys.argv[1:] if argv is None else argv)])
     try:
         reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb,
-                  args.normalization, args.leak_free)
+                  args.normalization, args.leak_free, args.inputs)
     except RoboMorphError as exc:
         return report_error(exc)
     return 0

@@ -22,31 +22,34 @@ StoreState = Literal["missing", "stale", "partial", "complete"]
 DONE_FILE = "reproduce_done.json"
 
 
-def store_state(path: str, recipe: Recipe) -> StoreState:
+def store_state(path: str, recipe: Recipe, need_command: bool = False) -> StoreState:
     """Whether ``path`` holds the store of ``recipe``, part of it, or something else.
 
     ``stale`` is a RoboMorph store written from another recipe (e.g. by an older version
-    of the caller); a directory that is not a RoboMorph store counts as ``missing`` so that
+    of the caller), or, with ``need_command``, one written before ``u_cmd`` existed; a
+    directory that is not a RoboMorph store counts as ``missing`` so that
     :func:`generate` refuses to touch it.
     """
     if not os.path.isdir(path):
         return "missing"
     try:
-        attrs = open_store(path, allow_incomplete=True).attrs
+        ds = open_store(path, allow_incomplete=True)
     except Exception:  # noqa: BLE001  (unreadable: nothing of ours to keep or replace)
         return "missing"
-    if attrs.get("config") != recipe.to_dict():
+    attrs = ds.attrs
+    if attrs.get("config") != recipe.to_dict() or (need_command and not ds.has_inputs("command")):
         return "stale"
     return "complete" if attrs.get("status") == STATUS_COMPLETE else "partial"
 
 
-def ensure_store(recipe: Recipe, path: str, workers: int | None = None, progress: bool = True) -> StoreState:
+def ensure_store(recipe: Recipe, path: str, workers: int | None = None, progress: bool = True,
+                 need_command: bool = False) -> StoreState:
     """Makes ``path`` hold the complete store of ``recipe``; returns the state it was found in.
 
     A complete store is kept, a partial one resumed, and a store of another recipe replaced
     (the callers own these paths; a foreign directory is refused by :func:`generate`).
     """
-    state = store_state(path, recipe)
+    state = store_state(path, recipe, need_command)
     if state != "complete":
         generate(recipe, path, workers=workers, overwrite=state == "stale", progress=progress)
     return state

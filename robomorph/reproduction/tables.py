@@ -22,13 +22,19 @@ _TEX_NAMES = {"ee_x": "$x$", "ee_y": "$y$", "ee_z": "$z$", "ee_qx": "$X$", "ee_q
               "ee_qw": "$W$", **{f"q{i}": f"$q_{i}$" for i in range(10)}}
 
 
+_INPUTS_TEXT = {"total": "total joint torque, the paper's input",
+                "command": "the command, without the gravity compensation the arm adds"}
+
+
 def header_markdown(info: dict, with_normalization: bool = True) -> str:
-    """The provenance line every table starts with, ending with its normalization (flagged
-    in bold when it leaks the query outputs' statistics, as the paper's protocol does)."""
+    """The provenance line every table starts with (naming its input formulation), ending with
+    its normalization (flagged in bold when it leaks the query outputs' statistics, as the
+    paper's protocol does)."""
     budgets = ", ".join(f"{k} {v}" for k, v in info["budgets"].items() if v is not None)
     elapsed = f" ({info['elapsed_min']} min into the command)" if info.get("elapsed_min") is not None else ""
-    line = (f"Scale `{info['scale']}`; command `{info['command']}`; {info['date']}{elapsed}; "
-            f"machine: {info['machine']}; budgets: {budgets}.")
+    inputs = info.get("inputs", "total")  # absent in tables written before the option: total
+    line = (f"Scale `{info['scale']}`; inputs `{inputs}` ({_INPUTS_TEXT[inputs]}); command `{info['command']}`; "
+            f"{info['date']}{elapsed}; machine: {info['machine']}; budgets: {budgets}.")
     if not with_normalization:
         return line
     norm = info.get("normalization")  # absent in tables written before the option: train_stats

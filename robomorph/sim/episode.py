@@ -7,6 +7,7 @@ shard layout.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import mujoco
@@ -45,7 +46,8 @@ class Outcome:
     task: str
     reason: str | None
     params: np.ndarray
-    u: np.ndarray | None = None  # (T, 7)
+    u: np.ndarray | None = None  # (T, 7) total joint torque
+    u_cmd: np.ndarray | None = None  # (T, 7) the command, without the gravity compensation
     y: np.ndarray | None = None  # (T, 14)
     target: np.ndarray | None = None  # (T, 3)
     fm: float = float("nan")
@@ -86,12 +88,20 @@ def draw(recipe: Recipe, randomizer: Randomizer, index: int) -> Draw:
 
 
 def finish(recipe: Recipe, d: Draw, sens: np.ndarray, joint_range: np.ndarray, stride: int,
-           target: np.ndarray | None = None, kp: float = float("nan")) -> Outcome:
-    """Filters sensor data (at any rate) and turns a valid rollout into a dataset row."""
+           target: np.ndarray | None = None, kp: float = float("nan"),
+           added: Callable[[np.ndarray], np.ndarray] | None = None) -> Outcome:
+    """Filters sensor data (at any rate) and turns a valid rollout into a dataset row.
+
+    ``added(qpos)`` is the compensation the controller added to the command at each
+    frame (``nominal_model``: the catalogue g(q)); it is taken off to give ``u_cmd``.
+    """
     reason = filters.check(sens, joint_range, recipe.filters)
     out = Outcome(d.index, d.task, reason, d.params, fm=d.fm, kp=kp)
     if reason is None:
-        out.u, out.y = filters.to_outputs(sens[::stride])
+        rows = sens[::stride]
+        out.u, out.y = filters.to_outputs(rows)
+        comp = None if added is None else np.stack([added(q) for q in rows[:, panda.SENS_QPOS]])
+        out.u_cmd = filters.to_command(rows, comp)
         out.target = None if target is None else np.asarray(target, dtype=np.float32)
     return out
 
@@ -140,4 +150,6 @@ class ClosedLoopRunner:
                 self.model, self.data, d.qpos0, d.task, d.rng, r.steps, r.substeps, r.dt, r.osc, path_cfg,
                 extra_torque=self.gravity,
             )
-        return finish(r, d, sens, self.model.jnt_range[: panda.N_JOINT], 1, target, kp)
+        # The controller added the catalogue g(q) at each frame-start state: recomputing it
+        # from the recorded (float64) joints gives the very same values.
+        return finish(r, d, sens, self.model.jnt_range[: panda.N_JOINT], 1, target, kp, added=self.gravity)

@@ -88,3 +88,18 @@ def to_outputs(sens: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     quat_xyzw = quat_wxyz[..., [1, 2, 3, 0]]
     y = np.concatenate([sens[..., panda.SENS_EE_POS], quat_xyzw, sens[..., panda.SENS_QPOS]], axis=-1)
     return sens[..., panda.SENS_TAU].astype(np.float32), y.astype(np.float32)
+
+
+def to_command(sens: np.ndarray, added: np.ndarray | None = None) -> np.ndarray:
+    """The command (``u_cmd``): the motors' force less any compensation added to it.
+
+    Args:
+        sens: (..., T, nsensordata).
+        added: (..., T, 7) torque the controller added to the command before the motors
+            (the catalogue robot's g(q) in ``nominal_model`` mode), or None.
+
+    Returns:
+        (..., T, 7) float32; with the arm's own gravcomp (or none), ``u = u_cmd + g``.
+    """
+    cmd = sens[..., panda.SENS_CMD]
+    return (cmd if added is None else cmd - added).astype(np.float32)

@@ -35,6 +35,12 @@ from robomorph.sim.recipe import Recipe, load_recipe
 MIN_ATTEMPTS_FOR_RATE = 256
 
 
+# What u - u_cmd is in each gravity mode (recorded in the store's attributes).
+_COMPENSATION = {"true_model": "g(q) of the robot's own (randomized) model, added by its actuators",
+                 "nominal_model": "g(q) of the catalogue (un-randomized) robot, added by the controller",
+                 "none": "nothing: u_cmd equals u"}
+
+
 class GenerationError(RoboMorphError, RuntimeError):
     """Generation cannot reach its target (e.g. the valid rate is too low)."""
 
@@ -113,6 +119,7 @@ def _rows(recipe: Recipe, outs: list) -> tuple:
         nan = np.full((recipe.steps, 3), np.nan, dtype=np.float32)
         extras["target"] = np.stack([nan if o.target is None else o.target for o in outs])
     u = np.stack([o.u for o in outs])
+    extras["u_cmd"] = np.stack([o.u_cmd for o in outs])
     y = np.stack([o.y for o in outs])
     params = np.stack([o.params for o in outs]).astype(np.float32)
     return u, y, params, extras
@@ -134,17 +141,21 @@ def _open_writer(recipe: Recipe, out: str, shard: Shard, overwrite: bool) -> Dat
             )
         if a["status"] == STATUS_COMPLETE:
             return None
+        if "u_cmd" not in ds.arrays:
+            raise FileExistsError(f"{out} is an unfinished store of schema {a.get('schema_version')} (no u_cmd): "
+                                  "it cannot be resumed by this version; pass --overwrite to start it again")
         return DatasetWriter.reopen(out)
     attrs = {
         "dt": recipe.dt, "domain": "panda", "task": recipe.task_label, "task_names": recipe.task_names,
         "config": recipe.to_dict(), "seed": recipe.seed, "requested": target,
         "shard": [shard.index, shard.count], "substeps": recipe.substeps,
         "gravity_compensation": recipe.gravity_compensation,
+        "u_cmd_compensation": _COMPENSATION[recipe.gravity_compensation],
         "cursor": 0, "attempted": 0, "kept": 0, "rejected": {r: 0 for r in REASONS},
     }
     return create_store(out, target, recipe.steps, list(panda.U_NAMES), list(panda.Y_NAMES),
                         param_names(), attrs, extras=_extras(recipe), chunk=recipe.chunk,
-                        overwrite=overwrite)
+                        overwrite=overwrite, u_cmd_names=list(panda.U_CMD_NAMES))
 
 
 class _Engines:

@@ -9,8 +9,9 @@ computes g(q) from the *current* (randomized) model and routes it through the ac
 The result is the paper's construction (gravity compensation from the randomized masses,
 added to the torque signal) evaluated at every physics step, and the ``jointactuatorfrc``
 sensors report the full torque applied at each joint (signal + g(q), clamped to the
-limits), which is what is recorded as ``u``. With ``gravity_compensation: none`` the
-gravcomp is switched off and ``u`` is the signal alone.
+limits), which is what is recorded as ``u``. The ``actuatorfrc`` sensors report the motors'
+own force, the command without the gravcomp, which is recorded as ``u_cmd``. With
+``gravity_compensation: none`` the gravcomp is switched off and ``u`` is the signal alone.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ HOME_QPOS = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
 LINK_BODIES = tuple(f"panda_link{i}" for i in range(1, 8)) + ("hand",)
 
 U_NAMES = tuple(f"tau{i}" for i in range(N_JOINT))
+# The command: what the arm's user asked for, before the gravity compensation it adds.
+U_CMD_NAMES = tuple(f"cmd{i}" for i in range(N_JOINT))
 Y_NAMES = ("ee_x", "ee_y", "ee_z", "ee_qx", "ee_qy", "ee_qz", "ee_qw") + tuple(
     f"q{i}" for i in range(N_JOINT)
 )
@@ -41,6 +44,7 @@ SENS_EE_QUAT = slice(3, 7)  # MuJoCo order w, x, y, z
 SENS_QPOS = slice(7, 14)
 SENS_TAU = slice(14, 21)
 SENS_CONTACTS = 21
+SENS_CMD = slice(22, 29)  # motor forces: the clamped command, without actuator gravcomp
 
 
 class AssetsMissingError(RoboMorphError, RuntimeError):
@@ -112,6 +116,10 @@ def _build_mjcf(timestep: float, gravity_compensation: bool):
         root.sensor.add("jointactuatorfrc", name=f"tau{joint.name[-1]}", joint=joint)
     # Counts every active contact (self and floor): any contact invalidates a rollout.
     root.sensor.add("contact", name="contacts", data="found")
+    # The motors' own force is the command alone: MuJoCo adds the actuator gravcomp to
+    # the joint (jointactuatorfrc above) but not to the actuator (actuatorfrc).
+    for motor in root.actuator.all_children():
+        root.sensor.add("actuatorfrc", name=f"cmd{motor.name[-1]}", actuator=motor)
     return root
 
 

@@ -41,7 +41,7 @@ def data_info(dm) -> dict:
     """Channel names, sample time and window lengths of a set-up DataModule (JSON-able)."""
     return {"u_names": list(dm.u_names), "y_names": list(dm.y_names), "dt": float(dm.dt),
             "context_len": int(dm.context_len), "horizon": int(dm.horizon),
-            "stores": [str(s) for s in dm.stores]}
+            "stores": [str(s) for s in dm.stores], "inputs": str(getattr(dm, "inputs", "total"))}
 
 
 class CheckpointError(RoboMorphError, RuntimeError):

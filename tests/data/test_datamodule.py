@@ -360,3 +360,29 @@ def test_arguments_parse_from_the_command_line(tmp_path):
     assert init.stores == ["a.zarr", "b.zarr"] and init.context_frac == 0.25 and init.split == (0.7, 0.2, 0.1)
     with pytest.raises(SystemExit):
         parser.parse_args(["--data.window=middle"])
+
+
+def test_inputs_command_reads_u_cmd_for_batches_and_statistics(tmp_path):
+    n, steps = 20, 60
+    u = _values(0, n, steps, 2, 1)
+    w = create_store(str(tmp_path / "c.zarr"), n, steps, U_NAMES, Y_NAMES, ["p"], {"dt": 0.1}, chunk=8,
+                     u_cmd_names=["c0", "c1"])
+    w.append(u, _values(0, n, steps, 3, -1), np.zeros((n, 1), np.float32), extras={"u_cmd": u - 1000.0})
+    w.finalize()
+    total, cmd = _dm(str(tmp_path / "c.zarr")), _dm(str(tmp_path / "c.zarr"), inputs="command")
+    bt, bc = next(iter(total.val_dataloader())), next(iter(cmd.val_dataloader()))
+    torch.testing.assert_close(bc["u_ctx"], bt["u_ctx"] - 1000.0)
+    torch.testing.assert_close(bc["u_query"], bt["u_query"] - 1000.0)
+    torch.testing.assert_close(bc["y_query"], bt["y_query"])
+    assert cmd.u_names == ["c0", "c1"] and cmd.describe()["inputs"] == "command"
+    np.testing.assert_allclose(np.asarray(cmd.stats.u_mean), np.asarray(total.stats.u_mean) - 1000.0, rtol=1e-6)
+
+
+def test_inputs_command_on_a_store_without_u_cmd_says_to_regenerate(tmp_path):
+    from robomorph.data.store import InputsError
+
+    path = _store(tmp_path / "a.zarr")
+    with pytest.raises(InputsError, match="no command inputs"):
+        _dm(path, inputs="command")
+    with pytest.raises(InputsError, match="one of total, command"):
+        RoboMorphDataModule(stores=path, context_len=10, horizon=20, inputs="torque")

@@ -255,3 +255,41 @@ def test_cli_errors_exit_2_without_traceback(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and err.startswith("error: ") and "is a file" in err
     assert target.read_text() == "keep me"
+
+
+def _with_command(cols):
+    """A log of an arm whose controller adds a known compensation to the command."""
+    comp = {"tau1": 3.0 * np.sin(cols["q1"]), "tau2": 1.5 + 0.0 * cols["q2"]}
+    return {**cols, "cmd1": cols["tau1"] - comp["tau1"], "cmd2": cols["tau2"] - comp["tau2"]}
+
+
+def test_ingest_maps_the_command_and_the_total_torque_columns(tmp_path):
+    cols = _with_command(_system(120))
+    log = _csv(tmp_path / "a.csv", cols)
+    out = str(tmp_path / "real.zarr")
+    rc = main([log, "--u-cols", "tau1,tau2", "--u-cmd-cols", "cmd1,cmd2", "--y-cols", "q1,q2,q3",
+               "--dt", str(DT), "--steps", "50", "--out", out])
+    assert rc == 0
+    ds = open_store(out)
+    np.testing.assert_array_equal(ds.read_inputs("total")[1], _window(cols, U, 50, 50))
+    np.testing.assert_array_equal(ds.read_inputs("command")[1], _window(cols, ["cmd1", "cmd2"], 50, 50))
+    assert ds.input_names("command") == ["cmd1", "cmd2"] and ds.input_names("total") == U
+    assert not np.allclose(ds.read("u"), ds.read("u_cmd"))  # two different column sets, not a copy
+
+
+def test_a_store_without_command_columns_says_how_to_get_them(tmp_path):
+    from robomorph.data.store import InputsError
+
+    ds = ingest([_csv(tmp_path / "a.csv", _system(100))], U, Y, str(tmp_path / "o.zarr"), steps=50, dt=DT)
+    assert not ds.has_inputs("command") and ds.has_inputs("total")
+    with pytest.raises(InputsError, match="--u-cmd-cols"):
+        ds.read_inputs("command")
+
+
+def test_command_columns_must_match_the_torque_columns(tmp_path):
+    log = _csv(tmp_path / "a.csv", _with_command(_system(100)))
+    with pytest.raises(IngestError, match="one column per joint"):
+        ingest([log], U, Y, str(tmp_path / "o.zarr"), steps=50, dt=DT, u_cmd_cols=["cmd1"])
+    with pytest.raises(IngestError, match="'cmdX'"):
+        ingest([log], U, Y, str(tmp_path / "o.zarr"), steps=50, dt=DT, u_cmd_cols=["cmd1", "cmdX"])
+    assert not os.path.exists(tmp_path / "o.zarr")

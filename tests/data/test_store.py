@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import zarr
 
-from robomorph.data.store import SchemaError, create_store, open_store
+from robomorph.data.store import InputsError, SchemaError, create_store, open_store
 
 
 def _make(path, n=5, steps=7, **kw):
@@ -31,7 +31,7 @@ def test_round_trip(tmp_path):
     np.testing.assert_array_equal(ds.read("tag"), np.arange(5))
     np.testing.assert_array_equal(ds.read("u", np.array([4, 1])), u[[4, 1]])
     assert ds.u_names == ["u0", "u1"] and ds.y_names == ["y0"] and ds.dt == 0.1
-    assert ds.attrs["note"] == "done" and ds.attrs["schema_version"] == 1
+    assert ds.attrs["note"] == "done" and ds.attrs["schema_version"] == 2
 
 
 def test_incomplete_store_is_refused_unless_asked(tmp_path):
@@ -87,3 +87,37 @@ def test_existing_store_needs_overwrite(tmp_path):
         _make(tmp_path / "a.zarr")
     _make(tmp_path / "a.zarr", overwrite=True)
     assert open_store(str(tmp_path / "a.zarr"), allow_incomplete=True).n == 0
+
+
+def test_command_inputs_round_trip(tmp_path):
+    w = _make(tmp_path / "a.zarr", u_cmd_names=["c0", "c1"])
+    u, y, p = _rows(5)
+    with pytest.raises(ValueError, match="u_cmd"):  # a row without its command is refused
+        w.append(u, y, p)
+    w.append(u, y, p, extras={"u_cmd": u - 1})
+    w.finalize()
+    ds = open_store(str(tmp_path / "a.zarr"))
+    np.testing.assert_array_equal(ds.read_inputs("command"), u - 1)
+    np.testing.assert_array_equal(ds.read_inputs("total"), u)
+    assert ds.input_names("command") == ["c0", "c1"] and ds.input_names("total") == ["u0", "u1"]
+    with pytest.raises(InputsError, match="one of total, command"):
+        ds.read_inputs("cmd")
+
+
+def test_schema_1_stores_stay_readable_and_say_to_regenerate_for_the_command(tmp_path):
+    """A store written before u_cmd existed (schema 1: u, y, params only)."""
+    path = tmp_path / "old.zarr"
+    w = _make(path)
+    u, y, p = _rows(5)
+    w.append(u, y, p)
+    w.finalize()
+    zarr.open_group(str(path), mode="r+").attrs["schema_version"] = 1
+    ds = open_store(str(path))
+    np.testing.assert_array_equal(ds.read("u"), u)
+    np.testing.assert_array_equal(ds.read_inputs("total"), u)
+    assert not ds.has_inputs("command")
+    with pytest.raises(InputsError, match="before schema 2.*[Rr]egenerate"):
+        ds.read_inputs("command")
+    zarr.open_group(str(path), mode="r+").attrs["schema_version"] = 99
+    with pytest.raises(SchemaError, match="schema_version 99"):
+        open_store(str(path))

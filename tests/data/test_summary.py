@@ -126,3 +126,16 @@ def test_cli_errors_exit_2(tmp_path, capsys):
     assert err.startswith("error: ") and "incomplete" in err and "Traceback" not in err
     assert main([half, "--allow-incomplete"]) == 0
     assert "in_progress (10 of 20 trajectories valid)" in capsys.readouterr().out
+
+
+def test_summary_shows_the_command_beside_the_total_torque(tmp_path):
+    n, steps = 4, 10
+    w = create_store(str(tmp_path / "c.zarr"), n, steps, U, Y, [], {"dt": 0.1}, u_cmd_names=["cmd0", "cmd1"])
+    u = np.ones((n, steps, 2), np.float32)
+    w.append(u, np.zeros((n, steps, 3), np.float32), np.zeros((n, 0), np.float32), extras={"u_cmd": u * 7.5})
+    w.finalize()
+    text = summarize(open_store(str(tmp_path / "c.zarr")))
+    assert "inputs (command) u_cmd" in text and "inputs (total torque) u" in text
+    line = next(ln for ln in text.splitlines() if ln.strip().startswith("cmd1"))
+    assert line.split()[1:] == ["7.5", "7.5", "0", "7.5"]
+    assert "u_cmd" not in summarize(open_store(_store(tmp_path / "s.zarr")[0]))

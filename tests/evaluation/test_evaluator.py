@@ -309,3 +309,51 @@ def test_poisoned_query_outputs_change_the_scored_prediction_only_under_paper_wi
     clean = predict(*args, y_query=y[:, C:C + H])
     poisoned = predict(*args, y_query=y[:, C:C + H] * 10 + 5)
     assert np.allclose(clean, poisoned) == (normalization == "train_stats")
+
+
+@pytest.fixture(scope="module")
+def cmd_ckpt(setup, tmp_path_factory):
+    """A (barely trained) model of the command formulation, on the same training store."""
+    train, root = str(setup[0] / "train.zarr"), tmp_path_factory.mktemp("cmd")
+    return fit({
+        "data": {"stores": train, "context_len": C, "horizon": H, "batch_size": 8, "val_subset": 4,
+                 "inputs": "command"},
+        "model": {"d_model": 16, "n_head": 2, "n_layer": 1, "patch": 5, "warmup_steps": 2, "max_context": 64,
+                  "max_horizon": 64},
+        "trainer": {"max_steps": 2, "val_check_interval": 2, "accelerator": "cpu", "devices": 1,
+                    "enable_progress_bar": False, "enable_model_summary": False},
+        "run": "cmd", "runs_dir": str(root / "runs"), "wandb": "disabled",
+    }).best_ckpt
+
+
+def test_a_checkpoint_refuses_the_other_input_formulation(setup, cmd_ckpt, tmp_path):
+    from robomorph.data.store import InputsError
+
+    _, total_ckpt, test = setup
+    total, cmd = Predictor.from_checkpoint(total_ckpt, device="cpu"), Predictor.from_checkpoint(cmd_ckpt, device="cpu")
+    assert (total.inputs, cmd.inputs) == ("total", "command")
+    assert cmd.data_info["u_names"] == [f"cmd{i}" for i in range(7)]
+    u, y = np.zeros((C, 7), np.float32), np.zeros((C, 14), np.float32)
+    assert cmd.simulate(u, y, u[:10], inputs="command").shape == (10, 14)
+    with pytest.raises(InputsError, match="trained on inputs=command.*given inputs=total"):
+        cmd.simulate(u, y, u[:10], inputs="total")
+    with pytest.raises(InputsError, match="trained on inputs=total"):
+        evaluate(total_ckpt, test, str(tmp_path / "no"), baselines=(), inputs="command")
+    res = evaluate(cmd_ckpt, test, str(tmp_path / "ev"), baselines=("hold", "true_physics"), samples=0)
+    assert res["meta"]["inputs"] == "command" and res["meta"]["u_names"][0] == "cmd0"
+    # true_physics simulates the command on the arm compensating its own gravity: near exact.
+    assert res["baselines"]["true_physics"]["approach1"]["mean"]["r2"]["mean"] > 0.99
+
+
+def test_a_command_checkpoint_says_to_regenerate_a_store_without_u_cmd(setup, cmd_ckpt, tmp_path):
+    from robomorph.data.store import InputsError, open_store
+
+    test = setup[2]
+    src = open_store(test)
+    old = str(tmp_path / "old.zarr")  # the same data, as a schema-1 store would hold it
+    keep = {k: v for k, v in src.attrs.items() if k not in ("u_cmd_names", "schema", "schema_version")}
+    w = create_store(old, src.n, src.steps, src.u_names, src.y_names, src.param_names, keep)
+    w.append(src.read("u"), src.read("y"), src.read("params"))
+    w.finalize()
+    with pytest.raises(InputsError, match="no command inputs.*[Rr]egenerate"):
+        evaluate(cmd_ckpt, old, str(tmp_path / "ev"), baselines=())

@@ -228,3 +228,20 @@ def test_gap_closed_is_the_share_of_the_distance_to_the_paper():
     assert s["train_stats"]["r2"] == pytest.approx(0.4) and s["paper"]["rmse"] == pytest.approx(0.05)
     assert s["gap_closed"] == pytest.approx(0.5)
     assert summary([{**rows[0], "paper": None}])["gap_closed"] is None
+
+
+def test_inputs_command_trains_its_own_runs_and_names_the_formulation(table1_run):
+    from robomorph.predictor import Predictor
+
+    root, _ = table1_run
+    argv = [*_argv("table1", root), "--inputs", "command"]
+    argv[argv.index("--out") + 1] = str(root / "out-command")
+    with spied() as calls:
+        assert reproduce.main(argv) == 0
+    # the stores are shared, the total-torque runs are not reused
+    assert len(calls["fit"]) == 3 and all(r.endswith("-command") for r in calls["fit"])
+    text = open(root / "out-command" / "table1.md").read()
+    assert "inputs `command`" in text and "--inputs command" in text
+    assert "inputs `total`" in open(root / "out" / "table1.md").read()
+    ckpt = resume.finished_ckpt(str(root / "work" / "runs" / calls["fit"][0]))
+    assert Predictor.from_checkpoint(ckpt, device="cpu").inputs == "command"

@@ -237,3 +237,36 @@ def test_gravity_modes(tmp_path, mode):
     else:
         # the catalogue robot's g(q) is in u: same order as the randomized robot's
         assert tau_other > 5
+
+
+def _compensation(mode, recipe, params, q):
+    """(T, 7) what the arm added to the command at each recorded joint state."""
+    model = panda.build_model(recipe.substeps, recipe.dt, gravity_compensation=mode == "true_model")
+    if mode == "true_model":  # the randomized robot's own g(q), through its actuators
+        Randomizer(model, recipe.randomization).apply(model, params.astype(np.float64))
+    data, out = mujoco.MjData(model), []
+    for qt in q.astype(np.float64):
+        data.qpos[:] = qt
+        data.qvel[:] = 0
+        mujoco.mj_forward(model, data)
+        out.append((data.qfrc_gravcomp if mode == "true_model" else data.qfrc_bias)[:7].copy())
+    return np.array(out) if mode != "none" else np.zeros_like(q)
+
+
+@pytest.mark.parametrize("mode", ["true_model", "nominal_model", "none"])
+def test_command_plus_the_gravity_compensation_is_the_total_torque(tmp_path, mode):
+    """u = u_cmd + g(q) for open-loop and OSC rows (g: own, catalogue or none), within float32."""
+    recipe = load_recipe(None, {**TINY, "task": {"circle": 1.0, "multisine": 1.0}, "robots": 4, "steps": 30,
+                                "gravity_compensation": mode, "max_attempts_factor": 50.0})
+    generate(recipe, str(tmp_path / "s.zarr"), workers=1, progress=False)
+    ds = open_store(str(tmp_path / "s.zarr"))
+    u, u_cmd, y, params = ds.read("u"), ds.read("u_cmd"), ds.read("y"), ds.read("params")
+    assert ds.attrs["u_cmd_names"] == list(panda.U_CMD_NAMES) and mode in ds.attrs["gravity_compensation"]
+    assert len(set(ds.read("task_index").tolist())) == 2  # both engines
+    for row in range(len(u)):
+        g = _compensation(mode, recipe, params[row], y[row, :, 7:])
+        np.testing.assert_allclose(u_cmd[row] + g, u[row], atol=2e-4, rtol=0, err_msg=f"row {row}")
+        if mode == "none":
+            np.testing.assert_array_equal(u_cmd[row], u[row])
+        else:  # the shoulder carries the arm: the compensation is far above the tolerance
+            assert np.abs(g[:, 1]).min() > 5
