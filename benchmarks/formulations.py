@@ -27,7 +27,7 @@ import torch
 from robomorph.evaluation import metrics
 from robomorph.evaluation.evaluator import load_window, predict, run_baselines
 from robomorph.predictor import Predictor
-from robomorph.sim.generation import generate
+from robomorph.data.generation import generate
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit
 

@@ -1,7 +1,7 @@
 """Generation throughput: the full pipeline against a bare ``mujoco.rollout`` of the same physics.
 
 Runs in one process, on the same randomized models, initial states and torques:
-  1. ``robomorph.sim.generation.generate`` (draw, randomize, roll out, filter, write Zarr);
+  1. ``robomorph.data.generation.generate`` (draw, randomize, roll out, filter, write Zarr);
   2. bare ``mujoco.rollout.Rollout`` over exactly the attempts the pipeline simulated;
 then the OSC (closed-loop, worker processes) pipeline, and peak memory.
 
@@ -23,8 +23,8 @@ import time
 import numpy as np
 from mujoco import rollout
 
+from robomorph.data.generation import generate
 from robomorph.sim import episode
-from robomorph.sim.generation import generate
 from robomorph.sim.open_loop import OpenLoopEngine
 from robomorph.sim.randomize import Randomizer
 from robomorph.sim.recipe import load_recipe

@@ -44,10 +44,10 @@ import numpy as np
 import torch
 import yaml
 
+from robomorph.core.metrics import r2
+from robomorph.data.generation import generate
 from robomorph.data.store import open_store
-from robomorph.evaluation.metrics import r2
 from robomorph.predictor import Predictor
-from robomorph.sim.generation import generate
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit
 

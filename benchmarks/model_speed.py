@@ -56,7 +56,7 @@ def main() -> None:
             for k in (1, 5, 10, 20)]
     if not args.no_big:
         runs.append(("d192 12+12L 12h patch 1 (paper)",
-                     ModelConfig(d_model=192, n_head=12, n_layer=12, **common), args.big_iters))
+                     ModelConfig(d_model=192, n_head=12, n_layer=12, patch=1, **common), args.big_iters))
 
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, "
           f"batch {BATCH}, context {CONTEXT}, horizon {HORIZON}, fwd+bwd+AdamW")

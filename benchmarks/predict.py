@@ -17,8 +17,9 @@ import numpy as np
 import torch
 
 from robomorph.data.statistics import Stats
+from robomorph.model.checkpoint import TrainedModel
+from robomorph.model.transformer import ModelConfig
 from robomorph.predictor import Predictor
-from robomorph.training.module import MetaModule
 
 CONFIGS = {
     "default CPU (d128, 4+4, patch 10)": {"d_model": 128, "n_head": 4, "n_layer": 4, "patch": 10},
@@ -39,9 +40,9 @@ def main() -> None:
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     for device in devices:
         for name, cfg in CONFIGS.items():
-            module = MetaModule(n_u=7, n_y=14, **cfg)
-            module.normalizer.set_stats(stats)
-            pred = Predictor(module, device=device)
+            model = TrainedModel(ModelConfig(n_u=7, n_y=14, **cfg))
+            model.normalizer.set_stats(stats)
+            pred = Predictor(model, device=device)
             for _ in range(3):
                 pred.simulate(u[:200], y[:200], u[200:])
             times = []

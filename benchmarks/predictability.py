@@ -37,7 +37,7 @@ from robomorph.data.store import open_store
 from robomorph.evaluation.physics import NominalPhysics
 from robomorph.reproduction.skip import ensure_store
 from robomorph.sim import episode
-from robomorph.sim.generation import GenerationError
+from robomorph.data.generation import GenerationError
 from robomorph.sim.randomize import Randomizer
 from robomorph.sim.recipe import Recipe, load_recipe
 

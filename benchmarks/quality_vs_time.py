@@ -32,7 +32,7 @@ import time
 import lightning.pytorch as L
 import torch
 
-from robomorph.sim.generation import generate
+from robomorph.data.generation import generate
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from robomorph.data.store import create_store, open_store
+from robomorph.data.store import open_store
 from robomorph.predictor import Predictor
 from robomorph.training.fitting import fit
 
@@ -15,18 +15,9 @@ pytestmark = [pytest.mark.gpu, pytest.mark.skipif(not torch.cuda.is_available(),
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory):
+def store(linear_store):
     # A damped linear system driven by random inputs: learnable in a few steps.
-    path = str(tmp_path_factory.mktemp("gpu") / "lin.zarr")
-    rng = np.random.default_rng(0)
-    u = rng.normal(size=(64, 60, 2)).astype(np.float32)
-    y = np.zeros((64, 60, 3), np.float32)
-    for t in range(1, 60):
-        y[:, t] = 0.9 * y[:, t - 1] + 0.1 * u[:, t - 1, :1]
-    w = create_store(path, 64, 60, ["a", "b"], ["c", "d", "e"], [], {"dt": 0.01})
-    w.append(u, y, np.zeros((64, 0), np.float32))
-    w.finalize()
-    return path
+    return linear_store(n=64, steps=60, n_u=2, n_y=3)
 
 
 def test_gpu_fit_uses_bf16_and_matches_the_cpu_predictor(store, tmp_path):

@@ -9,7 +9,7 @@ Normalization belongs to the model (:class:`robomorph.model.normalization.Normal
 
 Randomness comes from one ``seed`` through ``numpy.random.SeedSequence`` streams (splits,
 validation subset, training stream per epoch). Every random draw of the training stream
-(store, trajectory, window offset) happens in the sampler in the main process, so the data
+(store, trajectory, context and query lengths, window offset) happens in the sampler in the main process, so the data
 do not depend on ``num_workers`` or on worker seeding.
 """
 
@@ -21,133 +21,17 @@ from typing import Literal
 
 import lightning.pytorch as L
 import numpy as np
-import torch
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader
 
-from robomorph.data.sampling import TRAIN_STREAM, MixtureSampler
-from robomorph.data.statistics import Stats, StatsAccumulator, check_normalization
-from robomorph.data.store import check_inputs, open_store
+from robomorph.core.inputs import check_inputs
+from robomorph.core.normalizations import check_normalization
+from robomorph.data.sources import Source, check_lengths, compatible, scan
+from robomorph.data.statistics import Stats, StatsAccumulator
+from robomorph.data.windows import VAL_STREAM, MixtureSampler, WindowDataset, pairs, split_rows
 
-# Stores whose u and y together fit in this many bytes are read into memory once (a random
-# batch from disk costs 34-55 ms against 0.1 ms from memory, REFERENCE.md section 3).
+# Stores whose u and y together fit in this many bytes are read into memory once: a random
+# batch read from disk costs hundreds of times one taken from memory (README, section 9).
 MEMORY_BUDGET_BYTES = 4 * 2**30
-# SeedSequence spawn keys of the independent random streams drawn from ``seed``
-# (the training stream's key, TRAIN_STREAM = 2, lives with its sampler).
-_SPLIT_STREAM, _VAL_STREAM = 0, 1
-
-
-class _Source:
-    """One store's u and y: numpy arrays in memory, or read one chunk of rows at a time.
-
-    The on-demand mode keeps a one-chunk cache and reopens the store in each process (a
-    handle is never shared across fork or pickling), so DataLoader workers are safe.
-    """
-
-    def __init__(self, path: str, inputs: str = "total"):
-        ds = open_store(path)
-        if ds.n < 1:
-            raise ValueError(f"{path} holds no trajectories (n=0)")
-        self.path, self.n, self.steps, self.chunk = path, ds.n, ds.steps, ds.chunk
-        # The array the model reads as u: the total torque or the command (data.inputs).
-        self.u_array = ds.check_inputs(inputs)
-        self.u_names, self.y_names, self.dt = ds.input_names(inputs), ds.y_names, ds.dt
-        self.u: np.ndarray | None = None
-        self.y: np.ndarray | None = None
-        self._ds, self._pid = ds, os.getpid()
-        self._cache: tuple[int, np.ndarray | None, np.ndarray | None] = (-1, None, None)
-
-    @property
-    def nbytes(self) -> int:
-        return self.n * self.steps * (len(self.u_names) + len(self.y_names)) * 4
-
-    @property
-    def n_blocks(self) -> int:
-        return -(-self.n // self.chunk)
-
-    def _store(self):
-        if self._ds is None or self._pid != os.getpid():
-            self._ds, self._pid, self._cache = open_store(self.path), os.getpid(), (-1, None, None)
-        return self._ds
-
-    def load(self) -> None:
-        """Reads all of u and y into memory."""
-        ds = self._store()
-        self.u, self.y = ds.read(self.u_array), ds.read("y")
-
-    def block(self, c: int) -> tuple[int, np.ndarray, np.ndarray]:
-        """Rows of chunk ``c``: ``(first row, u (k, T, n_u), y (k, T, n_y))``."""
-        c0, c1 = c * self.chunk, min(self.n, (c + 1) * self.chunk)
-        if self.u is not None:
-            return c0, self.u[c0:c1], self.y[c0:c1]
-        if self._cache[0] != c:
-            ds = self._store()
-            self._cache = (c, ds.read(self.u_array, slice(c0, c1)), ds.read("y", slice(c0, c1)))
-        return c0, self._cache[1], self._cache[2]
-
-    def window(self, i: int, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
-        """Steps ``[start, stop)`` of trajectory ``i``: ``(u (L, n_u), y (L, n_y))``."""
-        c0, u, y = self.block(i // self.chunk)
-        return u[i - c0, start:stop], y[i - c0, start:stop]
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        state["_ds"], state["_cache"] = None, (-1, None, None)
-        return state
-
-
-def _scan(src: _Source, train_rows: np.ndarray, stop: int, acc: StatsAccumulator | None) -> None:
-    """One pass over a store: refuses non-finite values and feeds training rows' steps
-    ``[0, stop)`` to ``acc``."""
-    in_train = np.zeros(src.n, dtype=bool)
-    in_train[train_rows] = True
-    for c in range(src.n_blocks):
-        c0, u, y = src.block(c)
-        for name, arr in (("u", u), ("y", y)):
-            bad = np.flatnonzero(~np.isfinite(arr).all(axis=(1, 2)))
-            if bad.size:
-                raise ValueError(f"{src.path}: trajectory {c0 + int(bad[0])} has NaN/inf values in '{name}' "
-                                 f"({bad.size} bad trajectories in rows {c0}..{c0 + len(u) - 1}); "
-                                 "regenerate the store or drop those rows")
-        mask = in_train[c0:c0 + len(u)]
-        if acc is not None and mask.any():
-            acc.update(u[mask, :stop], y[mask, :stop])
-
-
-def _split_rows(n: int, fractions: tuple[float, float, float], seed: int, store_index: int
-                ) -> dict[str, np.ndarray]:
-    """Disjoint sorted trajectory indices ``{"train", "val", "test"}`` covering ``range(n)``."""
-    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_SPLIT_STREAM, store_index)))
-    perm = rng.permutation(n)
-    n_val, n_test = round(n * fractions[1]), round(n * fractions[2])
-    return {"val": np.sort(perm[:n_val]), "test": np.sort(perm[n_val:n_val + n_test]),
-            "train": np.sort(perm[n_val + n_test:])}
-
-
-def _pairs(per_store: list[np.ndarray]) -> np.ndarray:
-    """(M, 2) int64 rows ``(store index, trajectory index)``, grouped by store."""
-    parts = [np.stack([np.full(len(r), s), r], axis=1) for s, r in enumerate(per_store)]
-    return np.concatenate(parts).astype(np.int64) if parts else np.zeros((0, 2), np.int64)
-
-
-class _WindowDataset(Dataset):
-    """Windows of fixed trajectories; a key is a row of ``pairs``, ``(row, offset)`` or
-    ``(row, offset, context_len, horizon)`` (horizon-aware training draws the lengths)."""
-
-    def __init__(self, sources: list[_Source], pairs: np.ndarray, context_len: int, horizon: int):
-        self.sources, self.pairs = sources, pairs
-        self.context_len, self.horizon = context_len, horizon
-
-    def __len__(self) -> int:
-        return len(self.pairs)
-
-    def __getitem__(self, key: int | tuple[int, int]) -> dict[str, torch.Tensor]:
-        row, offset, c, h = (key + (self.context_len, self.horizon))[:4] if isinstance(key, tuple) else \
-            (key, 0, self.context_len, self.horizon)
-        s, i = self.pairs[row]
-        u, y = self.sources[s].window(int(i), offset, offset + c + h)
-        # Copies: a batch must not keep a view of a whole in-memory store alive.
-        return {k: torch.from_numpy(np.array(v, dtype=np.float32))
-                for k, v in (("u_ctx", u[:c]), ("y_ctx", y[:c]), ("u_query", u[c:]), ("y_query", y[c:]))}
 
 
 class RoboMorphDataModule(L.LightningDataModule):
@@ -199,56 +83,18 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.save_hyperparameters()
         self.stores = [stores] if isinstance(stores, str) else list(stores)
         self.weights, self.test_store = weights, test_store
-        self.context_len, self.context_frac, self.horizon, self.window = context_len, context_frac, horizon, window
+        # The argument; the resolved length (also from context_frac) is the property context_len.
+        self._context_len_arg = context_len
+        self.context_frac, self.horizon, self.window = context_frac, horizon, window
         self.context_min, self.horizon_min = context_min, horizon_min
         self.split, self.seed, self.batch_size, self.num_workers = tuple(split), seed, batch_size, num_workers
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
         self.train_samples_per_epoch = train_samples_per_epoch
         self.inputs = inputs
         self.normalization = normalization
-        self._validate()
+        _check_arguments(self)
         self._ready = False
-
-    def _validate(self) -> None:
-        if not self.stores:
-            raise ValueError("stores: give at least one store path")
-        check_inputs(self.inputs)
-        paths = [os.path.realpath(p) for p in self.stores]
-        if len(set(paths)) != len(paths):
-            raise ValueError(f"stores lists a store twice: {self.stores}")
-        if self.test_store is not None and os.path.realpath(self.test_store) in paths:
-            raise ValueError(f"test_store {self.test_store} is also a training store: its trajectories would leak")
-        if self.weights is not None:
-            w = np.asarray(self.weights, dtype=float)
-            if w.shape != (len(self.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
-                raise ValueError(f"weights must be {len(self.stores)} non-negative numbers with a positive sum "
-                                 f"(one per store), got {self.weights}")
-        if (self.context_len is None) == (self.context_frac is None):
-            raise ValueError("give exactly one of context_len and context_frac "
-                             f"(got context_len={self.context_len}, context_frac={self.context_frac})")
-        if self.context_len is not None and self.context_len < 1:
-            raise ValueError(f"context_len must be >= 1, got {self.context_len}")
-        if self.context_frac is not None and not 0 < self.context_frac < 1:
-            raise ValueError(f"context_frac must be in (0, 1), got {self.context_frac}")
-        if self.window not in ("start", "random"):
-            raise ValueError(f"window must be 'start' or 'random', got {self.window!r}")
-        f = self.split
-        if len(f) != 3 or any(not math.isfinite(x) or x < 0 for x in f) or abs(sum(f) - 1) > 1e-6 or f[0] <= 0:
-            raise ValueError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
-                             f"with train > 0, got {self.split}")
-        for name, value, low in (("horizon", self.horizon, 1), ("batch_size", self.batch_size, 1),
-                                 ("num_workers", self.num_workers, 0), ("val_subset", self.val_subset, 1),
-                                 ("seed", self.seed, 0)):
-            if value < low:
-                raise ValueError(f"{name} must be >= {low}, got {value}")
-        if self.horizon_min is not None and not 1 <= self.horizon_min <= self.horizon:
-            raise ValueError(f"horizon_min must be in [1, horizon={self.horizon}], got {self.horizon_min}")
-        if self.context_min is not None and (self.context_min < 1 or (
-                self.context_len is not None and self.context_min > self.context_len)):
-            raise ValueError(f"context_min must be in [1, context_len={self.context_len}], got {self.context_min}")
-        check_normalization(self.normalization, self.recenter)
-        if self.train_samples_per_epoch is not None and self.train_samples_per_epoch < 1:
-            raise ValueError(f"train_samples_per_epoch must be >= 1, got {self.train_samples_per_epoch}")
+        self._sources: list[Source] | None = None
 
     def setup(self, stage: str | None = None) -> None:
         """Opens and checks the stores, splits them and computes the training statistics.
@@ -260,11 +106,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         """
         if self._ready:
             return
-        sources = [_Source(p, self.inputs) for p in self.stores]
-        if self.test_store is not None:
-            sources.append(_Source(self.test_store, self.inputs))
-        self._check_compatible(sources)
-        self._resolve_lengths(sources)
+        sources = self._open()
+        check_lengths(sources, self.context_len, self.horizon)
+        _check_context_min(self)
         total = sum(s.nbytes for s in sources)
         self.loaded = self.in_memory if self.in_memory is not None else total <= MEMORY_BUDGET_BYTES
         if self.loaded:
@@ -275,38 +119,51 @@ class RoboMorphDataModule(L.LightningDataModule):
         self._build_datasets(sources)
         self.sources, self._ready = sources, True
 
-    def _check_compatible(self, sources: list[_Source]) -> None:
-        ref = sources[0]
-        for src in sources[1:]:
-            for what, a, b in (("u_names", ref.u_names, src.u_names), ("y_names", ref.y_names, src.y_names)):
-                if a != b:
-                    raise ValueError(f"stores disagree on {what}: {ref.path} has {a}, {src.path} has {b}; "
-                                     "all stores of one run must share u_names, y_names and dt")
-            if not math.isclose(ref.dt, src.dt, rel_tol=1e-9):
-                raise ValueError(f"stores disagree on dt: {ref.path} has {ref.dt}, {src.path} has {src.dt}")
-        self.u_names, self.y_names, self.dt = ref.u_names, ref.y_names, ref.dt
-        self.n_u, self.n_y = len(ref.u_names), len(ref.y_names)
+    # The layout of the data, read from the stores' metadata without setup: robomorph fit
+    # links n_u, n_y and context_len into the model when it instantiates the two.
+    def _open(self) -> list[Source]:
+        """The training stores' sources (then the test store's), checked to agree; opened once."""
+        if self._sources is None:
+            paths = self.stores + ([self.test_store] if self.test_store is not None else [])
+            self._sources = compatible([Source(p, self.inputs) for p in paths])
+        return self._sources
 
-    def _resolve_lengths(self, sources: list[_Source]) -> None:
-        if self.context_frac is not None:
-            t_min = min(s.steps for s in sources)
-            self.context_len = round(self.context_frac * t_min)
-            if self.context_len < 1:
-                raise ValueError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
-            if self.context_min is not None and self.context_min > self.context_len:
-                raise ValueError(f"context_min {self.context_min} exceeds the context of {self.context_len} steps "
-                                 f"that context_frac {self.context_frac} gives")
-        need = self.context_len + self.horizon
-        for src in sources:
-            if src.steps < need:
-                raise ValueError(f"{src.path} has trajectories of T={src.steps} steps, but context_len "
-                                 f"{self.context_len} + horizon {self.horizon} = {need} are needed")
+    @property
+    def u_names(self) -> list[str]:
+        return self._open()[0].u_names
 
-    def _make_splits(self, sources: list[_Source]) -> None:
+    @property
+    def y_names(self) -> list[str]:
+        return self._open()[0].y_names
+
+    @property
+    def dt(self) -> float:
+        return self._open()[0].dt
+
+    @property
+    def n_u(self) -> int:
+        return len(self.u_names)
+
+    @property
+    def n_y(self) -> int:
+        return len(self.y_names)
+
+    @property
+    def context_len(self) -> int:
+        """Context steps: the argument, or ``round(context_frac * T)`` with T the shortest store's."""
+        if self._context_len_arg is not None:
+            return self._context_len_arg
+        t_min = min(s.steps for s in self._open())
+        n = round(self.context_frac * t_min)
+        if n < 1:
+            raise ValueError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
+        return n
+
+    def _make_splits(self, sources: list[Source]) -> None:
         f = self.split
         if self.test_store is not None:
             f = (f[0] / (f[0] + f[1]), f[1] / (f[0] + f[1]), 0.0)
-        self.splits = [_split_rows(src.n, f, self.seed, k) for k, src in enumerate(sources[:len(self.stores)])]
+        self.splits = [split_rows(src.n, f, self.seed, k) for k, src in enumerate(sources[:len(self.stores)])]
         if self.test_store is not None:
             empty = np.zeros(0, dtype=np.int64)
             self.splits.append({"train": empty, "val": empty, "test": np.arange(sources[-1].n)})
@@ -318,23 +175,23 @@ class RoboMorphDataModule(L.LightningDataModule):
                                  f"{self.split}): add trajectories or change split")
         self.probs = w / w.sum()
 
-    def _compute_stats(self, sources: list[_Source]) -> None:
+    def _compute_stats(self, sources: list[Source]) -> None:
         acc = StatsAccumulator(self.n_u, self.n_y)
         for k, src in enumerate(sources):
             stop = src.steps if self.window == "random" else self.context_len + self.horizon
-            _scan(src, self.splits[k]["train"], stop, acc if k < len(self.stores) else None)
+            scan(src, self.splits[k]["train"], stop, acc if k < len(self.stores) else None)
         self.stats: Stats = acc.finalize()
 
-    def _build_datasets(self, sources: list[_Source]) -> None:
-        train = _pairs([s["train"] for s in self.splits])
-        val = _pairs([s["val"] for s in self.splits])
+    def _build_datasets(self, sources: list[Source]) -> None:
+        train = pairs([s["train"] for s in self.splits])
+        val = pairs([s["val"] for s in self.splits])
         self.n_val_total = len(val)
         if len(val) > self.val_subset:
-            rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(_VAL_STREAM,)))
+            rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(VAL_STREAM,)))
             val = val[np.sort(rng.choice(len(val), self.val_subset, replace=False))]
-        test = _pairs([s["test"] for s in self.splits])
+        test = pairs([s["test"] for s in self.splits])
         ctx, h = self.context_len, self.horizon
-        self.train_set, self.val_set, self.test_set = (_WindowDataset(sources, p, ctx, h) for p in (train, val, test))
+        self.train_set, self.val_set, self.test_set = (WindowDataset(sources, p, ctx, h) for p in (train, val, test))
         counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
         self.train_sampler = MixtureSampler(
             base=np.concatenate([[0], np.cumsum(counts)[:-1]]), counts=counts, probs=self.probs,
@@ -377,3 +234,53 @@ class RoboMorphDataModule(L.LightningDataModule):
             "seed": self.seed, "split": list(self.split), "normalization": self.normalization,
             "inputs": self.inputs,
         }
+
+
+def _check_arguments(dm: RoboMorphDataModule) -> None:
+    """Refuses arguments that cannot work, naming the argument and the fix."""
+    if not dm.stores:
+        raise ValueError("stores: give at least one store path")
+    check_inputs(dm.inputs)
+    paths = [os.path.realpath(p) for p in dm.stores]
+    if len(set(paths)) != len(paths):
+        raise ValueError(f"stores lists a store twice: {dm.stores}")
+    if dm.test_store is not None and os.path.realpath(dm.test_store) in paths:
+        raise ValueError(f"test_store {dm.test_store} is also a training store: its trajectories would leak")
+    if dm.weights is not None:
+        w = np.asarray(dm.weights, dtype=float)
+        if w.shape != (len(dm.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
+            raise ValueError(f"weights must be {len(dm.stores)} non-negative numbers with a positive sum "
+                             f"(one per store), got {dm.weights}")
+    if (dm._context_len_arg is None) == (dm.context_frac is None):
+        raise ValueError("give exactly one of context_len and context_frac "
+                         f"(got context_len={dm._context_len_arg}, context_frac={dm.context_frac})")
+    if dm._context_len_arg is not None and dm._context_len_arg < 1:
+        raise ValueError(f"context_len must be >= 1, got {dm._context_len_arg}")
+    if dm.context_frac is not None and not 0 < dm.context_frac < 1:
+        raise ValueError(f"context_frac must be in (0, 1), got {dm.context_frac}")
+    if dm.window not in ("start", "random"):
+        raise ValueError(f"window must be 'start' or 'random', got {dm.window!r}")
+    f = dm.split
+    if len(f) != 3 or any(not math.isfinite(x) or x < 0 for x in f) or abs(sum(f) - 1) > 1e-6 or f[0] <= 0:
+        raise ValueError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
+                         f"with train > 0, got {dm.split}")
+    for name, value, low in (("horizon", dm.horizon, 1), ("batch_size", dm.batch_size, 1),
+                             ("num_workers", dm.num_workers, 0), ("val_subset", dm.val_subset, 1),
+                             ("seed", dm.seed, 0)):
+        if value < low:
+            raise ValueError(f"{name} must be >= {low}, got {value}")
+    if dm.horizon_min is not None and not 1 <= dm.horizon_min <= dm.horizon:
+        raise ValueError(f"horizon_min must be in [1, horizon={dm.horizon}], got {dm.horizon_min}")
+    if dm.context_min is not None and (dm.context_min < 1 or (
+            dm._context_len_arg is not None and dm.context_min > dm._context_len_arg)):
+        raise ValueError(f"context_min must be in [1, context_len={dm._context_len_arg}], got {dm.context_min}")
+    check_normalization(dm.normalization, dm.recenter)
+    if dm.train_samples_per_epoch is not None and dm.train_samples_per_epoch < 1:
+        raise ValueError(f"train_samples_per_epoch must be >= 1, got {dm.train_samples_per_epoch}")
+
+
+def _check_context_min(dm: RoboMorphDataModule) -> None:
+    """``context_min`` within the resolved context (``context_frac`` is known only from the stores)."""
+    if dm.context_min is not None and dm.context_min > dm.context_len:
+        raise ValueError(f"context_min {dm.context_min} exceeds the context of {dm.context_len} steps"
+                         + (f" that context_frac {dm.context_frac} gives" if dm.context_frac else ""))

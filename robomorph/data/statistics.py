@@ -2,82 +2,24 @@
 
 The paper's code z-scored every trajectory over its whole window, query included, so a
 test-time prediction was rescaled with statistics of the very outputs it predicted
-(REFERENCE.md section 1). Here the scale comes from the training split only
+(README, section 9). Here the scale comes from the training split only
 (:class:`Stats`, computed here without torch), and the optional per-trajectory recentring
 (:class:`robomorph.model.normalization.Normalizer` with ``recenter=True``) uses the context
 window only.
 
 The paper's own protocol is still available, labelled, for reproducing its numbers:
-``normalization: paper_window`` (:data:`NORMALIZATIONS`) z-scores every window with its own
-mean and std over context and query together. Whatever is produced under it says that it
-leaks the query outputs' statistics (:func:`leaks_query_statistics`).
+``normalization: paper_window`` (:mod:`robomorph.core.normalizations`) z-scores every window
+with its own mean and std over context and query together.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from robomorph.core.errors import RoboMorphError
-
 # Rows per block when reducing large arrays: float64 copies of a block stay small.
 _BLOCK_ROWS = 256
-# ``train_stats``: training-split statistics (and optional context-only recentring), what a
-# deployed model can use. ``paper_window``: each window z-scored with the mean and std of its
-# context *and query*, as the paper's training script did (REFERENCE.md sections 1-2).
-NORMALIZATIONS = ("train_stats", "paper_window")
-_LEAKY = frozenset({"paper_window"})
-
-
-class NormalizationError(RoboMorphError, ValueError):
-    """An unknown normalization, or one used where its statistics cannot exist."""
-
-
-def check_normalization(normalization: str, recenter: bool = False) -> str:
-    """Returns ``normalization`` when it is known and compatible with ``recenter``.
-
-    Raises:
-        NormalizationError: an unknown name, or ``paper_window`` with ``recenter`` (the window
-            z-score already centres each window; the paper did nothing more).
-    """
-    if normalization not in NORMALIZATIONS:
-        raise NormalizationError(f"normalization must be one of {list(NORMALIZATIONS)}, got {normalization!r}")
-    if normalization == "paper_window" and recenter:
-        raise NormalizationError("normalization 'paper_window' already centres each window on its own mean; "
-                                 "set recenter: false with it (the paper's protocol has no recentring)")
-    return normalization
-
-
-def leaks_query_statistics(normalization: str | None) -> bool:
-    """True when predictions under ``normalization`` use statistics of the outputs they predict."""
-    return normalization in _LEAKY
-
-
-def normalization_label(normalization: str | None) -> str:
-    """The sentence a table header carries about the normalization (plain text, no markup).
-
-    ``None`` (a result written before the option existed) reads as ``train_stats``.
-    """
-    if leaks_query_statistics(normalization):
-        return (f"Normalization {normalization} (the paper's protocol): each window is z-scored with the mean "
-                "and std of its own context and query, so every prediction uses statistics of the outputs it "
-                "predicts; these are not the scores of a model that could be deployed.")
-    return ("Normalization train_stats: training-split statistics (and context-only recentring); nothing of "
-            "the query outputs reaches a prediction.")
-
-
-def query_output_stats(y_query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-trajectory mean and (population) std over time of the query outputs.
-
-    What ``paper_window`` needs besides the context: ``y_query (..., Th, n_y)`` ->
-    ``(mean (..., n_y), std (..., n_y))``. Only an evaluation that holds the true outputs
-    can compute it, which is the leak.
-    """
-    y = np.asarray(y_query, dtype=np.float64)
-    return y.mean(axis=-2), y.std(axis=-2)
 
 
 class _Moments:
@@ -180,20 +122,3 @@ class Stats:
         acc.update(u, y)
         return acc.finalize(eps)
 
-    @classmethod
-    def from_blocks(cls, blocks: Iterable[tuple[np.ndarray, np.ndarray]], n_u: int, n_y: int,
-                    eps: float = 1e-6) -> "Stats":
-        """Statistics over an iterable of ``(u, y)`` blocks (e.g. a store read chunk by chunk)."""
-        acc = StatsAccumulator(n_u, n_y)
-        for u, y in blocks:
-            acc.update(u, y)
-        return acc.finalize(eps)
-
-    def to_dict(self) -> dict[str, list[float]]:
-        """JSON-able form (lists of floats), for checkpoints and run records."""
-        return {k: getattr(self, k).tolist() for k in ("u_mean", "u_std", "y_mean", "y_std")}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Stats":
-        """Inverse of :meth:`to_dict`."""
-        return cls(**{k: np.asarray(d[k], dtype=np.float64) for k in ("u_mean", "u_std", "y_mean", "y_std")})

@@ -1,6 +1,6 @@
 """The one reader/writer of RoboMorph's Zarr v3 dataset schema.
 
-Layout (DESIGN.md)::
+Layout (README, section 4)::
 
     <name>.zarr/
       u       float32 (N, T, n_u)   inputs: total joint torque (the paper's input)
@@ -33,37 +33,24 @@ from zarr.storage import LocalStore
 
 from robomorph import __version__
 from robomorph.core.errors import RoboMorphError
+from robomorph.core.inputs import INPUT_ARRAYS, InputsError, check_inputs
 
 # 2 added ``u_cmd`` (the command formulation). Version 1 stores read as before; they
 # have only the total torque, and asking them for the command says to regenerate.
 SCHEMA_VERSION = 2
 READABLE_VERSIONS = (1, 2)
 # The two input formulations and the array each reads.
-INPUTS = ("total", "command")
-INPUT_ARRAYS = {"total": "u", "command": "u_cmd"}
 SCHEMA_NAME = "robomorph.dataset"
 STATUS_IN_PROGRESS = "in_progress"
 STATUS_COMPLETE = "complete"
-# lz4 over zstd: simulated floats barely compress either way, lz4 writes 2.7x faster
-# (REFERENCE.md, measured on this machine kind).
+# lz4 over zstd: simulated floats barely compress either way and lz4 writes faster
+# (README, section 4).
 _COMPRESSORS = [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")]
 _REQUIRED_ATTRS = ("schema", "schema_version", "u_names", "y_names", "param_names", "dt", "status", "n")
 
 
 class SchemaError(RoboMorphError, ValueError):
     """A path is not a RoboMorph dataset of the supported schema."""
-
-
-class InputsError(SchemaError):
-    """A store does not hold the input formulation asked for."""
-
-
-def check_inputs(inputs: str) -> str:
-    """``inputs`` if it names a formulation, else a :class:`InputsError` listing them."""
-    if inputs not in INPUTS:
-        raise InputsError(f"inputs must be one of {', '.join(INPUTS)} (total joint torque, or the command "
-                          f"without the arm's gravity compensation), got {inputs!r}")
-    return inputs
 
 
 def _now() -> str:
@@ -143,14 +130,7 @@ def create_store(
     if u_cmd_names is not None:
         _check_names("u_cmd", list(u_cmd_names), len(u_names))
         widths.append(("u_cmd", len(u_names)))
-    for name, width in widths:
-        group.create_array(name, shape=(n, steps, width), chunks=(chunk, steps, width),
-                           dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
-    group.create_array("params", shape=(n, len(param_names)), chunks=(chunk, max(1, len(param_names))),
-                       dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
-    for name, (tail, dtype) in extras.items():
-        group.create_array(name, shape=(n, *tail), chunks=(chunk, *tail), dtype=dtype,
-                           compressors=_COMPRESSORS)
+    _create_arrays(group, n, steps, chunk, widths, len(param_names), extras)
     meta = {
         **attrs,
         "schema": SCHEMA_NAME,
@@ -169,6 +149,19 @@ def create_store(
     }
     group.attrs.update(meta)
     return DatasetWriter(path, group)
+
+
+def _create_arrays(group: zarr.Group, n: int, steps: int, chunk: int, widths: list[tuple[str, int]],
+                   n_params: int, extras: dict[str, tuple[tuple[int, ...], str]]) -> None:
+    """The store's arrays at full capacity: signals and params NaN-filled until written."""
+    for name, width in widths:
+        group.create_array(name, shape=(n, steps, width), chunks=(chunk, steps, width),
+                           dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
+    group.create_array("params", shape=(n, n_params), chunks=(chunk, max(1, n_params)),
+                       dtype="float32", compressors=_COMPRESSORS, fill_value=np.nan)
+    for name, (tail, dtype) in extras.items():
+        group.create_array(name, shape=(n, *tail), chunks=(chunk, *tail), dtype=dtype,
+                           compressors=_COMPRESSORS)
 
 
 class DatasetWriter:
@@ -214,9 +207,6 @@ class DatasetWriter:
                 target[self.n:self.n + k] = arr
         self.n += k
         self.group.attrs.update({"n": self.n, **(progress or {})})
-
-    def set_attrs(self, **attrs: Any) -> None:
-        self.group.attrs.update(attrs)
 
     def finalize(self, **attrs: Any) -> None:
         """Marks the store complete (the last write of a job)."""

@@ -34,7 +34,8 @@ import sys
 
 import numpy as np
 
-from robomorph.data.statistics import NormalizationError, leaks_query_statistics, query_output_stats
+from robomorph.core import metrics as scores
+from robomorph.core.normalizations import NormalizationError, leaks_query_statistics, query_output_stats
 from robomorph.evaluation import metrics
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
@@ -155,7 +156,7 @@ def _batched(fn, u_ctx, y_ctx, u_q, desc: str, size: int = 16, params=None) -> n
 def _summary(y, yhat) -> dict:
     """Channel-mean R^2 and FIT: ``r2``/``fit`` by approach 1, ``r2_a2``/``fit_a2`` by approach 2."""
     a2 = [np.asarray(f(y.reshape(1, -1, y.shape[-1]), yhat.reshape(1, -1, y.shape[-1])))[0].mean()
-          for f in (metrics.r2, metrics.fit_index)]
+          for f in (scores.r2, scores.fit_index)]
     return {"r2": float(metrics.approach1_mean(y, yhat, "r2")), "fit": float(metrics.approach1_mean(y, yhat, "fit")),
             "r2_a2": float(a2[0]), "fit_a2": float(a2[1])}
 
@@ -224,7 +225,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     Returns:
         The ``metrics.json`` content.
     """
-    from robomorph.predictor import Predictor  # noqa: PLC0415  (torch only here)
+    from robomorph.model.predictor import Predictor  # noqa: PLC0415  (torch only here)
 
     for name in baselines:
         if name not in BASELINES + CEILINGS:
@@ -245,22 +246,11 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     steps = parse_horizons(horizons_spec, w.horizon, w.dt)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
     contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")
-    patch = int(predictor.module.hparams.get("patch", 1))
-    odd = [c for c in [w.context_len, *contexts] if c % patch]
-    if odd:
-        raise ValueError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "
-                         f"{odd} are not (--context-len / --sweep-context)")
+    _check_patch(predictor.patch, [w.context_len, *contexts])
     os.makedirs(out, exist_ok=True)
     result, preds, std, base = score(predictor, w, tuple(baselines), arx_orders, batch_size, steps)
     result["meta"] = {"ckpt": ckpt, "data": data, **result["meta"], "offset": offset, "seed": seed}
-    sweeps = {}
-    if horizons:
-        sweeps["horizon"] = sweep_horizon(predictor, w, horizons, base, batch_size)
-        eval_plots.plot_sweep(os.path.join(out, "sweep_horizon.png"), sweeps["horizon"], "horizon")
-    if contexts:
-        sweeps["context"] = sweep_context(predictor, w, contexts, batch_size)
-        eval_plots.plot_sweep(os.path.join(out, "sweep_context.png"), sweeps["context"], "context_len")
-    result["sweeps"] = sweeps
+    result["sweeps"] = _sweeps(predictor, w, horizons, contexts, base, batch_size, out)
     _, y_ctx, _, y_q = w.split()
     eval_plots.write_all(out, y_ctx, y_q.astype(np.float64), preds, w.y_names, w.dt, samples, seed,
                          std=std, steps=steps, y_units=w.attrs.get("y_units"))
@@ -269,6 +259,26 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     write_table(os.path.join(out, "table.md"), result)
     _write_json(os.path.join(out, "metrics.json"), result)
     return result
+
+
+def _check_patch(patch: int, contexts: list[int]) -> None:
+    odd = [c for c in contexts if c % patch]
+    if odd:
+        raise ValueError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "
+                         f"{odd} are not (--context-len / --sweep-context)")
+
+
+def _sweeps(predictor, w: Window, horizons: list[int], contexts: list[int], base: dict, batch_size: int,
+            out: str) -> dict:
+    """The horizon and context sweeps asked for, each with its plot in ``out``."""
+    sweeps = {}
+    if horizons:
+        sweeps["horizon"] = sweep_horizon(predictor, w, horizons, base, batch_size)
+        eval_plots.plot_sweep(os.path.join(out, "sweep_horizon.png"), sweeps["horizon"], "horizon")
+    if contexts:
+        sweeps["context"] = sweep_context(predictor, w, contexts, batch_size)
+        eval_plots.plot_sweep(os.path.join(out, "sweep_context.png"), sweeps["context"], "context_len")
+    return sweeps
 
 
 def score(predictor, w: Window, baselines: tuple[str, ...], arx_orders: tuple[int, int], batch_size: int,

@@ -61,7 +61,7 @@ class NominalPhysics:
         import mujoco  # noqa: PLC0415
 
         from robomorph.core.config import from_dict  # noqa: PLC0415  (MuJoCo only when used)
-        from robomorph.data.store import check_inputs  # noqa: PLC0415
+        from robomorph.core.inputs import check_inputs  # noqa: PLC0415
         from robomorph.sim import panda  # noqa: PLC0415
         from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
         from robomorph.sim.randomize import Randomizer  # noqa: PLC0415

@@ -11,7 +11,8 @@ import os
 
 import numpy as np
 
-from robomorph.evaluation import horizons, metrics
+from robomorph.core import metrics
+from robomorph.evaluation import horizons
 
 _STYLE = {"model": dict(color="C0", lw=1.4), "hold": dict(color="C7", ls=":"),
           "arx": dict(color="C2", ls="--", lw=1.0), "nominal_physics": dict(color="C3", ls="-.", lw=1.0),

@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 import os
 
-from robomorph.data.statistics import leaks_query_statistics, normalization_label
+from robomorph.core.normalizations import leaks_query_statistics, normalization_label
 from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
 from robomorph.evaluation.horizons import horizon_markdown
 

@@ -8,13 +8,29 @@ statistics (``y_query_stats``) and so leaks them into the prediction (labelled e
 
 from __future__ import annotations
 
+from typing import Protocol
+
+import numpy as np
 import torch
 from torch import nn
 
-from robomorph.data.statistics import NormalizationError, Stats, check_normalization
+from robomorph.core.normalizations import NormalizationError, check_normalization
 
 # Floor of a window's std (physical units): a flat channel stays finite, as StatsAccumulator's eps.
 WINDOW_EPS = 1e-6
+
+
+class Stats(Protocol):
+    """Per-channel statistics as the Normalizer reads them (``robomorph.data.statistics.Stats``
+    computes them from the training split; the model needs only this shape of them, so
+    inference never imports the data code)."""
+
+    u_mean: np.ndarray
+    u_std: np.ndarray
+    y_mean: np.ndarray
+    y_std: np.ndarray
+    n_u: int
+    n_y: int
 
 
 class Normalizer(nn.Module):
@@ -79,12 +95,6 @@ class Normalizer(nn.Module):
             for name in ("u_mean", "u_std", "y_mean", "y_std"):
                 buf = getattr(self, name)
                 buf.copy_(torch.as_tensor(getattr(stats, name), dtype=buf.dtype, device=buf.device))
-
-    @property
-    def stats(self) -> Stats:
-        """The current statistics as a :class:`Stats` (float64 numpy)."""
-        return Stats(*(getattr(self, k).detach().cpu().double().numpy()
-                       for k in ("u_mean", "u_std", "y_mean", "y_std")))
 
     def _check(self, name: str, x: torch.Tensor, width: int) -> None:
         if x.dim() != 3 or x.shape[-1] != width:

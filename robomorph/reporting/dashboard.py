@@ -8,9 +8,9 @@ opens offline: CSS inline, no script, every image embedded as a base64 ``data:``
 The page has an overview (one row per run and evaluation), the training curves of all
 runs in shared figures, and per run its facts, checkpoints, config and evaluations, each
 with a per-channel table of the model beside every baseline, coloured with the paper's
-fit-index convention (:func:`fit_colour`); scores of the paper's normalization are marked.
-A file that cannot be read becomes a visible warning on the page (and on stderr), never a
-crash: a report is most wanted exactly when some run went wrong.
+fit-index convention (:func:`robomorph.reporting.html.fit_colour`); scores of the paper's
+normalization are marked. A file that cannot be read becomes a visible warning on the page
+(and on stderr), never a crash: a report is most wanted exactly when some run went wrong.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import yaml
 from robomorph.reporting import html as rh
 from robomorph.reporting.html import fit_colour
 
-__all__ = ["build_report", "fit_colour", "load_run", "main", "read_curves", "RunData", "EvalData"]
+__all__ = ["build_report", "load_run", "main", "read_curves", "RunData", "EvalData"]
 
 CURVES = ("train/loss", "val/loss", "val/r2")
 # Run-level facts shown in the overview, looked up anywhere in the resolved config.

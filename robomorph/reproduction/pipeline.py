@@ -39,9 +39,8 @@ the torque without the gravity compensation the arm adds) instead of the total j
 torque: its runs are named ``...-command``, its tables go to ``results/paper/<scale>-command``
 by default and name the formulation in their header.
 
-Run times of ``all``: ``ci`` about 25 s on 2 CPU cores and ``small`` 1 h 59 min on 2 CPU
-cores (both measured), ``paper`` about 38 hours of training on one H100 (from measured
-step times). Sizes, budgets and how the estimates were made: :mod:`robomorph.reproduction.scales`.
+Run times of each scale: README, section 14. Sizes and budgets:
+:mod:`robomorph.reproduction.scales`.
 """
 
 from __future__ import annotations
@@ -57,15 +56,14 @@ from dataclasses import dataclass
 
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.errors import report as report_error
-from robomorph.data.statistics import leaks_query_statistics
-from robomorph.data.store import INPUTS
-from robomorph.reproduction import skip as resume
+from robomorph.core.inputs import INPUTS
+from robomorph.core.normalizations import NORMALIZATIONS, leaks_query_statistics
+from robomorph.reproduction import skip
 from robomorph.reproduction.scales import SCALES, Scale
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.transfer import REGIMES, merge, regime_overrides
 
 TARGETS = ("table1", "table2", "context", "all", "compare")
-NORMALIZATIONS = ("train_stats", "paper_window")
 # (recipe, robots field of the scale, seed): disjoint seeds, so no test robot is a training robot.
 STORES = {
     "ms_train": ("multisine", "train_robots", 0),
@@ -109,19 +107,19 @@ def say(target: str, message: str) -> None:
     print(f"[{target}] {message}", flush=True)
 
 
-def store(plan: Plan, key: str, target: str) -> str:
+def prepared_store(plan: Plan, key: str, target: str) -> str:
     """The path of store ``key``, generated or resumed first when it is not complete."""
     task, robots_field, seed = STORES[key]
     s = plan.scale
     recipe = load_recipe(recipe_path(task), {"robots": getattr(s, robots_field), "steps": s.steps, "seed": seed})
     path = plan.path("data", f"{key}.zarr")
     need = plan.inputs == "command"
-    state = resume.store_state(path, recipe, need)
+    state = skip.store_state(path, recipe, need)
     if state == "complete":
         say(target, f"data {key}: complete ({recipe.robots} robots x {s.steps} steps), kept")
     else:
         say(target, f"data {key}: generating {recipe.robots} {recipe.task_label} robots x {s.steps} steps ({state}) ...")
-        resume.ensure_store(recipe, path, workers=plan.workers, progress=sys.stderr.isatty(), need_command=need)
+        skip.ensure_store(recipe, path, workers=plan.workers, progress=sys.stderr.isatty(), need_command=need)
     return path
 
 
@@ -152,15 +150,15 @@ def base_args(plan: Plan, depth: int, stores: list[str], run: str, steps: int) -
     }
 
 
-def train(plan: Plan, target: str, args: dict, what: str) -> str:
+def trained_ckpt(plan: Plan, target: str, args: dict, what: str) -> str:
     """Trains (or resumes, or skips) one run; returns the checkpoint that stands for it."""
     from robomorph.training import fitting  # noqa: PLC0415  (torch and Lightning only when training)
 
     run_dir = os.path.join(args["runs_dir"], args["run"])
     budget = {"max_steps": args["trainer"]["max_steps"], "max_time": args["trainer"]["max_time"]}
-    if resume.run_finished(run_dir, budget):
+    if skip.run_finished(run_dir, budget):
         say(target, f"{what}: finished run {run_dir}, kept")
-        return resume.finished_ckpt(run_dir)
+        return skip.finished_ckpt(run_dir)
     say(target, f"training {what} ({budget['max_steps']} steps) -> {run_dir} ...")
     result = fitting.fit(args)
     ckpt = result.best_ckpt or result.last_ckpt
@@ -170,23 +168,23 @@ def train(plan: Plan, target: str, args: dict, what: str) -> str:
     if result.global_step < budget["max_steps"] and budget["max_time"] is None:
         raise RuntimeError(f"{run_dir} stopped at step {result.global_step} of {budget['max_steps']}: "
                            "re-run the same command to resume it")
-    resume.mark_finished(run_dir, budget, ckpt, result.global_step)
+    skip.mark_finished(run_dir, budget, ckpt, result.global_step)
     return ckpt
 
 
-def score(plan: Plan, target: str, ckpt: str, data: str, name: str, sweeps: bool = False) -> dict:
+def scored(plan: Plan, target: str, ckpt: str, data: str, name: str, sweeps: bool = False) -> dict:
     """Evaluates ``ckpt`` on ``data`` into ``<run>/eval/<name>`` unless a fresh result is there.
 
     That is where ``python -m robomorph.evaluate`` puts an evaluation by default, so the
-    reproduction's dashboard (:func:`report`) shows every score beside its training run.
+    reproduction's dashboard (:func:`write_report`) shows every score beside its training run.
     """
     from robomorph.evaluation.evaluator import evaluate  # noqa: PLC0415
 
     run_dir = os.path.dirname(os.path.dirname(os.path.abspath(ckpt)))
     run, out = os.path.basename(run_dir), os.path.join(run_dir, "eval", name)
-    if resume.eval_fresh(out, ckpt):
+    if skip.eval_fresh(out, ckpt):
         say(target, f"evaluation {run} on {name}: up to date, kept")
-        return resume.read_json(os.path.join(out, "metrics.json"))
+        return skip.read_json(os.path.join(out, "metrics.json"))
     say(target, f"evaluating {run} on {name} ...")
     s = plan.scale
     return evaluate(ckpt, data, out, n=s.eval_n, baselines=("hold",), batch_size=64, device=plan.device,
@@ -194,37 +192,37 @@ def score(plan: Plan, target: str, ckpt: str, data: str, name: str, sweeps: bool
                     sweep_context_spec=s.sweep_context if sweeps else None, normalization=plan.normalization)
 
 
-def table1_model(plan: Plan, depth: int, train_store: str, target: str = "table1") -> str:
+def table1_ckpt(plan: Plan, depth: int, train_store: str, target: str = "table1") -> str:
     """Trains Table 1's model of ``depth`` layers on the multi-sine training store."""
     s = plan.scale
     args = base_args(plan, depth, [train_store], f"table1-L{depth}-s{s.train_steps}", s.train_steps)
-    return train(plan, target, args, f"{depth}-layer model")
+    return trained_ckpt(plan, target, args, f"{depth}-layer model")
 
 
-def table1(plan: Plan) -> dict:
+def make_table1(plan: Plan) -> dict:
     """Table 1: three depths x three in-distribution test stores; writes table1.md/.tex/.json."""
     from robomorph.reproduction.tables import table1_rows, write_table1  # noqa: PLC0415
 
-    train_store = store(plan, "ms_train", "table1")
-    tests = {t: store(plan, f"ms_test{i}", "table1") for i, t in enumerate(TESTS)}
+    train_store = prepared_store(plan, "ms_train", "table1")
+    tests = {t: prepared_store(plan, f"ms_test{i}", "table1") for i, t in enumerate(TESTS)}
     results = {}
     for depth in plan.scale.depths:
-        ckpt = table1_model(plan, depth, train_store)
-        results[depth] = {t: score(plan, "table1", ckpt, path, t) for t, path in tests.items()}
+        ckpt = table1_ckpt(plan, depth, train_store)
+        results[depth] = {t: scored(plan, "table1", ckpt, path, t) for t, path in tests.items()}
     doc = write_table1(plan.out, table1_rows(results), run_info(plan))
     say("table1", f"written {os.path.join(plan.out, 'table1.md')} (.tex, .json)")
     return doc
 
 
-def table2(plan: Plan) -> dict:
+def make_table2(plan: Plan) -> dict:
     """Table 2: zero-shot, fine-tuned and from-scratch models on the spiral; writes table2.md/.tex/.json."""
     from robomorph.reproduction.tables import REGIME_TITLES, table2_data, write_table2  # noqa: PLC0415
 
     s, depth = plan.scale, plan.scale.transfer_depth
-    mixture, spiral = store(plan, "mixture_train", "table2"), store(plan, "spiral_train", "table2")
-    test = store(plan, "spiral_test", "table2")
+    mixture, spiral = prepared_store(plan, "mixture_train", "table2"), prepared_store(plan, "spiral_train", "table2")
+    test = prepared_store(plan, "spiral_test", "table2")
     pre = base_args(plan, depth, [mixture], f"table2-pretrain-L{depth}-s{s.pretrain_steps}", s.pretrain_steps)
-    pretrained = train(plan, "table2", pre, f"{depth}-layer model on the multi-sine + chirp mixture")
+    pretrained = trained_ckpt(plan, "table2", pre, f"{depth}-layer model on the multi-sine + chirp mixture")
     budgets = {"zero_shot": 0, "finetune": s.finetune_steps, "scratch": s.scratch_steps}
     results, titles = {}, {}
     for regime in REGIMES:
@@ -232,20 +230,20 @@ def table2(plan: Plan) -> dict:
         over = regime_overrides(regime, pretrained, steps, lr=s.finetune_lr if regime == "finetune" else None)
         if over is not None:
             args = merge(base_args(plan, depth, [spiral], f"table2-{regime}-L{depth}-s{steps}", steps), over)
-            ckpt = train(plan, "table2", args, f"{regime} on the spiral")
-        results[regime] = score(plan, "table2", ckpt, test, "spiral_test")
+            ckpt = trained_ckpt(plan, "table2", args, f"{regime} on the spiral")
+        results[regime] = scored(plan, "table2", ckpt, test, "spiral_test")
         titles[regime] = REGIME_TITLES[regime] + (f" ({steps} steps)" if steps else "")
     doc = write_table2(plan.out, table2_data(results), titles, run_info(plan))
     say("table2", f"written {os.path.join(plan.out, 'table2.md')} (.tex, .json)")
     return doc
 
 
-def context(plan: Plan) -> dict:
+def make_context_figure(plan: Plan) -> dict:
     """The context and horizon figure of Table 1's middle model on test0; writes context_horizon.*."""
     from robomorph.reproduction.figures import write_context_figure  # noqa: PLC0415
 
-    ckpt = table1_model(plan, plan.scale.transfer_depth, store(plan, "ms_train", "context"), "context")
-    res = score(plan, "context", ckpt, store(plan, "ms_test0", "context"), "test0-sweeps", sweeps=True)
+    ckpt = table1_ckpt(plan, plan.scale.transfer_depth, prepared_store(plan, "ms_train", "context"), "context")
+    res = scored(plan, "context", ckpt, prepared_store(plan, "ms_test0", "context"), "test0-sweeps", sweeps=True)
     doc = write_context_figure(plan.out, res["sweeps"], res["meta"], run_info(plan))
     say("context", f"written {os.path.join(plan.out, 'context_horizon.png')} (.json, .csv)")
     return doc
@@ -258,10 +256,10 @@ def run_info(plan: Plan) -> dict:
             "leaks_query_statistics": leaks_query_statistics(plan.normalization),
             "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "elapsed_min": round((time.time() - plan.started) / 60, 1),
-            "machine": machine(), "budgets": plan.scale.budgets(), "inputs": plan.inputs}
+            "machine": machine_description(), "budgets": plan.scale.budgets(), "inputs": plan.inputs}
 
 
-def machine() -> str:
+def machine_description() -> str:
     """Platform, CPU count and GPU name (if any)."""
     gpu = "no GPU"
     try:
@@ -315,14 +313,14 @@ def reproduce(target: str, scale: Scale, out: str | None = None, work: str | Non
     plan = Plan(scale, work or os.path.join("data", "reproduce", scale.name),
                 out or default_out(scale, normalization, inputs), command, workers, device, wandb, normalization, inputs)
     os.makedirs(plan.out, exist_ok=True)
-    steps = {"table1": table1, "table2": table2, "context": context}
+    steps = {"table1": make_table1, "table2": make_table2, "context": make_context_figure}
     chosen = list(steps) if target == "all" else [target]
     done = {name: steps[name](plan) for name in chosen}
-    report(plan)
+    write_report(plan)
     return done
 
 
-def report(plan: Plan) -> str:
+def write_report(plan: Plan) -> str:
     """The dashboard of every run and evaluation so far: ``<work>/report.html`` (loss curves, tables, plots)."""
     from robomorph.reporting.dashboard import build_report  # noqa: PLC0415
 

@@ -5,7 +5,7 @@
     #       results/paper/small_paper_window/table1.json (paper_window),
     # writes results/paper/small_paper_window/table1_protocols.md and .json
 
-The paper z-scored each window over context and query (REFERENCE.md sections 1-2). The two
+The paper z-scored each window over context and query (README, section 9). The two
 runs compared here train the same models on the same stores with the same budgets and differ
 only in that normalization, so the difference between their columns is what the paper's
 protocol alone adds to the scores. The paper's own figures (deeper models, far more data, a
@@ -19,7 +19,7 @@ import os
 
 from robomorph.core.atomic import write_json, write_text
 from robomorph.core.errors import RoboMorphError
-from robomorph.data.statistics import leaks_query_statistics, normalization_label
+from robomorph.core.normalizations import NORMALIZATIONS, leaks_query_statistics, normalization_label
 from robomorph.reproduction.tables import header_markdown
 
 # The paper's Table 1 (tab:layer_comp in paper/robomorph.tex): layers -> test -> (R², σ(R²), RMSE, σ(RMSE)).
@@ -31,7 +31,7 @@ PAPER_TABLE1 = {
     16: {"test0": (0.700, 0.303, 0.0531, 0.0258), "test1": (0.761, 0.262, 0.0468, 0.0239),
          "test2": (0.767, 0.255, 0.0462, 0.0234)},
 }
-PROTOCOLS = ("train_stats", "paper_window")
+PROTOCOLS = NORMALIZATIONS  # the comparison's two columns: train_stats, then paper_window
 FILE = "table1_protocols"
 
 

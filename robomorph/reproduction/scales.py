@@ -1,15 +1,15 @@
 """The sizes and budgets of ``python -m robomorph.reproduce`` at each scale: ci, small, paper.
 
 Budgets are optimizer steps, not wall-clock time, so a scale trains the same models on any
-machine and a resumed run stops where an uninterrupted one would. The run times below are
-estimates, not measurements, unless marked "measured".
+machine and a resumed run stops where an uninterrupted one would. What each scale costs in
+time (measured where it was run, estimated from step times otherwise) is in the README,
+section 14.
 
-``ci`` (about 25 s for ``all`` on 2 CPU cores, measured): tiny stores (16 training robots
+``ci``: tiny stores (16 training robots
 of 90 steps, context 30 + horizon 60), d_model 16 models of 1, 2 and 3 layers, 10-20
 steps. It checks the pipeline end to end; its numbers mean nothing.
 
-``small`` (1 h 59 min for ``all`` on 2 CPU cores, measured on 2026-11-22 with the first
-half hour shared with other jobs; ``results/paper/small/``): the CPU-sized model of
+``small`` (results in ``results/paper/small/``): the CPU-sized model of
 ``datamodules/train_cpu.yaml`` (d_model 128, 4 heads, patches of 10 steps, batch 32) on the
 paper's window (context 200 + horizon 800 of 1000 steps), at depths 2, 4 and 6 (encoder =
 decoder):
@@ -17,23 +17,19 @@ decoder):
 - data: 4096 + 3 x 256 multi-sine, 4096 mixture, 1024 + 256 spiral robots
   (4096 training robots: with fewer, 4000 steps of 32 would pass over each robot often
   enough to memorize it, see the README's quality-against-time figures);
-- table 1: 4000 steps per depth; data, training and the nine evaluations took 62 min;
+- table 1: 4000 steps per depth;
 - table 2: pre-training 8000 steps, fine-tuning B = 2000 steps and scratch 2000 steps
   (``scratch_ratio`` 1: the same budget as the fine-tuning, the fair comparison when B is
-  this short), about 0.22 s per step of the 4-layer model; then the context figure's sweeps.
+  this short); then the context figure's sweeps.
 
-``paper`` (a GPU; about 38 hours of training on one H100, from measured step times): the
-paper's model (d_model 192, 12 heads, patch 1, batch 16, lr 6e-4, 10k warmup steps) at 10,
+``paper`` (a GPU): the paper's model (d_model 192, 12 heads, patch 1, batch 16, lr 6e-4, 10k warmup steps) at 10,
 12 and 16 layers on 40 000 training robots per store (the paper used millions; 40 000 x
-1000 x 21 float32 still fits the 4 GiB in-memory budget of the DataModule). Step times
-measured on an H100 in bf16-mixed (README, "Training performance"): 79, 98 and 113 ms at
-10, 12 and 16 layers (host-bound: about ±15 % between runs). The paper's 5.66 it/s on an
-RTX 4090 (REFERENCE.md) would make it about 72 hours there.
+1000 x 21 float32 still fits the 4 GiB in-memory budget of the DataModule).
 
-- table 1: 287 000 steps per depth (the paper's base model): ~6.3 + 7.8 + 9.0 h;
+- table 1: 287 000 steps per depth (the paper's base model);
 - table 2: pre-training 326 000 steps, fine-tuning 51 000 steps and scratch 183 600 steps
-  (``scratch_ratio`` 3.6 as in the paper), at 12 layers: ~15.3 h;
-- data (about 94 000 open-loop and 11 000 spiral robots): ~10 min on 16 cores.
+  (``scratch_ratio`` 3.6 as in the paper), at 12 layers;
+- data: about 94 000 open-loop and 11 000 spiral robots.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Skip work whose outputs already exist: complete stores, finished runs, fresh evaluations.
 
 What the demo and ``robomorph.reproduce`` share so that re-running an interrupted
-command redoes only what is missing: stores via :func:`robomorph.sim.generation.generate`
+command redoes only what is missing: stores via :func:`robomorph.data.generation.generate`
 (which resumes a partial store itself), training runs via a ``reproduce_done.json``
 marker written once a run reached its budget (``robomorph.fit`` resumes an unfinished
 run from ``last.ckpt`` itself), evaluations via their ``metrics.json``.
@@ -14,8 +14,8 @@ import os
 from typing import Any, Literal
 
 from robomorph.core.atomic import write_json
+from robomorph.data.generation import generate
 from robomorph.data.store import STATUS_COMPLETE, open_store
-from robomorph.sim.generation import generate
 from robomorph.sim.recipe import Recipe
 
 StoreState = Literal["missing", "stale", "partial", "complete"]

@@ -11,7 +11,7 @@ import math
 import os
 
 from robomorph.core.atomic import write_json, write_text
-from robomorph.data.statistics import leaks_query_statistics, normalization_label
+from robomorph.core.normalizations import leaks_query_statistics, normalization_label
 from robomorph.evaluation.fit_bands import FIT_BANDS, LATEX_COLORS, fit_band
 
 TABLE1_COLUMNS = ("r2", "r2_std", "rmse", "rmse_std")

@@ -8,7 +8,8 @@ from typing import Any, Literal
 
 from robomorph.core.config import ConfigError, from_dict, load_yaml, to_dict
 from robomorph.sim.filters import FilterConfig
-from robomorph.sim.osc import CircleConfig, OSCConfig, SpiralConfig
+from robomorph.sim.osc import OSCConfig
+from robomorph.sim.paths import CircleConfig, SpiralConfig
 from robomorph.sim.randomize import RandomizationConfig
 from robomorph.sim.signals import SignalConfig
 

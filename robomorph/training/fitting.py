@@ -25,8 +25,9 @@ from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.loggers import WandbLogger
 
 from robomorph.data.datamodule import RoboMorphDataModule
+from robomorph.model.checkpoint import load_checkpoint_file
 from robomorph.training.checkpoints import AtomicCheckpointIO, ResumableCSVLogger, prune_log
-from robomorph.training.module import VAL_LOSS, MetaModule, load_checkpoint_file
+from robomorph.training.module import FROM_DATA, VAL_LOSS, MetaModule
 
 _RUN_ENV = "ROBOMORPH_RUN_NAME"  # shared with DDP worker processes, which re-run this script
 
@@ -77,6 +78,10 @@ class RoboMorphCLI(LightningCLI):
         # One setting, two users: the data records it, the model's normalizer applies it.
         parser.link_arguments("data.recenter", "model.recenter")
         parser.link_arguments("data.normalization", "model.normalization")
+        # The data decide the model's widths and context: read from the instantiated
+        # datamodule (its stores' metadata) and passed to the model's constructor.
+        for name in FROM_DATA:
+            parser.link_arguments(f"data.{name}", f"model.{name}", apply_on="instantiate")
 
     def run_dir(self) -> str:
         cfg = self.config

@@ -8,33 +8,36 @@ arrive in physical units from :class:`robomorph.data.datamodule.RoboMorphDataMod
 from __future__ import annotations
 
 import math
-import os
 from typing import Literal
 
 import lightning.pytorch as L
 import torch
-import torch.nn.functional as F
 
+from robomorph.core import metrics
 from robomorph.core.errors import RoboMorphError
-from robomorph.data.statistics import check_normalization
-from robomorph.evaluation import metrics
+from robomorph.core.normalizations import check_normalization
+from robomorph.model.checkpoint import (
+    DATA_INFO_KEY,
+    CheckpointError,
+    load_checkpoint_file,
+    model_config,
+    predict_normalized_dist,
+    simulate,
+    simulate_dist,
+)
 from robomorph.model.normalization import Normalizer, query_stats
 from robomorph.model.transformer import MetaModel, ModelConfig
+from robomorph.training.losses import ModelOptionError  # noqa: F401  (re-exported: the module's option errors)
+from robomorph.training.losses import check_loss, elementwise_loss, horizon_weights, whole_patches
 
 # Log keys, defined once (namespaced as the lightning-hydra-template does).
 TRAIN_LOSS, VAL_LOSS, VAL_R2, VAL_FIT, LR = "train/loss", "val/loss", "val/r2", "val/fit", "lr"
 TEST_LOSS, TEST_R2, TEST_FIT = "test/loss", "test/r2", "test/fit"
 FREEZE_MODES = ("none", "encoder", "all_but_head")
+# Constructor arguments that the data decide: robomorph fit links them from the datamodule.
+FROM_DATA = ("n_u", "n_y", "context_len")
 # Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
 IO_LAYERS = ("encoder.embed", "decoder.embed", "decoder.init_embed", "head")
-LOSSES = ("huber", "mse", "nll")
-# Per-step change of the normalized outputs that one unit of network output means with
-# ``integrate``: of the order of the arm's per-step motion at 60 Hz (about 0.01 of a
-# channel's standard deviation), so that an untrained network's random walk over 800 steps
-# stays within a few standard deviations.
-INTEGRATE_SCALE = 0.05
-# Checkpoint entry holding what the model was trained on (see ``data_info``).
-DATA_INFO_KEY = "robomorph_data"
 
 
 def data_info(dm) -> dict:
@@ -44,36 +47,17 @@ def data_info(dm) -> dict:
             "stores": [str(s) for s in dm.stores], "inputs": str(getattr(dm, "inputs", "total"))}
 
 
-class CheckpointError(RoboMorphError, RuntimeError):
-    """A checkpoint is missing, corrupt, or does not fit the model asked for."""
-
-
-class ModelOptionError(RoboMorphError, ValueError):
-    """Model or loss options that do not fit together."""
-
-
-def load_checkpoint_file(path: str) -> dict:
-    """Reads a checkpoint with an error that says what is wrong with it."""
-    if not os.path.isfile(path):
-        raise CheckpointError(f"checkpoint not found: {path}")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # noqa: BLE001  (any unreadable file)
-        raise CheckpointError(f"{path} is not a readable checkpoint (corrupt or truncated?): {exc}") from exc
-    if not isinstance(ckpt, dict) or "state_dict" not in ckpt or "hyper_parameters" not in ckpt:
-        raise CheckpointError(f"{path} is not a RoboMorph/Lightning checkpoint (no state_dict/hyper_parameters)")
-    return ckpt
-
-
 class MetaModule(L.LightningModule):
     """Trains a :class:`MetaModel` to predict y over the horizon from a context of (u, y).
 
     Args:
-        n_u, n_y: channel counts (filled in from the data when left unset).
+        n_u, n_y: channel counts. ``robomorph fit`` links them from the datamodule's
+            stores; a module built without them cannot train or predict.
+        context_len: the training context in steps (linked from the datamodule as well);
+            checked against ``patch`` and ``max_context`` when given.
         d_model, n_head, n_layer, n_layer_dec, dropout, bias, patch, max_context, max_horizon:
-            the network (see :class:`robomorph.model.transformer.ModelConfig`). The defaults are the
-            CPU-sized model: d 128, 4 + 4 layers, 4 heads, patches of 10 steps (13x faster
-            per step than one token per step on 2 cores; ``benchmarks/train.py``).
+            the network; defaults and meaning in :class:`robomorph.model.transformer.ModelConfig`
+            (the CPU-sized model: d 128, 4 + 4 layers, 4 heads, patches of 10 steps).
         n_init: last context steps fed to the decoder as initial-condition tokens (0 = off;
             a multiple of ``patch``).
         gaussian: the head also predicts a log-variance per step and channel.
@@ -96,9 +80,9 @@ class MetaModule(L.LightningModule):
         anchor: the network predicts the deviation from the last context output, which
             is added back (a context value: nothing of the query leaks). The prediction
             then starts where the robot is instead of having to locate it first.
-        integrate: the network predicts per-step changes (scaled by ``INTEGRATE_SCALE``), summed
-            from the last context output: the first predicted step is the last measured one
-            plus one small change, so the prediction cannot jump away from the robot.
+        integrate: the network predicts per-step changes (scaled by ``INTEGRATE_SCALE`` of
+            :mod:`robomorph.model.checkpoint`), summed from the last context output: the first
+            predicted step is the last measured one plus one small change.
         init_ckpt: start from this checkpoint's weights and normalization (transfer).
         freeze: ``none``, ``encoder`` or ``all_but_head``.
         reinit_io: when the checkpoint's n_u / n_y differ, re-initialize the input
@@ -109,17 +93,19 @@ class MetaModule(L.LightningModule):
         self,
         n_u: int | None = None,
         n_y: int | None = None,
-        d_model: int = 128,
-        n_head: int = 4,
-        n_layer: int = 4,
-        n_layer_dec: int | None = None,
-        dropout: float = 0.0,
-        bias: bool = True,
-        patch: int = 10,
-        max_context: int = 1024,
-        max_horizon: int = 1024,
-        n_init: int = 0,
-        gaussian: bool = False,
+        context_len: int | None = None,
+        # The architecture's defaults are ModelConfig's, defined there once.
+        d_model: int = ModelConfig.d_model,
+        n_head: int = ModelConfig.n_head,
+        n_layer: int = ModelConfig.n_layer,
+        n_layer_dec: int | None = ModelConfig.n_layer_dec,
+        dropout: float = ModelConfig.dropout,
+        bias: bool = ModelConfig.bias,
+        patch: int = ModelConfig.patch,
+        max_context: int = ModelConfig.max_context,
+        max_horizon: int = ModelConfig.max_horizon,
+        n_init: int = ModelConfig.n_init,
+        gaussian: bool = ModelConfig.gaussian,
         loss: Literal["huber", "mse", "nll"] = "huber",
         huber_delta: float = 1.0,
         horizon_weight: float = 0.0,
@@ -139,16 +125,12 @@ class MetaModule(L.LightningModule):
         reinit_io: bool = False,
     ):
         super().__init__()
-        if loss not in LOSSES:
-            raise ModelOptionError(f"loss must be one of {LOSSES}, got {loss!r}")
-        if loss == "nll" and not gaussian:
-            raise ModelOptionError("loss 'nll' needs the Gaussian head: set gaussian=true (--model.gaussian true)")
-        if not horizon_weight >= 0 or not horizon_tau > 0:
-            raise ModelOptionError(f"need horizon_weight >= 0 and horizon_tau > 0, got {horizon_weight}, {horizon_tau}")
+        check_loss(loss, gaussian, horizon_weight, horizon_tau)
         if freeze not in FREEZE_MODES:
             raise ValueError(f"freeze must be one of {FREEZE_MODES}, got {freeze!r}")
         if lr <= 0 or not 0 <= min_lr_ratio <= 1 or warmup_steps < 0 or huber_delta <= 0:
             raise ValueError("need lr > 0, 0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
+        _check_context(context_len, patch, max_context)
         check_normalization(normalization, recenter)
         self.save_hyperparameters()
         self.net: MetaModel | None = None
@@ -165,28 +147,22 @@ class MetaModule(L.LightningModule):
     # ----------------------------------------------------------------- construction
     @property
     def model_config(self) -> ModelConfig:
-        h = self.hparams
-        # .get: checkpoints written before these options existed lack them (old behaviour).
-        return ModelConfig(n_u=h.n_u, n_y=h.n_y, d_model=h.d_model, n_head=h.n_head, n_layer=h.n_layer,
-                           n_layer_dec=h.n_layer_dec, dropout=h.dropout, bias=h.bias, patch=h.patch,
-                           max_context=h.max_context, max_horizon=h.max_horizon, n_init=h.get("n_init", 0),
-                           gaussian=h.get("gaussian", False))
+        return model_config(dict(self.hparams))
 
     def _build(self, n_u: int, n_y: int) -> None:
-        self.hparams.n_u, self.hparams.n_y = int(n_u), int(n_y)
         self.net = MetaModel(self.model_config)
         self.normalizer = Normalizer(n_u=n_u, n_y=n_y, recenter=self.hparams.recenter,
-                                     normalization=self.hparams.get("normalization", "train_stats"))
+                                     normalization=self.hparams.normalization)
         self.register_buffer("stats_ready", torch.tensor(False))
-        self._apply_freeze()
+        _apply_freeze(self.net, self.hparams.freeze)
 
     def setup(self, stage: str) -> None:
         dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
         if dm is None:
             return
         if self.net is None:
-            self._build(dm.n_u, dm.n_y)
-        elif (dm.n_u, dm.n_y) != (self.hparams.n_u, self.hparams.n_y):
+            raise RoboMorphError("the model has no n_u/n_y: pass them (robomorph fit links them from the data)")
+        if (dm.n_u, dm.n_y) != (self.hparams.n_u, self.hparams.n_y):
             raise CheckpointError(
                 f"the data has n_u={dm.n_u}, n_y={dm.n_y} but the model was built for "
                 f"n_u={self.hparams.n_u}, n_y={self.hparams.n_y}"
@@ -202,39 +178,9 @@ class MetaModule(L.LightningModule):
             self.stats_ready.fill_(True)
 
     def _transfer(self, path: str) -> None:
-        ckpt = load_checkpoint_file(path)
-        src = ckpt["hyper_parameters"]
-        same_io = (src.get("n_u"), src.get("n_y")) == (self.hparams.n_u, self.hparams.n_y)
-        theirs, ours = src.get("normalization", "train_stats"), self.hparams.get("normalization", "train_stats")
-        if theirs != ours:
-            raise CheckpointError(f"{path} was trained with normalization {theirs!r}, this run uses {ours!r}: "
-                                  "transfer between the same protocol only (set data.normalization to match)")
-        if not same_io and not self.hparams.reinit_io:
-            raise CheckpointError(
-                f"{path} was trained with n_u={src.get('n_u')}, n_y={src.get('n_y')}; this model has "
-                f"n_u={self.hparams.n_u}, n_y={self.hparams.n_y}. Set reinit_io=true to re-initialize the "
-                "input embeddings and the head (the rest transfers)."
-            )
-        state = {k: v for k, v in ckpt["state_dict"].items()
-                 if same_io or not (k.startswith("normalizer.") or _is_io(k))}
-        missing, unexpected = self.load_state_dict(state, strict=False)
-        allowed_missing = [k for k in missing if not same_io and (k.startswith("normalizer.") or _is_io(k))]
-        if set(missing) - set(allowed_missing) - {"stats_ready"} or unexpected:
-            raise CheckpointError(
-                f"{path} does not match this architecture (missing {sorted(set(missing) - set(allowed_missing))[:5]}, "
-                f"unexpected {sorted(unexpected)[:5]}): use the same d_model, n_head, layers and patch"
-            )
-        if same_io:
-            self.stats_ready.fill_(True)
-        self._apply_freeze()
-
-    def _apply_freeze(self) -> None:
-        mode = self.hparams.freeze
-        for name, p in self.net.named_parameters():
-            if mode == "encoder":
-                p.requires_grad = not name.startswith("enc")
-            elif mode == "all_but_head":
-                p.requires_grad = name.startswith("head")
+        if _load_transferred(self, path):
+            self.stats_ready.fill_(True)  # same channels: the pretrained normalization came along
+        _apply_freeze(self.net, self.hparams.freeze)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.data_info is not None:
@@ -246,65 +192,32 @@ class MetaModule(L.LightningModule):
     # --------------------------------------------------------------------- forward
     def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
                 y_query_stats=None) -> torch.Tensor:
-        """Predicts y over the query horizon, in physical units.
+        """Predicts y over the query horizon, in physical units (the Predictor's computation).
 
         ``y_query_stats`` (mean, std of the query outputs, (B, n_y) each) is needed, and used,
         only under ``normalization="paper_window"``.
         """
-        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, u_query, y_query_stats)
-        return self.normalizer.decode(self._predict(uc, yc, uq)[0], y_ctx, y_query_stats)
+        return simulate(self.net, self.normalizer, self.hparams.anchor, u_ctx, y_ctx, u_query, y_query_stats,
+                        self.hparams.integrate)
+
+    def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None
+                     ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Mean and standard deviation (None without a Gaussian head), both in physical units."""
+        return simulate_dist(self.net, self.normalizer, self.hparams.anchor, u_ctx, y_ctx, u_query, y_query_stats,
+                             self.hparams.integrate)
 
     def _query_stats(self, batch: dict):
         """The batch's query-output statistics when the normalization uses them (the paper's leak), else None."""
         return query_stats(batch["y_query"]) if self.normalizer.uses_query_stats else None
 
-    def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None
-                     ) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Mean and standard deviation (None without a Gaussian head), both in physical units."""
-        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, u_query, y_query_stats)
-        mean, logvar = self._predict(uc, yc, uq)
-        # Recentring and anchoring shift the outputs; only the z-score scales them.
-        std = None if logvar is None else torch.exp(0.5 * logvar) * self.normalizer.decode_scale(
-            y_ctx, y_query_stats, u_query.shape[1])
-        return self.normalizer.decode(mean, y_ctx, y_query_stats), std
-
-    def _predict(self, uc: torch.Tensor, yc: torch.Tensor, uq: torch.Tensor
-                 ) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Normalized mean (B, Th, n_y) and log-variance (or None) from normalized inputs."""
-        mean, logvar = self.net.forward_dist(uc, yc, uq)
-        if self.hparams.get("integrate", False):
-            # A running sum over steps <= t: causal, like the decoder it follows.
-            mean = INTEGRATE_SCALE * mean.cumsum(dim=1)
-        if self.hparams.get("anchor", False) or self.hparams.get("integrate", False):
-            mean = mean + yc[:, -1:]
-        return mean, logvar
-
-    def horizon_weights(self, horizon: int) -> torch.Tensor:
-        """Loss weight of each query step (horizon,), mean 1."""
-        t = torch.arange(horizon, dtype=torch.float32, device=self.device)
-        w = 1 + self.hparams.get("horizon_weight", 0.0) * torch.exp(-t / self.hparams.get("horizon_tau", 60.0))
-        return w / w.mean()
-
     def _step(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        u_ctx, y_ctx = batch["u_ctx"], batch["y_ctx"]
-        # Random context lengths need not be multiples of patch: the oldest steps go.
-        drop = u_ctx.shape[1] % self.hparams.patch
-        u_ctx, y_ctx = u_ctx[:, drop:], y_ctx[:, drop:]
+        h, batch = self.hparams, whole_patches(batch, self.hparams.patch)
         qs = self._query_stats(batch)
-        uc, yc, uq = self.normalizer.encode(u_ctx, y_ctx, batch["u_query"], qs)
-        target = self.normalizer.encode_target(batch["y_query"], y_ctx, qs)
-        pred, logvar = self._predict(uc, yc, uq)
-        loss = (self.elementwise_loss(pred, logvar, target) * self.horizon_weights(target.shape[1])[:, None]).mean()
-        return loss, pred, target
-
-    def elementwise_loss(self, pred: torch.Tensor, logvar: torch.Tensor | None, target: torch.Tensor) -> torch.Tensor:
-        """Per step and channel loss (B, Th, n_y) on normalized outputs."""
-        kind = self.hparams.loss
-        if kind == "nll":
-            return 0.5 * (logvar + (target - pred) ** 2 * torch.exp(-logvar) + math.log(2 * math.pi))
-        if kind == "mse":
-            return (pred - target) ** 2
-        return F.huber_loss(pred, target, delta=self.hparams.huber_delta, reduction="none")
+        uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"], qs)
+        target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"], qs)
+        pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate)
+        weights = horizon_weights(target.shape[1], h.horizon_weight, h.horizon_tau, target.device)
+        return (elementwise_loss(h.loss, pred, logvar, target, h.huber_delta) * weights[:, None]).mean(), pred, target
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         loss, _, _ = self._step(batch)
@@ -313,10 +226,10 @@ class MetaModule(L.LightningModule):
         return loss
 
     def _eval_step(self, batch: dict, keys: tuple[str, str, str]) -> None:
+        batch = whole_patches(batch, self.hparams.patch)
         loss, pred, _ = self._step(batch)
         y = batch["y_query"].double()
-        drop = batch["y_ctx"].shape[1] % self.hparams.patch
-        yhat = self.normalizer.decode(pred, batch["y_ctx"][:, drop:], self._query_stats(batch)).double()
+        yhat = self.normalizer.decode(pred, batch["y_ctx"], self._query_stats(batch)).double()
         n = len(y)
         self.log(keys[0], loss, batch_size=n, sync_dist=True, prog_bar=keys[0] == VAL_LOSS)
         # approach 1: per trajectory and channel over time, mean over channels, then over trajectories
@@ -331,17 +244,71 @@ class MetaModule(L.LightningModule):
 
     # ------------------------------------------------------------------ optimizer
     def configure_optimizers(self):
-        h = self.hparams
-        params = [p for p in self.net.parameters() if p.requires_grad]
-        if not params:
-            raise ValueError("freeze left no trainable parameters")
-        decay = [p for p in params if p.dim() >= 2 and not _is_embedding(self.net, p)]
-        no_decay = [p for p in params if all(p is not q for q in decay)]
-        groups = [{"params": decay, "weight_decay": h.weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
-        opt = torch.optim.AdamW(groups, lr=h.lr, betas=tuple(h.betas))
-        total = h.decay_steps or (self.trainer.max_steps if self.trainer.max_steps > 0 else 10_000)
-        sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda step: _lr_factor(step, h.warmup_steps, total, h.min_lr_ratio))
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        return _optimizers(self)
+
+
+def _optimizers(module: MetaModule) -> dict:
+    """AdamW (no decay on biases, norms and embeddings) with warmup and cosine decay, per step."""
+    h, net = module.hparams, module.net
+    params = [p for p in net.parameters() if p.requires_grad]
+    if not params:
+        raise ValueError("freeze left no trainable parameters")
+    decay = [p for p in params if p.dim() >= 2 and not _is_embedding(net, p)]
+    no_decay = [p for p in params if all(p is not q for q in decay)]
+    groups = [{"params": decay, "weight_decay": h.weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
+    opt = torch.optim.AdamW(groups, lr=h.lr, betas=tuple(h.betas))
+    max_steps = module.trainer.max_steps
+    total = h.decay_steps or (max_steps if max_steps > 0 else 10_000)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda step: _lr_factor(step, h.warmup_steps, total, h.min_lr_ratio))
+    return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+
+def _apply_freeze(net: MetaModel, mode: str) -> None:
+    """Leaves trainable only what ``freeze`` (``none``, ``encoder``, ``all_but_head``) allows."""
+    for name, p in net.named_parameters():
+        if mode == "encoder":
+            p.requires_grad = not name.startswith("enc")
+        elif mode == "all_but_head":
+            p.requires_grad = name.startswith("head")
+
+
+def _load_transferred(module: MetaModule, path: str) -> bool:
+    """Loads a pretrained checkpoint's weights into ``module``; True when its normalization came too.
+
+    Refuses another protocol, other channels without ``reinit_io`` and another architecture.
+    """
+    ckpt = load_checkpoint_file(path)
+    src = ckpt["hyper_parameters"]
+    same_io = (src.get("n_u"), src.get("n_y")) == (module.hparams.n_u, module.hparams.n_y)
+    theirs, ours = src.get("normalization", "train_stats"), module.hparams.get("normalization", "train_stats")
+    if theirs != ours:
+        raise CheckpointError(f"{path} was trained with normalization {theirs!r}, this run uses {ours!r}: "
+                              "transfer between the same protocol only (set data.normalization to match)")
+    if not same_io and not module.hparams.reinit_io:
+        raise CheckpointError(
+            f"{path} was trained with n_u={src.get('n_u')}, n_y={src.get('n_y')}; this model has "
+            f"n_u={module.hparams.n_u}, n_y={module.hparams.n_y}. Set reinit_io=true to re-initialize the "
+            "input embeddings and the head (the rest transfers)."
+        )
+    state = {k: v for k, v in ckpt["state_dict"].items()
+             if same_io or not (k.startswith("normalizer.") or _is_io(k))}
+    missing, unexpected = module.load_state_dict(state, strict=False)
+    allowed_missing = [k for k in missing if not same_io and (k.startswith("normalizer.") or _is_io(k))]
+    if set(missing) - set(allowed_missing) - {"stats_ready"} or unexpected:
+        raise CheckpointError(
+            f"{path} does not match this architecture (missing {sorted(set(missing) - set(allowed_missing))[:5]}, "
+            f"unexpected {sorted(unexpected)[:5]}): use the same d_model, n_head, layers and patch"
+        )
+    return same_io
+
+
+def _check_context(context_len: int | None, patch: int, max_context: int) -> None:
+    """The encoder needs whole patches and a positional table that covers the context."""
+    if context_len is None:
+        return
+    if context_len % patch or context_len > max_context:
+        raise RoboMorphError(f"context_len {context_len} must be a multiple of patch ({patch}) and at most "
+                             f"max_context ({max_context}): change data.context_len or model.patch")
 
 
 def _lr_factor(step: int, warmup: int, total: int, floor: float) -> float:

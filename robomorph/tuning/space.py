@@ -117,12 +117,12 @@ def _known_args() -> dict[str, set[str]]:
     import lightning.pytorch as L  # noqa: PLC0415  (heavy; only when validating)
 
     from robomorph.data.datamodule import RoboMorphDataModule  # noqa: PLC0415
-    from robomorph.training.module import MetaModule  # noqa: PLC0415
+    from robomorph.training.module import FROM_DATA, MetaModule  # noqa: PLC0415
 
     def names(fn):
         return set(inspect.signature(fn).parameters) - {"self"}
 
-    return {"data": names(RoboMorphDataModule.__init__), "model": names(MetaModule.__init__),
+    return {"data": names(RoboMorphDataModule.__init__), "model": names(MetaModule.__init__) - set(FROM_DATA),
             "trainer": names(L.Trainer.__init__), "transfer": {"regime", "freeze", "lr"}}
 
 

@@ -9,6 +9,7 @@ from zarr.storage import LocalStore
 from robomorph.data.datamodule import RoboMorphDataModule
 from robomorph.data.statistics import Stats
 from robomorph.data.store import SchemaError, create_store, open_store
+from tests.conftest import write_store
 
 U_NAMES, Y_NAMES = ["u0", "u1"], ["y0", "y1", "y2"]
 
@@ -24,10 +25,7 @@ def _values(store_id, n, steps, width, sign):
 def _store(path, store_id=0, n=20, steps=60, chunk=8, u=None, y=None, u_names=U_NAMES, y_names=Y_NAMES, dt=0.1):
     u = _values(store_id, n, steps, len(u_names), 1) if u is None else u
     y = _values(store_id, n, steps, len(y_names), -1) if y is None else y
-    w = create_store(str(path), n, steps, u_names, y_names, ["p"], {"dt": dt}, chunk=chunk, overwrite=True)
-    w.append(u, y, np.zeros((n, 1), np.float32))
-    w.finalize()
-    return str(path)
+    return write_store(path, u, y, np.zeros((n, 1)), u_names, y_names, ["p"], {"dt": dt}, chunk=chunk)
 
 
 def _dm(stores, **kw):
@@ -379,7 +377,7 @@ def test_inputs_command_reads_u_cmd_for_batches_and_statistics(tmp_path):
 
 
 def test_inputs_command_on_a_store_without_u_cmd_says_to_regenerate(tmp_path):
-    from robomorph.data.store import InputsError
+    from robomorph.core.inputs import InputsError
 
     path = _store(tmp_path / "a.zarr")
     with pytest.raises(InputsError, match="no command inputs"):

@@ -278,7 +278,7 @@ def test_ingest_maps_the_command_and_the_total_torque_columns(tmp_path):
 
 
 def test_a_store_without_command_columns_says_how_to_get_them(tmp_path):
-    from robomorph.data.store import InputsError
+    from robomorph.core.inputs import InputsError
 
     ds = ingest([_csv(tmp_path / "a.csv", _system(100))], U, Y, str(tmp_path / "o.zarr"), steps=50, dt=DT)
     assert not ds.has_inputs("command") and ds.has_inputs("total")

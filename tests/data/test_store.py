@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import zarr
 
-from robomorph.data.store import InputsError, SchemaError, create_store, open_store
+from robomorph.core.inputs import InputsError
+from robomorph.data.store import SchemaError, create_store, open_store
 
 
 def _make(path, n=5, steps=7, **kw):

@@ -9,6 +9,7 @@ import zarr
 
 from robomorph.data.store import create_store, open_store
 from robomorph.data.summary import _sample_blocks, channel_stats, main, params_plot_path, plot, summarize
+from tests.conftest import write_store
 
 U, Y, P = ["tau0", "tau1"], ["ee_x", "q0", "q1"], ["mass_scale_link1", "damping_q0"]
 REJECTED = {"joint_limit": 4, "unstable": 2, "ee_velocity": 0}
@@ -18,16 +19,14 @@ def _store(path, n=20, steps=30, params=P, finish=True, chunk=64):
     """A schema-valid fake store: sines for u, their running sums for y, known param ranges."""
     attrs = {"dt": 0.02, "domain": "panda", "task": "multisine", "config": {"robots": n, "seed": 7},
              "seed": 7, "requested": n, "attempted": n + 6, "kept": n, "rejected": REJECTED}
-    w = create_store(str(path), n, steps, U, Y, params, attrs, extras={"attempt": ((), "int64")}, chunk=chunk)
     t = np.arange(steps) * 0.02
     freq = np.linspace(1.0, 3.0, n)[:, None, None] * np.array([1.0, 2.0])
     u = np.sin(2 * np.pi * freq * t[None, :, None]).astype(np.float32)  # (n, T, 2)
     y = np.concatenate([np.cumsum(u, 1)[..., :1], u], axis=2).astype(np.float32)  # (n, T, 3)
     p = np.stack([np.linspace(0.5, 1.5, n), np.linspace(-2.0, 2.0, n)], 1)[:, : len(params)]  # (n, P)
     rows = n if finish else n // 2
-    w.append(u[:rows], y[:rows], p[:rows].astype(np.float32), extras={"attempt": np.arange(rows)})
-    if finish:
-        w.finalize()
+    write_store(path, u[:rows], y[:rows], p[:rows], U, Y, params, attrs, chunk=chunk, finish=finish, capacity=n,
+                extras={"attempt": ((), "int64", np.arange(rows))})
     return str(path), u, y
 
 

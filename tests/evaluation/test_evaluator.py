@@ -4,38 +4,19 @@ import os
 import numpy as np
 import pytest
 
+from robomorph.core.metrics import METRICS
 from robomorph.data.store import create_store
 from robomorph.evaluation.evaluator import evaluate, main, parse_range
-from robomorph.evaluation.metrics import METRICS
 from robomorph.predictor import Predictor
-from robomorph.sim.generation import generate
-from robomorph.sim.recipe import load_recipe
-from robomorph.training.fitting import fit
-
-os.environ.setdefault("WANDB_MODE", "offline")
-C, H = 30, 60
-
-
-def _store(path, robots, seed):
-    generate(load_recipe(None, {"task": "multisine", "robots": robots, "steps": C + H, "seed": seed}),
-             path, workers=1, progress=False)
-    return path
+from tests.conftest import CKPT_CONTEXT as C
+from tests.conftest import CKPT_HORIZON as H
+from tests.conftest import tiny_fit_args, write_store
 
 
 @pytest.fixture(scope="module")
-def setup(tmp_path_factory):
-    root = tmp_path_factory.mktemp("eval")
-    train = _store(str(root / "train.zarr"), 24, 1)
-    test = _store(str(root / "test.zarr"), 6, 2)
-    result = fit({
-        "data": {"stores": train, "context_len": C, "horizon": H, "batch_size": 8, "val_subset": 4},
-        "model": {"d_model": 16, "n_head": 2, "n_layer": 1, "patch": 5, "warmup_steps": 2, "max_context": 64,
-                  "max_horizon": 64, "anchor": True},
-        "trainer": {"max_steps": 6, "val_check_interval": 3, "accelerator": "cpu", "devices": 1,
-                    "enable_progress_bar": False, "enable_model_summary": False},
-        "run": "ev", "runs_dir": str(root / "runs"), "wandb": "disabled",
-    })
-    return root, result.best_ckpt, test
+def setup(tiny_checkpoint, simulated_store):
+    """The shared tiny checkpoint (trained on 24 robots, seed 1) and 6 unseen robots (seed 2)."""
+    return None, tiny_checkpoint, simulated_store(robots=6, steps=C + H, seed=2)
 
 
 def test_checkpoint_records_its_training_data(setup):
@@ -82,8 +63,8 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
 def test_hold_baseline_scores_match_a_direct_computation(setup, tmp_path):
     _, ckpt, test = setup
     res = evaluate(ckpt, test, str(tmp_path / "h"), baselines=("hold",), samples=0)
+    from robomorph.core import metrics
     from robomorph.data.store import open_store
-    from robomorph.evaluation import metrics
 
     y = open_store(test).read("y").astype(np.float64)
     ref = metrics.fit_index(y[:, C:], np.repeat(y[:, C - 1:C], H, axis=1)).mean(-1).mean()
@@ -107,10 +88,8 @@ def test_real_logs_skip_nominal_physics_with_the_reason(setup, tmp_path):
     from robomorph.data.store import open_store
 
     ds = open_store(test)
-    path = str(tmp_path / "real.zarr")
-    w = create_store(path, ds.n, ds.steps, ds.u_names, ds.y_names, [], {"dt": ds.dt, "domain": "real"})
-    w.append(ds.read("u"), ds.read("y"), np.zeros((ds.n, 0), np.float32))
-    w.finalize()
+    path = write_store(tmp_path / "real.zarr", ds.read("u"), ds.read("y"), u_names=ds.u_names, y_names=ds.y_names,
+                       attrs={"dt": ds.dt, "domain": "real"})
     res = evaluate(ckpt, path, str(tmp_path / "r"), samples=0,
                    baselines=("hold", "nominal_physics", "true_physics"))
     assert set(res["baselines"]) == {"hold"}
@@ -123,13 +102,11 @@ def test_real_logs_skip_nominal_physics_with_the_reason(setup, tmp_path):
 def _other_store(path, names, steps=C + H, n=3, nan=False):
     rng = np.random.default_rng(0)
     u_names, y_names = names
-    w = create_store(path, n, steps, u_names, y_names, [], {"dt": 1 / 60, "domain": "real"})
-    y = rng.normal(size=(n, steps, len(y_names))).astype(np.float32)
+    y = rng.normal(size=(n, steps, len(y_names)))
     if nan:
         y[1, 5, 0] = np.nan
-    w.append(rng.normal(size=(n, steps, len(u_names))).astype(np.float32), y, np.zeros((n, 0), np.float32))
-    w.finalize()
-    return path
+    return write_store(path, rng.normal(size=(n, steps, len(u_names))), y, u_names=u_names, y_names=y_names,
+                       attrs={"dt": 1 / 60, "domain": "real"})
 
 
 def test_bad_input_gives_clear_errors(setup, tmp_path):
@@ -262,18 +239,14 @@ def test_nominal_physics_from_offsets_anchors_the_springs_where_the_robot_starte
 
 
 @pytest.fixture(scope="module")
-def paper_window_ckpt(setup):
-    root, _, _ = setup
-    result = fit({
-        "data": {"stores": str(root / "train.zarr"), "context_len": C, "horizon": H, "batch_size": 8, "val_subset": 4,
-                 "normalization": "paper_window"},
-        "model": {"d_model": 16, "n_head": 2, "n_layer": 1, "patch": 5, "warmup_steps": 2, "max_context": 64,
-                  "max_horizon": 64},
-        "trainer": {"max_steps": 4, "val_check_interval": 2, "accelerator": "cpu", "devices": 1,
-                    "enable_progress_bar": False, "enable_model_summary": False},
-        "run": "pw", "runs_dir": str(root / "runs"), "wandb": "disabled",
-    })
-    return result.best_ckpt
+def paper_window_ckpt(simulated_store, tmp_path_factory):
+    """A tiny model of the paper's protocol, trained on the same store as the shared checkpoint."""
+    from robomorph.training.fitting import fit
+
+    store = simulated_store(robots=24, steps=C + H, seed=1)
+    args = tiny_fit_args(store, tmp_path_factory.mktemp("pw"), "pw", steps=4, data={"normalization": "paper_window"},
+                         trainer={"val_check_interval": 2})
+    return fit(args).best_ckpt
 
 
 def test_paper_window_evaluation_says_it_leaks_everywhere(setup, paper_window_ckpt, tmp_path):
@@ -289,7 +262,7 @@ def test_paper_window_evaluation_says_it_leaks_everywhere(setup, paper_window_ck
     clean = evaluate(ckpt, test, str(tmp_path / "ts"), baselines=("hold",), samples=0)
     assert clean["leaks_query_statistics"] is False and clean["meta"]["normalization"] == "train_stats"
     assert "Normalization train_stats" in open(tmp_path / "ts" / "table.md").read()
-    from robomorph.data.statistics import NormalizationError
+    from robomorph.core.normalizations import NormalizationError
 
     with pytest.raises(NormalizationError, match="trained with normalization 'train_stats', not 'paper_window'"):
         evaluate(ckpt, test, str(tmp_path / "x"), normalization="paper_window", samples=0)
@@ -312,22 +285,18 @@ def test_poisoned_query_outputs_change_the_scored_prediction_only_under_paper_wi
 
 
 @pytest.fixture(scope="module")
-def cmd_ckpt(setup, tmp_path_factory):
+def cmd_ckpt(simulated_store, tmp_path_factory):
     """A (barely trained) model of the command formulation, on the same training store."""
-    train, root = str(setup[0] / "train.zarr"), tmp_path_factory.mktemp("cmd")
-    return fit({
-        "data": {"stores": train, "context_len": C, "horizon": H, "batch_size": 8, "val_subset": 4,
-                 "inputs": "command"},
-        "model": {"d_model": 16, "n_head": 2, "n_layer": 1, "patch": 5, "warmup_steps": 2, "max_context": 64,
-                  "max_horizon": 64},
-        "trainer": {"max_steps": 2, "val_check_interval": 2, "accelerator": "cpu", "devices": 1,
-                    "enable_progress_bar": False, "enable_model_summary": False},
-        "run": "cmd", "runs_dir": str(root / "runs"), "wandb": "disabled",
-    }).best_ckpt
+    from robomorph.training.fitting import fit
+
+    store = simulated_store(robots=24, steps=C + H, seed=1)
+    args = tiny_fit_args(store, tmp_path_factory.mktemp("cmd"), "cmd", steps=2, data={"inputs": "command"},
+                         trainer={"val_check_interval": 2})
+    return fit(args).best_ckpt
 
 
 def test_a_checkpoint_refuses_the_other_input_formulation(setup, cmd_ckpt, tmp_path):
-    from robomorph.data.store import InputsError
+    from robomorph.core.inputs import InputsError
 
     _, total_ckpt, test = setup
     total, cmd = Predictor.from_checkpoint(total_ckpt, device="cpu"), Predictor.from_checkpoint(cmd_ckpt, device="cpu")
@@ -346,7 +315,8 @@ def test_a_checkpoint_refuses_the_other_input_formulation(setup, cmd_ckpt, tmp_p
 
 
 def test_a_command_checkpoint_says_to_regenerate_a_store_without_u_cmd(setup, cmd_ckpt, tmp_path):
-    from robomorph.data.store import InputsError, open_store
+    from robomorph.core.inputs import InputsError
+    from robomorph.data.store import open_store
 
     test = setup[2]
     src = open_store(test)

@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 
 from robomorph.evaluation.horizons import (
-    HorizonError, below_hold, coverage, error_curve, groups_for, horizon_markdown, horizon_report, parse_horizons,
+    HorizonError,
+    below_hold,
+    coverage,
+    error_curve,
+    groups_for,
+    horizon_markdown,
+    horizon_report,
+    parse_horizons,
     quaternion_angle,
 )
 

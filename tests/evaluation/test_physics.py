@@ -5,8 +5,6 @@ from robomorph.data.store import open_store
 from robomorph.evaluation import metrics
 from robomorph.evaluation.baselines import hold
 from robomorph.evaluation.physics import NominalPhysics, NotApplicable
-from robomorph.sim.generation import generate
-from robomorph.sim.recipe import load_recipe
 
 # The catalogue robot: every range collapsed onto the value the baseline takes as nominal.
 UNRANDOMIZED = {"mass_pct": 0.0, "com_offset": 0.0, "damping": [7.5, 7.5], "stiffness": [0.03, 0.03],
@@ -14,12 +12,8 @@ UNRANDOMIZED = {"mass_pct": 0.0, "com_offset": 0.0, "damping": [7.5, 7.5], "stif
 
 
 @pytest.fixture(scope="module")
-def nominal_store(tmp_path_factory):
-    path = str(tmp_path_factory.mktemp("nominal") / "nominal.zarr")
-    recipe = load_recipe(None, {"task": "multisine", "robots": 4, "steps": 300, "seed": 5,
-                                "randomization": UNRANDOMIZED})
-    generate(recipe, path, workers=1, progress=False)
-    return open_store(path)
+def nominal_store(simulated_store):
+    return open_store(simulated_store(robots=4, steps=300, seed=5, randomization=UNRANDOMIZED))
 
 
 def test_nominal_physics_matches_an_unrandomized_robot(nominal_store):
@@ -44,11 +38,8 @@ def test_nominal_physics_is_skipped_for_other_stores(nominal_store):
         NominalPhysics({**attrs, "y_names": ["a"] * 14})
 
 
-def test_true_physics_uses_each_robots_own_parameters(tmp_path):
-    path = str(tmp_path / "rand.zarr")
-    generate(load_recipe(None, {"task": "multisine", "robots": 3, "steps": 260, "seed": 6}), path,
-             workers=1, progress=False)
-    ds = open_store(path)
+def test_true_physics_uses_each_robots_own_parameters(simulated_store):
+    ds = open_store(simulated_store(robots=3, steps=260, seed=6))
     u, y, params = ds.read("u"), ds.read("y"), ds.read("params")
     c, h = 200, 60
     sim = NominalPhysics(ds.attrs)
@@ -59,12 +50,9 @@ def test_true_physics_uses_each_robots_own_parameters(tmp_path):
 
 
 @pytest.fixture(scope="module", params=["true_model", pytest.param("nominal_model", marks=pytest.mark.slow)])
-def long_store(request, tmp_path_factory):
+def long_store(request, simulated_store):
     """1000-step robots: a context of 200 steps, then the paper's 800-step horizon."""
-    path = str(tmp_path_factory.mktemp("long") / "long.zarr")
-    generate(load_recipe(None, {"task": "multisine", "robots": 2, "steps": 1000, "seed": 7,
-                                "gravity_compensation": request.param}), path, workers=1, progress=False)
-    return open_store(path)
+    return open_store(simulated_store(robots=2, steps=1000, seed=7, gravity_compensation=request.param))
 
 
 def test_true_physics_follows_the_command_formulation_over_800_steps(long_store):

@@ -15,7 +15,7 @@ N_U, N_Y = 3, 2
 
 
 def tiny_config(**overrides) -> ModelConfig:
-    base = dict(n_u=N_U, n_y=N_Y, d_model=16, n_head=2, n_layer=1, max_context=40, max_horizon=60)
+    base = dict(n_u=N_U, n_y=N_Y, d_model=16, n_head=2, n_layer=1, max_context=40, max_horizon=60, patch=1)
     return ModelConfig(**(base | overrides))
 
 
@@ -298,7 +298,7 @@ def test_overfits_a_tiny_batch(patch):
 
 
 def test_paper_size():
-    cfg = ModelConfig(d_model=192, n_head=12, n_layer=12, max_context=200, max_horizon=800)
+    cfg = ModelConfig(d_model=192, n_head=12, n_layer=12, max_context=200, max_horizon=800, patch=1)
     n = MetaModel(cfg).num_params()
     assert 12.5e6 < n < 12.8e6  # the paper's 12.6 M; about 0.19 M of it are the position tables
 

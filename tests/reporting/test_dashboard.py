@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robomorph.reporting.dashboard import build_report, fit_colour, main, read_curves
+from robomorph.reporting.dashboard import build_report, main, read_curves
+from robomorph.reporting.html import fit_colour
 
 ROOT = Path(__file__).resolve().parents[2]
 CHANNELS = ("ee_x", "ee_y", "ee_z")
@@ -170,17 +171,6 @@ def test_report_escapes_file_text(report):
     page = report.read_text()
     assert "<script>alert(1)</script>" not in page
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page
-
-
-@pytest.mark.parametrize(
-    "fit, colour",
-    [(100.0, "rgb(166, 241, 166)"), (90.0, "rgb(166, 241, 166)"), (89.99, "rgb(200, 247, 200)"),
-     (80.0, "rgb(200, 247, 200)"), (79.99, "rgb(255, 255, 128)"), (60.0, "rgb(255, 255, 128)"),
-     (59.99, "rgb(255, 210, 128)"), (30.0, "rgb(255, 210, 128)"), (29.99, "rgb(255, 179, 179)"),
-     (-250.0, "rgb(255, 179, 179)"), (None, None), (float("nan"), None)],
-)
-def test_fit_colour_follows_the_paper_convention(fit, colour):
-    assert fit_colour(fit) == colour
 
 
 def test_fit_and_r2_cells_are_coloured_by_fit(report):

@@ -1,6 +1,5 @@
 import contextlib
 import csv
-import dataclasses
 import glob
 import json
 import math
@@ -11,7 +10,7 @@ import pytest
 
 from robomorph.evaluation.fit_bands import FIT_BANDS
 from robomorph.reproduction import pipeline as reproduce
-from robomorph.reproduction import skip as resume
+from robomorph.reproduction import skip
 from robomorph.reproduction.scales import SCALES
 
 os.environ.setdefault("WANDB_MODE", "disabled")
@@ -154,16 +153,6 @@ def test_bad_arguments_are_argparse_errors(argv, message, capsys):
     assert exc.value.code == 2 and message in capsys.readouterr().err
 
 
-def test_scales_hold_the_documented_sizes():
-    paper = SCALES["paper"]
-    assert (paper.d_model, paper.n_head, paper.depths, paper.patch, paper.batch_size) == (192, 12, (10, 12, 16), 1, 16)
-    assert (paper.context_len, paper.horizon, paper.steps) == (200, 800, 1000) and paper.scratch_steps == 183_600
-    small = SCALES["small"].scaled(0.5, scratch_ratio=2.0)
-    assert small.train_steps == SCALES["small"].train_steps // 2 and small.scratch_steps == 2 * small.finetune_steps
-    with pytest.raises(ValueError, match="multiple of patch"):
-        dataclasses.replace(SCALES["small"], context_len=205)
-
-
 def test_a_run_stopped_short_of_its_budget_is_not_marked_finished(tmp_path, monkeypatch):
     import robomorph.training.fitting as fitting
 
@@ -176,8 +165,8 @@ def test_a_run_stopped_short_of_its_budget_is_not_marked_finished(tmp_path, monk
     plan = reproduce.Plan(SCALES["ci"], str(tmp_path), str(tmp_path / "out"), "test")
     args = reproduce.base_args(plan, 1, ["unused.zarr"], "r", 10)
     with pytest.raises(RuntimeError, match="stopped at step 3 of 10: re-run the same command"):
-        reproduce.train(plan, "t", args, "model")
-    assert not resume.run_finished(str(ckpt.parent.parent), {"max_steps": 10, "max_time": None})
+        reproduce.trained_ckpt(plan, "t", args, "model")
+    assert not skip.run_finished(str(ckpt.parent.parent), {"max_steps": 10, "max_time": None})
 
 
 def test_paper_window_table1_is_labelled_shares_the_stores_and_compares_side_by_side(table1_run, capsys):
@@ -243,5 +232,5 @@ def test_inputs_command_trains_its_own_runs_and_names_the_formulation(table1_run
     text = open(root / "out-command" / "table1.md").read()
     assert "inputs `command`" in text and "--inputs command" in text
     assert "inputs `total`" in open(root / "out" / "table1.md").read()
-    ckpt = resume.finished_ckpt(str(root / "work" / "runs" / calls["fit"][0]))
+    ckpt = skip.finished_ckpt(str(root / "work" / "runs" / calls["fit"][0]))
     assert Predictor.from_checkpoint(ckpt, device="cpu").inputs == "command"

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from robomorph.core.config import from_dict
-from robomorph.sim import osc, panda
+from robomorph.sim import osc, panda, paths
 from robomorph.sim.filters import FilterConfig, check, continuous_quaternion
 
 DT = 1 / 60
@@ -14,73 +14,10 @@ def _rms_mm(sens, target, settle=30):
     return 1e3 * np.sqrt(np.mean(err**2))
 
 
-def _fit_circle(points):
-    """Centre and radius of the circle through (N, 2) points (algebraic least squares)."""
-    a = np.column_stack([2 * points, np.ones(len(points))])
-    (cx, cy, c), *_ = np.linalg.lstsq(a, (points**2).sum(1), rcond=None)
-    centre = np.array([cx, cy])
-    return centre, np.sqrt(c + centre @ centre)
-
-
 def _run(model, task, seed, steps, cfg=osc.OSCConfig(), path_cfg=None, qpos0=panda.HOME_QPOS, **kw):
-    path_cfg = path_cfg or (osc.CircleConfig() if task == "circle" else osc.SpiralConfig())
+    path_cfg = path_cfg or (paths.CircleConfig() if task == "circle" else paths.SpiralConfig())
     return osc.simulate_osc(model, mujoco.MjData(model), qpos0, task, np.random.default_rng(seed),
                             steps, 8, DT, cfg, path_cfg, **kw)
-
-
-# --- paths -----------------------------------------------------------------------------
-
-@pytest.mark.parametrize("task", osc.TASKS)
-def test_paths_start_at_the_ee_at_rest_with_consistent_derivatives(task):
-    start = np.array([0.3, -0.1, 0.5])
-    pos, vel, acc = osc.PATHS[task](np.random.default_rng(0), start, 600, DT,
-                                    osc.CircleConfig() if task == "circle" else osc.SpiralConfig())
-    assert pos.shape == vel.shape == acc.shape == (600, 3)
-    np.testing.assert_array_equal(pos[0], start)
-    np.testing.assert_allclose(vel[0], 0, atol=1e-12)
-    np.testing.assert_allclose(acc[0], 0, atol=1e-12)
-    # The analytic derivatives agree with finite differences of the sampled path.
-    np.testing.assert_allclose(np.gradient(pos, DT, axis=0)[1:-1], vel[1:-1], atol=2e-3)
-    np.testing.assert_allclose(np.gradient(vel, DT, axis=0)[1:-1], acc[1:-1], atol=2e-2)
-
-
-def test_circle_lies_in_the_yz_plane_with_a_radius_in_range():
-    cfg = osc.CircleConfig()
-    for seed in range(5):
-        pos, _, _ = osc.circle_path(np.random.default_rng(seed), np.zeros(3), 1000, DT, cfg)
-        assert np.all(pos[:, 0] == 0)
-        centre, radius = _fit_circle(pos[:, 1:])
-        assert cfg.radius[0] <= radius <= cfg.radius[1]
-        np.testing.assert_allclose(np.linalg.norm(pos[:, 1:] - centre, axis=1), radius, atol=1e-9)
-
-
-def test_spiral_circles_in_xy_and_climbs_by_the_drawn_amount():
-    cfg = osc.SpiralConfig()
-    signs = set()
-    for seed in range(8):
-        pos, vel, _ = osc.spiral_path(np.random.default_rng(seed), np.zeros(3), 1000, DT, cfg)
-        climb = pos[-1, 2] - pos[0, 2]
-        assert cfg.climb[0] - 1e-12 <= abs(climb) <= cfg.climb[1] + 1e-12
-        signs.add(np.sign(climb))
-        assert np.all(np.diff(pos[:, 2]) * np.sign(climb) >= 0)  # monotonic
-        # The XY part is a circle: constant distance to its centre, radius in range.
-        centre, radius = _fit_circle(pos[:, :2])
-        assert cfg.radius[0] <= radius <= cfg.radius[1]
-        np.testing.assert_allclose(np.linalg.norm(pos[:, :2] - centre, axis=1), radius, atol=1e-9)
-        assert np.allclose(vel[200:, 2], vel[-1, 2])  # steady climb after the ramp
-    assert signs == {-1.0, 1.0}
-
-
-@pytest.mark.parametrize("task", osc.TASKS)
-def test_same_seed_same_path_other_seed_other_path(task):
-    draw = osc.PATHS[task]
-    cfg = osc.CircleConfig() if task == "circle" else osc.SpiralConfig()
-    a = draw(np.random.default_rng(7), np.zeros(3), 300, DT, cfg)
-    b = draw(np.random.default_rng(7), np.zeros(3), 300, DT, cfg)
-    c = draw(np.random.default_rng(8), np.zeros(3), 300, DT, cfg)
-    for x, y in zip(a, b):
-        np.testing.assert_array_equal(x, y)
-    assert not np.allclose(a[0], c[0])
 
 
 # --- configs ---------------------------------------------------------------------------
@@ -93,12 +30,12 @@ def test_same_seed_same_path_other_seed_other_path(task):
     (lambda: osc.OSCConfig(kp_rot=-2.0), "osc.kp_rot"),
     (lambda: osc.OSCConfig(kp_null=-1.0), "osc.kp_null"),
     (lambda: osc.OSCConfig(max_task_inertia=0.0), "osc.max_task_inertia"),
-    (lambda: osc.CircleConfig(radius=(0.2, 0.1)), "circle.radius"),
-    (lambda: osc.CircleConfig(radius=(0.0, 0.1)), "circle.radius"),
-    (lambda: osc.CircleConfig(period=0.0), "circle.period"),
-    (lambda: osc.SpiralConfig(period=(8.0, 2.0)), "spiral.period"),
-    (lambda: osc.SpiralConfig(climb=(-0.1, 0.2)), "spiral.climb"),
-    (lambda: osc.SpiralConfig(ramp=-1.0), "spiral.ramp"),
+    (lambda: paths.CircleConfig(radius=(0.2, 0.1)), "circle.radius"),
+    (lambda: paths.CircleConfig(radius=(0.0, 0.1)), "circle.radius"),
+    (lambda: paths.CircleConfig(period=0.0), "circle.period"),
+    (lambda: paths.SpiralConfig(period=(8.0, 2.0)), "spiral.period"),
+    (lambda: paths.SpiralConfig(climb=(-0.1, 0.2)), "spiral.climb"),
+    (lambda: paths.SpiralConfig(ramp=-1.0), "spiral.ramp"),
 ])
 def test_invalid_configs_name_the_field(make, field):
     with pytest.raises(ValueError, match=field.replace(".", r"\.")):
@@ -108,7 +45,7 @@ def test_invalid_configs_name_the_field(make, field):
 def test_configs_load_from_recipe_dicts():
     cfg = from_dict(osc.OSCConfig, {"kp_range": [1, 5], "kd": None, "coriolis": False})
     assert cfg.kp_range == (1.0, 5.0) and cfg.kd is None and cfg.coriolis is False
-    assert from_dict(osc.SpiralConfig, {"climb": [0.1, 0.3]}).climb == (0.1, 0.3)
+    assert from_dict(paths.SpiralConfig, {"climb": [0.1, 0.3]}).climb == (0.1, 0.3)
 
 
 def test_random_kp_is_drawn_in_range_and_sets_critical_damping():
@@ -181,6 +118,6 @@ def test_commands_are_clipped_and_extra_torque_added(nominal_model):
 
 def test_task_and_config_mismatches_are_errors(nominal_model):
     with pytest.raises(ValueError, match="unknown OSC task"):
-        _run(nominal_model, "square", 0, 10, path_cfg=osc.CircleConfig())
+        _run(nominal_model, "square", 0, 10, path_cfg=paths.CircleConfig())
     with pytest.raises(TypeError, match="SpiralConfig"):
-        _run(nominal_model, "spiral", 0, 10, path_cfg=osc.CircleConfig())
+        _run(nominal_model, "spiral", 0, 10, path_cfg=paths.CircleConfig())

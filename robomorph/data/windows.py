@@ -1,17 +1,52 @@
-"""The seeded training stream: which window of which trajectory each training sample is.
-
-Every random draw (store, trajectory, lengths, offset) happens here, in the main process,
-so the data do not depend on ``num_workers`` or on worker seeding.
-"""
+"""Trajectory splits, context/query windows and the seeded training sampler of the DataModule."""
 
 from __future__ import annotations
 
 import numpy as np
 import torch
-from torch.utils.data import Sampler
+from torch.utils.data import Dataset, Sampler
 
-# SeedSequence spawn key of the training stream (the datamodule's splits use 0, validation 1).
-TRAIN_STREAM = 2
+from robomorph.data.sources import Source
+
+# SeedSequence spawn keys of the independent random streams drawn from the DataModule's ``seed``.
+SPLIT_STREAM, VAL_STREAM, TRAIN_STREAM = 0, 1, 2
+
+
+def split_rows(n: int, fractions: tuple[float, float, float], seed: int, store_index: int
+                ) -> dict[str, np.ndarray]:
+    """Disjoint sorted trajectory indices ``{"train", "val", "test"}`` covering ``range(n)``."""
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(SPLIT_STREAM, store_index)))
+    perm = rng.permutation(n)
+    n_val, n_test = round(n * fractions[1]), round(n * fractions[2])
+    return {"val": np.sort(perm[:n_val]), "test": np.sort(perm[n_val:n_val + n_test]),
+            "train": np.sort(perm[n_val + n_test:])}
+
+
+def pairs(per_store: list[np.ndarray]) -> np.ndarray:
+    """(M, 2) int64 rows ``(store index, trajectory index)``, grouped by store."""
+    parts = [np.stack([np.full(len(r), s), r], axis=1) for s, r in enumerate(per_store)]
+    return np.concatenate(parts).astype(np.int64) if parts else np.zeros((0, 2), np.int64)
+
+
+class WindowDataset(Dataset):
+    """Windows of fixed trajectories; a key is a row of ``pairs``, ``(row, offset)`` or
+    ``(row, offset, context_len, horizon)`` (horizon-aware training draws the lengths)."""
+
+    def __init__(self, sources: list[Source], pairs: np.ndarray, context_len: int, horizon: int):
+        self.sources, self.pairs = sources, pairs
+        self.context_len, self.horizon = context_len, horizon
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def __getitem__(self, key: int | tuple[int, ...]) -> dict[str, torch.Tensor]:
+        row, offset, c, h = (key + (self.context_len, self.horizon))[:4] if isinstance(key, tuple) else \
+            (key, 0, self.context_len, self.horizon)
+        s, i = self.pairs[row]
+        u, y = self.sources[s].window(int(i), offset, offset + c + h)
+        # Copies: a batch must not keep a view of a whole in-memory store alive.
+        return {k: torch.from_numpy(np.array(v, dtype=np.float32))
+                for k, v in (("u_ctx", u[:c]), ("y_ctx", y[:c]), ("u_query", u[c:]), ("y_query", y[c:]))}
 
 
 class MixtureSampler(Sampler):

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import yaml
 
+from robomorph.data.generation import GenerationError, Shard, generate, main
 from robomorph.data.merging import merge
 from robomorph.data.store import DatasetWriter, open_store
 from robomorph.sim import panda
 from robomorph.sim.filters import to_outputs
-from robomorph.sim.generation import GenerationError, Shard, generate, main
 from robomorph.sim.randomize import Randomizer
 from robomorph.sim.recipe import load_recipe
 

@@ -1,0 +1,154 @@
+"""Static checks of the package's shape, read with ``ast`` (nothing is imported).
+
+Layers import only downward: core -> sim -> data -> model -> training -> evaluation ->
+reporting / tuning -> reproduction (which drives the others to make the paper's tables and
+report), with the command doors and the predictor on top. No
+import cycle between modules or between packages; files, functions and classes stay short.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "robomorph"
+# Rank of each room: a module imports its own room and rooms of lower rank only.
+RANKS = {"core": 0, "sim": 1, "data": 2, "model": 3, "training": 4, "evaluation": 5,
+         "reporting": 6, "tuning": 6, "reproduction": 7}
+TOP = 8  # doors (robomorph/<command>.py), predictor.py, cli.py, __init__.py, __main__.py
+MAX_FILE_LINES, MAX_FUNCTION_LINES, MAX_CLASS_LINES = 400, 60, 200
+TORCH_LIBS = ("torch", "lightning")
+
+
+def _modules() -> dict[str, Path]:
+    """Dotted module name -> file, for every module of the package."""
+    out = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        out[name] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def _imports(path: Path) -> set[str]:
+    """Modules of the package and third-party top-level names that ``path`` imports (anywhere in it)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module)
+            # ``from robomorph.data import store``: the submodule is the import.
+            found.update(f"{node.module}.{a.name}" for a in node.names if f"{node.module}.{a.name}" in MODULES)
+    return found
+
+
+def _internal(path: Path) -> set[str]:
+    return {m for m in _imports(path) if m in MODULES and m != "robomorph"}
+
+
+def _room(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in RANKS else None
+
+
+def _rank(module: str) -> int:
+    room = _room(module)
+    return RANKS[room] if room else TOP
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of ``graph`` as a list of nodes, or None (iterative three-colour DFS)."""
+    colour = dict.fromkeys(graph, 0)
+    for root in graph:
+        if colour[root]:
+            continue
+        stack, path = [(root, iter(sorted(graph[root])))], [root]
+        colour[root] = 1
+        while stack:
+            node, children = stack[-1]
+            child = next(children, None)
+            if child is None:
+                colour[node] = 2
+                stack.pop()
+                path.pop()
+            elif colour.get(child, 2) == 1:
+                return path[path.index(child):] + [child]
+            elif colour.get(child) == 0:
+                colour[child] = 1
+                stack.append((child, iter(sorted(graph[child]))))
+                path.append(child)
+    return None
+
+
+def test_cycle_finder_finds_a_cycle_and_accepts_a_tree():
+    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert _cycle({"a": {"b", "c"}, "b": {"c"}, "c": set()}) is None
+
+
+def test_no_import_cycle_between_modules():
+    graph = {m: _internal(p) - {m} for m, p in MODULES.items()}
+    assert _cycle(graph) is None
+
+
+def test_no_import_cycle_between_rooms():
+    graph: dict[str, set[str]] = {room: set() for room in RANKS}
+    for module, path in MODULES.items():
+        room = _room(module)
+        if room:
+            graph[room] |= {r for r in map(_room, _internal(path)) if r and r != room}
+    assert _cycle(graph) is None
+
+
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_layers_import_only_downward(module):
+    upward = sorted(m for m in _internal(MODULES[module])
+                    if _rank(m) > _rank(module) or (_rank(m) == _rank(module) < TOP and _room(m) != _room(module)))
+    assert not upward, f"{module} imports {upward}, which sit above it (or beside it) in the layers"
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if _room(m) == "core"))
+def test_core_imports_no_torch(module):
+    heavy = sorted(m for m in _imports(MODULES[module]) if m.split(".")[0] in TORCH_LIBS)
+    assert not heavy, f"{module} imports {heavy}; core stays torch-free"
+
+
+def _too_long(path: Path) -> list[str]:
+    """``kind name: n lines`` for each function or class past its limit."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        limit = (MAX_CLASS_LINES if isinstance(node, ast.ClassDef) else
+                 MAX_FUNCTION_LINES if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) else None)
+        if limit is not None:
+            start = min([node.lineno] + [d.lineno for d in node.decorator_list])
+            n = node.end_lineno - start + 1
+            if n > limit:
+                out.append(f"{type(node).__name__} {node.name}: {n} lines (limit {limit})")
+    return out
+
+
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_files_functions_and_classes_stay_short(module):
+    path = MODULES[module]
+    n = len(path.read_text().splitlines())
+    assert n <= MAX_FILE_LINES, f"{path.name}: {n} lines (limit {MAX_FILE_LINES})"
+    assert not _too_long(path), f"{module}: {_too_long(path)}"
+
+
+def test_limits_are_measured_on_real_code(tmp_path):
+    body = "\n".join(f"    x{i} = {i}" for i in range(MAX_FUNCTION_LINES))
+    long = tmp_path / "long.py"
+    long.write_text(f"def f():\n{body}\n")
+    assert _too_long(long) == [f"FunctionDef f: {MAX_FUNCTION_LINES + 1} lines (limit {MAX_FUNCTION_LINES})"]
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if _room(m) == "model") + ["robomorph.predictor"])
+def test_inference_needs_only_model_and_core(module):
+    # A deployed model ships robomorph/model/ and robomorph/core/ alone.
+    outside = sorted(m for m in _internal(MODULES[module]) if _room(m) not in ("model", "core"))
+    assert not outside, f"{module} imports {outside}"
