@@ -24,10 +24,10 @@ import time
 import numpy as np
 import torch
 
+from robomorph.data.generation import generate
 from robomorph.evaluation import metrics
 from robomorph.evaluation.evaluator import load_window, predict, run_baselines
 from robomorph.predictor import Predictor
-from robomorph.data.generation import generate
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit
 

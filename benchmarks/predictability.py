@@ -33,11 +33,11 @@ import os
 import numpy as np
 
 from robomorph.core.config import from_dict
+from robomorph.data.generation import GenerationError
 from robomorph.data.store import open_store
 from robomorph.evaluation.physics import NominalPhysics
 from robomorph.reproduction.skip import ensure_store
 from robomorph.sim import episode
-from robomorph.data.generation import GenerationError
 from robomorph.sim.randomize import Randomizer
 from robomorph.sim.recipe import Recipe, load_recipe
 

@@ -25,9 +25,12 @@ from torch.utils.data import DataLoader
 
 from robomorph.core.inputs import check_inputs
 from robomorph.core.normalizations import check_normalization
-from robomorph.data.sources import Source, check_lengths, compatible, scan
+
+# DataError re-exported: callers catch it from here.
+from robomorph.data.sources import DataError, Source, check_lengths, compatible, scan  # noqa: F401
+from robomorph.data.splits import check_held_out, held_out_fractions, split_rows
 from robomorph.data.statistics import Stats, StatsAccumulator
-from robomorph.data.windows import VAL_STREAM, MixtureSampler, WindowDataset, pairs, split_rows
+from robomorph.data.windows import VAL_STREAM, MixtureSampler, WindowDataset, pairs
 
 # Stores whose u and y together fit in this many bytes are read into memory once: a random
 # batch read from disk costs hundreds of times one taken from memory (README, section 9).
@@ -41,6 +44,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         stores: training store paths (one path or a list); all must share u_names, y_names and dt.
         weights: sampling probability of each store in the training stream (normalized);
             default proportional to each store's number of training trajectories.
+        val_store: a separate store used whole as the validation split (e.g. another
+            recording of a real robot); ``split``'s validation fraction is then ignored and
+            train/test keep their ratio. ``best.ckpt`` is chosen on this store.
         test_store: a separate store used whole as the test split; ``split``'s test fraction is
             then ignored and train/val keep their ratio.
         context_len: context steps; exactly one of ``context_len`` and ``context_frac``.
@@ -49,10 +55,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         horizon: query steps predicted after the context.
         window: ``start``: windows begin at step 0 (the paper: 200 + 800 of 1000); ``random``:
             a seeded random offset per training sample (validation and test still use ``start``).
-        context_min, horizon_min: horizon-aware training: each training batch draws its context
-            length from ``[context_min, context_len]`` and its horizon from ``[horizon_min,
-            horizon]`` (seeded; validation and test keep the maxima), so short horizons are
-            trained for as well. ``None``: always the maxima.
+        context_min, horizon_min: horizon-aware training: each training batch draws its context length
+            from ``[context_min, context_len]`` and its horizon from ``[horizon_min, horizon]``
+            (seeded; validation and test keep the maxima). ``None``: always the maxima.
         split: (train, val, test) fractions of each store's trajectories; they sum to 1.
         seed: root seed of the splits, the validation subset and the training stream.
         batch_size: trajectories per batch.
@@ -71,8 +76,8 @@ class RoboMorphDataModule(L.LightningDataModule):
     """
 
     def __init__(self, stores: list[str] | str = "data/demo/multisine.zarr", weights: list[float] | None = None,
-                 test_store: str | None = None, context_len: int | None = 200, context_frac: float | None = None,
-                 horizon: int = 800, window: Literal["start", "random"] = "start",
+                 test_store: str | None = None, val_store: str | None = None, context_len: int | None = 200,
+                 context_frac: float | None = None, horizon: int = 800, window: Literal["start", "random"] = "start",
                  context_min: int | None = None, horizon_min: int | None = None,
                  split: tuple[float, float, float] = (0.8, 0.1, 0.1), seed: int = 0, batch_size: int = 16,
                  num_workers: int = 0, in_memory: bool | None = None, recenter: bool = False,
@@ -82,16 +87,14 @@ class RoboMorphDataModule(L.LightningDataModule):
         super().__init__()
         self.save_hyperparameters()
         self.stores = [stores] if isinstance(stores, str) else list(stores)
-        self.weights, self.test_store = weights, test_store
+        self.weights, self.test_store, self.val_store = weights, test_store, val_store
         # The argument; the resolved length (also from context_frac) is the property context_len.
         self._context_len_arg = context_len
         self.context_frac, self.horizon, self.window = context_frac, horizon, window
-        self.context_min, self.horizon_min = context_min, horizon_min
         self.split, self.seed, self.batch_size, self.num_workers = tuple(split), seed, batch_size, num_workers
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
-        self.train_samples_per_epoch = train_samples_per_epoch
-        self.inputs = inputs
-        self.normalization = normalization
+        self.train_samples_per_epoch, self.context_min, self.horizon_min = train_samples_per_epoch, context_min, horizon_min
+        self.inputs, self.normalization = inputs, normalization
         _check_arguments(self)
         self._ready = False
         self._sources: list[Source] | None = None
@@ -124,7 +127,8 @@ class RoboMorphDataModule(L.LightningDataModule):
     def _open(self) -> list[Source]:
         """The training stores' sources (then the test store's), checked to agree; opened once."""
         if self._sources is None:
-            paths = self.stores + ([self.test_store] if self.test_store is not None else [])
+            # Held-out stores follow the training stores: [train..., val_store?, test_store?].
+            paths = self.stores + [p for p in (self.val_store, self.test_store) if p is not None]
             self._sources = compatible([Source(p, self.inputs) for p in paths])
         return self._sources
 
@@ -156,23 +160,25 @@ class RoboMorphDataModule(L.LightningDataModule):
         t_min = min(s.steps for s in self._open())
         n = round(self.context_frac * t_min)
         if n < 1:
-            raise ValueError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
+            raise DataError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
         return n
 
     def _make_splits(self, sources: list[Source]) -> None:
-        f = self.split
-        if self.test_store is not None:
-            f = (f[0] / (f[0] + f[1]), f[1] / (f[0] + f[1]), 0.0)
-        self.splits = [split_rows(src.n, f, self.seed, k) for k, src in enumerate(sources[:len(self.stores)])]
-        if self.test_store is not None:
-            empty = np.zeros(0, dtype=np.int64)
-            self.splits.append({"train": empty, "val": empty, "test": np.arange(sources[-1].n)})
+        f = held_out_fractions(self.split, self.val_store is not None, self.test_store is not None)
+        # A store that records recording_index (ingest) is split by recording.
+        self.splits = [split_rows(src.n, f, self.seed, k, groups=src.groups, path=src.path)
+                       for k, src in enumerate(sources[:len(self.stores)])]
+        empty = np.zeros(0, dtype=np.int64)
+        for role, path in (("val", self.val_store), ("test", self.test_store)):
+            if path is not None:
+                whole = np.arange(sources[len(self.splits)].n)
+                self.splits.append({"train": empty, "val": empty, "test": empty, role: whole})
         counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
         w = np.asarray(self.weights if self.weights is not None else counts, dtype=float)
         for k, ck in enumerate(counts):
             if ck == 0:
-                raise ValueError(f"{self.stores[k]} has no training trajectories (n={sources[k].n}, split "
-                                 f"{self.split}): add trajectories or change split")
+                raise DataError(f"{self.stores[k]} has no training trajectories (n={sources[k].n}, split "
+                                f"{self.split}): add trajectories or change split")
         self.probs = w / w.sum()
 
     def _compute_stats(self, sources: list[Source]) -> None:
@@ -192,13 +198,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         test = pairs([s["test"] for s in self.splits])
         ctx, h = self.context_len, self.horizon
         self.train_set, self.val_set, self.test_set = (WindowDataset(sources, p, ctx, h) for p in (train, val, test))
-        counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
-        self.train_sampler = MixtureSampler(
-            base=np.concatenate([[0], np.cumsum(counts)[:-1]]), counts=counts, probs=self.probs,
-            steps=np.array([src.steps for src in sources[:len(self.stores)]]),
-            n_samples=self.train_samples_per_epoch or len(train), seed=self.seed,
-            random_window=self.window == "random", batch_size=self.batch_size,
-            lengths=(self.context_min or ctx, ctx, self.horizon_min or h, h))
+        self.train_sampler = _train_sampler(self, sources, len(train))
 
     def _loader(self, split: str) -> DataLoader:
         self.setup()
@@ -224,7 +224,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         per_store = {src.path: {"n": src.n, "steps": src.steps, **{k: len(v) for k, v in sp.items()}}
                      for src, sp in zip(self.sources, self.splits)}
         return {
-            "stores": list(self.stores), "test_store": self.test_store, "per_store": per_store,
+            "stores": list(self.stores), "val_store": self.val_store, "test_store": self.test_store,
+            "per_store": per_store,
+            "split_by": ["recording" if src.groups is not None else "trajectory" for src in self.sources],
             "weights": [float(p) for p in self.probs],
             "train": len(self.train_set), "val": self.n_val_total, "val_used": len(self.val_set),
             "test": len(self.test_set), "train_samples_per_epoch": len(self.train_sampler),
@@ -239,48 +241,59 @@ class RoboMorphDataModule(L.LightningDataModule):
 def _check_arguments(dm: RoboMorphDataModule) -> None:
     """Refuses arguments that cannot work, naming the argument and the fix."""
     if not dm.stores:
-        raise ValueError("stores: give at least one store path")
+        raise DataError("stores: give at least one store path")
     check_inputs(dm.inputs)
     paths = [os.path.realpath(p) for p in dm.stores]
     if len(set(paths)) != len(paths):
-        raise ValueError(f"stores lists a store twice: {dm.stores}")
-    if dm.test_store is not None and os.path.realpath(dm.test_store) in paths:
-        raise ValueError(f"test_store {dm.test_store} is also a training store: its trajectories would leak")
+        raise DataError(f"stores lists a store twice: {dm.stores}")
+    check_held_out(paths, dm.val_store, dm.test_store)
     if dm.weights is not None:
         w = np.asarray(dm.weights, dtype=float)
         if w.shape != (len(dm.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
-            raise ValueError(f"weights must be {len(dm.stores)} non-negative numbers with a positive sum "
-                             f"(one per store), got {dm.weights}")
+            raise DataError(f"weights must be {len(dm.stores)} non-negative numbers with a positive sum "
+                            f"(one per store), got {dm.weights}")
     if (dm._context_len_arg is None) == (dm.context_frac is None):
-        raise ValueError("give exactly one of context_len and context_frac "
-                         f"(got context_len={dm._context_len_arg}, context_frac={dm.context_frac})")
+        raise DataError("give exactly one of context_len and context_frac "
+                        f"(got context_len={dm._context_len_arg}, context_frac={dm.context_frac})")
     if dm._context_len_arg is not None and dm._context_len_arg < 1:
-        raise ValueError(f"context_len must be >= 1, got {dm._context_len_arg}")
+        raise DataError(f"context_len must be >= 1, got {dm._context_len_arg}")
     if dm.context_frac is not None and not 0 < dm.context_frac < 1:
-        raise ValueError(f"context_frac must be in (0, 1), got {dm.context_frac}")
+        raise DataError(f"context_frac must be in (0, 1), got {dm.context_frac}")
     if dm.window not in ("start", "random"):
-        raise ValueError(f"window must be 'start' or 'random', got {dm.window!r}")
+        raise DataError(f"window must be 'start' or 'random', got {dm.window!r}")
     f = dm.split
     if len(f) != 3 or any(not math.isfinite(x) or x < 0 for x in f) or abs(sum(f) - 1) > 1e-6 or f[0] <= 0:
-        raise ValueError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
-                         f"with train > 0, got {dm.split}")
+        raise DataError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
+                        f"with train > 0, got {dm.split}")
     for name, value, low in (("horizon", dm.horizon, 1), ("batch_size", dm.batch_size, 1),
                              ("num_workers", dm.num_workers, 0), ("val_subset", dm.val_subset, 1),
                              ("seed", dm.seed, 0)):
         if value < low:
-            raise ValueError(f"{name} must be >= {low}, got {value}")
+            raise DataError(f"{name} must be >= {low}, got {value}")
     if dm.horizon_min is not None and not 1 <= dm.horizon_min <= dm.horizon:
-        raise ValueError(f"horizon_min must be in [1, horizon={dm.horizon}], got {dm.horizon_min}")
+        raise DataError(f"horizon_min must be in [1, horizon={dm.horizon}], got {dm.horizon_min}")
     if dm.context_min is not None and (dm.context_min < 1 or (
             dm._context_len_arg is not None and dm.context_min > dm._context_len_arg)):
-        raise ValueError(f"context_min must be in [1, context_len={dm._context_len_arg}], got {dm.context_min}")
+        raise DataError(f"context_min must be in [1, context_len={dm._context_len_arg}], got {dm.context_min}")
     check_normalization(dm.normalization, dm.recenter)
     if dm.train_samples_per_epoch is not None and dm.train_samples_per_epoch < 1:
-        raise ValueError(f"train_samples_per_epoch must be >= 1, got {dm.train_samples_per_epoch}")
+        raise DataError(f"train_samples_per_epoch must be >= 1, got {dm.train_samples_per_epoch}")
+
+
+def _train_sampler(dm: RoboMorphDataModule, sources: list[Source], n_train: int) -> MixtureSampler:
+    """The seeded training stream: stores by weight, random offsets and lengths as configured."""
+    counts = np.array([len(s["train"]) for s in dm.splits[:len(dm.stores)]])
+    ctx, h = dm.context_len, dm.horizon
+    return MixtureSampler(
+        base=np.concatenate([[0], np.cumsum(counts)[:-1]]), counts=counts, probs=dm.probs,
+        steps=np.array([src.steps for src in sources[:len(dm.stores)]]),
+        n_samples=dm.train_samples_per_epoch or n_train, seed=dm.seed,
+        random_window=dm.window == "random", batch_size=dm.batch_size,
+        lengths=(dm.context_min or ctx, ctx, dm.horizon_min or h, h))
 
 
 def _check_context_min(dm: RoboMorphDataModule) -> None:
     """``context_min`` within the resolved context (``context_frac`` is known only from the stores)."""
     if dm.context_min is not None and dm.context_min > dm.context_len:
-        raise ValueError(f"context_min {dm.context_min} exceeds the context of {dm.context_len} steps"
-                         + (f" that context_frac {dm.context_frac} gives" if dm.context_frac else ""))
+        raise DataError(f"context_min {dm.context_min} exceeds the context of {dm.context_len} steps"
+                        + (f" that context_frac {dm.context_frac} gives" if dm.context_frac else ""))

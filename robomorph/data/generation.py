@@ -335,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
         })
         shard = Shard.parse(args.shard)
         attrs = generate(recipe, args.out, args.workers, shard, args.overwrite, not args.quiet)
-    except (ConfigError, GenerationError, FileExistsError, SchemaError, ValueError) as exc:
+    except (RoboMorphError, FileExistsError, ValueError) as exc:  # one line, no traceback
         print(f"error: {exc}", file=sys.stderr)
         return 2
     rate = attrs["kept"] / max(attrs["attempted"], 1)

@@ -6,7 +6,10 @@ Every recording is cut into windows of ``--steps`` samples, ``--stride`` samples
 same layout as a simulated one (``params`` is empty, P = 0). Two extra arrays trace each
 window back to its source: ``recording_index`` (position of the file on the command line,
 also the index into ``attrs['sources']``) and ``window_start`` (its first sample in that
-recording).
+recording); training splits keep a recording's windows together. ``attrs['recordings']``
+says, per recording, how many samples it held, how many windows it gave and how many tail
+samples after its last window were dropped. ``--u-units`` / ``--y-units`` record each
+column's unit (``attrs['u_units']``, ``attrs['y_units']``); plots label axes with them.
 
 Input formats (``--format auto`` picks by extension):
 
@@ -220,6 +223,14 @@ def _window_starts(length: int, steps: int, stride: int) -> np.ndarray:
     return np.arange(0, length - steps + 1, stride, dtype=np.int64)
 
 
+def _check_units(u_cols: list[str], y_cols: list[str], u_units: list[str] | None,
+                 y_units: list[str] | None) -> None:
+    for flag, cols, units in (("--u-units", u_cols, u_units), ("--y-units", y_cols, y_units)):
+        if units is not None and len(units) != len(cols):
+            raise IngestError(f"{flag} gives {len(units)} units for {len(cols)} columns ({', '.join(cols)}); "
+                              "give one unit per column, in the same order (e.g. 'N m' or rad)")
+
+
 def _check_args(files: list[str], u_cols: list[str], y_cols: list[str], steps: int,
                 dt: float | None, time_col: str | None, stride: int, time_tol: float,
                 u_cmd_cols: list[str] | None = None) -> None:
@@ -247,13 +258,19 @@ def _check_args(files: list[str], u_cols: list[str], y_cols: list[str], steps: i
 
 
 def _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol, u_cmd_cols=None):
-    """Reads and checks every log: ``([(file index, u, y, starts, u_cmd)], dts, skipped)``."""
-    recs, dts, skipped = [], [], []
+    """Reads and checks every log: ``([(file index, u, y, starts, u_cmd)], dts, skipped, report)``,
+    the report giving per recording its samples, windows and dropped tail samples."""
+    recs, dts, skipped, report = [], [], [], []
     for index, path in enumerate(files):
         cols = read_log(path, fmt)
         # Checked even for recordings skipped below: a wrong name is wrong in every file.
         _check_columns(cols, [*u_cols, *(u_cmd_cols or []), *y_cols, *([time_col] if time_col else [])], path)
         length = len(cols[u_cols[0]])
+        starts = _window_starts(length, steps, stride)
+        # Samples after the last window that no window covers (all of a too-short recording).
+        tail = length - int(starts[-1]) - steps if len(starts) else length
+        report.append({"source": os.path.basename(path), "samples": length, "windows": len(starts),
+                       "tail_dropped": tail})
         if length < steps:
             warnings.warn(f"skipping {path}: {length} samples, fewer than --steps {steps}",
                           ShortRecordingWarning, stacklevel=3)
@@ -264,8 +281,8 @@ def _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_t
         u = np.stack([cols[c] for c in u_cols], axis=1).astype(np.float32)  # (L, n_u)
         y = np.stack([cols[c] for c in y_cols], axis=1).astype(np.float32)  # (L, n_y)
         u_cmd = None if u_cmd_cols is None else np.stack([cols[c] for c in u_cmd_cols], axis=1).astype(np.float32)
-        recs.append((index, u, y, _window_starts(length, steps, stride), u_cmd))
-    return recs, dts, skipped
+        recs.append((index, u, y, starts, u_cmd))
+    return recs, dts, skipped, report
 
 
 def _common_dt(dts: list[tuple[str, float]], tol: float) -> float:
@@ -283,7 +300,8 @@ def _common_dt(dts: list[tuple[str, float]], tol: float) -> float:
 def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, steps: int,
            dt: float | None = None, time_col: str | None = None, stride: int | None = None,
            fmt: str = "auto", overwrite: bool = False, name: str | None = None,
-           time_tol: float = 0.01, u_cmd_cols: list[str] | None = None) -> Dataset:
+           time_tol: float = 0.01, u_cmd_cols: list[str] | None = None, u_units: list[str] | None = None,
+           y_units: list[str] | None = None) -> Dataset:
     """Cuts recorded logs into windows and writes them as a RoboMorph dataset.
 
     Args:
@@ -302,6 +320,8 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
         u_cmd_cols: command columns (what was commanded, before the gravity compensation
             the arm's controller adds), in the joint order of ``u_cols``; the store's
             ``u_cmd`` (``data.inputs: command``). None: the store has only ``u``.
+        u_units, y_units: the unit of each input / output column (e.g. ``"N m"``, ``"rad"``),
+            recorded in the store and used to label plots.
 
     Returns:
         The finished dataset, opened for reading.
@@ -314,8 +334,10 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
     """
     dt_arg, stride = dt, (steps if stride is None else stride)
     _check_args(files, u_cols, y_cols, steps, dt, time_col, stride, time_tol, u_cmd_cols)
+    _check_units(u_cols, y_cols, u_units, y_units)
     check_writable(out, overwrite)  # refuse a bad --out before reading large logs
-    recs, dts, skipped = _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol, u_cmd_cols)
+    recs, dts, skipped, report = _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol,
+                                                  u_cmd_cols)
     total = sum(len(r[3]) for r in recs)
     if total == 0:
         raise IngestError(f"no windows: every recording is shorter than --steps {steps}; lower --steps")
@@ -323,9 +345,11 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
     cmd_names = None if u_cmd_cols is None else list(u_cmd_cols)
     config = {"files": list(files), "u_cols": list(u_cols), "u_cmd_cols": cmd_names, "y_cols": list(y_cols), "steps": steps,
               "stride": stride, "dt": dt_arg, "time_col": time_col, "fmt": fmt,
-              "name": name, "time_tol": time_tol}
+              "name": name, "time_tol": time_tol, "u_units": u_units, "y_units": y_units}
     attrs = {"dt": dt, "domain": name or "real", "task": "ingested", "config": config, "seed": None,
              "sources": [os.path.basename(f) for f in files], "skipped_recordings": skipped,
+             "recordings": report, "u_units": list(u_units or [""] * len(u_cols)),
+             "y_units": list(y_units or [""] * len(y_cols)),
              "requested": total, "attempted": total, "kept": total, "rejected": {}}
     writer = create_store(out, total, steps, list(u_cols), list(y_cols), [], attrs,
                           extras={"recording_index": ((), "int32"), "window_start": ((), "int64")},
@@ -346,6 +370,11 @@ def _names(text: str) -> list[str]:
     return [c.strip() for c in text.split(",") if c.strip()]
 
 
+def _units(text: str) -> list[str]:
+    # Empty entries are kept: "N m,,rad" leaves the second column without a unit.
+    return [c.strip() for c in text.split(",")]
+
+
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m robomorph.ingest", description=__doc__.split("\n")[0])
     p.add_argument("files", nargs="+", help="log files, one recording each (.csv, .npz, .mat)")
@@ -364,6 +393,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--out", required=True, help="output store directory (e.g. data/real.zarr)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing RoboMorph store")
     p.add_argument("--name", help="domain name recorded in the store (default: real)")
+    p.add_argument("--u-units", type=_units, help="unit of each --u-cols column, comma-separated (e.g. 'N m,N m')")
+    p.add_argument("--y-units", type=_units, help="unit of each --y-cols column, comma-separated (e.g. rad,rad)")
     return p.parse_args(argv)
 
 
@@ -375,13 +406,16 @@ def main(argv: list[str] | None = None) -> int:
             ds = ingest(args.files, args.u_cols, args.y_cols, args.out, args.steps, dt=args.dt,
                         time_col=args.time_col, stride=args.stride, fmt=args.fmt,
                         overwrite=args.overwrite, name=args.name, time_tol=args.time_tol,
-                        u_cmd_cols=args.u_cmd_cols)
+                        u_cmd_cols=args.u_cmd_cols, u_units=args.u_units, y_units=args.y_units)
         except (ValueError, OSError) as exc:  # IngestError, SchemaError, FileExistsError, ...
             _print_warnings(caught)
             print(f"error: {exc}", file=sys.stderr)
             return 2
     _print_warnings(caught)
     used = len(args.files) - len(ds.attrs["skipped_recordings"])
+    for r in ds.attrs["recordings"]:
+        print(f"  {r['source']}: {r['samples']} samples -> {r['windows']} windows, "
+              f"{r['tail_dropped']} tail samples dropped")
     print(f"{args.out}: {ds.n} windows x {ds.steps} steps (dt={ds.dt:.6g} s, n_u={len(ds.u_names)}, "
           f"n_y={len(ds.y_names)}) from {used} of {len(args.files)} recordings")
     return 0

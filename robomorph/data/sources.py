@@ -7,8 +7,14 @@ import os
 
 import numpy as np
 
+from robomorph.core.errors import RoboMorphError
+from robomorph.data.splits import RECORDING_ARRAY
 from robomorph.data.statistics import StatsAccumulator
 from robomorph.data.store import open_store
+
+
+class DataError(RoboMorphError, ValueError):
+    """Data settings or stores that cannot feed training; the message names the fix."""
 
 
 class Source:
@@ -21,11 +27,13 @@ class Source:
     def __init__(self, path: str, inputs: str = "total"):
         ds = open_store(path)
         if ds.n < 1:
-            raise ValueError(f"{path} holds no trajectories (n=0)")
+            raise DataError(f"{path} holds no trajectories (n=0)")
         self.path, self.n, self.steps, self.chunk = path, ds.n, ds.steps, ds.chunk
         # The array the model reads as u: the total torque or the command (data.inputs).
         self.u_array = ds.check_inputs(inputs)
         self.u_names, self.y_names, self.dt = ds.input_names(inputs), ds.y_names, ds.dt
+        # Recording of each window (ingested logs): splits keep a recording's windows together.
+        self.groups = ds.read(RECORDING_ARRAY) if RECORDING_ARRAY in ds.arrays else None
         self.u: np.ndarray | None = None
         self.y: np.ndarray | None = None
         self._ds, self._pid = ds, os.getpid()
@@ -80,9 +88,9 @@ def scan(src: Source, train_rows: np.ndarray, stop: int, acc: StatsAccumulator |
         for name, arr in (("u", u), ("y", y)):
             bad = np.flatnonzero(~np.isfinite(arr).all(axis=(1, 2)))
             if bad.size:
-                raise ValueError(f"{src.path}: trajectory {c0 + int(bad[0])} has NaN/inf values in '{name}' "
-                                 f"({bad.size} bad trajectories in rows {c0}..{c0 + len(u) - 1}); "
-                                 "regenerate the store or drop those rows")
+                raise DataError(f"{src.path}: trajectory {c0 + int(bad[0])} has NaN/inf values in '{name}' "
+                                f"({bad.size} bad trajectories in rows {c0}..{c0 + len(u) - 1}); "
+                                "regenerate the store or drop those rows")
         mask = in_train[c0:c0 + len(u)]
         if acc is not None and mask.any():
             acc.update(u[mask, :stop], y[mask, :stop])
@@ -94,10 +102,10 @@ def compatible(sources: list[Source]) -> list[Source]:
     for src in sources[1:]:
         for what, a, b in (("u_names", ref.u_names, src.u_names), ("y_names", ref.y_names, src.y_names)):
             if a != b:
-                raise ValueError(f"stores disagree on {what}: {ref.path} has {a}, {src.path} has {b}; "
-                                 "all stores of one run must share u_names, y_names and dt")
+                raise DataError(f"stores disagree on {what}: {ref.path} has {a}, {src.path} has {b}; "
+                                "all stores of one run must share u_names, y_names and dt")
         if not math.isclose(ref.dt, src.dt, rel_tol=1e-9):
-            raise ValueError(f"stores disagree on dt: {ref.path} has {ref.dt}, {src.path} has {src.dt}")
+            raise DataError(f"stores disagree on dt: {ref.path} has {ref.dt}, {src.path} has {src.dt}")
     return sources
 
 
@@ -105,5 +113,6 @@ def check_lengths(sources: list[Source], context_len: int, horizon: int) -> None
     need = context_len + horizon
     for src in sources:
         if src.steps < need:
-            raise ValueError(f"{src.path} has trajectories of T={src.steps} steps, but context_len "
-                             f"{context_len} + horizon {horizon} = {need} are needed")
+            raise DataError(f"{src.path} has trajectories of T={src.steps} steps, but context_len "
+                            f"{context_len} + horizon {horizon} = {need} are needed: shorten "
+                            "--data.context_len / --data.horizon")

@@ -34,6 +34,8 @@ from zarr.storage import LocalStore
 from robomorph import __version__
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.inputs import INPUT_ARRAYS, InputsError, check_inputs
+from robomorph.data import chunks
+from robomorph.data.chunks import StoreDamagedError  # noqa: F401  (part of this module's API)
 
 # 2 added ``u_cmd`` (the command formulation). Version 1 stores read as before; they
 # have only the total torque, and asking them for the command says to regenerate.
@@ -64,10 +66,29 @@ def _check_names(kind: str, names: list[str], width: int) -> None:
         raise ValueError(f"{kind} names must be unique, got {names}")
 
 
+class StorePathError(RoboMorphError, OSError):
+    """A store cannot be written where it was asked for (under a file, read-only, ...)."""
+
+
+def _check_creatable(path: str) -> None:
+    """Raises unless the folders down to ``path`` can be made: the nearest existing ancestor
+    must be a writable directory."""
+    parent = os.path.dirname(os.path.abspath(path))
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise StorePathError(f"cannot create {path}: {parent} is a file, not a folder; choose another --out")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise StorePathError(f"cannot create {path}: {parent} is not writable; choose another --out "
+                             "or change the folder's permissions")
+
+
 def check_writable(path: str, overwrite: bool) -> None:
     """Raises unless ``path`` may be (re)created: never a file or a store of another schema,
-    and an existing RoboMorph store only with ``overwrite``. Cheap: call it before long work."""
+    and an existing RoboMorph store only with ``overwrite``; its folder must be writable.
+    Cheap: call it before long work."""
     if not os.path.exists(path):
+        _check_creatable(path)
         return
     if os.path.isfile(path):
         raise FileExistsError(f"{path} is a file, not a dataset directory; choose another --out")
@@ -122,13 +143,23 @@ def create_store(
         raise ValueError(f"a dataset needs n >= 1 and steps >= 1, got n={n}, steps={steps}")
     if "dt" not in attrs or not float(attrs["dt"]) > 0:
         raise ValueError("attrs must carry a positive sample time 'dt' in seconds")
+    if u_cmd_names is not None:
+        _check_names("u_cmd", list(u_cmd_names), len(u_names))
     check_writable(path, overwrite)
+    try:
+        return _create(path, n, steps, u_names, y_names, param_names, attrs, extras, max(1, min(chunk, n)),
+                       u_cmd_names)
+    except OSError as exc:  # e.g. a read-only file system, or a disk that is full
+        raise StorePathError(f"cannot write the store {path}: {exc.strerror or exc}; choose another --out") from exc
+
+
+def _create(path: str, n: int, steps: int, u_names: list[str], y_names: list[str], param_names: list[str],
+            attrs: dict[str, Any], extras: dict | None, chunk: int, u_cmd_names: list[str] | None
+            ) -> "DatasetWriter":
     group = zarr.open_group(LocalStore(path), mode="w")
-    chunk = max(1, min(chunk, n))
     extras = {k: v for k, v in (extras or {}).items() if k != "u_cmd"}
     widths = [("u", len(u_names)), ("y", len(y_names))]
     if u_cmd_names is not None:
-        _check_names("u_cmd", list(u_cmd_names), len(u_names))
         widths.append(("u_cmd", len(u_names)))
     _create_arrays(group, n, steps, chunk, widths, len(param_names), extras)
     meta = {
@@ -309,17 +340,55 @@ class Dataset:
         return sorted(self.group.array_keys())
 
     def read(self, name: str, rows: slice | np.ndarray | None = None) -> np.ndarray:
-        """Reads the valid rows of one array (all of them by default) into memory."""
+        """Reads the valid rows of one array (all of them by default) into memory.
+
+        Raises:
+            StoreDamagedError: a chunk in the way is missing, truncated or cannot be decoded
+                (it is named, with its trajectories).
+        """
         arr = self.group[name]
-        if rows is None:
-            return np.asarray(arr[: self.n])
-        if isinstance(rows, slice):
-            start, stop, step = rows.indices(self.n)
+        if rows is not None and not isinstance(rows, slice):
+            rows = np.asarray(rows)
+            if rows.size and (rows.min() < 0 or rows.max() >= self.n):
+                raise IndexError(f"rows out of range for {self.n} trajectories")
+        if isinstance(rows, np.ndarray):
+            touched = rows // arr.chunks[0]
+        else:
+            start, stop, step = (rows if rows is not None else slice(None)).indices(self.n)
+            touched = np.arange(start, stop, step) // arr.chunks[0]
+        damaged = self.damaged_chunks([name], set(np.unique(touched).tolist()))
+        if damaged:
+            raise StoreDamagedError(chunks.describe(self.path, damaged))
+        try:
+            if isinstance(rows, np.ndarray):
+                return np.asarray(arr.get_orthogonal_selection((rows,)))
             return np.asarray(arr[start:stop:step])
-        rows = np.asarray(rows)
-        if rows.size and (rows.min() < 0 or rows.max() >= self.n):
-            raise IndexError(f"rows out of range for {self.n} trajectories")
-        return np.asarray(arr.get_orthogonal_selection((rows,)))
+        except Exception as exc:  # noqa: BLE001  (codec errors vary: blosc, zstd, json, ...)
+            raise chunks.undecodable(self.path, self.group, self.n, name, exc) from exc
+
+    def damaged_chunks(self, names: list[str] | None = None, indices: set[int] | None = None
+                       ) -> list[tuple[str, str, int, int, str]]:
+        """``(array, chunk key, first row, last row, problem)`` of every chunk of valid rows
+        that is missing or truncated (all arrays and chunks unless narrowed)."""
+        return chunks.damaged(self.path, self.group, self.n, names or self.arrays, indices)
+
+    def describe_damage(self) -> str | None:
+        """One line naming the damaged chunks and what to do, or None when there are none."""
+        damaged = self.damaged_chunks()
+        return chunks.describe(self.path, damaged) if damaged else None
+
+
+def channel_units(attrs: dict[str, Any], kind: str) -> list[str]:
+    """Units of the ``u`` or ``y`` channels (``attrs['u_units']``, written by ``ingest
+    --u-units``); empty strings where the store does not say."""
+    names = attrs.get(f"{kind}_names") or []
+    units = list(attrs.get(f"{kind}_units") or [])
+    return units if len(units) == len(names) else [""] * len(names)
+
+
+def channel_label(name: str, unit: str) -> str:
+    """``"q1 [rad]"``, or the bare name when the unit is unknown (a plot's axis label)."""
+    return f"{name} [{unit}]" if unit else name
 
 
 def open_store(path: str, allow_incomplete: bool = False) -> Dataset:

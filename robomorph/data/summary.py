@@ -24,7 +24,7 @@ import warnings
 import numpy as np
 from matplotlib.figure import Figure
 
-from robomorph.data.store import Dataset, open_store
+from robomorph.data.store import Dataset, StoreDamagedError, channel_label, channel_units, open_store
 
 SAMPLE_ROWS = 256
 # Attributes the summary shows in its own sections; the rest are listed as they are.
@@ -141,6 +141,14 @@ def _params(ds: Dataset) -> list[str]:
     return [f"params over all {ds.n} trajectories:"] + _table(ds.param_names, stats, ("min", "mean", "max"))
 
 
+def _unless_damaged(lines, what: str) -> list[str]:
+    """``lines()``, or one line saying a damaged chunk (listed above them) stopped the reading."""
+    try:
+        return lines()
+    except StoreDamagedError:
+        return [f"{what + ':':<10} not read: a chunk they need is damaged (see 'damaged' above)"]
+
+
 def summarize(dataset: Dataset, sample: int = SAMPLE_ROWS) -> str:
     """A human-readable summary of a store (see the module docstring).
 
@@ -160,8 +168,10 @@ def summarize(dataset: Dataset, sample: int = SAMPLE_ROWS) -> str:
         f"shape:     N={ds.n}  T={T}  n_u={n_u}  n_y={n_y}  P={P}",
         f"time:      dt={ds.dt:g} s, {T * ds.dt:g} s per trajectory ({T} samples)",
         *_counts(a),
-        *_channels(ds, sample),
-        *_params(ds),
+        *[f"damaged:   '{name}' chunk {key} (trajectories {first}..{last}) {problem}"
+          for name, key, first, last, problem in ds.damaged_chunks()],
+        *_unless_damaged(lambda: _channels(ds, sample), "channels"),
+        *_unless_damaged(lambda: _params(ds), "params"),
         "extra arrays:" if set(ds.arrays) - {"u", "y", "params"} else "extra arrays: none",
     ]
     for name in ds.arrays:
@@ -186,7 +196,9 @@ def _grid(fig: Figure, n_u: int, n_y: int, ncols: int) -> list:
 
 
 def _plot_trajectories(ds: Dataset, path: str, idx: np.ndarray) -> None:
-    names = [f"u: {n}" for n in ds.u_names] + [f"y: {n}" for n in ds.y_names]
+    attrs = ds.attrs
+    names = [f"{kind}: {channel_label(n, unit)}" for kind, chans in (("u", ds.u_names), ("y", ds.y_names))
+             for n, unit in zip(chans, channel_units(attrs, kind))]
     ncols = min(4, max(len(ds.u_names), len(ds.y_names)))
     rows = math.ceil(len(ds.u_names) / ncols) + math.ceil(len(ds.y_names) / ncols)
     fig = Figure(figsize=(4.2 * ncols, 2.3 * rows + 0.8), layout="constrained")
@@ -266,11 +278,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         ds = open_store(args.store, allow_incomplete=args.allow_incomplete)
         print(summarize(ds))
+        damage = ds.describe_damage()
+        if damage:
+            raise StoreDamagedError(damage)
         if args.plot:
             for path in plot(ds, args.plot, args.n_traj):
                 print(f"wrote {path}")
     except (ValueError, OSError) as exc:  # SchemaError, missing path, unwritable plot
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     return 0
 

@@ -7,6 +7,9 @@ gets: the context ``u_ctx (B, Tc, n_u)``, ``y_ctx (B, Tc, n_y)`` and the query i
 - ``hold``: the last context output held over the horizon.
 - ``arx``: a linear ARX model fitted by least squares on each trajectory's own context,
   then simulated freely over the horizon (its own outputs fed back).
+- ``arx_train``: one linear ARX model fitted by least squares over the model's *training*
+  data (the usual system-identification baseline), started from each context's last
+  samples and simulated freely over the horizon.
 - ``nominal_physics``: the catalogue Panda (no randomization) simulated in MuJoCo from
   the state at the end of the context, driven by the recorded torques.
 - ``true_physics`` (opt-in): the same with each robot's *true* stored parameters, which
@@ -22,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-BASELINES = ("hold", "arx", "nominal_physics")
+BASELINES = ("hold", "arx", "arx_train", "nominal_physics")
 # Not a competitor (it reads the parameters the model never sees) but the ceiling of
 # physics itself: each robot's own parameters, from the same estimated state. Opt-in.
 CEILINGS = ("true_physics",)
@@ -96,6 +99,88 @@ class ARX:
 
     def _regressor(self, y: np.ndarray, u: np.ndarray, k: int) -> np.ndarray:
         return np.concatenate([y[k - self.na:k][::-1].ravel(), u[k - self.nb:k][::-1].ravel(), [1.0]])
+
+
+def _lagged(y: np.ndarray, u: np.ndarray, na: int, nb: int) -> np.ndarray:
+    """Regressors of every step ``k >= max(na, nb)`` of a batch: (B, T - lag, n_reg), the same
+    layout as :meth:`ARX._regressor` (newest lag first, then the constant)."""
+    lag, t = max(na, nb), y.shape[1]
+    parts = [y[:, lag - i:t - i] for i in range(1, na + 1)] + [u[:, lag - j:t - j] for j in range(1, nb + 1)]
+    return np.concatenate(parts + [np.ones(y.shape[:1] + (t - lag, 1))], axis=-1)
+
+
+@dataclass
+class TrainedARX:
+    """One MIMO ARX model (same structure as :class:`ARX`) fitted over training trajectories.
+
+    Fit once with :meth:`fit` (any number of calls accumulate the normal equations, so a
+    large store is read in blocks), then predict like every baseline. Scaling comes from
+    the training data; a simulation leaving the context's band is held, as for ``arx``.
+    """
+
+    na: int = 2
+    nb: int = 2
+    ridge: float = 1e-8
+    diverged: int = field(default=0, init=False)
+    trajectories: int = field(default=0, init=False)
+
+    def __post_init__(self) -> None:
+        if self.na < 1 or self.nb < 1:
+            raise ValueError(f"ARX orders must be >= 1, got na={self.na}, nb={self.nb}")
+        self._theta: np.ndarray | None = None
+
+    def fit(self, blocks) -> "TrainedARX":
+        """Least squares over ``blocks``: an iterable of ``(u (B, T, n_u), y (B, T, n_y))``.
+
+        Two passes are avoided by scaling with the first block's statistics (the scaling only
+        conditions the solve; the fitted predictor does not depend on it beyond rounding).
+        """
+        gram = rhs = None
+        for u, y in blocks:
+            u, y = u.astype(np.float64), y.astype(np.float64)
+            if gram is None:
+                self._scale = (y.mean((0, 1)), np.maximum(y.std((0, 1)), 1e-9),
+                               u.mean((0, 1)), np.maximum(u.std((0, 1)), 1e-9))
+                n_reg = self.na * y.shape[-1] + self.nb * u.shape[-1] + 1
+                gram, rhs = np.zeros((n_reg, n_reg)), np.zeros((n_reg, y.shape[-1]))
+            yn, un = self._normalize(u, y)
+            phi = _lagged(yn, un, self.na, self.nb).reshape(-1, gram.shape[0])
+            gram += phi.T @ phi
+            rhs += phi.T @ yn[:, max(self.na, self.nb):].reshape(-1, yn.shape[-1])
+            self.trajectories += len(u)
+        if gram is None:
+            raise ValueError("arx_train needs at least one training trajectory")
+        gram[np.diag_indices_from(gram)] += self.ridge * np.trace(gram) / len(gram)
+        self._theta = np.linalg.solve(gram, rhs)  # (n_reg, n_y)
+        return self
+
+    def _normalize(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ym, ys, um, us = self._scale
+        return (y - ym) / ys, (u - um) / us
+
+    def __call__(self, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
+        if self._theta is None:
+            raise ValueError("fit the ARX model on training data before predicting")
+        lag = max(self.na, self.nb)
+        if u_ctx.shape[1] < lag:
+            raise ValueError(f"ARX({self.na},{self.nb}) needs a context of at least {lag} steps")
+        y_c, u_all = self._normalize(np.concatenate([u_ctx, u_query], 1).astype(np.float64), y_ctx.astype(np.float64))
+        tc, h = y_c.shape[1], u_query.shape[1]
+        y_all = np.concatenate([y_c, np.zeros((len(y_c), h, y_c.shape[2]))], axis=1)
+        for k in range(tc, tc + h):  # free simulation: the model's own outputs fed back
+            reg = _lagged(y_all[:, k - lag:k + 1], u_all[:, k - lag:k + 1], self.na, self.nb)[:, 0]
+            y_all[:, k] = reg @ self._theta
+        ym, ys, _, _ = self._scale
+        pred = y_all[:, tc:] * ys + ym
+        # Same divergence rule as ARX: outside the context's band -> hold, and counted.
+        y64 = y_ctx.astype(np.float64)
+        centre = y64.mean(1, keepdims=True)
+        span = np.abs(y64 - centre).max((1, 2)) + 1e-9
+        with np.errstate(invalid="ignore"):
+            bad = ~np.isfinite(pred).all((1, 2)) | (np.abs(pred - centre).max((1, 2)) > _ARX_BLOWUP * span)
+        pred[bad] = hold(u_ctx, y64, u_query)[bad]
+        self.diverged = int(bad.sum())
+        return pred
 
 
 def estimate_velocity(q: np.ndarray, dt: float, points: int = 6) -> np.ndarray:

@@ -35,13 +35,24 @@ import sys
 import numpy as np
 
 from robomorph.core import metrics as scores
+from robomorph.core.errors import RoboMorphError
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics, query_output_stats
-from robomorph.evaluation import metrics
+from robomorph.evaluation import metrics, references, training_data
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
 from robomorph.evaluation.horizons import horizon_markdown, horizon_report, parse_horizons
-from robomorph.evaluation.tables import write_csv, write_horizons_csv, write_table
-from robomorph.evaluation.windows import Window, load_window, parse_offset  # noqa: F401  (Window re-exported)
+from robomorph.evaluation.tables import diverged_note, write_csv, write_horizons_csv, write_table
+
+# Window, EvaluationError and parse_range re-exported: callers import them from here.
+from robomorph.evaluation.windows import (  # noqa: F401
+    EvaluationError,
+    Window,
+    check_counts,
+    check_patch,
+    load_window,
+    parse_offset,
+    parse_range,
+)
 
 
 def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None,
@@ -89,8 +100,6 @@ def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
     Asked of the first trajectory: a predictor without the keyword, one that refuses it
     (a model without a Gaussian head) or one that answers ``(mean, None)`` gives none.
     """
-    from robomorph.core.errors import RoboMorphError  # noqa: PLC0415
-
     try:
         params = inspect.signature(predictor.simulate).parameters
         if "return_std" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
@@ -101,19 +110,26 @@ def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
     return isinstance(out, tuple) and len(out) == 2 and out[1] is not None
 
 
-def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]) -> tuple[dict, dict, dict]:
-    """Predictions of the baselines that apply, the reasons of those skipped, and notes."""
+def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int],
+                  train_blocks=None) -> tuple[dict, dict, dict]:
+    """Predictions of the baselines that apply, the reasons of those skipped, and notes.
+
+    ``train_blocks``: a function returning the training data as ``(u, y)`` blocks (for
+    ``arx_train``; see :mod:`robomorph.evaluation.training_data`).
+    """
     u_ctx, y_ctx, u_q, _ = w.split()
     preds, skipped, notes = {}, {}, {}
     for name in names:
         if name == "hold":
             preds[name] = hold(u_ctx, y_ctx, u_q).astype(np.float64)
-        elif name == "arx":
-            arx = ARX(*arx_orders)
+        elif name in ("arx", "arx_train"):
             try:
+                arx = ARX(*arx_orders) if name == "arx" else references.fit_arx_train(arx_orders, train_blocks)
                 preds[name] = arx(u_ctx, y_ctx, u_q)
-                notes["arx"] = {"na": arx.na, "nb": arx.nb, "diverged_held": arx.diverged}
-            except ValueError as exc:
+                notes[name] = {"na": arx.na, "nb": arx.nb, "diverged_held": arx.diverged}
+                if name == "arx_train":
+                    notes[name]["trajectories"] = arx.trajectories
+            except ValueError as exc:  # too short a context, or no training data to read
                 skipped[name] = str(exc)
         elif name in ("nominal_physics", "true_physics"):
             from robomorph.evaluation.physics import NominalPhysics, NotApplicable, check_params  # noqa: PLC0415
@@ -185,30 +201,18 @@ def sweep_context(predictor, w: Window, contexts: list[int], batch_size: int) ->
     return rows
 
 
-def parse_range(text: str | None, low: int, high: int, what: str) -> list[int]:
-    """``a:b:s`` (b included) or ``a,b,c`` into a list within ``[low, high]``."""
-    if not text:
-        return []
-    try:
-        if ":" in text:
-            a, b, s = (int(v) for v in text.split(":"))
-            values = list(range(a, b + 1, s))
-        else:
-            values = [int(v) for v in text.split(",")]
-    except ValueError:
-        raise ValueError(f"--sweep-{what} takes start:stop:step or a comma list of integers, got {text!r}") from None
-    if not values or min(values) < low or max(values) > high:
-        raise ValueError(f"--sweep-{what} {text!r} must lie within [{low}, {high}]")
-    return values
-
-
 def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, horizon: int | None = None,
              n: int | None = None, baselines: tuple[str, ...] = BASELINES, sweep_horizon_spec: str | None = None,
              sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
              samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0,
              normalization: str | None = None, horizons_spec: str | None = None,
-             offset: str | int | None = "start", inputs: str | None = None) -> dict:
+             offset: str | int | None = "start", inputs: str | None = None,
+             arx_train_data: list[str] | None = None, compare: dict[str, str] | None = None) -> dict:
     """Evaluates a checkpoint on a store and writes every output file into ``out``.
+
+    ``arx_train`` is fitted on the checkpoint's training split (read back from its stores),
+    or on the whole of the ``arx_train_data`` stores when given. ``compare`` maps names to
+    other checkpoints (e.g. ``{"scratch": ...}``) scored beside the baselines on the same data.
 
     Args:
         normalization: when given, the normalization the checkpoint must have been trained
@@ -227,6 +231,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     """
     from robomorph.model.predictor import Predictor  # noqa: PLC0415  (torch only here)
 
+    check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     for name in baselines:
         if name not in BASELINES + CEILINGS:
             raise ValueError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
@@ -246,10 +251,13 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     steps = parse_horizons(horizons_spec, w.horizon, w.dt)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
     contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")
-    _check_patch(predictor.patch, [w.context_len, *contexts])
+    check_patch(predictor.patch, [w.context_len, *contexts])
     os.makedirs(out, exist_ok=True)
-    result, preds, std, base = score(predictor, w, tuple(baselines), arx_orders, batch_size, steps)
+    others = {name: references.load_other(name, other, w, device) for name, other in (compare or {}).items()}
+    result, preds, std, base = score(predictor, w, tuple(baselines), arx_orders, batch_size, steps,
+                                     training_data.reader(ckpt, arx_train_data), others)
     result["meta"] = {"ckpt": ckpt, "data": data, **result["meta"], "offset": offset, "seed": seed}
+    result["meta"]["baseline_notes"].update({name: {"ckpt": path} for name, path in (compare or {}).items()})
     result["sweeps"] = _sweeps(predictor, w, horizons, contexts, base, batch_size, out)
     _, y_ctx, _, y_q = w.split()
     eval_plots.write_all(out, y_ctx, y_q.astype(np.float64), preds, w.y_names, w.dt, samples, seed,
@@ -259,13 +267,6 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     write_table(os.path.join(out, "table.md"), result)
     _write_json(os.path.join(out, "metrics.json"), result)
     return result
-
-
-def _check_patch(patch: int, contexts: list[int]) -> None:
-    odd = [c for c in contexts if c % patch]
-    if odd:
-        raise ValueError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "
-                         f"{odd} are not (--context-len / --sweep-context)")
 
 
 def _sweeps(predictor, w: Window, horizons: list[int], contexts: list[int], base: dict, batch_size: int,
@@ -282,8 +283,12 @@ def _sweeps(predictor, w: Window, horizons: list[int], contexts: list[int], base
 
 
 def score(predictor, w: Window, baselines: tuple[str, ...], arx_orders: tuple[int, int], batch_size: int,
-          steps: list[int]) -> tuple[dict, dict, np.ndarray | None, dict]:
+          steps: list[int], train_blocks=None, others: dict | None = None
+          ) -> tuple[dict, dict, np.ndarray | None, dict]:
     """Scores the model and the baselines on one window set.
+
+    ``train_blocks`` reads the training data (``arx_train``); ``others`` maps names to other
+    predictors (``--compare``), scored like the baselines.
 
     Returns:
         ``(result, preds, std, baseline preds)``: the ``metrics.json`` content without the
@@ -299,7 +304,9 @@ def score(predictor, w: Window, baselines: tuple[str, ...], arx_orders: tuple[in
     else:
         model = predict(predictor, u_ctx, y_ctx, u_q, batch_size, y_query=y_q)
     preds = {"model": model}
-    base, skipped, notes = run_baselines(w, baselines, arx_orders)
+    base, skipped, notes = run_baselines(w, baselines, arx_orders, train_blocks)
+    for name, other in (others or {}).items():
+        base[name] = predict(other, u_ctx, y_ctx, u_q, batch_size, desc=name, y_query=y_q)
     preds.update(base)
     names = w.y_names
     result = {"approach1": metrics.approach1(y_q, model, names),
@@ -357,6 +364,10 @@ def main(argv: list[str] | None = None) -> None:
                    help="require the checkpoint to have been trained with this normalization (default: its own)")
     p.add_argument("--inputs", choices=("total", "command"),
                    help="input formulation of the data (default: the checkpoint's; a different one is refused)")
+    p.add_argument("--compare", action="append", default=[], metavar="NAME=CKPT",
+                   help="another checkpoint scored beside the baselines (repeatable), e.g. scratch=runs/a/checkpoints/best.ckpt")
+    p.add_argument("--arx-train-data", help="comma list of stores to fit arx_train on, whole (default: the "
+                                            "checkpoint's training split, read back from its stores)")
     a = p.parse_args(argv)
     baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
     out = a.out or default_out(a.ckpt, a.data)
@@ -366,10 +377,15 @@ def main(argv: list[str] | None = None) -> None:
             raise ValueError
     except ValueError:
         p.error(f"--arx-orders takes two integers na,nb, got {a.arx_orders!r}")
+    compare = dict(c.split("=", 1) for c in a.compare if "=" in c)
+    if len(compare) != len(a.compare):
+        p.error(f"--compare takes NAME=CKPT, got {a.compare}")
     try:
         res = evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
                        a.sweep_context, a.batch_size, a.device, a.samples, orders, a.seed, a.normalization,
-                       horizons_spec=a.horizons, offset=a.offset, inputs=a.inputs)
+                       horizons_spec=a.horizons, offset=a.offset, inputs=a.inputs,
+                       arx_train_data=[s.strip() for s in a.arx_train_data.split(",") if s.strip()] if a.arx_train_data else None,
+                       compare=compare)
     except (ValueError, FileNotFoundError) as exc:
         sys.exit(f"error: {exc}")
     print(summary_text(res, out))
@@ -385,9 +401,11 @@ def summary_text(res: dict, out: str, horizons: bool = True) -> str:
         lines.append(f"  normalization {meta.get('normalization')}: scores use the query outputs' statistics (the "
                      "paper's protocol), not those of a deployable model")
     lines.append(f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}")
+    notes = meta.get("baseline_notes", {})
     for b, r in res["baselines"].items():
         mb = r["approach1"]["mean"]
-        lines.append(f"  {b:16s} R2 {mb['r2']['mean']:8.3f}  FIT {mb['fit']['mean']:8.2f}  RMSE {mb['rmse']['mean']:.4g}")
+        lines.append(f"  {b:16s} R2 {mb['r2']['mean']:8.3f}  FIT {mb['fit']['mean']:8.2f}  RMSE {mb['rmse']['mean']:.4g}"
+                     + (f"  ({note})" if (note := diverged_note(notes.get(b, {}), meta["n"])) else ""))
     lines += [f"  skipped {b}: {why}" for b, why in res["skipped_baselines"].items()]
     if horizons and "horizons" in res:
         lines += ["RMS error by horizon (step k: k dt after the last context sample):", horizon_markdown(res["horizons"])]

@@ -12,10 +12,12 @@ import os
 import numpy as np
 
 from robomorph.core import metrics
+from robomorph.data.store import channel_label
 from robomorph.evaluation import horizons
 
 _STYLE = {"model": dict(color="C0", lw=1.4), "hold": dict(color="C7", ls=":"),
-          "arx": dict(color="C2", ls="--", lw=1.0), "nominal_physics": dict(color="C3", ls="-.", lw=1.0),
+          "arx": dict(color="C2", ls="--", lw=1.0), "arx_train": dict(color="C1", ls="--", lw=1.0),
+          "nominal_physics": dict(color="C3", ls="-.", lw=1.0),
           "true_physics": dict(color="C4", ls=(0, (1, 1)), lw=1.0)}
 
 
@@ -158,7 +160,9 @@ def write_all(out: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[str, 
     """The standard set: ``samples`` sample trajectories, error growth, R^2 distribution."""
     rng = np.random.default_rng(seed)
     picks = sorted(rng.choice(len(y_true), size=min(samples, len(y_true)), replace=False).tolist())
-    paths = [plot_samples(os.path.join(out, f"sample_{i}.png"), y_ctx, y_true, preds, names, dt, i, std) for i in picks]
+    # Panel titles carry the store's units ("q1 [rad]") where it records them.
+    labels = [channel_label(n, u) for n, u in zip(names, y_units)] if y_units else names
+    paths = [plot_samples(os.path.join(out, f"sample_{i}.png"), y_ctx, y_true, preds, labels, dt, i, std) for i in picks]
     paths.append(plot_error_growth(os.path.join(out, "error_growth.png"), y_true, preds, dt, names, steps, y_units))
-    paths.append(plot_r2_distribution(os.path.join(out, "r2_distribution.png"), y_true, preds, names))
+    paths.append(plot_r2_distribution(os.path.join(out, "r2_distribution.png"), y_true, preds, labels))
     return paths

@@ -49,6 +49,12 @@ def _fit(v: float) -> str:
     return f"{FIT_BANDS[fit_band(v)].mark} {v:.1f}"
 
 
+def diverged_note(note: dict, n: int) -> str:
+    """``"k of n trajectories diverged: held instead"`` for a baseline that fell back to hold."""
+    k = note.get("diverged_held", 0)
+    return f"{k} of {n} trajectories diverged: held instead" if k else ""
+
+
 def table_markdown(result: dict) -> str:
     """Per-channel R^2 and FIT (approaches 1 and 2) of the model, FIT of each baseline."""
     meta, a1, a2 = result["meta"], result["approach1"], result["approach2"]
@@ -72,6 +78,10 @@ def table_markdown(result: dict) -> str:
     lines.append("| " + " | ".join(cells) + " |")
     legend = ", ".join(f"{b.mark} {b.label}" for b in FIT_BANDS)
     lines += ["", f"FIT colour convention (the paper's Table 3): {legend}."]
+    notes = meta.get("baseline_notes", {})
+    for b in base:
+        if note := diverged_note(notes.get(b, {}), meta["n"]):
+            lines.append(f"Baseline `{b}`: {note} (its scores include those held predictions).")
     for b, why in result.get("skipped_baselines", {}).items():
         lines.append(f"Skipped baseline `{b}`: {why}")
     if "horizons" in result:

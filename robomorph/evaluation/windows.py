@@ -130,3 +130,41 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
                           "drop them (robomorph.merge) or fix the import")
     return Window(u, y, context_len, horizon, list(u_names), list(ds.y_names), ds.dt, ds.attrs,
                   ds.read("params", rows), starts, y_first, inputs)
+
+
+def parse_range(text: str | None, low: int, high: int, what: str) -> list[int]:
+    """``a:b:s`` (b included) or ``a,b,c`` into a list within ``[low, high]``."""
+    if not text:
+        return []
+    try:
+        if ":" in text:
+            a, b, s = (int(v) for v in text.split(":"))
+            values = list(range(a, b + 1, s))
+        else:
+            values = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise ValueError(f"--sweep-{what} takes start:stop:step or a comma list of integers, got {text!r}") from None
+    if not values or min(values) < low or max(values) > high:
+        raise ValueError(f"--sweep-{what} {text!r} must lie within [{low}, {high}]")
+    return values
+
+
+class EvaluationError(RoboMorphError, ValueError):
+    """Evaluation settings that cannot work; the message names the flag."""
+
+
+def check_counts(**values: int | None) -> None:
+    """Refuses a given (not None) step or trajectory count below 1: ``--context-len 0`` would
+    otherwise fall back to the checkpoint's length without a word."""
+    for name, value in values.items():
+        if value is not None and value < 1:
+            flag = "--" + name.replace("_", "-")
+            raise EvaluationError(f"{flag} {value}: give a positive number, or leave it out for the default")
+
+
+def check_patch(patch: int, contexts: list[int]) -> None:
+    """Refuses contexts the model cannot tokenize (not whole patches)."""
+    odd = [c for c in contexts if c % patch]
+    if odd:
+        raise ValueError(f"context lengths must be multiples of the model's patch ({patch} steps per token): "
+                         f"{odd} are not (--context-len / --sweep-context)")

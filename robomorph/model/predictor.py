@@ -20,9 +20,14 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from robomorph.core.errors import RoboMorphError
 from robomorph.core.inputs import check_model_inputs
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
 from robomorph.model.checkpoint import CheckpointError, TrainedModel, load_trained
+
+
+class PredictionError(RoboMorphError, ValueError):
+    """Inputs the model cannot predict from (wrong shape, non-finite, or overflowing)."""
 
 
 class Predictor:
@@ -67,9 +72,22 @@ class Predictor:
 
     def _check(self, name: str, x: torch.Tensor, width: int) -> None:
         if x.shape[-1] != width:
-            raise ValueError(f"{name} has {x.shape[-1]} channels, the model expects {width}")
+            raise PredictionError(f"{name} has {x.shape[-1]} channels, the model expects {width}")
         if not torch.isfinite(x).all():
-            raise ValueError(f"{name} holds NaN or inf values")
+            raise PredictionError(f"{name} holds NaN or inf values")
+
+    def _check_output(self, y: torch.Tensor, inputs: list[torch.Tensor]) -> None:
+        """Refuses non-finite predictions instead of handing them on without a word."""
+        bad = (~torch.isfinite(y)).flatten(1).any(1)
+        if not bad.any():
+            return
+        rows = torch.nonzero(bad).flatten().tolist()
+        stats = self.model.normalizer
+        scale = max(float((inputs[0].abs() / stats.u_std).max()), float((inputs[2].abs() / stats.u_std).max()))
+        raise PredictionError(
+            f"the model's predictions are non-finite (NaN or inf) for batch rows {rows[:10]}: the inputs reach "
+            f"{scale:.3g} training standard deviations, far outside what the model was trained on; check their "
+            "units and scale (the checkpoint expects the training data's)")
 
     def _query_stats(self, y_query_stats, batch: int):
         """Checks ``y_query_stats`` against the normalization; (mean, std) tensors (B, n_y) or None."""
@@ -123,6 +141,7 @@ class Predictor:
             NormalizationError: ``y_query_stats`` missing for a ``paper_window`` model, given
                 for another, or of the wrong shape.
             InputsError: ``inputs`` names the other formulation.
+            PredictionError: arrays of the wrong shape, non-finite inputs, or non-finite predictions.
             CheckpointError: ``return_std`` for a model without a Gaussian head.
         """
         self.check_inputs(inputs)
@@ -135,12 +154,13 @@ class Predictor:
                                    dtype=torch.float32, device=self.device) for x in (u_ctx, y_ctx, u_query)]
         single = tensors[0].dim() == 2
         if any(t.dim() != (2 if single else 3) for t in tensors):
-            raise ValueError("give all three arrays unbatched (T, C) or all batched (B, T, C)")
+            raise PredictionError("give all three arrays unbatched (T, C) or all batched (B, T, C)")
         if single:
             tensors = [t.unsqueeze(0) for t in tensors]
         for name, t, w in zip(("u_ctx", "y_ctx", "u_query"), tensors, (self.n_u, self.n_y, self.n_u)):
             self._check(name, t, w)
         mean, std = self.model.forward_dist(*tensors, self._query_stats(y_query_stats, len(tensors[0])))
+        self._check_output(mean, tensors)
         out = [t[0] if single else t for t in (mean, std) if t is not None]
         if as_numpy:
             kind = dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32

@@ -44,7 +44,8 @@ def continuous_quaternion(quat: np.ndarray) -> np.ndarray:
     q = np.array(quat, dtype=np.float64, copy=True)
     dots = np.sum(q[..., 1:, :] * q[..., :-1, :], axis=-1)
     # The sign of sample t is the product of the flips up to t: a cumulative parity.
-    flips = np.concatenate([np.zeros_like(dots[..., :1]), (dots < 0).astype(np.float64)], axis=-1)
+    # (the first sample's zero is shaped from q, not dots: one sample has no dots at all)
+    flips = np.concatenate([np.zeros(q.shape[:-2] + (1,)), (dots < 0).astype(np.float64)], axis=-1)
     sign = np.where(np.cumsum(flips, axis=-1) % 2 == 1, -1.0, 1.0)
     return q * sign[..., None]
 

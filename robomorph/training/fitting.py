@@ -14,20 +14,25 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shutil
 import sys
 import time
 import warnings
 from typing import Any
 
 import torch
-from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.callbacks import LearningRateMonitor
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.loggers import WandbLogger
+from lightning.pytorch.utilities.exceptions import SIGTERMException
 
+from robomorph.core.errors import run_command
 from robomorph.data.datamodule import RoboMorphDataModule
 from robomorph.model.checkpoint import load_checkpoint_file
+from robomorph.training import preflight
+from robomorph.training.callbacks import BestAndLast, FinalValidation, SaveOnSigterm
 from robomorph.training.checkpoints import AtomicCheckpointIO, ResumableCSVLogger, prune_log
-from robomorph.training.module import FROM_DATA, VAL_LOSS, MetaModule
+from robomorph.training.module import FROM_DATA, SCHEDULE_KEY, VAL_LOSS, MetaModule, schedule_change
 
 _RUN_ENV = "ROBOMORPH_RUN_NAME"  # shared with DDP worker processes, which re-run this script
 
@@ -41,6 +46,16 @@ class FitResult:
     last_ckpt: str | None
     metrics: dict[str, float]
     global_step: int
+    val_step: int | None = None  # the step of the validation that ``metrics`` reports
+
+
+class StoppedBySignal(Exception):
+    """The run was stopped by SIGTERM (a scheduler's stop); ``last.ckpt`` holds ``step``."""
+
+    def __init__(self, run_dir: str, last_ckpt: str, step: int):
+        super().__init__(f"stopped by SIGTERM at step {step}: saved {last_ckpt}; "
+                         "re-run the same command to resume from there")
+        self.run_dir, self.last_ckpt, self.step = run_dir, last_ckpt, step
 
 
 def _default_precision() -> str:
@@ -90,14 +105,17 @@ class RoboMorphCLI(LightningCLI):
         return os.path.join(cfg.runs_dir, name)
 
     def instantiate_trainer(self, **kwargs: Any):
+        # The folder is made by fit() once the pre-flight checks pass, not here: a refused
+        # fit leaves nothing behind.
         cfg, run_dir = self.config, self.run_dir()
-        os.makedirs(run_dir, exist_ok=True)
         self._run_dir = run_dir
         ckpt_dir = os.path.join(run_dir, "checkpoints")
         callbacks = [
-            ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor=VAL_LOSS, mode="min", save_top_k=1,
+            BestAndLast(dirpath=ckpt_dir, filename="best", monitor=VAL_LOSS, mode="min", save_top_k=1,
                             save_last=True, auto_insert_metric_name=False, enable_version_counter=False),
             LearningRateMonitor(logging_interval="step"),
+            FinalValidation(),
+            SaveOnSigterm(ckpt_dir),
         ]
         existing = self._get(self.config_init, "trainer", default={}).get("callbacks") or []
         kwargs["callbacks"] = list(existing) + callbacks + list(self.extra_callbacks)
@@ -137,6 +155,33 @@ def _finish_wandb(trainer) -> None:
             wandb.finish()
 
 
+def _callback(trainer, cls):
+    return next(cb for cb in trainer.callbacks if isinstance(cb, cls))
+
+
+def _announce_resume(cli: RoboMorphCLI, run_dir: str, ckpt_path: str) -> None:
+    """Says where the run resumes and, when ``max_steps`` changed, how the schedule changes."""
+    ckpt = load_checkpoint_file(ckpt_path)
+    step = ckpt["global_step"]
+    prune_log(os.path.join(run_dir, "logs", "metrics.csv"), step)
+    print(f"resuming {run_dir} from {ckpt_path} (step {step})", file=sys.stderr)
+    old_max = ckpt.get(SCHEDULE_KEY, {}).get("max_steps", _configured_max_steps(run_dir))
+    change = schedule_change(ckpt["hyper_parameters"], old_max, cli.model.hparams, cli.trainer.max_steps, step)
+    if change:
+        print(change, file=sys.stderr)
+
+
+def _configured_max_steps(run_dir: str) -> int | None:
+    """``trainer.max_steps`` of the run's config.yaml (checkpoints older than SCHEDULE_KEY)."""
+    import yaml  # noqa: PLC0415
+
+    try:
+        with open(os.path.join(run_dir, "config.yaml")) as f:
+            return int(yaml.safe_load(f)["trainer"]["max_steps"])
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+        return None
+
+
 def _resume_path(cli: RoboMorphCLI, run_dir: str) -> str | None:
     last = os.path.join(run_dir, "checkpoints", "last.ckpt")
     asked = cli.config.ckpt_path
@@ -169,34 +214,77 @@ def fit(args: list[str] | dict | None = None, callbacks: list | None = None) -> 
     cli = build_cli(args, callbacks)
     run_dir, trainer, module = cli._run_dir, cli.trainer, cli.model
     ckpt = _resume_path(cli, run_dir)
+    _preflight(cli, ckpt)
     module.resuming = ckpt is not None
-    if trainer.is_global_zero:
-        cli.parser.save(cli.config, os.path.join(run_dir, "config.yaml"), overwrite=True, multifile=False)
-        if ckpt:
-            step = load_checkpoint_file(ckpt)["global_step"]
-            prune_log(os.path.join(run_dir, "logs", "metrics.csv"), step)
-            print(f"resuming {run_dir} from {ckpt} (step {step})", file=sys.stderr)
+    created = not os.path.isdir(run_dir)
+    os.makedirs(run_dir, exist_ok=True)
     try:
-        trainer.fit(module, datamodule=cli.datamodule, ckpt_path=ckpt)
-    finally:
-        _save_wandb_id(trainer, run_dir)
-        _finish_wandb(trainer)
+        if trainer.is_global_zero:
+            if ckpt:
+                _announce_resume(cli, run_dir, ckpt)
+            # Written only now: a refused resume keeps the configuration its checkpoints belong to.
+            cli.parser.save(cli.config, os.path.join(run_dir, "config.yaml"), overwrite=True, multifile=False)
+        try:
+            trainer.fit(module, datamodule=cli.datamodule, ckpt_path=ckpt)
+        except SIGTERMException:
+            saver = _callback(trainer, SaveOnSigterm)
+            raise StoppedBySignal(run_dir, saver.path, saver.saved_step) from None
+        finally:
+            _save_wandb_id(trainer, run_dir)
+            _finish_wandb(trainer)
+    except BaseException:
+        _remove_if_empty(run_dir, created)
+        raise
     cb = trainer.checkpoint_callback
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
     best = os.path.join(run_dir, "checkpoints", "best.ckpt")
     last = os.path.join(run_dir, "checkpoints", "last.ckpt")
     return FitResult(run_dir=run_dir, best_ckpt=best if os.path.isfile(best) else (cb.best_model_path or None),
                      last_ckpt=last if os.path.isfile(last) else None, metrics=metrics,
-                     global_step=trainer.global_step)
+                     global_step=trainer.global_step, val_step=_callback(trainer, FinalValidation).last_val_step)
+
+
+def _preflight(cli: RoboMorphCLI, ckpt: str | None) -> int:
+    """Every check that can fail before training (data, shapes, budget, checkpoints); the
+    step of the resumed checkpoint (0 for a new run)."""
+    trainer, module, dm = cli.trainer, cli.model, cli.datamodule
+    preflight.check_budget(trainer)
+    dm.setup("fit")  # idempotent: the trainer's own call then finds it done
+    preflight.check_windows(module, dm)
+    if ckpt:
+        return preflight.check_resume(module, dm, ckpt)
+    preflight.check_init(module)
+    return 0
+
+
+def _remove_if_empty(run_dir: str, created: bool) -> None:
+    """A run folder this call made and that holds no checkpoint goes again: a failed fit
+    leaves no husk for the next ``--run`` of that name to trip over."""
+    if created and not os.path.isfile(os.path.join(run_dir, "checkpoints", "last.ckpt")):
+        shutil.rmtree(run_dir, ignore_errors=True)
 
 
 def main(argv: list[str] | None = None) -> int:
-    result = fit(argv)
-    if result.metrics:
-        shown = ", ".join(f"{k}={v:.4g}" for k, v in sorted(result.metrics.items()) if k.startswith("val/"))
-        print(f"{result.run_dir}: step {result.global_step}, {shown}")
+    return run_command(lambda: _main(argv))
+
+
+def _main(argv: list[str] | None) -> int:
+    try:
+        result = fit(argv)
+    except StoppedBySignal as stop:
+        print(stop, file=sys.stderr)
+        return 128 + 15  # the shell's code for a SIGTERM stop: schedulers may requeue on it
     print(f"best checkpoint: {result.best_ckpt}\nrun directory: {result.run_dir}")
+    print(final_line(result))
     return 0
+
+
+def final_line(result: FitResult) -> str:
+    """The run's last line: the step reached and the validation it reports, with its step."""
+    shown = ", ".join(f"{k}={v:.4g}" for k, v in sorted(result.metrics.items()) if k.startswith("val/"))
+    if result.val_step is None or not shown:
+        return f"{result.run_dir}: step {result.global_step}, no validation in this session"
+    return f"{result.run_dir}: step {result.global_step}, validation at step {result.val_step}: {shown}"
 
 
 if __name__ == "__main__":

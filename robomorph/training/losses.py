@@ -19,11 +19,12 @@ class ModelOptionError(RoboMorphError, ValueError):
 def check_loss(loss: str, gaussian: bool, horizon_weight: float, horizon_tau: float) -> None:
     """The loss needs what it names: ``nll`` a Gaussian head; the horizon weights a sane shape."""
     if loss not in LOSSES:
-        raise ModelOptionError(f"loss must be one of {LOSSES}, got {loss!r}")
+        raise ModelOptionError(f"--model.loss must be one of {LOSSES}, got {loss!r}")
     if loss == "nll" and not gaussian:
         raise ModelOptionError("loss 'nll' needs the Gaussian head: set gaussian=true (--model.gaussian true)")
     if not horizon_weight >= 0 or not horizon_tau > 0:
-        raise ModelOptionError(f"need horizon_weight >= 0 and horizon_tau > 0, got {horizon_weight}, {horizon_tau}")
+        raise ModelOptionError(f"need --model.horizon_weight >= 0 and --model.horizon_tau > 0, "
+                               f"got {horizon_weight}, {horizon_tau}")
 
 
 def horizon_weights(horizon: int, weight: float, tau: float, device=None) -> torch.Tensor:

@@ -7,7 +7,6 @@ arrive in physical units from :class:`robomorph.data.datamodule.RoboMorphDataMod
 
 from __future__ import annotations
 
-import math
 from typing import Literal
 
 import lightning.pytorch as L
@@ -27,8 +26,9 @@ from robomorph.model.checkpoint import (
 )
 from robomorph.model.normalization import Normalizer, query_stats
 from robomorph.model.transformer import MetaModel, ModelConfig
-from robomorph.training.losses import ModelOptionError  # noqa: F401  (re-exported: the module's option errors)
-from robomorph.training.losses import check_loss, elementwise_loss, horizon_weights, whole_patches
+from robomorph.training.losses import ModelOptionError, check_loss, elementwise_loss, horizon_weights, whole_patches
+from robomorph.training.optim import lr_factor as _lr_factor
+from robomorph.training.optim import optimizers
 
 # Log keys, defined once (namespaced as the lightning-hydra-template does).
 TRAIN_LOSS, VAL_LOSS, VAL_R2, VAL_FIT, LR = "train/loss", "val/loss", "val/r2", "val/fit", "lr"
@@ -38,6 +38,8 @@ FREEZE_MODES = ("none", "encoder", "all_but_head")
 FROM_DATA = ("n_u", "n_y", "context_len")
 # Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
 IO_LAYERS = ("encoder.embed", "decoder.embed", "decoder.init_embed", "head")
+# Checkpoint entry holding the trainer's max_steps, so a resume can say how the schedule changes.
+SCHEDULE_KEY = "robomorph_schedule"
 
 
 def data_info(dm) -> dict:
@@ -45,6 +47,10 @@ def data_info(dm) -> dict:
     return {"u_names": list(dm.u_names), "y_names": list(dm.y_names), "dt": float(dm.dt),
             "context_len": int(dm.context_len), "horizon": int(dm.horizon),
             "stores": [str(s) for s in dm.stores], "inputs": str(getattr(dm, "inputs", "total"))}
+
+
+class ModelSettingsError(ModelOptionError):
+    """Model or optimizer settings that cannot work; the message names the ``--model.`` flag."""
 
 
 class MetaModule(L.LightningModule):
@@ -58,15 +64,12 @@ class MetaModule(L.LightningModule):
         d_model, n_head, n_layer, n_layer_dec, dropout, bias, patch, max_context, max_horizon:
             the network; defaults and meaning in :class:`robomorph.model.transformer.ModelConfig`
             (the CPU-sized model: d 128, 4 + 4 layers, 4 heads, patches of 10 steps).
-        n_init: last context steps fed to the decoder as initial-condition tokens (0 = off;
-            a multiple of ``patch``).
+        n_init: last context steps given to the decoder as initial-condition tokens (0 = off).
         gaussian: the head also predicts a log-variance per step and channel.
-        loss: ``huber``, ``mse`` or ``nll`` (Gaussian negative log-likelihood, needs
-            ``gaussian``), on normalized outputs.
+        loss: ``huber``, ``mse`` or ``nll`` (Gaussian NLL, needs ``gaussian``), on normalized outputs.
         huber_delta: Huber transition point in normalized units.
-        horizon_weight, horizon_tau: loss weight of query step t is
-            ``1 + horizon_weight * exp(-t / horizon_tau)``, rescaled to mean 1 over the horizon
-            (0 = uniform): the first steps, which a predictive controller uses most, count more.
+        horizon_weight, horizon_tau: query step t weighs ``1 + horizon_weight * exp(-t / horizon_tau)``
+            in the loss, rescaled to mean 1 (0: uniform), so the first steps count more.
         lr: peak learning rate (AdamW).
         min_lr_ratio: the cosine decays to ``lr * min_lr_ratio``.
         warmup_steps: linear warmup length.
@@ -80,13 +83,14 @@ class MetaModule(L.LightningModule):
         anchor: the network predicts the deviation from the last context output, which
             is added back (a context value: nothing of the query leaks). The prediction
             then starts where the robot is instead of having to locate it first.
-        integrate: the network predicts per-step changes (scaled by ``INTEGRATE_SCALE`` of
-            :mod:`robomorph.model.checkpoint`), summed from the last context output: the first
-            predicted step is the last measured one plus one small change.
+        integrate: the network predicts per-step changes summed from the last context output.
         init_ckpt: start from this checkpoint's weights and normalization (transfer).
         freeze: ``none``, ``encoder`` or ``all_but_head``.
         reinit_io: when the checkpoint's n_u / n_y differ, re-initialize the input
             embeddings and the head instead of failing.
+        normalization_from: with ``init_ckpt``, where the normalization statistics come
+            from: ``target`` (default), this run's training data; ``source``, the
+            checkpoint's (same channels only: with new channels they come from the data).
     """
 
     def __init__(
@@ -123,14 +127,12 @@ class MetaModule(L.LightningModule):
         init_ckpt: str | None = None,
         freeze: Literal["none", "encoder", "all_but_head"] = "none",
         reinit_io: bool = False,
+        normalization_from: Literal["source", "target"] = "target",
     ):
         super().__init__()
         check_loss(loss, gaussian, horizon_weight, horizon_tau)
-        if freeze not in FREEZE_MODES:
-            raise ValueError(f"freeze must be one of {FREEZE_MODES}, got {freeze!r}")
-        if lr <= 0 or not 0 <= min_lr_ratio <= 1 or warmup_steps < 0 or huber_delta <= 0:
-            raise ValueError("need lr > 0, 0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
-        _check_context(context_len, patch, max_context)
+        _check_training(freeze, normalization_from, lr, min_lr_ratio, warmup_steps, huber_delta)
+        check_context(context_len, patch, max_context)
         check_normalization(normalization, recenter)
         self.save_hyperparameters()
         self.net: MetaModel | None = None
@@ -147,14 +149,18 @@ class MetaModule(L.LightningModule):
     # ----------------------------------------------------------------- construction
     @property
     def model_config(self) -> ModelConfig:
-        return model_config(dict(self.hparams))
+        return self.config_for(self.hparams.n_u, self.hparams.n_y)
+
+    def config_for(self, n_u: int, n_y: int) -> ModelConfig:
+        """The network's validated configuration for ``n_u`` inputs and ``n_y`` outputs (:func:`settings_config`)."""
+        return settings_config({**dict(self.hparams), "n_u": n_u, "n_y": n_y})
 
     def _build(self, n_u: int, n_y: int) -> None:
         self.net = MetaModel(self.model_config)
         self.normalizer = Normalizer(n_u=n_u, n_y=n_y, recenter=self.hparams.recenter,
                                      normalization=self.hparams.normalization)
         self.register_buffer("stats_ready", torch.tensor(False))
-        _apply_freeze(self.net, self.hparams.freeze)
+        _freeze(self.net, self.hparams.freeze)
 
     def setup(self, stage: str) -> None:
         dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
@@ -178,13 +184,15 @@ class MetaModule(L.LightningModule):
             self.stats_ready.fill_(True)
 
     def _transfer(self, path: str) -> None:
-        if _load_transferred(self, path):
-            self.stats_ready.fill_(True)  # same channels: the pretrained normalization came along
-        _apply_freeze(self.net, self.hparams.freeze)
+        from_source = _load_transferred(self, path)
+        self.stats_ready.fill_(from_source)  # the pretrained normalization came along only with source
+        _freeze(self.net, self.hparams.freeze)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.data_info is not None:
             checkpoint[DATA_INFO_KEY] = self.data_info
+        if self._trainer is not None:
+            checkpoint[SCHEDULE_KEY] = {"max_steps": int(self.trainer.max_steps)}
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         self.data_info = checkpoint.get(DATA_INFO_KEY, self.data_info)
@@ -244,27 +252,39 @@ class MetaModule(L.LightningModule):
 
     # ------------------------------------------------------------------ optimizer
     def configure_optimizers(self):
-        return _optimizers(self)
+        return optimizers(self)
 
 
-def _optimizers(module: MetaModule) -> dict:
-    """AdamW (no decay on biases, norms and embeddings) with warmup and cosine decay, per step."""
-    h, net = module.hparams, module.net
-    params = [p for p in net.parameters() if p.requires_grad]
-    if not params:
-        raise ValueError("freeze left no trainable parameters")
-    decay = [p for p in params if p.dim() >= 2 and not _is_embedding(net, p)]
-    no_decay = [p for p in params if all(p is not q for q in decay)]
-    groups = [{"params": decay, "weight_decay": h.weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
-    opt = torch.optim.AdamW(groups, lr=h.lr, betas=tuple(h.betas))
-    max_steps = module.trainer.max_steps
-    total = h.decay_steps or (max_steps if max_steps > 0 else 10_000)
-    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda step: _lr_factor(step, h.warmup_steps, total, h.min_lr_ratio))
-    return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+def _check_training(freeze: str, normalization_from: str, lr: float, min_lr_ratio: float,
+                    warmup_steps: int, huber_delta: float) -> None:
+    """Refuses freeze, transfer and optimizer settings that cannot work, naming the flag
+    (the loss: :func:`robomorph.training.losses.check_loss`)."""
+    if freeze not in FREEZE_MODES:
+        raise ModelSettingsError(f"--model.freeze must be one of {FREEZE_MODES}, got {freeze!r}")
+    if normalization_from not in ("source", "target"):
+        raise ModelSettingsError(f"--model.normalization_from must be 'source' or 'target', got {normalization_from!r}")
+    for name, value, ok in (("lr", lr, lr > 0), ("min_lr_ratio", min_lr_ratio, 0 <= min_lr_ratio <= 1),
+                            ("warmup_steps", warmup_steps, warmup_steps >= 0),
+                            ("huber_delta", huber_delta, huber_delta > 0)):
+        if not ok:
+            raise ModelSettingsError(f"--model.{name} {value} is out of range: need lr > 0, "
+                                     "0 <= min_lr_ratio <= 1, warmup_steps >= 0, huber_delta > 0")
 
 
-def _apply_freeze(net: MetaModel, mode: str) -> None:
-    """Leaves trainable only what ``freeze`` (``none``, ``encoder``, ``all_but_head``) allows."""
+def settings_config(hparams: dict) -> ModelConfig:
+    """:func:`model_config` of a module's hyper-parameters, its errors naming the ``--model.`` flags.
+
+    Raises:
+        ModelSettingsError: shapes that cannot work (e.g. ``n_head`` not dividing ``d_model``).
+    """
+    try:
+        return model_config(hparams)
+    except ValueError as exc:
+        raise ModelSettingsError(f"{str(exc).replace('ModelConfig.', '--model.')}") from exc
+
+
+def _freeze(net: torch.nn.Module, mode: str) -> None:
+    """Leaves trainable only what ``freeze`` mode ``mode`` trains."""
     for name, p in net.named_parameters():
         if mode == "encoder":
             p.requires_grad = not name.startswith("enc")
@@ -275,7 +295,10 @@ def _apply_freeze(net: MetaModel, mode: str) -> None:
 def _load_transferred(module: MetaModule, path: str) -> bool:
     """Loads a pretrained checkpoint's weights into ``module``; True when its normalization came too.
 
-    Refuses another protocol, other channels without ``reinit_io`` and another architecture.
+    The statistics (and their "ready" flag) come along only with ``normalization_from=source``;
+    otherwise ``setup`` computes them from this run's data. Refuses another protocol, other
+    channels without ``reinit_io``, ``source`` statistics for other channels and another
+    architecture.
     """
     ckpt = load_checkpoint_file(path)
     src = ckpt["hyper_parameters"]
@@ -290,38 +313,66 @@ def _load_transferred(module: MetaModule, path: str) -> bool:
             f"n_u={module.hparams.n_u}, n_y={module.hparams.n_y}. Set reinit_io=true to re-initialize the "
             "input embeddings and the head (the rest transfers)."
         )
+    from_source = module.hparams.get("normalization_from", "target") == "source"
+    if from_source and not same_io:
+        raise CheckpointError(
+            f"normalization_from=source needs the checkpoint's channels, but {path} has n_u={src.get('n_u')}, "
+            f"n_y={src.get('n_y')} and this data n_u={module.hparams.n_u}, n_y={module.hparams.n_y}: "
+            "use --model.normalization_from target (statistics of the new training data)")
     state = {k: v for k, v in ckpt["state_dict"].items()
-             if same_io or not (k.startswith("normalizer.") or _is_io(k))}
+             if (from_source or not _is_stats(k)) and (same_io or not _is_io(k))}
     missing, unexpected = module.load_state_dict(state, strict=False)
-    allowed_missing = [k for k in missing if not same_io and (k.startswith("normalizer.") or _is_io(k))]
+    allowed_missing = [k for k in missing if (not from_source and _is_stats(k)) or (not same_io and _is_io(k))]
     if set(missing) - set(allowed_missing) - {"stats_ready"} or unexpected:
         raise CheckpointError(
             f"{path} does not match this architecture (missing {sorted(set(missing) - set(allowed_missing))[:5]}, "
             f"unexpected {sorted(unexpected)[:5]}): use the same d_model, n_head, layers and patch"
         )
-    return same_io
+    return from_source
 
 
-def _check_context(context_len: int | None, patch: int, max_context: int) -> None:
-    """The encoder needs whole patches and a positional table that covers the context."""
+def check_context(context_len: int | None, patch: int, max_context: int) -> None:
+    """The encoder needs whole patches and a positional table that covers the context.
+
+    Raises:
+        ModelSettingsError: naming the ``--data.context_len`` and ``--model.`` flags to change.
+    """
     if context_len is None:
         return
-    if context_len % patch or context_len > max_context:
-        raise RoboMorphError(f"context_len {context_len} must be a multiple of patch ({patch}) and at most "
-                             f"max_context ({max_context}): change data.context_len or model.patch")
+    if context_len % patch:
+        lower, upper = context_len - context_len % patch, context_len - context_len % patch + patch
+        hint = f"use {upper}" if lower < 1 else f"use {lower} or {upper}"
+        raise ModelSettingsError(f"--data.context_len {context_len} is not a multiple of --model.patch {patch} "
+                                 f"(steps per token): {hint}, or another patch")
+    if context_len > max_context:
+        raise ModelSettingsError(f"--data.context_len {context_len} exceeds --model.max_context {max_context} (the "
+                                 f"positional table's length): raise --model.max_context to at least {context_len}")
 
 
-def _lr_factor(step: int, warmup: int, total: int, floor: float) -> float:
-    """Linear warmup to 1, cosine decay to ``floor`` at ``total``, then flat."""
-    if step < warmup:
-        return (step + 1) / warmup
-    progress = min(1.0, (step - warmup) / max(1, total - warmup))
-    return floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * progress))
+def schedule_change(old_hparams: dict, old_max_steps: int | None, new_hparams, new_max_steps: int,
+                    step: int) -> str | None:
+    """One line on how a resume at ``step`` changes the run, or None when nothing changes.
+
+    The cosine runs over ``decay_steps`` or, by default, ``max_steps``: resuming with another
+    ``max_steps`` then stretches or shrinks the rest of it, and the learning rate jumps.
+    """
+    if old_max_steps is None or old_max_steps == new_max_steps:
+        return None
+
+    def total(h, max_steps: int) -> int:
+        return h.get("decay_steps") or (max_steps if max_steps > 0 else 10_000)
+
+    old_total, new_total = total(old_hparams, old_max_steps), total(new_hparams, new_max_steps)
+    head = f"max_steps {old_max_steps} -> {new_max_steps}, resuming at step {step}"
+    if old_total == new_total:
+        return f"{head}: the learning-rate schedule is unchanged (decay_steps {new_total})"
+    lrs = [h["lr"] * _lr_factor(step, h["warmup_steps"], t, h["min_lr_ratio"])
+           for h, t in ((old_hparams, old_total), (new_hparams, new_total))]
+    return (f"{head}: the cosine learning-rate decay now ends at step {new_total} instead of {old_total} "
+            f"(lr at step {step}: {lrs[0]:.3g} -> {lrs[1]:.3g}); pin --model.decay_steps to keep it")
+def _is_stats(key: str) -> bool:
+    return key.startswith("normalizer.") or key == "stats_ready"
 
 
 def _is_io(key: str) -> bool:
     return any(key.startswith(f"net.{layer}.") for layer in IO_LAYERS)
-
-
-def _is_embedding(net: torch.nn.Module, p: torch.Tensor) -> bool:
-    return any(p is m.weight for m in net.modules() if isinstance(m, torch.nn.Embedding))

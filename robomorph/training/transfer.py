@@ -3,9 +3,10 @@
 The paper's Table 2 compares three ways to get a model for a new task (the spiral):
 
 - ``zero_shot``: no training; the pre-trained checkpoint is evaluated as it is.
-- ``finetune``: start from the pre-trained weights and normalization (``model.init_ckpt``),
-  optionally freezing part of the network, with a lower learning rate, for a budget of
-  ``steps`` optimizer steps.
+- ``finetune``: start from the pre-trained weights (``model.init_ckpt``), optionally
+  freezing part of the network, with a lower learning rate, for a budget of ``steps``
+  optimizer steps. The normalization statistics follow ``model.normalization_from``
+  (default ``target``: the fine-tuning data's; ``source``: the checkpoint's).
 - ``scratch``: the same architecture from a random initialization, ``steps`` steps.
 
 The overrides are nested dicts in :func:`robomorph.training.fitting.fit`'s vocabulary, to be merged

@@ -25,10 +25,12 @@ import sys
 import time
 
 import lightning.pytorch as L
+import numpy as np
 import optuna
 
+from robomorph.core.errors import RoboMorphError
 from robomorph.tuning.space import Space, SpaceError, load_space
-from robomorph.tuning.storage import DEFAULT_DIR, open_storage
+from robomorph.tuning.storage import open_storage
 
 STATES_DONE = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
 
@@ -53,14 +55,57 @@ class StepPruning(L.Callback):
             trainer.should_stop = True
 
 
+class PerTrialSeedSampler(optuna.samplers.BaseSampler):
+    """A sampler re-made for every trial with a seed derived from (study seed, trial number).
+
+    Workers started together each hold a sampler seeded with the space's seed: their random
+    streams are identical, so trial k of one worker drew exactly the parameters of trial k'
+    of the other (duplicated trials, fANOVA on duplicates). Trial numbers are unique across
+    the workers of one storage, so seeding by them gives every trial its own stream, and a
+    re-run of the study draws the same parameters for the same trial numbers.
+    """
+
+    def __init__(self, make, seed: int | None):
+        self._make, self._seed = make, seed
+        self._inner = make(seed)
+
+    def _trial_seed(self, number: int) -> int | None:
+        if self._seed is None:
+            return None
+        return int(np.random.SeedSequence(self._seed, spawn_key=(number,)).generate_state(1)[0])
+
+    def before_trial(self, study, trial) -> None:
+        self._inner = self._make(self._trial_seed(trial.number))
+        self._inner.before_trial(study, trial)
+
+    def infer_relative_search_space(self, study, trial):
+        return self._inner.infer_relative_search_space(study, trial)
+
+    def sample_relative(self, study, trial, search_space):
+        return self._inner.sample_relative(study, trial, search_space)
+
+    def sample_independent(self, study, trial, param_name, param_distribution):
+        return self._inner.sample_independent(study, trial, param_name, param_distribution)
+
+    def after_trial(self, study, trial, state, values) -> None:
+        self._inner.after_trial(study, trial, state, values)
+
+    def reseed_rng(self) -> None:
+        self._inner.reseed_rng()
+
+
 def _sampler(space: Space) -> optuna.samplers.BaseSampler:
     cfg = dict(space.sampler)
     name, seed = cfg.pop("name"), cfg.pop("seed", None)
     if name == "grid":
-        return optuna.samplers.GridSampler(space.grid(), seed=seed)
+        grid = space.grid()
+        return PerTrialSeedSampler(lambda s: optuna.samplers.GridSampler(grid, seed=s), seed)
     if name == "random":
-        return optuna.samplers.RandomSampler(seed=seed)
-    return optuna.samplers.TPESampler(seed=seed, **cfg)
+        return PerTrialSeedSampler(lambda s: optuna.samplers.RandomSampler(seed=s), seed)
+    # constant_liar: TPE treats the trials other workers are running as (bad) results, so
+    # concurrent workers do not all propose the neighbourhood of the same best trial.
+    cfg.setdefault("constant_liar", True)
+    return PerTrialSeedSampler(lambda s: optuna.samplers.TPESampler(seed=s, **cfg), seed)
 
 
 def _pruner(space: Space) -> optuna.pruners.BasePruner:
@@ -225,15 +270,18 @@ def main(argv: list[str] | None = None) -> int:
     a = _run_parser().parse_args(argv)
     if a.n_trials < 1:
         sys.exit("error: --n-trials must be >= 1")
+    from robomorph.tuning.summary import claim_summary_dir, summarize, summary_dir  # noqa: PLC0415
+
     try:
         space = with_overrides(load_space(a.space), a.set)
         storage = open_storage(a.storage, a.heartbeat, a.grace)
+        out = summary_dir(a.runs_dir, a.study_name or space.name)
+        # Before any trial runs: a folder holding another study's summary is refused now.
+        claim_summary_dir(out, a.study_name or space.name, a.storage)
         study = run_sweep(space, a.n_trials, storage, a.study_name, a.runs_dir, a.wandb)
-    except (SpaceError, FileNotFoundError) as exc:
-        sys.exit(f"error: {exc}")
-    from robomorph.tuning.summary import summarize  # noqa: PLC0415
-
-    print(summarize(study, os.path.join(DEFAULT_DIR, study.study_name)))
+    except (RoboMorphError, FileNotFoundError) as exc:  # a bad space, storage or fit setting
+        sys.exit(f"error: {' '.join(str(exc).split())}")
+    print(summarize(study, out))
     return 0
 
 

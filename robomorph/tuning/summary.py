@@ -2,8 +2,10 @@
 
     python -m robomorph.sweep summary --study-name architecture-cpu [--storage URL]
 
-Prints a markdown table and writes it (``summary.md``) with ``trials.csv`` into
-``results/sweeps/<study>/``. The same storage opens in the Optuna dashboard::
+Prints a markdown table and writes it (``summary.md``) with ``trials.csv`` beside the
+study's runs, into ``<runs_dir>/<study>-summary/`` (``study.json`` there records which
+study of which storage the folder holds, so a same-named study of another storage never
+overwrites it). The same storage opens in the Optuna dashboard::
 
     optuna-dashboard sqlite:///results/sweeps/optuna.db
 """
@@ -12,13 +14,17 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
+import json
 import math
 import os
 import sys
 
 import optuna
 
-from robomorph.tuning.storage import DEFAULT_DIR, open_storage
+from robomorph.core.atomic import write_json, write_text
+from robomorph.tuning.space import SpaceError
+from robomorph.tuning.storage import DEFAULT_URL, open_storage, storage_identity
 
 COLUMNS = ("number", "state", "value", "duration_s", "run_dir")
 
@@ -74,22 +80,61 @@ def summarize(study: optuna.Study, out_dir: str | None = None) -> str:
     text = "\n".join(lines) + "\n"
     if out_dir:
         os.makedirs(out_dir, exist_ok=True)
-        with open(os.path.join(out_dir, "summary.md"), "w") as f:
-            f.write(text)
-        with open(os.path.join(out_dir, "trials.csv"), "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=head, extrasaction="ignore")
-            w.writeheader()
-            w.writerows(rows)
+        write_text(os.path.join(out_dir, "summary.md"), text)
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=head, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+        write_text(os.path.join(out_dir, "trials.csv"), buf.getvalue())
     return text
 
 
-def main(argv: list[str] | None = None) -> int:
-    from robomorph.tuning.space import SpaceError  # noqa: PLC0415
+def summary_dir(runs_dir: str, study_name: str) -> str:
+    """Where a study's summary goes: beside its runs (``<runs_dir>/<study>-t<NNNN>``)."""
+    return os.path.join(runs_dir, f"{study_name}-summary")
 
+
+def runs_dir_of(study: optuna.Study, default: str = "results/runs") -> str:
+    """The folder the study's trials ran in (from their recorded run directories)."""
+    for t in study.get_trials(deepcopy=False):
+        if t.user_attrs.get("run_dir"):
+            return os.path.dirname(t.user_attrs["run_dir"])
+    return default
+
+
+def claim_summary_dir(out_dir: str, study_name: str, storage_url: str | None) -> None:
+    """Records in ``out_dir/study.json`` which study it summarizes; refuses another study's folder.
+
+    Raises:
+        SpaceError: ``out_dir`` already holds the summary of a study of that name in another
+            storage (or of another study).
+    """
+    ident = {"study_name": study_name, "storage": storage_identity(storage_url)}
+    marker = os.path.join(out_dir, "study.json")
+    if os.path.isfile(marker):
+        try:
+            with open(marker) as f:
+                held = json.load(f)
+        except (OSError, ValueError):
+            held = None
+        if held != ident:
+            raise SpaceError(
+                f"{out_dir} holds the summary of another study ({held}); this is study {study_name!r} of "
+                f"{ident['storage']}: pass another --runs-dir (or --out for the summary) or --study-name")
+        return
+    if os.path.isfile(os.path.join(out_dir, "summary.md")):
+        raise SpaceError(f"{out_dir} holds a summary of unknown origin (no study.json); pass another "
+                         "--runs-dir (or --out) or remove that folder")
+    os.makedirs(out_dir, exist_ok=True)
+    write_json(marker, ident)
+
+
+def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m robomorph.sweep summary", description=__doc__.split("\n")[0])
     p.add_argument("--study-name", required=True)
-    p.add_argument("--storage", help="SQLAlchemy URL (default: sqlite:///results/sweeps/optuna.db)")
-    p.add_argument("--out", help="folder for summary.md and trials.csv (default: results/sweeps/<study>)")
+    p.add_argument("--storage", help=f"SQLAlchemy URL (default: {DEFAULT_URL})")
+    p.add_argument("--out", help="folder for summary.md and trials.csv (default: <runs-dir>/<study>-summary)")
+    p.add_argument("--runs-dir", help="where the study's runs are (default: read from its trials)")
     a = p.parse_args(argv)
     try:
         storage = open_storage(a.storage)
@@ -99,5 +144,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyError:
         names = [s.study_name for s in optuna.get_all_study_summaries(storage)]
         sys.exit(f"error: no study {a.study_name!r} in this storage; it holds {names}")
-    print(summarize(study, a.out or os.path.join(DEFAULT_DIR, a.study_name)))
+    out = a.out or summary_dir(a.runs_dir or runs_dir_of(study), a.study_name)
+    try:
+        claim_summary_dir(out, a.study_name, a.storage)
+    except SpaceError as exc:
+        sys.exit(f"error: {exc}")
+    print(summarize(study, out))
     return 0

@@ -360,6 +360,77 @@ def test_arguments_parse_from_the_command_line(tmp_path):
         parser.parse_args(["--data.window=middle"])
 
 
+def _recorded_store(path, lengths, steps=30, stride=10, store_id=0):
+    """Overlapping windows cut from recordings, as ``ingest`` writes them: u[..., 0] holds
+    1000 * recording + sample index, so a window names the samples it holds."""
+    us, rec, starts = [], [], []
+    for r, length in enumerate(lengths):
+        for s in range(0, length - steps + 1, stride):
+            t = np.arange(s, s + steps)
+            us.append(np.stack([store_id * 100000 + 1000 * r + t, np.zeros(steps)], 1))
+            rec.append(r)
+            starts.append(s)
+    n = len(us)
+    u = np.asarray(us, np.float32)
+    y = np.repeat(u[..., :1], 3, axis=2)
+    w = create_store(str(path), n, steps, U_NAMES, Y_NAMES, [], {"dt": 0.1}, chunk=8,
+                     extras={"recording_index": ((), "int32"), "window_start": ((), "int64")})
+    w.append(u, y, np.zeros((n, 0), np.float32),
+             extras={"recording_index": np.asarray(rec, np.int32), "window_start": np.asarray(starts)})
+    w.finalize()
+    return str(path)
+
+
+def _samples(dm, split):
+    """(recording, sample) pairs that the windows of one split hold."""
+    pairs = getattr(dm, f"{split}_set").pairs
+    u = np.concatenate([dm.sources[s].window(int(i), 0, dm.sources[s].steps)[0][None] for s, i in pairs])
+    return set(u[..., 0].astype(np.int64).ravel().tolist())
+
+
+def test_overlapping_windows_of_one_recording_stay_in_one_split(tmp_path):
+    a = _recorded_store(tmp_path / "rec.zarr", lengths=[200, 150, 260, 120, 180, 220, 90, 240])
+    for seed in range(3):
+        dm = _dm(a, split=(0.6, 0.2, 0.2), seed=seed)
+        groups = dm.sources[0].groups
+        recs = {k: set(groups[dm.splits[0][k]].tolist()) for k in ("train", "val", "test")}
+        assert recs["val"] and recs["test"] and recs["train"]
+        assert not (recs["train"] & recs["val"]) and not (recs["train"] & recs["test"]) and not (recs["val"] & recs["test"])
+        train, val = _samples(dm, "train"), _samples(dm, "val")
+        assert val and not (train & val)  # no recorded sample is both trained on and validated on
+        assert dm.describe()["split_by"] == ["recording"]
+    again = _dm(a, split=(0.6, 0.2, 0.2), seed=2).splits[0]
+    assert all(np.array_equal(again[k], dm.splits[0][k]) for k in again)  # seeded
+
+
+def test_one_recording_cannot_be_split_by_recording(tmp_path):
+    a = _recorded_store(tmp_path / "one.zarr", lengths=[300])
+    with pytest.raises(ValueError, match="1 recording.*val_store"):
+        _dm(a, split=(0.8, 0.2, 0.0))
+    assert len(_dm(a, split=(1.0, 0.0, 0.0)).splits[0]["train"]) == 28
+
+
+def test_validation_from_its_own_store(tmp_path):
+    a = _store(tmp_path / "a.zarr")
+    v = _store(tmp_path / "v.zarr", store_id=3, n=6)
+    dm = _dm(a, val_store=v, split=(0.8, 0.1, 0.1), val_subset=100)
+    sp = dm.splits[0]
+    assert len(sp["val"]) == 0 and len(sp["train"]) + len(sp["test"]) == 20 and len(sp["test"]) >= 2
+    stores, trajs, _ = _who(torch.cat([b["u_ctx"] for b in dm.val_dataloader()]))
+    assert (stores == 3).all() and sorted(set(trajs[:, 0].tolist())) == list(range(6))
+    # the validation store never enters the training statistics
+    u = _values(0, 20, 60, 2, 1)[sp["train"], :30].astype(np.float64)
+    assert np.allclose(dm.stats.u_mean, u.reshape(-1, 2).mean(0), rtol=1e-5)
+    info = dm.describe()
+    assert info["val_store"] == v and info["val"] == 6
+    both = _dm(a, val_store=v, test_store=_store(tmp_path / "t.zarr", store_id=4, n=3))
+    assert len(both.splits[0]["train"]) == 20 and len(both.test_set) == 3 and len(both.val_set) == 6
+    with pytest.raises(ValueError, match="val_store .* is also a training store"):
+        RoboMorphDataModule(stores=[a], val_store=a)
+    with pytest.raises(ValueError, match="the same store"):
+        RoboMorphDataModule(stores=[a], val_store=v, test_store=v)
+
+
 def test_inputs_command_reads_u_cmd_for_batches_and_statistics(tmp_path):
     n, steps = 20, 60
     u = _values(0, n, steps, 2, 1)

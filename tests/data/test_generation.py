@@ -239,6 +239,39 @@ def test_gravity_modes(tmp_path, mode):
         assert tau_other > 5
 
 
+@pytest.mark.parametrize("task", ["multisine", "spiral"])
+def test_one_step_trajectories_generate_and_complete(tmp_path, capsys, task):
+    # --steps 1 used to fail with a numpy concatenation error and leave an in-progress
+    # store that the same command could not finish.
+    out = str(tmp_path / "one.zarr")
+    assert main(["--task", task, "--robots", "2", "--steps", "1", "--out", out, "--quiet", "--workers", "1"]) == 0
+    ds = open_store(out)
+    assert ds.attrs["status"] == "complete" and ds.read("y").shape == (2, 1, 14)
+    assert np.isfinite(ds.read("y")).all()
+
+
+def test_out_under_a_file_is_one_line(tmp_path, capsys):
+    (tmp_path / "afile").write_text("x")
+    assert main(["--task", "multisine", "--robots", "2", "--steps", "5", "--out", str(tmp_path / "afile" / "x.zarr"),
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "is a file" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_out_in_a_read_only_folder_is_one_line(tmp_path, capsys):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o555)
+    try:
+        assert main(["--task", "multisine", "--robots", "2", "--steps", "5", "--out", str(locked / "x.zarr"),
+                     "--quiet"]) == 2
+    finally:
+        locked.chmod(0o755)
+    err = capsys.readouterr().err
+    assert "not writable" in err and len(err.strip().splitlines()) == 1
+
+
 def _compensation(mode, recipe, params, q):
     """(T, 7) what the arm added to the command at each recorded joint state."""
     model = panda.build_model(recipe.substeps, recipe.dt, gravity_compensation=mode == "true_model")

@@ -257,6 +257,55 @@ def test_cli_errors_exit_2_without_traceback(tmp_path, capsys):
     assert target.read_text() == "keep me"
 
 
+def test_tail_samples_dropped_are_reported_per_recording(tmp_path, capsys):
+    files = [_csv(tmp_path / "a.csv", _system(120)), _csv(tmp_path / "b.csv", _system(20)),
+             _csv(tmp_path / "c.csv", _system(100))]
+    out = str(tmp_path / "real.zarr")
+    rc = main([*files, "--u-cols", "tau1,tau2", "--y-cols", "q1,q2,q3", "--dt", str(DT), "--steps", "50",
+               "--stride", "30", "--out", out])
+    assert rc == 0
+    text = capsys.readouterr().out
+    # a: windows at 0, 30, 60 cover samples 0..109, 10 left; b is too short: all 20 dropped
+    assert "a.csv: 120 samples -> 3 windows, 10 tail samples dropped" in text
+    assert "b.csv: 20 samples -> 0 windows, 20 tail samples dropped" in text
+    assert "c.csv: 100 samples -> 2 windows, 20 tail samples dropped" in text
+    rec = open_store(out).attrs["recordings"]
+    assert [(r["source"], r["windows"], r["tail_dropped"]) for r in rec] == [("a.csv", 3, 10), ("b.csv", 0, 20),
+                                                                          ("c.csv", 2, 20)]
+
+
+def _titles(monkeypatch):
+    """Spies on Figure.savefig: the panel titles and axis labels of every figure written."""
+    from matplotlib.figure import Figure
+
+    seen, save = [], Figure.savefig
+
+    def spy(fig, *args, **kwargs):
+        seen.extend(ax.get_title() for ax in fig.axes)
+        seen.extend(ax.get_xticklabels()[i].get_text() for ax in fig.axes for i in range(len(ax.get_xticklabels())))
+        return save(fig, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", spy)
+    return seen
+
+
+def test_units_are_recorded_and_label_the_inspect_plot(tmp_path, monkeypatch):
+    from robomorph.data.summary import plot
+
+    out = str(tmp_path / "real.zarr")
+    rc = main([_csv(tmp_path / "a.csv", _system(120)), "--u-cols", "tau1,tau2", "--y-cols", "q1,q2,q3",
+               "--dt", str(DT), "--steps", "50", "--out", out, "--u-units", "N m,N m", "--y-units", "rad,rad,"])
+    assert rc == 0
+    ds = open_store(out)
+    assert ds.attrs["u_units"] == ["N m", "N m"] and ds.attrs["y_units"] == ["rad", "rad", ""]
+    seen = _titles(monkeypatch)
+    plot(ds, str(tmp_path / "p.png"), n_traj=1)
+    assert {"u: tau1 [N m]", "u: tau2 [N m]", "y: q1 [rad]", "y: q2 [rad]", "y: q3"} <= set(seen)
+    with pytest.raises(IngestError, match="--y-units gives 2 units for 3 columns"):
+        ingest([_csv(tmp_path / "a.csv", _system(120))], U, Y, str(tmp_path / "o.zarr"), steps=50, dt=DT,
+               y_units=["rad", "rad"])
+
+
 def _with_command(cols):
     """A log of an arm whose controller adds a known compensation to the command."""
     comp = {"tau1": 3.0 * np.sin(cols["q1"]), "tau2": 1.5 + 0.0 * cols["q2"]}

@@ -5,7 +5,7 @@ import pytest
 import zarr
 
 from robomorph.core.inputs import InputsError
-from robomorph.data.store import SchemaError, create_store, open_store
+from robomorph.data.store import SchemaError, StoreDamagedError, create_store, open_store
 
 
 def _make(path, n=5, steps=7, **kw):
@@ -88,6 +88,63 @@ def test_existing_store_needs_overwrite(tmp_path):
         _make(tmp_path / "a.zarr")
     _make(tmp_path / "a.zarr", overwrite=True)
     assert open_store(str(tmp_path / "a.zarr"), allow_incomplete=True).n == 0
+
+
+def _filled(path, n=6, chunk=2, steps=400):
+    w = _make(path, n=n, steps=steps, chunk=chunk)
+    u, y, p = _rows(n, steps)
+    w.append(u, y, p)
+    w.finalize()
+    return u, y
+
+
+def _chunk_file(path, name, c):
+    return os.path.join(str(path), name, "c", str(c), "0", "0")  # Zarr v3 default chunk keys
+
+
+def test_a_truncated_chunk_names_the_array_chunk_and_trajectories(tmp_path):
+    # It used to be "RuntimeError: error during blosc decompression", or, for data blosc
+    # stored uncompressed (these random floats), garbage values without a word.
+    path = tmp_path / "a.zarr"
+    u, y = _filled(path)
+    f = _chunk_file(path, "y", 1)
+    data = open(f, "rb").read()
+    with open(f, "wb") as out:
+        out.write(data[: len(data) // 2])
+    ds = open_store(str(path))
+    with pytest.raises(StoreDamagedError, match=r"'y' chunk c/1/0/0 \(trajectories 2\.\.3\) truncated") as err:
+        ds.read("y")
+    assert "--overwrite" in str(err.value)
+    with pytest.raises(StoreDamagedError, match="trajectories 2..3"):
+        ds.read("y", np.array([0, 3]))
+    np.testing.assert_array_equal(ds.read("y", slice(0, 2)), y[:2])  # the rest still reads
+    np.testing.assert_array_equal(ds.read("u"), u)
+    assert [d[:4] for d in ds.damaged_chunks()] == [("y", "c/1/0/0", 2, 3)]
+
+
+def test_a_corrupt_chunk_that_cannot_be_decoded_is_named(tmp_path):
+    path = tmp_path / "a.zarr"
+    w = _make(path, n=4, steps=400, chunk=2)
+    u, y, p = _rows(4, 400)
+    w.append(np.zeros_like(u), y, p)  # compressible: blosc really compresses u
+    w.finalize()
+    f = _chunk_file(path, "u", 1)
+    data = bytearray(open(f, "rb").read())
+    data[16:] = b"\xff" * (len(data) - 16)  # same length, garbage inside
+    open(f, "wb").write(bytes(data))
+    with pytest.raises(StoreDamagedError, match=r"'u' chunk c/1/0/0 \(trajectories 2\.\.3\) cannot be decoded"):
+        open_store(str(path)).read("u")
+
+
+def test_missing_chunks_are_named(tmp_path):
+    path = tmp_path / "a.zarr"
+    _filled(path)
+    assert open_store(str(path)).damaged_chunks() == []
+    os.remove(_chunk_file(path, "u", 2))
+    ds = open_store(str(path))
+    assert ds.damaged_chunks() == [("u", "c/2/0/0", 4, 5, "missing")]
+    with pytest.raises(StoreDamagedError, match=r"'u' chunk c/2/0/0 \(trajectories 4\.\.5\) missing"):
+        ds.read("u")
 
 
 def test_command_inputs_round_trip(tmp_path):

@@ -127,6 +127,27 @@ def test_cli_errors_exit_2(tmp_path, capsys):
     assert "in_progress (10 of 20 trajectories valid)" in capsys.readouterr().out
 
 
+def test_inspect_names_a_deleted_chunk(tmp_path, capsys):
+    # It used to show only the non-finite counts the fill value leaves behind.
+    path, _, _ = _store(tmp_path / "s.zarr", n=20, chunk=6)
+    os.remove(os.path.join(path, "y", "c", "2", "0", "0"))
+    assert main([path]) == 2
+    out, err = capsys.readouterr()
+    assert "damaged:   'y' chunk c/2/0/0 (trajectories 12..17) missing" in out
+    assert err.startswith("error: ") and "chunk c/2/0/0" in err and len(err.strip().splitlines()) == 1
+
+
+def test_inspect_names_a_truncated_chunk_in_one_line(tmp_path, capsys):
+    path, _, _ = _store(tmp_path / "s.zarr", n=20, chunk=6)
+    f = os.path.join(path, "u", "c", "1", "0", "0")
+    data = open(f, "rb").read()
+    with open(f, "wb") as out:
+        out.write(data[: len(data) // 3])
+    assert main([path]) == 2
+    err = capsys.readouterr().err
+    assert "'u' chunk c/1/0/0 (trajectories 6..11)" in err and len(err.strip().splitlines()) == 1
+
+
 def test_summary_shows_the_command_beside_the_total_torque(tmp_path):
     n, steps = 4, 10
     w = create_store(str(tmp_path / "c.zarr"), n, steps, U, Y, [], {"dt": 0.1}, u_cmd_names=["cmd0", "cmd1"])

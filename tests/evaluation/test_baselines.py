@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from robomorph.evaluation.baselines import ARX, estimate_velocity, hold
+from robomorph.evaluation.baselines import ARX, TrainedARX, estimate_velocity, hold
 
 
 def test_hold_is_exact_on_a_constant_trajectory():
@@ -12,13 +12,14 @@ def test_hold_is_exact_on_a_constant_trajectory():
     np.testing.assert_array_equal(pred, y[:, 20:])
 
 
-def _linear_system(rng, n_traj=3, steps=400, n_u=2, n_y=3):
-    """y[t] = A1 y[t-1] + A2 y[t-2] + B1 u[t-1] + B2 u[t-2] + c, stable."""
+def _linear_system(rng, n_traj=3, steps=400, n_u=2, n_y=3, u_rng=None):
+    """y[t] = A1 y[t-1] + A2 y[t-2] + B1 u[t-1] + B2 u[t-2] + c, stable (``u_rng``: inputs
+    drawn from another stream, the system staying the one ``rng`` draws)."""
     a1 = 0.5 * np.eye(n_y) + 0.05 * rng.normal(size=(n_y, n_y))
     a2 = -0.2 * np.eye(n_y)
     b1, b2 = rng.normal(size=(n_y, n_u)), 0.3 * rng.normal(size=(n_y, n_u))
     c = rng.normal(size=n_y)
-    u = rng.normal(size=(n_traj, steps, n_u))
+    u = (u_rng or rng).normal(size=(n_traj, steps, n_u))
     y = np.zeros((n_traj, steps, n_y))
     for t in range(2, steps):
         y[:, t] = y[:, t - 1] @ a1.T + y[:, t - 2] @ a2.T + u[:, t - 1] @ b1.T + u[:, t - 2] @ b2.T + c
@@ -74,3 +75,35 @@ def test_velocity_estimate_is_exact_on_a_cubic():
     assert v.shape == (1, 2)
     assert v[0, 0] == pytest.approx(2 - 6 * t_end + 1.5 * t_end**2, rel=1e-9)
     assert v[0, 1] == pytest.approx(0.0, abs=1e-12)
+
+
+def _blocks(u, y, size=2):
+    return [(u[i:i + size], y[i:i + size]) for i in range(0, len(u), size)]
+
+
+def test_arx_fitted_on_training_data_is_exact_on_new_trajectories_of_the_same_system():
+    u, y = _linear_system(np.random.default_rng(0), n_traj=5, steps=200)
+    arx = TrainedARX(na=2, nb=2).fit(_blocks(u, y))
+    assert arx.trajectories == 5
+    # other inputs, same system: a context of only 3 steps suffices (no per-context fit)
+    u2, y2 = _linear_system(np.random.default_rng(0), n_traj=4, steps=120, u_rng=np.random.default_rng(9))
+    pred = arx(u2[:, :3], y2[:, :3], u2[:, 3:])
+    assert pred.shape == y2[:, 3:].shape and arx.diverged == 0
+    np.testing.assert_allclose(pred, y2[:, 3:], atol=1e-5 * np.abs(y2).max())
+    poisoned = y2.copy()
+    poisoned[:, 3:] = 1e6  # the query outputs are never read
+    np.testing.assert_array_equal(pred, arx(u2[:, :3], poisoned[:, :3], u2[:, 3:]))
+    with pytest.raises(ValueError, match="context of at least 2"):
+        arx(u2[:, :1], y2[:, :1], u2[:, 1:])
+
+
+def test_arx_fitted_on_training_data_holds_what_diverges_and_counts_it():
+    t = np.arange(200)
+    y = (1.05 ** t)[None, :, None] * np.ones((3, 1, 1))
+    u = np.random.default_rng(0).normal(size=(3, 200, 1)) * 1e-6
+    arx = TrainedARX(na=1, nb=1).fit([(u, y)])
+    pred = arx(u[:, :20], y[:, :20], u[:, 20:])
+    assert arx.diverged == 3
+    np.testing.assert_array_equal(pred, np.repeat(y[:, 19:20], 180, axis=1))
+    with pytest.raises(ValueError, match="at least one training trajectory"):
+        TrainedARX().fit([])

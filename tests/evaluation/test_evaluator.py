@@ -44,7 +44,7 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
         assert set(disk["approach1"]["channels"][ch]) == set(METRICS)
         assert set(disk["approach1"]["channels"][ch]["r2"]) == {"mean", "std"}
         assert set(disk["approach2"]["channels"][ch]) == set(METRICS)
-    assert set(disk["baselines"]) == {"hold", "arx", "nominal_physics"}
+    assert set(disk["baselines"]) == {"hold", "arx", "arx_train", "nominal_physics"}
     for b in disk["baselines"].values():
         assert set(b) == {"approach1", "approach2"} and set(b["approach1"]["channels"]) == set(names)
     assert disk["meta"]["n"] == 6 and disk["meta"]["context_len"] == C and disk["meta"]["horizon"] == H
@@ -55,7 +55,7 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
     with open(os.path.join(out, "metrics.csv")) as f:
         rows = f.read().splitlines()
     # per source: approach 1 (14 channels + mean) and 2 (same), 4 metrics each
-    assert len(rows) == 1 + 4 * 2 * 15 * 4
+    assert len(rows) == 1 + 5 * 2 * 15 * 4
     table = open(os.path.join(out, "table.md")).read()
     assert all(f"| {n} |" in table for n in names) and "colour convention" in table
 
@@ -152,6 +152,89 @@ def test_parse_range():
         parse_range("0:900:100", 1, 800, "horizon")
     with pytest.raises(ValueError, match="start:stop:step"):
         parse_range("a:b", 1, 800, "horizon")
+
+
+def test_arx_train_is_fitted_on_the_checkpoints_training_split(setup, tmp_path):
+    _, ckpt, test = setup
+    from robomorph.data.splits import split_rows
+
+    train_store = Predictor.from_checkpoint(ckpt, device="cpu").data_info["stores"][0]
+
+    res = evaluate(ckpt, test, str(tmp_path / "a"), baselines=("arx_train",), samples=0, arx_orders=(1, 1))
+    train_rows = split_rows(24, (0.8, 0.1, 0.1), 0, 0)["train"]  # the fit's stores, split and seed
+    assert res["meta"]["baseline_notes"]["arx_train"]["trajectories"] == len(train_rows) < 24
+    assert set(res["baselines"]) == {"arx_train"}
+    whole = evaluate(ckpt, test, str(tmp_path / "b"), baselines=("arx_train",), samples=0, arx_orders=(1, 1),
+                     arx_train_data=[train_store])
+    assert whole["meta"]["baseline_notes"]["arx_train"]["trajectories"] == 24
+    gone = evaluate(ckpt, test, str(tmp_path / "c"), baselines=("hold", "arx_train"), samples=0,
+                    arx_train_data=[str(tmp_path / "moved.zarr")])
+    assert set(gone["baselines"]) == {"hold"} and "--arx-train-data" in gone["skipped_baselines"]["arx_train"]
+
+
+def test_a_diverged_baseline_says_so_in_the_printed_table(setup, tmp_path):
+    _, ckpt, test = setup
+    from robomorph.evaluation.evaluator import summary_text
+    from robomorph.evaluation.tables import table_markdown
+
+    res = evaluate(ckpt, test, str(tmp_path / "d"), baselines=("hold", "arx"), samples=0, arx_orders=(1, 1))
+    res["meta"]["baseline_notes"]["arx"]["diverged_held"] = 0
+    assert "diverged" not in summary_text(res, "x") and "diverged" not in table_markdown(res)
+    res["meta"]["baseline_notes"]["arx"]["diverged_held"] = 2  # as ARX reports two blow-ups
+    arx_line = next(line for line in summary_text(res, "x").splitlines() if line.strip().startswith("arx"))
+    assert arx_line.endswith("(2 of 6 trajectories diverged: held instead)")
+    assert "Baseline `arx`: 2 of 6 trajectories diverged: held instead" in table_markdown(res)
+
+
+def test_plots_label_channels_with_the_stores_units(setup, tmp_path, monkeypatch):
+    _, ckpt, test = setup
+    from matplotlib.figure import Figure
+
+    from robomorph.data.store import open_store
+
+    ds = open_store(test)
+    path = str(tmp_path / "units.zarr")
+    units = ["m"] * 3 + [""] * 4 + ["rad"] * 7
+    w = create_store(path, ds.n, ds.steps, ds.u_names, ds.y_names, [], {"dt": ds.dt, "y_units": units})
+    w.append(ds.read("u"), ds.read("y"), np.zeros((ds.n, 0), np.float32))
+    w.finalize()
+    titles, save = [], Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: (titles.extend(ax.get_title() for ax in fig.axes),
+                                                                save(fig, *a, **k))[1])
+    evaluate(ckpt, path, str(tmp_path / "u"), baselines=("hold",), samples=1)
+    assert {"ee_x [m]", "ee_qx", "q0 [rad]"} <= set(titles)
+
+
+def test_compare_scores_another_checkpoint_beside_the_baselines(setup, tmp_path):
+    _, ckpt, test = setup
+    res = evaluate(ckpt, test, str(tmp_path / "c"), baselines=("hold",), samples=0, compare={"again": ckpt})
+    assert set(res["baselines"]) == {"hold", "again"} and res["meta"]["baseline_notes"]["again"]["ckpt"] == ckpt
+    assert res["baselines"]["again"]["approach1"] == res["approach1"]  # the same model scores the same
+    with pytest.raises(ValueError, match="names a baseline"):
+        evaluate(ckpt, test, str(tmp_path / "d"), baselines=(), samples=0, compare={"hold": ckpt})
+@pytest.mark.parametrize("flag, value", [("--context-len", "0"), ("--context-len", "-5"), ("--horizon", "0"),
+                                         ("--n", "0"), ("--batch-size", "0")])
+def test_non_positive_lengths_are_refused(setup, tmp_path, flag, value):
+    # --context-len 0 used to run silently with the checkpoint's length.
+    _, ckpt, test = setup
+    with pytest.raises(SystemExit, match=f"error: {flag} {value}: .*positive"):
+        main(["--ckpt", ckpt, "--data", test, flag, value, "--out", str(tmp_path / "bad"), "--baselines", "none"])
+    assert not os.path.exists(tmp_path / "bad")
+
+
+def test_overflowing_predictions_are_refused(setup):
+    from robomorph.data.store import open_store
+    from robomorph.predictor import PredictionError
+
+    _, ckpt, test = setup
+    ds = open_store(test)
+    u, y = ds.read("u", slice(0, 2)), ds.read("y", slice(0, 2))
+    pred = Predictor.from_checkpoint(ckpt, device="cpu")
+    assert np.isfinite(pred.simulate(u[:, :C], y[:, :C], u[:, C:])).all()
+    big = u * np.float32(1e30)
+    assert np.isfinite(big).all()  # finite inputs; the model's arithmetic overflows
+    with pytest.raises(PredictionError, match="non-finite"):
+        pred.simulate(big[:, :C], y[:, :C], big[:, C:])
 
 
 def test_evaluate_reports_errors_by_horizon_from_random_offsets(setup, tmp_path):

@@ -74,7 +74,8 @@ def test_resume_continues_at_the_saved_step(store, tmp_path):
 def test_transfer_loads_weights_and_freeze_freezes(trained, store, tmp_path):
     base, _ = trained
     tuned = fit(_args(store, tmp_path, "ft", steps=10,
-                      model={"init_ckpt": base.best_ckpt, "freeze": "all_but_head", "lr": 1e-2}))
+                      model={"init_ckpt": base.best_ckpt, "freeze": "all_but_head", "lr": 1e-2,
+                             "normalization_from": "source"}))
     src = load_checkpoint_file(base.best_ckpt)["state_dict"]
     dst = load_checkpoint_file(tuned.last_ckpt)["state_dict"]
     frozen = [k for k in src if k.startswith("net.") and not k.startswith("net.head")]
@@ -181,6 +182,57 @@ def test_ckpt_path_last_resumes_a_named_run(store, tmp_path):
     args = _args(store, tmp_path, "named", steps=20)
     args["ckpt_path"] = "last"
     assert fit(args).global_step == 20
+
+
+def _stats(ckpt):
+    sd = load_checkpoint_file(ckpt)["state_dict"]
+    return {k: sd[f"normalizer.{k}"].numpy() for k in ("u_mean", "u_std", "y_mean", "y_std")}
+
+
+def _train_stats(path):
+    from robomorph.data.datamodule import RoboMorphDataModule
+
+    dm = RoboMorphDataModule(stores=path, context_len=20, horizon=40, batch_size=8, val_subset=8)
+    dm.setup("fit")
+    return dm.stats
+
+
+@pytest.fixture(scope="module")
+def scaled_store(tmp_path_factory, other_store):
+    """other_store's channels with values far from mean 0, std 1 (a real arm's torques)."""
+    from robomorph.data.store import create_store, open_store
+
+    src = open_store(other_store)
+    path = str(tmp_path_factory.mktemp("scaled") / "s.zarr")
+    w = create_store(path, src.n, src.steps, src.u_names, src.y_names, [], {"dt": src.dt})
+    w.append(src.read("u") * 5 - 6, src.read("y") * 3 + 2, np.zeros((src.n, 0), np.float32))
+    w.finalize()
+    return path
+
+
+def test_reinit_io_takes_the_statistics_of_the_new_data(trained, other_store, tmp_path):
+    # It used to keep mean 0, std 1 for every channel: the source's "statistics ready"
+    # flag came along while its statistics (other channels) were dropped.
+    base, _ = trained
+    ok = fit(_args(other_store, tmp_path, "io", steps=2, model={"init_ckpt": base.best_ckpt, "reinit_io": True}))
+    got, want = _stats(ok.last_ckpt), _train_stats(other_store)
+    np.testing.assert_allclose(got["u_std"], want.u_std, rtol=1e-5)
+    np.testing.assert_allclose(got["y_mean"], want.y_mean, rtol=1e-5, atol=1e-6)
+    assert not np.allclose(got["u_std"], 1.0)
+    with pytest.raises(CheckpointError, match="normalization_from"):
+        fit(_args(other_store, tmp_path, "io-src", steps=2,
+                  model={"init_ckpt": base.best_ckpt, "reinit_io": True, "normalization_from": "source"}))
+
+
+def test_same_channels_take_the_statistics_the_user_chooses(other_store, scaled_store, tmp_path):
+    src = fit(_args(other_store, tmp_path, "src", steps=2))
+    target = fit(_args(scaled_store, tmp_path, "tgt", steps=2, model={"init_ckpt": src.last_ckpt}))
+    kept = fit(_args(scaled_store, tmp_path, "kept", steps=2,
+                     model={"init_ckpt": src.last_ckpt, "normalization_from": "source"}))
+    want = _train_stats(scaled_store)
+    np.testing.assert_allclose(_stats(target.last_ckpt)["u_mean"], want.u_mean, rtol=1e-5)  # the default
+    for k in ("u_mean", "u_std", "y_mean", "y_std"):
+        np.testing.assert_array_equal(_stats(kept.last_ckpt)[k], _stats(src.last_ckpt)[k])
 
 
 @pytest.fixture(scope="module")

@@ -179,7 +179,7 @@ def test_freeze_leaves_only_the_named_parts_trainable(freeze, trainable):
 
 def test_the_context_must_fit_the_patches_and_the_positional_table():
     assert MetaModule(**TINY, context_len=30).hparams.context_len == 30
-    with pytest.raises(RoboMorphError, match="multiple of patch"):
+    with pytest.raises(RoboMorphError, match="context_len 32 is not a multiple of --model.patch 5"):
         MetaModule(**TINY, context_len=32)
     with pytest.raises(RoboMorphError, match="max_context"):
         MetaModule(**TINY, context_len=45)

@@ -15,6 +15,7 @@ import pytest
 
 from robomorph.tuning.runner import logged_values, main, open_storage, open_study, run_sweep, with_overrides
 from robomorph.tuning.space import SpaceError, load_space, parse_space
+from robomorph.tuning.storage import normalize_url
 from robomorph.tuning.summary import summarize
 
 os.environ.setdefault("WANDB_MODE", "offline")
@@ -108,6 +109,10 @@ def _share(store, tmp_path, url):
     dirs = [t.user_attrs["run_dir"] for t in trials]
     assert len(set(numbers)) == len(numbers) and len(set(dirs)) == len(dirs)
     assert all(os.path.isfile(os.path.join(d, "config.yaml")) for d in dirs)
+    # Workers started together draw their own parameters (issue 10: they used to run
+    # identical trials, each worker's sampler replaying the same seeded stream).
+    drawn = [tuple(sorted(t.params.items())) for t in trials]
+    assert len(set(drawn)) == len(drawn), drawn
 
 
 def test_two_workers_share_a_sqlite_study(store, tmp_path):
@@ -218,3 +223,62 @@ def test_a_trial_resumed_past_its_budget_takes_its_value_from_the_run_log(store,
     t0, t1 = first.get_trials()[0], again.get_trials()[0]
     assert t1.state == TS.COMPLETE and t1.user_attrs["global_step"] == 20 and not t1.intermediate_values
     assert t1.value == pytest.approx(t0.value) == pytest.approx(max(logged_values(t0.user_attrs["run_dir"], "val/r2")))
+
+
+def test_the_readme_postgresql_url_form_names_no_driver():
+    # SQLAlchemy 2.1 maps a plain postgresql:// to psycopg 3, which is not installed: the
+    # error used to blame the server for a missing driver.
+    assert normalize_url("postgresql://user@host/db") == "postgresql+psycopg2://user@host/db"
+    assert normalize_url("postgres://user:pw@host:5432/db") == "postgresql+psycopg2://user:pw@host:5432/db"
+    assert normalize_url("postgresql+psycopg2://u@h/d") == "postgresql+psycopg2://u@h/d"
+    with pytest.raises(SpaceError) as err:
+        open_storage("postgresql://nobody:secret@127.0.0.1:1/none")
+    # The server is what failed now (the old error blamed it for a driver that failed to import).
+    assert "import" not in str(err.value) and "Connection refused" in str(err.value)
+    assert "server is running" in str(err.value) and "secret" not in str(err.value)
+
+
+def test_the_readme_postgresql_url_form_opens_a_real_study(postgres):
+    plain = postgres.replace("postgresql+psycopg2://", "postgresql://")  # exactly the README's form
+    study = optuna.create_study(storage=open_storage(plain), study_name="plain", direction="minimize")
+    study.optimize(lambda t: t.suggest_float("x", 0, 1), n_trials=2)
+    again = optuna.load_study(study_name="plain", storage=open_storage(plain))
+    assert [t.state for t in again.trials] == [TS.COMPLETE, TS.COMPLETE]
+
+
+def test_summaries_go_beside_the_runs_and_never_overwrite_another_study(store, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # where results/sweeps/<study>/ used to be written
+
+    def sweep(url, runs):
+        return main([CI_SPACE, "--n-trials", "1", "--storage", url, "--study-name", "same", "--runs-dir", runs,
+                     "--wandb", "disabled", "--set", f"data.stores={store}"])
+
+    a, b = _sqlite(tmp_path, "a.db"), _sqlite(tmp_path, "b.db")
+    assert sweep(a, str(tmp_path / "ra")) == 0 and sweep(b, str(tmp_path / "rb")) == 0
+    first = (tmp_path / "ra" / "same-summary" / "summary.md").read_text()
+    second = (tmp_path / "rb" / "same-summary" / "summary.md").read_text()
+    assert "ra/same-t0000" in first and "rb/same-t0000" in second
+    assert not (tmp_path / "results").exists()
+    # The same study name from the other storage into the first runs folder: refused, and
+    # the first study's summary is untouched.
+    with pytest.raises(SystemExit, match="holds the summary of another study"):
+        sweep(b, str(tmp_path / "ra"))
+    with pytest.raises(SystemExit, match="holds the summary of another study"):
+        main(["summary", "--study-name", "same", "--storage", b, "--runs-dir", str(tmp_path / "ra")])
+    assert (tmp_path / "ra" / "same-summary" / "summary.md").read_text() == first
+    # The summary command finds the study's runs folder by itself.
+    assert main(["summary", "--study-name", "same", "--storage", b]) == 0
+    assert (tmp_path / "rb" / "same-summary" / "trials.csv").is_file()
+
+
+def test_a_fit_setting_that_cannot_train_stops_the_sweep_in_one_line(store, tmp_path):
+    with pytest.raises(SystemExit, match=r"^error: --data.context_len 21 is not a multiple of --model.patch 5"):
+        main([CI_SPACE, "--n-trials", "1", "--storage", _sqlite(tmp_path), "--runs-dir", str(tmp_path / "runs"),
+              "--wandb", "disabled", "--set", f"data.stores={store}", "--set", "data.context_len=21"])
+    assert not (tmp_path / "runs" / "ci-t0000").exists()
+
+
+def test_a_missing_database_driver_is_named_as_such():
+    with pytest.raises(SpaceError, match="database driver is not installed") as err:
+        open_storage("postgresql+psycopg://nobody@127.0.0.1:1/none")  # psycopg 3: not a dependency
+    assert "server is running" not in str(err.value)

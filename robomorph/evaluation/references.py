@@ -1,0 +1,30 @@
+"""What an evaluation scores beside the model besides the fixed baselines: an ARX model
+fitted on the model's training data (``arx_train``) and other checkpoints (``--compare``)."""
+
+from __future__ import annotations
+
+from robomorph.evaluation.baselines import BASELINES, CEILINGS, TrainedARX
+
+
+def fit_arx_train(orders: tuple[int, int], train_blocks) -> TrainedARX:
+    """``arx_train`` fitted on ``train_blocks()`` (see :func:`robomorph.evaluation.training_data.reader`)."""
+    if train_blocks is None:
+        raise ValueError("arx_train needs the training data: pass --arx-train-data")
+    return TrainedARX(*orders).fit(train_blocks())
+
+
+def load_other(name: str, ckpt: str, w, device: str | None):  # w: evaluation.windows.Window
+    """Another checkpoint (``--compare name=ckpt``), checked against the evaluated windows."""
+    from robomorph.model.predictor import Predictor  # noqa: PLC0415
+
+    if name in BASELINES + CEILINGS + ("model",):
+        raise ValueError(f"--compare {name}=...: {name!r} names a baseline; choose another name")
+    other = Predictor.from_checkpoint(ckpt, device=device)
+    info = other.data_info or {}
+    if (info.get("u_names"), info.get("y_names")) != (w.u_names, w.y_names):
+        raise ValueError(f"--compare {name}: {ckpt} was trained on other channels ({info.get('u_names')} -> "
+                         f"{info.get('y_names')}) than the store's ({w.u_names} -> {w.y_names})")
+    patch = int(other.patch)
+    if w.context_len % patch:
+        raise ValueError(f"--compare {name}: context {w.context_len} is not a multiple of its patch {patch}")
+    return other

@@ -1,0 +1,85 @@
+"""The training split a checkpoint was fitted on, read back from its stores (for ``arx_train``).
+
+Lightning saves the DataModule's arguments in the checkpoint (stores, split, seed,
+val_store, test_store); the same split function then gives back exactly the training
+trajectories, so a baseline fitted on them sees what the model saw and nothing of its
+validation or test data.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+
+import numpy as np
+
+from robomorph.core.errors import RoboMorphError
+from robomorph.data.splits import RECORDING_ARRAY, held_out_fractions, split_rows
+from robomorph.data.store import open_store
+
+# Trajectories read per block, and at most this many in all (a least-squares fit of a few
+# dozen coefficients gains nothing from more; it bounds the time on a huge store).
+BLOCK, MAX_TRAJECTORIES = 256, 4096
+
+
+class TrainingDataUnavailable(RoboMorphError, ValueError):
+    """The checkpoint's training data cannot be read back (the message says what to pass)."""
+
+
+def training_rows(ckpt: dict, stores: list[str] | None = None) -> list[tuple[str, np.ndarray]]:
+    """``(store path, training rows)`` of each training store of a checkpoint.
+
+    Args:
+        ckpt: a loaded checkpoint (``robomorph.model.checkpoint.load_checkpoint_file``).
+        stores: use these stores whole instead (``--arx-train-data``).
+    """
+    if stores:
+        return [(p, np.arange(_open(p, "--arx-train-data").n)) for p in stores]
+    dm = ckpt.get("datamodule_hyper_parameters") or {}
+    paths = dm.get("stores")
+    if not paths:
+        raise TrainingDataUnavailable("the checkpoint does not record its training stores: pass --arx-train-data")
+    paths = [paths] if isinstance(paths, str) else list(paths)
+    f = held_out_fractions(tuple(dm.get("split", (0.8, 0.1, 0.1))), dm.get("val_store") is not None,
+                           dm.get("test_store") is not None)
+    out = []
+    for k, path in enumerate(paths):
+        ds = _open(path, "the checkpoint's training store")
+        groups = ds.read(RECORDING_ARRAY) if RECORDING_ARRAY in ds.arrays else None
+        rows = split_rows(ds.n, f, int(dm.get("seed", 0)), k, groups=groups, path=path)["train"]
+        out.append((path, rows))
+    return out
+
+
+def _open(path: str, what: str):
+    if not os.path.isdir(path):
+        raise TrainingDataUnavailable(f"{what} {path} is not found (moved?): pass --arx-train-data with its new path")
+    return open_store(path)
+
+
+def blocks(rows: list[tuple[str, np.ndarray]], limit: int = MAX_TRAJECTORIES,
+           inputs: str = "total") -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """``(u, y)`` blocks of the training trajectories, at most ``limit`` of them, spread
+    evenly over the stores' rows in order (deterministic); ``u`` is the input formulation
+    the model was trained on (``data.inputs``: the total torque or the command)."""
+    total = sum(len(r) for _, r in rows)
+    keep = min(1.0, limit / max(total, 1))
+    for path, r in rows:
+        if keep < 1:
+            r = r[np.linspace(0, len(r) - 1, max(1, int(len(r) * keep))).astype(np.int64)]
+        ds = open_store(path)
+        for b in range(0, len(r), BLOCK):
+            sel = r[b:b + BLOCK]
+            yield ds.read_inputs(inputs, sel), ds.read("y", sel)
+
+
+def reader(ckpt_path: str, stores: list[str] | None = None) -> Callable[[], Iterator[tuple[np.ndarray, np.ndarray]]]:
+    """A function that reads the training blocks of a checkpoint when called (only a
+    baseline that needs them pays for the reading)."""
+    def read() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        from robomorph.model.checkpoint import load_checkpoint_file  # noqa: PLC0415  (torch only here)
+
+        ckpt = load_checkpoint_file(ckpt_path)
+        inputs = (ckpt.get("datamodule_hyper_parameters") or {}).get("inputs") or "total"
+        return blocks(training_rows(ckpt, stores), inputs=inputs)
+    return read
