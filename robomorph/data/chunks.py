@@ -20,8 +20,9 @@ from robomorph.core.errors import RoboMorphError
 # What to do about a damaged chunk: the rows are lost, the command that wrote them is not.
 REPAIR = ("rewrite the store: re-run the command that made it with --overwrite (generate: its recipe is in "
           "the store's 'config' attribute; or ingest / merge), or copy it again from an intact source")
-# Arrays every valid row fills (u_cmd: stores of schema 2 made by generate): Zarr skips writing a chunk equal to its fill value, so only
-# these must have a file for every chunk of valid rows.
+# Arrays every valid row fills (u_cmd: stores of schema 2 made by generate): Zarr skips
+# writing a chunk equal to its fill value, so only these must have a file for every chunk
+# of valid rows.
 _FILLED = ("u", "u_cmd", "y", "params")
 
 Damage = tuple[str, str, int, int, str]  # (array, chunk key, first row, last row, problem)
@@ -71,7 +72,7 @@ def damaged(path: str, group, n: int, names: list[str], indices: set[int] | None
 
 def describe(path: str, found: list[Damage]) -> str:
     """One line naming the damaged chunks (at most four), their rows and the fix."""
-    shown = ", ".join(f"'{a}' chunk {k} (trajectories {f}..{l}) {why}" for a, k, f, l, why in found[:4])
+    shown = ", ".join(f"'{a}' chunk {k} (trajectories {f}..{last}) {why}" for a, k, f, last, why in found[:4])
     more = f" and {len(found) - 4} more chunks" if len(found) > 4 else ""
     return f"{path} is damaged: {shown}{more}; {REPAIR}"
 

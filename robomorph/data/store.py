@@ -378,19 +378,6 @@ class Dataset:
         return chunks.describe(self.path, damaged) if damaged else None
 
 
-def channel_units(attrs: dict[str, Any], kind: str) -> list[str]:
-    """Units of the ``u`` or ``y`` channels (``attrs['u_units']``, written by ``ingest
-    --u-units``); empty strings where the store does not say."""
-    names = attrs.get(f"{kind}_names") or []
-    units = list(attrs.get(f"{kind}_units") or [])
-    return units if len(units) == len(names) else [""] * len(names)
-
-
-def channel_label(name: str, unit: str) -> str:
-    """``"q1 [rad]"``, or the bare name when the unit is unknown (a plot's axis label)."""
-    return f"{name} [{unit}]" if unit else name
-
-
 def open_store(path: str, allow_incomplete: bool = False) -> Dataset:
     """Opens a dataset for reading, refusing other schemas and unfinished stores.
 

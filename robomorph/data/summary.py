@@ -24,7 +24,8 @@ import warnings
 import numpy as np
 from matplotlib.figure import Figure
 
-from robomorph.data.store import Dataset, StoreDamagedError, channel_label, channel_units, open_store
+from robomorph.data.store import Dataset, StoreDamagedError, open_store
+from robomorph.data.units import channel_label, channel_units
 
 SAMPLE_ROWS = 256
 # Attributes the summary shows in its own sections; the rest are listed as they are.

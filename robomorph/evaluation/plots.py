@@ -12,7 +12,7 @@ import os
 import numpy as np
 
 from robomorph.core import metrics
-from robomorph.data.store import channel_label
+from robomorph.data.units import channel_label
 from robomorph.evaluation import horizons
 
 _STYLE = {"model": dict(color="C0", lw=1.4), "hold": dict(color="C7", ls=":"),
