@@ -18,7 +18,7 @@ R2, RMSE, NRMSE, FIT = "r2", "rmse", "nrmse", "fit"
 METRICS = (R2, RMSE, NRMSE, FIT)
 
 # Training losses (on normalized outputs).
-LOSSES = ("huber", "mse")
+LOSSES = ("huber", "mse", "nll")  # nll: the Gaussian head's negative log-likelihood
 
 # Tasks a recipe can generate: open-loop torque signals and OSC-tracked paths.
 OPEN_LOOP_TASKS = ("multisine", "chirp")

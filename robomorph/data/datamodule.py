@@ -9,7 +9,7 @@ Normalization belongs to the model (:class:`robomorph.model.normalization.Normal
 
 Randomness comes from one ``seed`` through ``numpy.random.SeedSequence`` streams (splits,
 validation subset, training stream per epoch). Every random draw of the training stream
-(store, trajectory, window offset) happens in the sampler in the main process, so the data
+(store, trajectory, context and query lengths, window offset) happens in the sampler in the main process, so the data
 do not depend on ``num_workers`` or on worker seeding.
 """
 
@@ -56,6 +56,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         horizon: query steps predicted after the context.
         window: ``start``: windows begin at step 0 (the paper: 200 + 800 of 1000); ``random``:
             a seeded random offset per training sample (validation and test still use ``start``).
+        context_min, horizon_min: horizon-aware training: each training batch draws its context length
+            from ``[context_min, context_len]`` and its horizon from ``[horizon_min, horizon]``
+            (seeded; validation and test keep the maxima). ``None``: always the maxima.
         split: (train, val, test) fractions of each store's trajectories; they sum to 1.
         seed: root seed of the splits, the validation subset and the training stream.
         batch_size: trajectories per batch.
@@ -75,8 +78,8 @@ class RoboMorphDataModule(L.LightningDataModule):
 
     def __init__(self, stores: list[str] | str = "data/demo/multisine.zarr", weights: list[float] | None = None,
                  test_store: str | None = None, val_store: str | None = None, context_len: int | None = 200,
-                 context_frac: float | None = None,
-                 horizon: int = 800, window: Literal["start", "random"] = "start",
+                 context_frac: float | None = None, horizon: int = 800, window: Literal["start", "random"] = "start",
+                 context_min: int | None = None, horizon_min: int | None = None,
                  split: tuple[float, float, float] = (0.8, 0.1, 0.1), seed: int = 0, batch_size: int = 16,
                  num_workers: int = 0, in_memory: bool | None = None, recenter: bool = False,
                  val_subset: int = 256, train_samples_per_epoch: int | None = None,
@@ -91,9 +94,8 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.context_frac, self.horizon, self.window = context_frac, horizon, window
         self.split, self.seed, self.batch_size, self.num_workers = tuple(split), seed, batch_size, num_workers
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
-        self.train_samples_per_epoch = train_samples_per_epoch
-        self.inputs = inputs
-        self.normalization = normalization
+        self.train_samples_per_epoch, self.context_min, self.horizon_min = train_samples_per_epoch, context_min, horizon_min
+        self.inputs, self.normalization = inputs, normalization
         _check_arguments(self)
         self._ready = False
         self._sources: list[Source] | None = None
@@ -110,6 +112,7 @@ class RoboMorphDataModule(L.LightningDataModule):
             return
         sources = self._open()
         check_lengths(sources, self.context_len, self.horizon)
+        _check_context_min(self)
         total = sum(s.nbytes for s in sources)
         self.loaded = self.in_memory if self.in_memory is not None else total <= MEMORY_BUDGET_BYTES
         if self.loaded:
@@ -196,12 +199,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         test = pairs([s["test"] for s in self.splits])
         ctx, h = self.context_len, self.horizon
         self.train_set, self.val_set, self.test_set = (WindowDataset(sources, p, ctx, h) for p in (train, val, test))
-        counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
-        self.train_sampler = MixtureSampler(
-            base=np.concatenate([[0], np.cumsum(counts)[:-1]]), counts=counts, probs=self.probs,
-            max_offsets=np.array([src.steps - ctx - h for src in sources[:len(self.stores)]]),
-            n_samples=self.train_samples_per_epoch or len(train), seed=self.seed,
-            random_window=self.window == "random")
+        self.train_sampler = _train_sampler(self, sources, len(train))
 
     def _loader(self, split: str) -> DataLoader:
         self.setup()
@@ -234,6 +232,7 @@ class RoboMorphDataModule(L.LightningDataModule):
             "train": len(self.train_set), "val": self.n_val_total, "val_used": len(self.val_set),
             "test": len(self.test_set), "train_samples_per_epoch": len(self.train_sampler),
             "context_len": self.context_len, "horizon": self.horizon, "window": self.window,
+            "context_min": self.context_min, "horizon_min": self.horizon_min,
             "n_u": self.n_u, "n_y": self.n_y, "dt": self.dt, "in_memory": bool(self.loaded),
             "seed": self.seed, "split": list(self.split), "normalization": self.normalization,
             "inputs": self.inputs,
@@ -272,6 +271,30 @@ def _check_arguments(dm: RoboMorphDataModule) -> None:
                              ("seed", dm.seed, 0)):
         if value < low:
             raise DataError(f"{name} must be >= {low}, got {value}")
+    if dm.horizon_min is not None and not 1 <= dm.horizon_min <= dm.horizon:
+        raise DataError(f"horizon_min must be in [1, horizon={dm.horizon}], got {dm.horizon_min}")
+    if dm.context_min is not None and (dm.context_min < 1 or (
+            dm._context_len_arg is not None and dm.context_min > dm._context_len_arg)):
+        raise DataError(f"context_min must be in [1, context_len={dm._context_len_arg}], got {dm.context_min}")
     check_normalization(dm.normalization, dm.recenter)
     if dm.train_samples_per_epoch is not None and dm.train_samples_per_epoch < 1:
         raise DataError(f"train_samples_per_epoch must be >= 1, got {dm.train_samples_per_epoch}")
+
+
+def _train_sampler(dm: RoboMorphDataModule, sources: list[Source], n_train: int) -> MixtureSampler:
+    """The seeded training stream: stores by weight, random offsets and lengths as configured."""
+    counts = np.array([len(s["train"]) for s in dm.splits[:len(dm.stores)]])
+    ctx, h = dm.context_len, dm.horizon
+    return MixtureSampler(
+        base=np.concatenate([[0], np.cumsum(counts)[:-1]]), counts=counts, probs=dm.probs,
+        steps=np.array([src.steps for src in sources[:len(dm.stores)]]),
+        n_samples=dm.train_samples_per_epoch or n_train, seed=dm.seed,
+        random_window=dm.window == "random", batch_size=dm.batch_size,
+        lengths=(dm.context_min or ctx, ctx, dm.horizon_min or h, h))
+
+
+def _check_context_min(dm: RoboMorphDataModule) -> None:
+    """``context_min`` within the resolved context (``context_frac`` is known only from the stores)."""
+    if dm.context_min is not None and dm.context_min > dm.context_len:
+        raise DataError(f"context_min {dm.context_min} exceeds the context of {dm.context_len} steps"
+                        + (f" that context_frac {dm.context_frac} gives" if dm.context_frac else ""))

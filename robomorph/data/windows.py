@@ -29,7 +29,8 @@ def pairs(per_store: list[np.ndarray]) -> np.ndarray:
 
 
 class WindowDataset(Dataset):
-    """Windows of fixed trajectories; a key is a row of ``pairs`` or ``(row, offset)``."""
+    """Windows of fixed trajectories; a key is a row of ``pairs``, ``(row, offset)`` or
+    ``(row, offset, context_len, horizon)`` (horizon-aware training draws the lengths)."""
 
     def __init__(self, sources: list[Source], pairs: np.ndarray, context_len: int, horizon: int):
         self.sources, self.pairs = sources, pairs
@@ -38,29 +39,34 @@ class WindowDataset(Dataset):
     def __len__(self) -> int:
         return len(self.pairs)
 
-    def __getitem__(self, key: int | tuple[int, int]) -> dict[str, torch.Tensor]:
-        row, offset = key if isinstance(key, tuple) else (key, 0)
+    def __getitem__(self, key: int | tuple[int, ...]) -> dict[str, torch.Tensor]:
+        row, offset, c, h = (key + (self.context_len, self.horizon))[:4] if isinstance(key, tuple) else \
+            (key, 0, self.context_len, self.horizon)
         s, i = self.pairs[row]
-        u, y = self.sources[s].window(int(i), offset, offset + self.context_len + self.horizon)
-        c = self.context_len
+        u, y = self.sources[s].window(int(i), offset, offset + c + h)
         # Copies: a batch must not keep a view of a whole in-memory store alive.
         return {k: torch.from_numpy(np.array(v, dtype=np.float32))
                 for k, v in (("u_ctx", u[:c]), ("y_ctx", y[:c]), ("u_query", u[c:]), ("y_query", y[c:]))}
 
 
 class MixtureSampler(Sampler):
-    """Draws ``(row, offset)`` keys: store by weight, trajectory uniformly within the store,
-    offset uniformly over the valid range (``random`` windows) or 0.
+    """Draws ``(row, offset, context_len, horizon)`` keys: store by weight, trajectory
+    uniformly within the store, lengths uniformly within ``lengths`` (one pair per run of
+    ``batch_size`` consecutive keys, i.e. per batch, so a batch stacks), offset uniformly
+    over the valid range for those lengths (``random`` windows) or 0.
 
     Each pass uses a torch Generator seeded from ``(seed, epoch)``. Lightning calls
     :meth:`set_epoch` before each epoch; without it the epoch advances by one per pass.
+    Fixed lengths draw nothing for them, so the stream equals that of fixed-length windows.
     """
 
-    def __init__(self, base: np.ndarray, counts: np.ndarray, probs: np.ndarray, max_offsets: np.ndarray,
-                 n_samples: int, seed: int, random_window: bool):
+    def __init__(self, base: np.ndarray, counts: np.ndarray, probs: np.ndarray, steps: np.ndarray,
+                 n_samples: int, seed: int, random_window: bool,
+                 lengths: tuple[int, int, int, int], batch_size: int):
         self.base, self.counts = torch.as_tensor(base), torch.as_tensor(counts)
-        self.probs, self.max_offsets = torch.as_tensor(probs, dtype=torch.float64), torch.as_tensor(max_offsets)
+        self.probs, self.steps = torch.as_tensor(probs, dtype=torch.float64), torch.as_tensor(steps)
         self.n_samples, self.seed, self.random_window = n_samples, seed, random_window
+        self.lengths, self.batch_size = lengths, batch_size
         self.epoch = 0
 
     def set_epoch(self, epoch: int) -> None:
@@ -77,8 +83,21 @@ class MixtureSampler(Sampler):
         count = self.counts[store]
         within = (torch.rand(self.n_samples, generator=g, dtype=torch.float64) * count).long()
         row = self.base[store] + torch.minimum(within, count - 1)
+        c, h = self._draw_lengths(g)
         offset = torch.zeros_like(row)
         if self.random_window:
-            span = self.max_offsets[store] + 1
+            span = self.steps[store] - c - h + 1
             offset = torch.minimum((torch.rand(self.n_samples, generator=g, dtype=torch.float64) * span).long(), span - 1)
-        return iter(zip(row.tolist(), offset.tolist()))
+        return iter(zip(row.tolist(), offset.tolist(), c.tolist(), h.tolist()))
+
+    def _draw_lengths(self, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """Context lengths and horizons (n_samples,), constant within each batch."""
+        c_min, c_max, h_min, h_max = self.lengths
+        n_batches = -(-self.n_samples // self.batch_size)
+        out = []
+        for low, high in ((c_min, c_max), (h_min, h_max)):
+            per_batch = torch.full((n_batches,), high, dtype=torch.long)
+            if low < high:
+                per_batch = torch.randint(low, high + 1, (n_batches,), generator=g)
+            out.append(per_batch.repeat_interleave(self.batch_size)[:self.n_samples])
+        return out[0], out[1]

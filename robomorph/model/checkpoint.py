@@ -23,6 +23,11 @@ from robomorph.model.transformer import MetaModel, ModelConfig
 DATA_INFO_KEY = "robomorph_data"
 # State entries of the training wrapper that inference does not need.
 _TRAINING_ONLY = ("stats_ready",)
+# Per-step change of the normalized outputs that one unit of network output means with
+# ``integrate``: of the order of the arm's per-step motion at 60 Hz (about 0.01 of a
+# channel's standard deviation), so that an untrained network's random walk over 800 steps
+# stays within a few standard deviations.
+INTEGRATE_SCALE = 0.05
 
 
 class CheckpointError(RoboMorphError, RuntimeError):
@@ -49,25 +54,49 @@ def model_config(hparams: dict) -> ModelConfig:
     return ModelConfig(**{k: v for k, v in hparams.items() if k in names})
 
 
-def predict_normalized(net: MetaModel, anchor: bool, uc: torch.Tensor, yc: torch.Tensor,
-                       uq: torch.Tensor) -> torch.Tensor:
-    """Normalized prediction (B, Th, n_y) from normalized inputs.
+def predict_normalized_dist(net: MetaModel, anchor: bool, uc: torch.Tensor, yc: torch.Tensor, uq: torch.Tensor,
+                            integrate: bool = False) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Normalized mean (B, Th, n_y) and log-variance (or None without a Gaussian head) from
+    normalized inputs.
 
     With ``anchor`` the network predicts the deviation from the last context output, which is
-    added back (a context value: nothing of the query leaks).
+    added back (a context value: nothing of the query leaks). With ``integrate`` it predicts
+    per-step changes (scaled by :data:`INTEGRATE_SCALE`), summed from the last context output.
     """
-    pred = net(uc, yc, uq)
-    return pred + yc[:, -1:] if anchor else pred
+    mean, logvar = net.forward_dist(uc, yc, uq)
+    if integrate:
+        # A running sum over steps <= t: causal, like the decoder it follows.
+        mean = INTEGRATE_SCALE * mean.cumsum(dim=1)
+    if anchor or integrate:
+        mean = mean + yc[:, -1:]
+    return mean, logvar
+
+
+def predict_normalized(net: MetaModel, anchor: bool, uc: torch.Tensor, yc: torch.Tensor,
+                       uq: torch.Tensor, integrate: bool = False) -> torch.Tensor:
+    """Normalized prediction (B, Th, n_y) from normalized inputs (the mean of a Gaussian head)."""
+    return predict_normalized_dist(net, anchor, uc, yc, uq, integrate)[0]
 
 
 def simulate(net: MetaModel, normalizer: Normalizer, anchor: bool, u_ctx: torch.Tensor,
-             y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None) -> torch.Tensor:
+             y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None, integrate: bool = False) -> torch.Tensor:
     """Predicts y over the query horizon in physical units: normalize, predict, decode.
 
     ``y_query_stats`` (mean, std of the query outputs) only under the ``paper_window`` protocol.
     """
+    return simulate_dist(net, normalizer, anchor, u_ctx, y_ctx, u_query, y_query_stats, integrate)[0]
+
+
+def simulate_dist(net: MetaModel, normalizer: Normalizer, anchor: bool, u_ctx: torch.Tensor,
+                  y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None, integrate: bool = False
+                  ) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Mean and standard deviation (None without a Gaussian head) in physical units."""
     uc, yc, uq = normalizer.encode(u_ctx, y_ctx, u_query, y_query_stats)
-    return normalizer.decode(predict_normalized(net, anchor, uc, yc, uq), y_ctx, y_query_stats)
+    mean, logvar = predict_normalized_dist(net, anchor, uc, yc, uq, integrate)
+    # Recentring and anchoring shift the outputs; only the z-score scales them.
+    std = None if logvar is None else torch.exp(0.5 * logvar) * normalizer.decode_scale(
+        y_ctx, y_query_stats, u_query.shape[1])
+    return normalizer.decode(mean, y_ctx, y_query_stats), std
 
 
 class TrainedModel(nn.Module):
@@ -81,19 +110,30 @@ class TrainedModel(nn.Module):
         recenter: the normalizer subtracts each trajectory's context mean.
         anchor: predictions are offsets from the last context output.
         normalization: ``train_stats`` or ``paper_window`` (see :class:`Normalizer`).
+        integrate: the network predicts per-step changes summed from the last context output.
+
+    Attributes:
+        gaussian: the network has a Gaussian head (:meth:`forward_dist` gives a std).
     """
 
     def __init__(self, config: ModelConfig, recenter: bool = False, anchor: bool = False,
-                 normalization: str = "train_stats"):
+                 normalization: str = "train_stats", integrate: bool = False):
         super().__init__()
-        self.config, self.anchor = config, bool(anchor)
+        self.config, self.anchor, self.integrate = config, bool(anchor), bool(integrate)
+        self.gaussian = bool(config.gaussian)
         self.net = MetaModel(config)
         self.normalizer = Normalizer(n_u=config.n_u, n_y=config.n_y, recenter=recenter, normalization=normalization)
 
     def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
                 y_query_stats=None) -> torch.Tensor:
         """(B, Tc, n_u), (B, Tc, n_y), (B, Th, n_u) in physical units -> (B, Th, n_y)."""
-        return simulate(self.net, self.normalizer, self.anchor, u_ctx, y_ctx, u_query, y_query_stats)
+        return self.forward_dist(u_ctx, y_ctx, u_query, y_query_stats)[0]
+
+    def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
+                     y_query_stats=None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Mean (B, Th, n_y) and standard deviation (or None without a Gaussian head), physical units."""
+        return simulate_dist(self.net, self.normalizer, self.anchor, u_ctx, y_ctx, u_query, y_query_stats,
+                             self.integrate)
 
 
 def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
@@ -113,7 +153,8 @@ def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
     try:
         model = TrainedModel(model_config(hp), recenter=bool(hp.get("recenter", False)),
                              anchor=bool(hp.get("anchor", False)),
-                             normalization=hp.get("normalization", "train_stats"))
+                             normalization=hp.get("normalization", "train_stats"),
+                             integrate=bool(hp.get("integrate", False)))
     except ValueError as exc:
         raise CheckpointError(f"{path} holds an invalid architecture: {exc}") from exc
     state = {k: v for k, v in ckpt["state_dict"].items() if k not in _TRAINING_ONLY}

@@ -159,6 +159,13 @@ class Normalizer(nn.Module):
             return (y_query - m) / s
         return (y_query - self.y_mean) / self.y_std - self._y_center(y_ctx)
 
+    def decode_scale(self, y_ctx: torch.Tensor, y_query_stats=None, th: int = 1) -> torch.Tensor:
+        """The factor from normalized to physical units of the outputs (a std maps by it alone):
+        the training std (n_y,), or under ``paper_window`` each window's std (B, 1, n_y)."""
+        if self.uses_query_stats:
+            return self._y_window(y_ctx, y_query_stats, th)[1]
+        return self.y_std
+
     def decode(self, y_query_n: torch.Tensor, y_ctx: torch.Tensor, y_query_stats=None) -> torch.Tensor:
         """Maps normalized predictions (B, Th, n_y) back to physical units."""
         self._check("y_query_n", y_query_n, self.n_y)

@@ -23,7 +23,7 @@ import torch
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.inputs import check_model_inputs
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
-from robomorph.model.checkpoint import TrainedModel, load_trained
+from robomorph.model.checkpoint import CheckpointError, TrainedModel, load_trained
 
 
 class PredictionError(RoboMorphError, ValueError):
@@ -41,6 +41,7 @@ class Predictor:
         inputs: the input formulation it was trained on: ``total`` (total joint torque)
             or ``command`` (the command without the arm's gravity compensation).
         data_info: channel names, dt and the training window (None for checkpoints that predate it).
+        has_std: the model has a Gaussian head (``simulate(..., return_std=True)`` works).
         device: where it runs.
     """
 
@@ -50,6 +51,7 @@ class Predictor:
         self.n_u, self.n_y, self.patch = model.config.n_u, model.config.n_y, model.config.patch
         self.normalization: str = model.normalizer.normalization
         self.data_info = data_info
+        self.has_std = bool(getattr(model, "gaussian", False))
         # Checkpoints written before the command formulation were all trained on total torque.
         self.inputs: str = (data_info or {}).get("inputs", "total")
 
@@ -115,7 +117,8 @@ class Predictor:
         return tuple(out)
 
     @torch.no_grad()
-    def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, inputs: str | None = None):
+    def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, inputs: str | None = None,
+                 return_std: bool = False):
         """Predicts the outputs over the query horizon.
 
         Args:
@@ -127,17 +130,24 @@ class Predictor:
                 about the answer: scores obtained with it are not those of a deployable model.
             inputs: which formulation the torques are (``total`` or ``command``); when
                 given, a mismatch with the training formulation is refused.
+            return_std: also return the predicted standard deviation (models trained with
+                ``gaussian: true`` only).
 
         Returns:
-            y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``.
+            y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``;
+            with ``return_std``, ``(mean, std)``, both in the outputs' physical units.
 
         Raises:
             NormalizationError: ``y_query_stats`` missing for a ``paper_window`` model, given
                 for another, or of the wrong shape.
             InputsError: ``inputs`` names the other formulation.
             PredictionError: arrays of the wrong shape, non-finite inputs, or non-finite predictions.
+            CheckpointError: ``return_std`` for a model without a Gaussian head.
         """
         self.check_inputs(inputs)
+        if return_std and not self.has_std:
+            raise CheckpointError("this model has no Gaussian head, so it predicts no standard deviation; "
+                                  "train one with --model.gaussian true --model.loss nll, or drop return_std")
         as_numpy = not isinstance(u_query, torch.Tensor)
         dtype = getattr(u_query, "dtype", None)
         tensors = [torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x,
@@ -149,9 +159,12 @@ class Predictor:
             tensors = [t.unsqueeze(0) for t in tensors]
         for name, t, w in zip(("u_ctx", "y_ctx", "u_query"), tensors, (self.n_u, self.n_y, self.n_u)):
             self._check(name, t, w)
-        y = self.model(*tensors, self._query_stats(y_query_stats, len(tensors[0])))
-        self._check_output(y, tensors)
-        y = y[0] if single else y
+        mean, std = self.model.forward_dist(*tensors, self._query_stats(y_query_stats, len(tensors[0])))
+        self._check_output(mean, tensors)
+        out = [t[0] if single else t for t in (mean, std) if t is not None]
         if as_numpy:
-            return y.cpu().numpy().astype(dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32)
-        return y.to(u_query.device, u_query.dtype)
+            kind = dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32
+            out = [t.cpu().numpy().astype(kind) for t in out]
+        else:
+            out = [t.to(u_query.device, u_query.dtype) for t in out]
+        return tuple(out) if return_std else out[0]

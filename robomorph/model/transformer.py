@@ -32,8 +32,20 @@ Length rules:
   padding cannot reach earlier patches; steps of the final, partial patch see zeros in
   place of their own future inputs.
 
+Initial conditions (``n_init > 0``, after Rufolo et al. 2024): the last ``n_init`` context
+steps, inputs and outputs, enter the decoder as its first tokens (own embedding and
+positions), ahead of the query tokens. Causal self-attention lets every query token see
+them, so the prediction continues from the measured state instead of recovering it through
+cross-attention alone. They are context values: no query output can reach them. Their
+outputs are dropped.
+
+Gaussian head (``gaussian=True``): the head emits a mean and a log-variance per step and
+channel (:meth:`MetaModel.forward_dist`); ``forward`` returns the mean. With
+``gaussian=False`` and ``n_init=0`` the parameters and outputs are those of the original
+model, so its checkpoints load unchanged.
+
 Parameter names (for transfer and freezing): ``encoder.{embed,pos,blocks,ln_f}``,
-``decoder.{embed,pos,blocks,ln_f}``, ``head``.
+``decoder.{embed,pos,init_embed,init_pos,blocks,ln_f}``, ``head``.
 """
 
 from __future__ import annotations
@@ -48,6 +60,9 @@ from torch import nn
 from robomorph.core.config import ConfigError
 
 __all__ = ["ModelConfig", "MetaModel"]
+
+# Range of the Gaussian head's log-variance (normalized units): std from 4.5e-5 to 150.
+LOGVAR_MIN, LOGVAR_MAX = -20.0, 10.0
 
 
 @dataclass(frozen=True)
@@ -68,6 +83,9 @@ class ModelConfig:
         patch: Steps per token (1 = one token per step, the paper's model). The default
             10 is the CPU-sized model's: about 13x faster per training step than 1 on two
             cores (README, "Training on a CPU"); the training module takes its defaults here.
+        n_init: Last context steps given to the decoder as initial-condition tokens (0 = off);
+            a multiple of ``patch``, at most ``max_context``; contexts must be at least this long.
+        gaussian: The head also emits a log-variance per step and channel.
     """
 
     n_u: int = 7
@@ -81,6 +99,8 @@ class ModelConfig:
     max_context: int = 1024
     max_horizon: int = 1024
     patch: int = 10
+    n_init: int = 0
+    gaussian: bool = False
 
     def __post_init__(self) -> None:
         for name in ("n_u", "n_y", "d_model", "n_head", "n_layer", "max_context", "max_horizon", "patch"):
@@ -91,8 +111,14 @@ class ModelConfig:
             raise ConfigError(f"ModelConfig.d_model ({self.d_model}) must be divisible by n_head ({self.n_head})")
         if isinstance(self.dropout, bool) or not isinstance(self.dropout, (int, float)) or not 0 <= self.dropout < 1:
             raise ConfigError(f"ModelConfig.dropout must be a number in [0, 1), got {self.dropout!r}")
-        if not isinstance(self.bias, bool):
-            raise ConfigError(f"ModelConfig.bias must be true or false, got {self.bias!r}")
+        for name in ("bias", "gaussian"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"ModelConfig.{name} must be true or false, got {getattr(self, name)!r}")
+        if isinstance(self.n_init, bool) or not isinstance(self.n_init, int) or self.n_init < 0:
+            raise ConfigError(f"ModelConfig.n_init must be a non-negative integer, got {self.n_init!r}")
+        if self.n_init % self.patch or self.n_init > self.max_context:
+            raise ConfigError(f"ModelConfig.n_init ({self.n_init}) must be a multiple of patch ({self.patch}) "
+                              f"and at most max_context ({self.max_context})")
         for name in ("max_context", "max_horizon"):
             if getattr(self, name) < self.patch:
                 raise ConfigError(f"ModelConfig.{name} ({getattr(self, name)}) must be at least patch ({self.patch})")
@@ -111,6 +137,11 @@ class ModelConfig:
     def horizon_tokens(self) -> int:
         """Rows of the decoder's positional table."""
         return math.ceil(self.max_horizon / self.patch)
+
+    @property
+    def init_tokens(self) -> int:
+        """Initial-condition tokens ahead of the query tokens."""
+        return self.n_init // self.patch
 
 
 def _require_positive_int(name: str, value: object) -> None:
@@ -230,22 +261,33 @@ class Encoder(nn.Module):
 
 
 class Decoder(nn.Module):
-    """Query tokens (B, Nq, k*n_u) and memory (B, Nc, d) -> features (B, Nq, d)."""
+    """Query tokens (B, Nq, k*n_u), optional initial-condition tokens (B, Ni, k*(n_u+n_y))
+    and memory (B, Nc, d) -> features of the query tokens (B, Nq, d)."""
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
         self.embed = nn.Linear(cfg.patch * cfg.n_u, cfg.d_model, bias=cfg.bias)
         self.pos = nn.Embedding(cfg.horizon_tokens, cfg.d_model)
+        if cfg.n_init:
+            self.init_embed = nn.Linear(cfg.patch * (cfg.n_u + cfg.n_y), cfg.d_model, bias=cfg.bias)
+            self.init_pos = nn.Embedding(cfg.init_tokens, cfg.d_model)
         self.drop = nn.Dropout(cfg.dropout)
         self.blocks = nn.ModuleList(DecoderBlock(cfg) for _ in range(cfg.decoder_layers))
         self.ln_f = nn.LayerNorm(cfg.d_model, bias=cfg.bias)
 
-    def forward(self, tokens: torch.Tensor, memory: torch.Tensor) -> torch.Tensor:
+    def forward(self, tokens: torch.Tensor, memory: torch.Tensor, init: torch.Tensor | None = None) -> torch.Tensor:
         pos = torch.arange(tokens.shape[1], device=tokens.device)
-        x = self.drop(self.embed(tokens) + self.pos(pos))  # (B, Nq, d)
+        x = self.embed(tokens) + self.pos(pos)  # (B, Nq, d)
+        n_init = 0
+        if init is not None:
+            n_init = init.shape[1]
+            ipos = torch.arange(n_init, device=init.device)
+            # Ahead of the query: the causal mask lets every query token attend to them.
+            x = torch.cat([self.init_embed(init) + self.init_pos(ipos), x], dim=1)  # (B, Ni+Nq, d)
+        x = self.drop(x)
         for block in self.blocks:
             x = block(x, memory)
-        return self.ln_f(x)
+        return self.ln_f(x[:, n_init:])
 
 
 class MetaModel(nn.Module):
@@ -260,7 +302,7 @@ class MetaModel(nn.Module):
         self.cfg = cfg
         self.encoder = Encoder(cfg)
         self.decoder = Decoder(cfg)
-        self.head = nn.Linear(cfg.d_model, cfg.patch * cfg.n_y, bias=cfg.bias)
+        self.head = nn.Linear(cfg.d_model, cfg.patch * cfg.n_y * (2 if cfg.gaussian else 1), bias=cfg.bias)
         self.apply(_init_weights)
         # GPT-2: residual projections shrink with depth so the stream's variance stays put.
         for stack, n_layers in ((self.encoder, cfg.n_layer), (self.decoder, cfg.decoder_layers)):
@@ -272,29 +314,41 @@ class MetaModel(nn.Module):
         """Predict the outputs over the query horizon.
 
         Args:
-            u_ctx: Context inputs (B, Tc, n_u), Tc a multiple of ``patch``, at most ``max_context``.
+            u_ctx: Context inputs (B, Tc, n_u), Tc a multiple of ``patch``, at most ``max_context``
+                and at least ``n_init``.
             y_ctx: Context outputs (B, Tc, n_y).
             u_query: Query inputs (B, Th, n_u), Th at most ``max_horizon``.
 
         Returns:
-            Predicted query outputs (B, Th, n_y).
+            Predicted query outputs (B, Th, n_y) (the mean of a Gaussian head).
 
         Raises:
             ValueError: On a wrong shape or a length the positional tables or patch do not admit.
         """
+        return self.forward_dist(u_ctx, y_ctx, u_query)[0]
+
+    def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor
+                     ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Mean (B, Th, n_y) and log-variance (B, Th, n_y), or None without a Gaussian head."""
         cfg = self.cfg
         B, Tc, Th = self._check_inputs(u_ctx, y_ctx, u_query)
         k = cfg.patch
         ctx = torch.cat([u_ctx, y_ctx], dim=-1)  # (B, Tc, n_u + n_y)
         ctx = ctx.reshape(B, Tc // k, k * (cfg.n_u + cfg.n_y))  # (B, Nc, k*(n_u+n_y))
+        init = ctx[:, Tc // k - cfg.init_tokens:] if cfg.n_init else None  # (B, Ni, k*(n_u+n_y))
         pad = -Th % k
         if pad:
             u_query = F.pad(u_query, (0, 0, 0, pad))  # zeros after the last step
         query = u_query.reshape(B, (Th + pad) // k, k * cfg.n_u)  # (B, Nq, k*n_u)
         memory = self.encoder(ctx)  # (B, Nc, d)
-        h = self.decoder(query, memory)  # (B, Nq, d)
-        y = self.head(h).reshape(B, Th + pad, cfg.n_y)  # (B, Nq*k, n_y)
-        return y[:, :Th]
+        h = self.decoder(query, memory, init)  # (B, Nq, d)
+        m = 2 if cfg.gaussian else 1
+        y = self.head(h).reshape(B, Th + pad, m * cfg.n_y)[:, :Th]  # (B, Th, m*n_y)
+        if not cfg.gaussian:
+            return y, None
+        mean, logvar = y.split(cfg.n_y, dim=-1)
+        # Bounded so that exp() can neither overflow nor divide by zero in the NLL.
+        return mean, logvar.clamp(LOGVAR_MIN, LOGVAR_MAX)
 
     def num_params(self, trainable_only: bool = False) -> int:
         """Number of parameters (all of them, or only those with ``requires_grad``)."""
@@ -323,6 +377,9 @@ class MetaModel(nn.Module):
         if Th > cfg.max_horizon:
             raise ValueError(f"query horizon Th = {Th} exceeds max_horizon = {cfg.max_horizon}, the longest the "
                              "positional table covers; raise ModelConfig.max_horizon at training time")
+        if Tc < cfg.n_init:
+            raise ValueError(f"context length Tc = {Tc} is shorter than n_init = {cfg.n_init}, the context steps "
+                             "the decoder takes as initial conditions; give a longer context")
         if Tc % cfg.patch:
             raise ValueError(f"context length Tc = {Tc} is not a multiple of patch = {cfg.patch}; drop the oldest "
                              f"{Tc % cfg.patch} steps (u_ctx[:, {Tc % cfg.patch}:]) or choose a multiple of patch")

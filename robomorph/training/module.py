@@ -7,12 +7,10 @@ arrive in physical units from :class:`robomorph.data.datamodule.RoboMorphDataMod
 
 from __future__ import annotations
 
-import math
 from typing import Literal
 
 import lightning.pytorch as L
 import torch
-import torch.nn.functional as F
 
 from robomorph.core import metrics
 from robomorph.core.errors import RoboMorphError
@@ -24,16 +22,20 @@ from robomorph.model.checkpoint import (
     CheckpointError,
     load_checkpoint_file,
     model_config,
-    predict_normalized,
+    predict_normalized_dist,
     simulate,
+    simulate_dist,
 )
 from robomorph.model.normalization import Normalizer, query_stats
 from robomorph.model.transformer import MetaModel, ModelConfig
+from robomorph.training.losses import ModelOptionError, check_loss, elementwise_loss, horizon_weights, whole_patches
+from robomorph.training.optim import lr_factor as _lr_factor
+from robomorph.training.optim import optimizers
 
 # Constructor arguments that the data decide: robomorph fit links them from the datamodule.
 FROM_DATA = ("n_u", "n_y", "context_len")
 # Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
-IO_LAYERS = ("encoder.embed", "decoder.embed", "head")
+IO_LAYERS = ("encoder.embed", "decoder.embed", "decoder.init_embed", "head")
 # Checkpoint entry holding the trainer's max_steps, so a resume can say how the schedule changes.
 SCHEDULE_KEY = "robomorph_schedule"
 
@@ -45,7 +47,7 @@ def data_info(dm) -> dict:
             "stores": [str(s) for s in dm.stores], "inputs": str(getattr(dm, "inputs", "total"))}
 
 
-class ModelSettingsError(RoboMorphError, ValueError):
+class ModelSettingsError(ModelOptionError):
     """Model or optimizer settings that cannot work; the message names the ``--model.`` flag."""
 
 
@@ -60,8 +62,12 @@ class MetaModule(L.LightningModule):
         d_model, n_head, n_layer, n_layer_dec, dropout, bias, patch, max_context, max_horizon:
             the network; defaults and meaning in :class:`robomorph.model.transformer.ModelConfig`
             (the CPU-sized model: d 128, 4 + 4 layers, 4 heads, patches of 10 steps).
-        loss: ``huber`` or ``mse``, on normalized outputs.
+        n_init: last context steps given to the decoder as initial-condition tokens (0 = off).
+        gaussian: the head also predicts a log-variance per step and channel.
+        loss: ``huber``, ``mse`` or ``nll`` (Gaussian NLL, needs ``gaussian``), on normalized outputs.
         huber_delta: Huber transition point in normalized units.
+        horizon_weight, horizon_tau: query step t weighs ``1 + horizon_weight * exp(-t / horizon_tau)``
+            in the loss, rescaled to mean 1 (0: uniform), so the first steps count more.
         lr: peak learning rate (AdamW).
         min_lr_ratio: the cosine decays to ``lr * min_lr_ratio``.
         warmup_steps: linear warmup length.
@@ -75,6 +81,7 @@ class MetaModule(L.LightningModule):
         anchor: the network predicts the deviation from the last context output, which
             is added back (a context value: nothing of the query leaks). The prediction
             then starts where the robot is instead of having to locate it first.
+        integrate: the network predicts per-step changes summed from the last context output.
         init_ckpt: start from this checkpoint's weights and normalization (transfer).
         freeze: ``none``, ``encoder`` or ``all_but_head``.
         reinit_io: when the checkpoint's n_u / n_y differ, re-initialize the input
@@ -99,8 +106,12 @@ class MetaModule(L.LightningModule):
         patch: int = ModelConfig.patch,
         max_context: int = ModelConfig.max_context,
         max_horizon: int = ModelConfig.max_horizon,
+        n_init: int = ModelConfig.n_init,
+        gaussian: bool = ModelConfig.gaussian,
         loss: Literal[LOSSES] = "huber",
         huber_delta: float = 1.0,
+        horizon_weight: float = 0.0,
+        horizon_tau: float = 60.0,
         lr: float = 1e-3,
         min_lr_ratio: float = 0.1,
         warmup_steps: int = 200,
@@ -110,13 +121,15 @@ class MetaModule(L.LightningModule):
         recenter: bool = False,
         normalization: Literal[NORMALIZATIONS] = "train_stats",
         anchor: bool = False,
+        integrate: bool = False,
         init_ckpt: str | None = None,
         freeze: Literal[FREEZE_MODES] = "none",
         reinit_io: bool = False,
         normalization_from: Literal["source", "target"] = "target",
     ):
         super().__init__()
-        _check_training(loss, freeze, normalization_from, lr, min_lr_ratio, warmup_steps, huber_delta)
+        check_loss(loss, gaussian, horizon_weight, horizon_tau)
+        _check_training(freeze, normalization_from, lr, min_lr_ratio, warmup_steps, huber_delta)
         check_context(context_len, patch, max_context)
         check_normalization(normalization, recenter)
         self.save_hyperparameters()
@@ -145,7 +158,7 @@ class MetaModule(L.LightningModule):
         self.normalizer = Normalizer(n_u=n_u, n_y=n_y, recenter=self.hparams.recenter,
                                      normalization=self.hparams.normalization)
         self.register_buffer("stats_ready", torch.tensor(False))
-        self._apply_freeze()
+        _freeze(self.net, self.hparams.freeze)
 
     def setup(self, stage: str) -> None:
         dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
@@ -171,9 +184,6 @@ class MetaModule(L.LightningModule):
     def _transfer(self, path: str) -> None:
         from_source = _load_transferred(self, path)
         self.stats_ready.fill_(from_source)  # the pretrained normalization came along only with source
-        self._apply_freeze()
-
-    def _apply_freeze(self) -> None:
         _freeze(self.net, self.hparams.freeze)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
@@ -193,22 +203,27 @@ class MetaModule(L.LightningModule):
         ``y_query_stats`` (mean, std of the query outputs, (B, n_y) each) is needed, and used,
         only under ``normalization="paper_window"``.
         """
-        return simulate(self.net, self.normalizer, self.hparams.anchor, u_ctx, y_ctx, u_query, y_query_stats)
+        return simulate(self.net, self.normalizer, self.hparams.anchor, u_ctx, y_ctx, u_query, y_query_stats,
+                        self.hparams.integrate)
+
+    def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None
+                     ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Mean and standard deviation (None without a Gaussian head), both in physical units."""
+        return simulate_dist(self.net, self.normalizer, self.hparams.anchor, u_ctx, y_ctx, u_query, y_query_stats,
+                             self.hparams.integrate)
 
     def _query_stats(self, batch: dict):
         """The batch's query-output statistics when the normalization uses them (the paper's leak), else None."""
         return query_stats(batch["y_query"]) if self.normalizer.uses_query_stats else None
 
     def _step(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        h, batch = self.hparams, whole_patches(batch, self.hparams.patch)
         qs = self._query_stats(batch)
         uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"], qs)
         target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"], qs)
-        pred = predict_normalized(self.net, self.hparams.anchor, uc, yc, uq)
-        if self.hparams.loss == "mse":
-            loss = F.mse_loss(pred, target)
-        else:
-            loss = F.huber_loss(pred, target, delta=self.hparams.huber_delta)
-        return loss, pred, target
+        pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate)
+        weights = horizon_weights(target.shape[1], h.horizon_weight, h.horizon_tau, target.device)
+        return (elementwise_loss(h.loss, pred, logvar, target, h.huber_delta) * weights[:, None]).mean(), pred, target
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         loss, _, _ = self._step(batch)
@@ -217,6 +232,7 @@ class MetaModule(L.LightningModule):
         return loss
 
     def _eval_step(self, batch: dict, keys: tuple[str, str, str]) -> None:
+        batch = whole_patches(batch, self.hparams.patch)
         loss, pred, _ = self._step(batch)
         y = batch["y_query"].double()
         yhat = self.normalizer.decode(pred, batch["y_ctx"], self._query_stats(batch)).double()
@@ -234,24 +250,13 @@ class MetaModule(L.LightningModule):
 
     # ------------------------------------------------------------------ optimizer
     def configure_optimizers(self):
-        h = self.hparams
-        params = [p for p in self.net.parameters() if p.requires_grad]
-        if not params:
-            raise ValueError("freeze left no trainable parameters")
-        decay = [p for p in params if p.dim() >= 2 and not _is_embedding(self.net, p)]
-        no_decay = [p for p in params if all(p is not q for q in decay)]
-        groups = [{"params": decay, "weight_decay": h.weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
-        opt = torch.optim.AdamW(groups, lr=h.lr, betas=tuple(h.betas))
-        total = h.decay_steps or (self.trainer.max_steps if self.trainer.max_steps > 0 else 10_000)
-        sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda step: _lr_factor(step, h.warmup_steps, total, h.min_lr_ratio))
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        return optimizers(self)
 
 
-def _check_training(loss: str, freeze: str, normalization_from: str, lr: float, min_lr_ratio: float,
+def _check_training(freeze: str, normalization_from: str, lr: float, min_lr_ratio: float,
                     warmup_steps: int, huber_delta: float) -> None:
-    """Refuses loss, freeze, transfer and optimizer settings that cannot work, naming the flag."""
-    if loss not in LOSSES:
-        raise ModelSettingsError(f"--model.loss must be one of {LOSSES}, got {loss!r}")
+    """Refuses freeze, transfer and optimizer settings that cannot work, naming the flag
+    (the loss: :func:`robomorph.training.losses.check_loss`)."""
     if freeze not in FREEZE_MODES:
         raise ModelSettingsError(f"--model.freeze must be one of {FREEZE_MODES}, got {freeze!r}")
     if normalization_from not in ("source", "target"):
@@ -342,14 +347,6 @@ def check_context(context_len: int | None, patch: int, max_context: int) -> None
                                  f"positional table's length): raise --model.max_context to at least {context_len}")
 
 
-def _lr_factor(step: int, warmup: int, total: int, floor: float) -> float:
-    """Linear warmup to 1, cosine decay to ``floor`` at ``total``, then flat."""
-    if step < warmup:
-        return (step + 1) / warmup
-    progress = min(1.0, (step - warmup) / max(1, total - warmup))
-    return floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * progress))
-
-
 def schedule_change(old_hparams: dict, old_max_steps: int | None, new_hparams, new_max_steps: int,
                     step: int) -> str | None:
     """One line on how a resume at ``step`` changes the run, or None when nothing changes.
@@ -377,7 +374,3 @@ def _is_stats(key: str) -> bool:
 
 def _is_io(key: str) -> bool:
     return any(key.startswith(f"net.{layer}.") for layer in IO_LAYERS)
-
-
-def _is_embedding(net: torch.nn.Module, p: torch.Tensor) -> bool:
-    return any(p is m.weight for m in net.modules() if isinstance(m, torch.nn.Embedding))

@@ -134,6 +134,35 @@ def test_training_stream_is_seeded_per_epoch(tmp_path):
     assert torch.equal(first, stream(0, 0)) and torch.equal(second, stream(0, 1))
 
 
+@pytest.mark.parametrize("window", ["start", "random"])
+def test_random_lengths_stay_within_the_data_one_pair_per_batch_and_seeded(tmp_path, window):
+    a = _store(tmp_path / "a.zarr", steps=40)
+
+    def stream(seed):
+        dm = _dm(a, seed=seed, window=window, context_min=3, horizon_min=5, batch_size=4,
+                 train_samples_per_epoch=120)
+        return list(dm.train_dataloader()), dm
+
+    batches, dm = stream(0)
+    lengths = set()
+    for b in batches:
+        c, h = b["u_ctx"].shape[1], b["u_query"].shape[1]
+        assert 3 <= c <= 10 and 5 <= h <= 20 and b["y_ctx"].shape[1] == c and b["y_query"].shape[1] == h
+        lengths.add((c, h))
+        _, traj, step = _who(torch.cat([b["u_ctx"], b["u_query"]], dim=1))
+        assert (step == step[:, :1] + torch.arange(c + h)).all() and (traj == traj[:, :1]).all()
+        assert (step[:, -1] <= 39).all()  # inside the 40 stored steps
+        if window == "start":
+            assert (step[:, 0] == 0).all()
+    assert len(lengths) > 5
+    again, _ = stream(0)
+    assert all(torch.equal(x["u_query"], y["u_query"]) for x, y in zip(batches, again))
+    other, _ = stream(1)
+    assert [b["u_query"].shape for b in other] != [b["u_query"].shape for b in batches]
+    for b in dm.val_dataloader():  # validation keeps the full lengths
+        assert (b["u_ctx"].shape[1], b["u_query"].shape[1]) == (10, 20)
+
+
 def test_context_frac(tmp_path):
     dm = _dm(_store(tmp_path / "a.zarr"), context_len=None, context_frac=0.25, horizon=30)
     assert dm.context_len == 15
@@ -260,6 +289,9 @@ def test_missing_and_foreign_stores_are_refused(tmp_path):
     ({"weights": [1.0, 2.0]}, "weights must be 1"),
     ({"weights": [-1.0]}, "weights must be 1"),
     ({"window": "middle"}, "window must be"),
+    ({"horizon_min": 0}, "horizon_min must be in"),
+    ({"horizon_min": 801}, "horizon_min must be in"),
+    ({"context_min": 201}, "context_min must be in"),
     ({"horizon": 0}, "horizon must be >= 1"),
     ({"batch_size": 0}, "batch_size must be >= 1"),
     ({"stores": ["a.zarr", "./a.zarr"]}, "twice"),

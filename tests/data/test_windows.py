@@ -25,9 +25,11 @@ def test_pairs_name_store_and_trajectory():
     assert pairs([]).shape == (0, 2)
 
 
-def _sampler(seed=0, random_window=True):
+def _sampler(seed=0, random_window=True, lengths=(10, 10, 20, 20)):
+    # Trajectories of 35 and 30 steps: windows of 10 + 20 leave offsets 0..5 and 0.
     return MixtureSampler(base=np.array([0, 10]), counts=np.array([10, 4]), probs=np.array([0.25, 0.75]),
-                          max_offsets=np.array([5, 0]), n_samples=400, seed=seed, random_window=random_window)
+                          steps=np.array([35, 30]), n_samples=400, seed=seed, random_window=random_window,
+                          lengths=lengths, batch_size=16)
 
 
 def test_the_sampler_is_seeded_per_epoch_and_stays_in_bounds():
@@ -38,12 +40,23 @@ def test_the_sampler_is_seeded_per_epoch_and_stays_in_bounds():
     assert list(s) == first
     s.set_epoch(3)
     assert list(s) != first
-    rows, offsets = np.array(first).T
+    rows, offsets, ctx, hor = np.array(first).T
+    assert set(ctx) == {10} and set(hor) == {20}  # fixed lengths
     in_second = rows >= 10
     assert rows.min() >= 0 and rows.max() < 14
     assert 0.65 < in_second.mean() < 0.85  # the weights, 0.75 for the second store
     assert offsets[in_second].max() == 0 and 0 <= offsets[~in_second].min() and offsets[~in_second].max() <= 5
     assert set(np.array(list(_sampler(random_window=False))).T[1]) == {0}
+
+
+def test_the_sampler_draws_lengths_per_batch_and_offsets_that_fit_them():
+    keys = np.array(list(_sampler(lengths=(4, 10, 5, 20))))
+    rows, offsets, ctx, hor = keys.T
+    for b in range(0, len(keys), 16):  # one (context, horizon) pair per batch, so a batch stacks
+        assert len(set(ctx[b:b + 16])) == 1 and len(set(hor[b:b + 16])) == 1
+    assert 4 <= ctx.min() and ctx.max() <= 10 and 5 <= hor.min() and hor.max() <= 20 and len(set(ctx)) > 1
+    steps = np.where(rows >= 10, 30, 35)
+    assert (offsets + ctx + hor <= steps).all()
 
 
 def test_a_window_dataset_cuts_context_and_query(store_factory, tmp_path):
@@ -52,6 +65,9 @@ def test_a_window_dataset_cuts_context_and_query(store_factory, tmp_path):
     src = Source(store_factory(tmp_path / "w.zarr", u, y))
     ds = WindowDataset([src], pairs([np.array([0, 2])]), context_len=4, horizon=5)
     item = ds[(1, 3)]  # trajectory 2 from step 3
+    short = ds[(1, 3, 2, 4)]  # drawn lengths: 2 context + 4 query steps
+    assert short["u_ctx"].shape == (2, 2) and short["y_query"].shape == (4, 1)
+    np.testing.assert_array_equal(short["y_query"].numpy(), y[2, 5:9])
     np.testing.assert_array_equal(item["u_ctx"].numpy(), u[2, 3:7])
     np.testing.assert_array_equal(item["y_query"].numpy(), y[2, 7:12])
     assert len(ds) == 2 and ds[0]["u_query"].shape == (5, 2)

@@ -309,3 +309,70 @@ def test_num_params_trainable_only():
     assert total == sum(p.numel() for p in model.parameters())
     model.encoder.requires_grad_(False)
     assert model.num_params(trainable_only=True) == total - sum(p.numel() for p in model.encoder.parameters())
+
+
+# --- initial-condition tokens (n_init) and the Gaussian head ---------------------------------
+
+def _captured_init(model, *inputs):
+    """Runs the model and returns what entered the decoder's initial-condition embedding."""
+    seen = []
+    handle = model.decoder.init_embed.register_forward_hook(lambda m, args, out: seen.append(args[0].clone()))
+    with torch.no_grad():
+        out = model(*inputs)
+    handle.remove()
+    return seen[0], out
+
+
+@pytest.mark.parametrize("patch, n_init", [(1, 3), (4, 8)])
+def test_initial_conditions_are_the_last_context_steps_and_never_the_query(patch, n_init):
+    model = tiny_model(patch=patch, n_init=n_init, n_layer=2)
+    u_ctx, y_ctx, u_q = batch(2, 16, 20)
+    init, out = _captured_init(model, u_ctx, y_ctx, u_q)
+    expected = torch.cat([u_ctx, y_ctx], dim=-1)[:, -n_init:].reshape(2, n_init // patch, -1)
+    assert_same(init, expected)
+    assert out.shape == (2, 20, N_Y)
+    # Poisoned query: huge, different query inputs leave the initial-condition path unchanged.
+    init2, out2 = _captured_init(model, u_ctx, y_ctx, 1e3 * torch.randn_like(u_q))
+    assert_same(init2, init)
+    assert_differs(out2, out)
+
+
+def test_initial_conditions_reach_the_first_prediction_and_keep_causality():
+    model = tiny_model(n_init=4, n_layer=2)
+    u_ctx, y_ctx, u_q = batch(2, 16, 30)
+    y2 = y_ctx.clone()
+    y2[:, -1] += 1.0
+    u_q2 = u_q.clone()
+    u_q2[:, 11:] += torch.randn_like(u_q2[:, 11:])
+    with torch.no_grad():
+        a, b, c = model(u_ctx, y_ctx, u_q), model(u_ctx, y2, u_q), model(u_ctx, y_ctx, u_q2)
+    assert_differs(a[:, 0], b[:, 0])
+    assert_same(a[:, :11], c[:, :11])
+    assert_differs(a[:, 11], c[:, 11])
+
+
+def test_initial_condition_options_are_checked():
+    with pytest.raises(ValueError, match="multiple of patch"):
+        tiny_config(patch=4, n_init=6)
+    with pytest.raises(ValueError, match="non-negative"):
+        tiny_config(n_init=-1)
+    with pytest.raises(ValueError, match="shorter than n_init"):
+        tiny_model(n_init=8)(*batch(1, 4, 5))
+
+
+def test_gaussian_head_gives_mean_and_bounded_log_variance():
+    model = tiny_model(gaussian=True, patch=4)
+    inputs = batch(2, 16, 13)
+    with torch.no_grad():
+        mean, logvar = model.forward_dist(*inputs)
+        assert_same(model(*inputs), mean)
+    assert mean.shape == logvar.shape == (2, 13, N_Y)
+    assert torch.isfinite(logvar).all() and (logvar >= -20).all() and (logvar <= 10).all()
+    assert tiny_model().forward_dist(*inputs)[1] is None
+
+
+def test_default_options_keep_the_original_parameters():
+    names = set(tiny_model().state_dict())
+    assert not any("init_" in n for n in names)
+    assert tiny_model(patch=4).head.out_features == 4 * N_Y
+    assert {"decoder.init_embed.weight", "decoder.init_pos.weight"} <= set(tiny_model(n_init=2).state_dict())

@@ -154,6 +154,29 @@ def test_training_step_predictions_never_see_the_query_outputs(store, tmp_path):
     assert not torch.allclose(target, target2) and loss2 > loss
 
 
+def test_issue11_options_train_end_to_end_and_never_see_the_query_outputs(store, tmp_path):
+    # Initial-condition tokens, anchor, Gaussian head with NLL, horizon weights, random
+    # lengths and offsets: fit runs, the checkpoint predicts a mean and a std, and poisoned
+    # y_query changes the loss only.
+    result = fit(_args(store, tmp_path, "all", steps=6,
+                       data={"recenter": True, "context_min": 10, "horizon_min": 5, "window": "random"},
+                       model={"n_init": 10, "anchor": True, "gaussian": True, "loss": "nll", "horizon_weight": 2.0}))
+    pred = Predictor.from_checkpoint(result.last_ckpt, device="cpu")
+    from robomorph.data.store import open_store
+
+    ds = open_store(store)
+    u, y = torch.as_tensor(ds.read("u", slice(0, 4))), torch.as_tensor(ds.read("y", slice(0, 4)))
+    mean, std = pred.simulate(u[:, :20], y[:, :20], u[:, 20:60], return_std=True)
+    assert mean.shape == std.shape == (4, 40, 14) and (std > 0).all() and torch.isfinite(mean).all()
+    batch = {"u_ctx": u[:, :20], "y_ctx": y[:, :20], "u_query": u[:, 20:60], "y_query": y[:, 20:60]}
+    poisoned = {**batch, "y_query": batch["y_query"] * 10 + 5}
+    module = MetaModule.load_from_checkpoint(result.last_ckpt, map_location="cpu").eval()
+    with torch.no_grad():
+        loss, p1, _ = module._step(batch)
+        loss2, p2, _ = module._step(poisoned)
+    assert torch.equal(p1, p2) and loss2 > loss
+
+
 def test_ckpt_path_last_resumes_a_named_run(store, tmp_path):
     fit(_args(store, tmp_path, "named", steps=10))
     args = _args(store, tmp_path, "named", steps=20)

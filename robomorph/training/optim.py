@@ -1,0 +1,35 @@
+"""The optimizer and learning-rate schedule of :class:`robomorph.training.module.MetaModule`."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+
+def optimizers(module) -> dict:
+    """AdamW (no decay on biases, norms and embeddings) with warmup and cosine decay, per step."""
+    h, net = module.hparams, module.net
+    params = [p for p in net.parameters() if p.requires_grad]
+    if not params:
+        raise ValueError("freeze left no trainable parameters")
+    decay = [p for p in params if p.dim() >= 2 and not is_embedding(net, p)]
+    no_decay = [p for p in params if all(p is not q for q in decay)]
+    groups = [{"params": decay, "weight_decay": h.weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
+    opt = torch.optim.AdamW(groups, lr=h.lr, betas=tuple(h.betas))
+    max_steps = module.trainer.max_steps
+    total = h.decay_steps or (max_steps if max_steps > 0 else 10_000)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda step: lr_factor(step, h.warmup_steps, total, h.min_lr_ratio))
+    return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+
+def lr_factor(step: int, warmup: int, total: int, floor: float) -> float:
+    """Linear warmup to 1, cosine decay to ``floor`` at ``total``, then flat."""
+    if step < warmup:
+        return (step + 1) / warmup
+    progress = min(1.0, (step - warmup) / max(1, total - warmup))
+    return floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * progress))
+
+
+def is_embedding(net: torch.nn.Module, p: torch.Tensor) -> bool:
+    return any(p is m.weight for m in net.modules() if isinstance(m, torch.nn.Embedding))
