@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from robomorph.data.generation import generate
+from robomorph.data.store import open_store
 from robomorph.evaluate import main as evaluate_main
 from robomorph.fit import main as fit_main
 from robomorph.ingest import main as ingest_main
-from robomorph.data.store import open_store
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit
 

@@ -7,7 +7,6 @@ records the shard stores it came from.
 
 from __future__ import annotations
 
-
 from robomorph.core.errors import RoboMorphError
 from robomorph.data.store import create_store, open_store
 

@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 
 from robomorph.core.atomic import save_figure
 from robomorph.core.errors import UsageError
-from robomorph.data.store import Dataset, StoreDamagedError, open_store
+from robomorph.data.store import Dataset, StoreDamagedError
 from robomorph.data.units import channel_label, channel_units
 
 SAMPLE_ROWS = 256

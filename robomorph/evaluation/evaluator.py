@@ -55,7 +55,6 @@ from robomorph.evaluation.windows import (  # noqa: F401
 )
 
 
-
 def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None,
             with_std: bool = False):
     """The model's predictions in batches, with a progress bar on stderr.

@@ -11,7 +11,6 @@ from robomorph.core.errors import RoboMorphError
 from robomorph.core.names import LOSSES
 
 
-
 class ModelOptionError(RoboMorphError, ValueError):
     """Model or loss options that do not fit together."""
 

@@ -14,8 +14,19 @@ import torch
 
 from robomorph.core import metrics
 from robomorph.core.errors import RoboMorphError
-from robomorph.core.names import (FREEZE_MODES, LOSSES, LR, NORMALIZATIONS, TEST_FIT, TEST_LOSS, TEST_R2, TRAIN_LOSS, VAL_FIT,
-                                  VAL_LOSS, VAL_R2)
+from robomorph.core.names import (
+    FREEZE_MODES,
+    LOSSES,
+    LR,
+    NORMALIZATIONS,
+    TEST_FIT,
+    TEST_LOSS,
+    TEST_R2,
+    TRAIN_LOSS,
+    VAL_FIT,
+    VAL_LOSS,
+    VAL_R2,
+)
 from robomorph.core.normalizations import check_normalization
 from robomorph.model.checkpoint import (
     DATA_INFO_KEY,

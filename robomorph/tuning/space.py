@@ -29,9 +29,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from robomorph.core.config import load_yaml
+from robomorph.core.errors import RoboMorphError
 from robomorph.core.names import METRICS, REGIMES
 from robomorph.core.overrides import merge, unflatten
-from robomorph.core.errors import RoboMorphError
 
 SAMPLERS = ("tpe", "random", "grid")
 PRUNERS = ("median", "none")

@@ -12,9 +12,9 @@ import yaml
 from robomorph.data.generation import GenerationError, Shard, generate
 from robomorph.data.merging import merge
 from robomorph.data.store import DatasetWriter, open_store
+from robomorph.generate import main
 from robomorph.sim import panda
 from robomorph.sim.filters import to_outputs
-from robomorph.generate import main
 from robomorph.sim.randomize import Randomizer
 from robomorph.sim.recipe import load_recipe
 

@@ -8,8 +8,8 @@ import scipy.io
 import zarr
 
 from robomorph.data.ingest import IngestError, ShortRecordingWarning, ingest
-from robomorph.ingest import main
 from robomorph.data.store import SchemaError, create_store, open_store
+from robomorph.ingest import main
 
 U, Y = ["tau1", "tau2"], ["q1", "q2", "q3"]
 DT = 0.02

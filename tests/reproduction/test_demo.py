@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from robomorph.reproduction.demo import horizon_summary
 from robomorph.evaluation.horizons import horizon_report
+from robomorph.reproduction.demo import horizon_summary
 
 NAMES = ["ee_x", "ee_y", "ee_z", "ee_qx", "ee_qy", "ee_qz", "ee_qw"] + [f"q{i}" for i in range(7)]
 
