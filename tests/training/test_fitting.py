@@ -11,6 +11,7 @@ from robomorph.model.checkpoint import CheckpointError, load_checkpoint_file
 from robomorph.predictor import Predictor
 from robomorph.training.fitting import fit
 from robomorph.training.module import MetaModule
+from tests.conftest import tiny_fit_args
 
 
 @pytest.fixture(scope="module")
@@ -19,14 +20,12 @@ def store(simulated_store):
 
 
 def _args(store, runs, run, steps=30, **extra):
-    args = {
-        "data": {"stores": store, "context_len": 20, "horizon": 40, "batch_size": 8, "val_subset": 8},
-        "model": {"d_model": 16, "n_head": 2, "n_layer": 1, "lr": 3e-3, "warmup_steps": 5, "max_context": 64,
-                  "max_horizon": 64},
-        "trainer": {"max_steps": steps, "val_check_interval": 10, "accelerator": "cpu", "devices": 1,
-                    "enable_progress_bar": False, "enable_model_summary": False},
-        "run": run, "runs_dir": str(runs), "wandb": "offline",
-    }
+    # This file's settings over the shared tiny model: the default patch, a faster lr, offline wandb.
+    args = tiny_fit_args(store, runs, run, steps,
+                         data={"context_len": 20, "horizon": 40, "val_subset": 8},
+                         model={"patch": 10, "lr": 3e-3, "warmup_steps": 5},
+                         trainer={"val_check_interval": 10})
+    args["wandb"] = "offline"
     for key, value in extra.items():
         args[key].update(value)
     return args

@@ -12,6 +12,7 @@ from robomorph.model.checkpoint import CheckpointError, load_checkpoint_file
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit
 from robomorph.training.preflight import FitError
+from tests.conftest import tiny_fit_args
 
 os.environ.setdefault("WANDB_MODE", "offline")
 
@@ -25,16 +26,10 @@ def store(tmp_path_factory):
 
 
 def _args(store, runs, run, steps=2, **extra):
-    args = {
-        "data": {"stores": store, "context_len": 20, "horizon": 40, "batch_size": 8, "val_subset": 8},
-        "model": {"d_model": 16, "n_head": 2, "n_layer": 1, "warmup_steps": 1, "max_context": 64, "max_horizon": 64},
-        "trainer": {"max_steps": steps, "val_check_interval": 2, "accelerator": "cpu", "devices": 1,
-                    "enable_progress_bar": False, "enable_model_summary": False},
-        "run": run, "runs_dir": str(runs), "wandb": "disabled",
-    }
-    for key, value in extra.items():
-        args[key].update(value)
-    return args
+    return tiny_fit_args(store, runs, run, steps, data={"context_len": 20, "horizon": 40, "val_subset": 8,
+                                                        **extra.pop("data", {})},
+                         model={"patch": 10, "warmup_steps": 1, **extra.pop("model", {})},
+                         trainer={"val_check_interval": 2, **extra.pop("trainer", {})}, **extra)
 
 
 def test_zero_max_steps_is_refused_before_anything_is_written(store, tmp_path):
