@@ -45,6 +45,8 @@ import torch
 import yaml
 
 from robomorph.core.metrics import r2
+from robomorph.evaluation.evaluator import load_window, run_baselines
+from robomorph.evaluation.metrics import approach1_mean
 from robomorph.data.generation import generate
 from robomorph.data.store import open_store
 from robomorph.predictor import Predictor
@@ -53,11 +55,15 @@ from robomorph.training.fitting import fit
 
 STEPS = (0, 15, 60, 300, 799)  # first step, 0.25 s, 1 s, 5 s, end of the horizon at 60 Hz
 CONTEXT, HORIZON = 200, 800
+# Windows at random offsets (what a controller meets mid-motion) need room in the 1000-step
+# trajectories: context 200 + horizon 300, each start drawn uniformly from 0..500 (seed 0).
+RANDOM_HORIZON, RANDOM_STEPS = 300, (0, 15, 60, 299)
+PHYSICS_FROM = 30  # "below catalogue physics from 0.5 s on" (issue 12's goal)
 HORIZON_AWARE = {"data": {"context_min": 60, "horizon_min": 100, "window": "random"},
                  "model": {"horizon_weight": 4.0, "horizon_tau": 60.0}}
 # The model before issue 11 (explicit, so that the baseline stays put whatever
 # datamodules/train_cpu.yaml makes the default).
-BEFORE = {"data": {"context_min": None, "horizon_min": None, "window": "start"},
+BEFORE = {"data": {"context_min": None, "horizon_min": None, "window": "start", "inputs": "total"},
           "model": {"anchor": False, "integrate": False, "n_init": 0, "gaussian": False, "loss": "huber", "horizon_weight": 0.0}}
 # name -> overrides of datamodules/train_cpu.yaml ({"data": ..., "model": ...}) on top of BEFORE.
 VARIANTS: dict[str, dict] = {
@@ -68,6 +74,9 @@ VARIANTS: dict[str, dict] = {
                             "model": {"anchor": True, "n_init": 20, **HORIZON_AWARE["model"]}},
     "full": {"data": HORIZON_AWARE["data"],
              "model": {"anchor": True, "n_init": 20, "gaussian": True, "loss": "nll", **HORIZON_AWARE["model"]}},
+    # The same recipe in the command formulation (issue 12): inputs without the arm's gravity compensation.
+    "full_command": {"data": {**HORIZON_AWARE["data"], "inputs": "command"},
+                     "model": {"anchor": True, "n_init": 20, "gaussian": True, "loss": "nll", **HORIZON_AWARE["model"]}},
     "full_integrate": {"data": HORIZON_AWARE["data"],
                        "model": {"anchor": True, "integrate": True, "n_init": 20, "gaussian": True, "loss": "nll",
                                  **HORIZON_AWARE["model"]}},
@@ -132,42 +141,86 @@ def _config(name: str, train: str, test: str, runs_dir: str) -> dict:
     return {**cfg, "run": name, "runs_dir": runs_dir, "wandb": "disabled", "seed_everything": 0}
 
 
-def score(pred: Predictor, test: str) -> dict:
-    """Per-horizon joint RMS [mrad] of model and hold, R^2 and sigma coverage on ``test``."""
-    ds = open_store(test)
-    u, y = ds.read("u"), ds.read("y")
-    joints = [i for i, n in enumerate(ds.y_names) if n.startswith("q")]
-    u_ctx, y_ctx, u_q, y_q = u[:, :CONTEXT], y[:, :CONTEXT], u[:, CONTEXT:CONTEXT + HORIZON], y[:, CONTEXT:CONTEXT + HORIZON]
+def _inputs(name: str) -> str:
+    return VARIANTS[name].get("data", {}).get("inputs", "total")
+
+
+def _curve(yhat: np.ndarray, y_q: np.ndarray, joints: list[int]) -> np.ndarray:
+    """Joint-angle RMS over robots and joints per query step [mrad]."""
+    return 1e3 * np.sqrt(((yhat[..., joints] - y_q[..., joints]) ** 2).mean(axis=(0, 2)))
+
+
+def _predict(pred: Predictor, w) -> tuple[np.ndarray, np.ndarray | None]:
+    u_ctx, y_ctx, u_q, _ = w.split()
     means, stds = [], []
-    for b in range(0, len(u), 16):
-        m, s = pred.simulate(u_ctx[b:b + 16], y_ctx[b:b + 16], u_q[b:b + 16], return_std=True) \
-            if pred.has_std else (pred.simulate(u_ctx[b:b + 16], y_ctx[b:b + 16], u_q[b:b + 16]), None)
+    for b in range(0, len(u_ctx), 16):
+        if pred.has_std:
+            m, s = pred.simulate(u_ctx[b:b + 16], y_ctx[b:b + 16], u_q[b:b + 16], return_std=True)
+            stds.append(s)
+        else:
+            m = pred.simulate(u_ctx[b:b + 16], y_ctx[b:b + 16], u_q[b:b + 16])
         means.append(m)
-        stds.append(s)
-    yhat = np.concatenate(means).astype(np.float64)
-    hold = np.repeat(y_ctx[:, -1:], HORIZON, axis=1).astype(np.float64)
-    curve = {k: 1e3 * np.sqrt(((v[..., joints] - y_q[..., joints]) ** 2).mean(axis=(0, 2)))
-             for k, v in (("model", yhat), ("hold", hold))}
+    return np.concatenate(means).astype(np.float64), (np.concatenate(stds) if stds else None)
+
+
+def physics(test: str, inputs: str) -> dict:
+    """Catalogue physics (nominal parameters) from the true state: its per-step joint RMS,
+    R^2 and FIT on the evaluation window of ``inputs`` (issue 12's anchor)."""
+    ds = open_store(test)
+    w = load_window(test, CONTEXT, HORIZON, None, None, len(ds.u_names), len(ds.y_names), inputs=inputs)
+    y_q = w.split()[3].astype(np.float64)
+    preds, skipped, _ = run_baselines(w, ("hold", "nominal_physics"), (2, 2))
+    if skipped:
+        raise RuntimeError(f"baselines skipped: {skipped}")
+    joints = [i for i, n in enumerate(w.y_names) if n.startswith("q")]
+    p = preds["nominal_physics"]
+    return {"curve_model": _curve(p, y_q, joints), "curve_hold": _curve(preds["hold"], y_q, joints),
+            "r2": float(r2(y_q, p).mean()), "fit": float(approach1_mean(y_q, p, "fit"))}
+
+
+def score(pred: Predictor, test: str, inputs: str = "total", nominal: np.ndarray | None = None) -> dict:
+    """Per-horizon joint RMS [mrad] of model and hold, R^2, FIT and sigma coverage on ``test``
+    from the trajectory start; the same against hold at random offsets; and, given the
+    catalogue physics' curve ``nominal``, whether the model stays below it from 0.5 s on."""
+    w = load_window(test, CONTEXT, HORIZON, None, None, pred.n_u, pred.n_y, inputs=inputs)
+    y_q = w.split()[3].astype(np.float64)
+    joints = [i for i, n in enumerate(w.y_names) if n.startswith("q")]
+    yhat, std = _predict(pred, w)
+    hold = np.repeat(w.split()[1][:, -1:], HORIZON, axis=1).astype(np.float64)
+    curve = {"model": _curve(yhat, y_q, joints), "hold": _curve(hold, y_q, joints)}
+    above = curve["model"] >= curve["hold"]
     out = {"curve_model": curve["model"], "curve_hold": curve["hold"],
-           "r2": float(r2(y_q.astype(np.float64), yhat).mean()),
-           "below_hold_everywhere": bool((curve["model"] < curve["hold"]).all()),
-           "first_step_above_hold": int(np.argmax(curve["model"] >= curve["hold"]))
-           if (curve["model"] >= curve["hold"]).any() else -1}
-    if stds[0] is not None:
-        z = np.abs(yhat - y_q)[..., joints] / np.concatenate(stds)[..., joints]
+           "r2": float(r2(y_q, yhat).mean()), "fit": float(approach1_mean(y_q, yhat, "fit")),
+           "below_hold_everywhere": not above.any(),
+           "first_step_above_hold": int(np.argmax(above)) if above.any() else -1}
+    if nominal is not None:
+        out["below_physics_from_0.5s"] = bool((curve["model"][PHYSICS_FROM:] < nominal[PHYSICS_FROM:]).all())
+    if std is not None:
+        z = np.abs(yhat - y_q)[..., joints] / std[..., joints]
         for k in (1, 2):
             out[f"cover{k}"] = [float((z[:, t] <= k).mean()) for t in STEPS]
+    wr = load_window(test, CONTEXT, RANDOM_HORIZON, None, None, pred.n_u, pred.n_y, offset="random", inputs=inputs)
+    yr_q = wr.split()[3].astype(np.float64)
+    model_r = _curve(_predict(pred, wr)[0], yr_q, joints)
+    hold_r = _curve(np.repeat(wr.split()[1][:, -1:], RANDOM_HORIZON, axis=1).astype(np.float64), yr_q, joints)
+    out |= {"random_model": model_r, "random_hold": hold_r, "random_below_hold_everywhere": bool((model_r < hold_r).all())}
     return out
 
 
 def _row(name: str, budget: float, cpu: float, wall: float, steps: int, s: dict) -> dict:
-    row = {"variant": name, "budget_2core_min": budget, "cpu_min": cpu, "wall_min": wall, "steps": steps}
+    row = {"variant": name, "inputs": _inputs(name) if name in VARIANTS else name.split("[")[-1].rstrip("]"),
+           "budget_2core_min": budget, "cpu_min": cpu, "wall_min": wall, "steps": steps}
     row |= {f"model_mrad_{t}": round(float(s["curve_model"][t]), 2) for t in STEPS}
     row |= {f"hold_mrad_{t}": round(float(s["curve_hold"][t]), 2) for t in STEPS}
-    row |= {"below_hold_everywhere": s["below_hold_everywhere"], "first_step_above_hold": s["first_step_above_hold"],
-            "r2_800": round(s["r2"], 4)}
+    row |= {"below_hold_everywhere": s.get("below_hold_everywhere", ""),
+            "first_step_above_hold": s.get("first_step_above_hold", ""),
+            "below_physics_from_0.5s": s.get("below_physics_from_0.5s", ""),
+            "r2_800": round(s["r2"], 4), "fit_800": round(s["fit"], 2)}
     for k in (1, 2):
         row[f"cover{k}sigma"] = "/".join(f"{c:.2f}" for c in s[f"cover{k}"]) if f"cover{k}" in s else ""
+    for key in ("random_model", "random_hold"):
+        row |= {f"{key}_mrad_{t}": round(float(s[key][t]), 2) if key in s else "" for t in RANDOM_STEPS}
+    row["random_below_hold_everywhere"] = s.get("random_below_hold_everywhere", "")
     return row
 
 
@@ -192,19 +245,28 @@ def main() -> None:
     p.add_argument("--curves", default=None, help="per-step curves CSV (default: <csv stem>_curves.csv)")
     p.add_argument("--score-every", type=float, default=None,
                    help="also score the held-out robots every this many 2-core minutes of training (a row each)")
+    p.add_argument("--threads", type=int, default=os.cpu_count() or 2,
+                   help="torch threads (1: two runs side by side, each on a core of its own)")
     args = p.parse_args()
     names = args.variants.split(",")
     if unknown := [n for n in names if n not in VARIANTS]:
         p.error(f"unknown variants {unknown}; choose from {list(VARIANTS)}")
-    torch.set_num_threads(os.cpu_count() or 2)
+    torch.set_num_threads(args.threads)
     _data(args.train, args.test)
     curves_path = args.curves or args.csv.replace(".csv", "_curves.csv")
-    curves = {}
+    curves, nominal = {}, {}
     for name in names:
+        inputs = _inputs(name)
+        if inputs not in nominal:  # before the budget starts: catalogue physics, once per formulation
+            nominal[inputs] = physics(args.test, inputs)
+            row = _row(f"nominal_physics[{inputs}]", 0, 0, 0, 0, nominal[inputs])
+            _append(args.csv, row)
+            print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
+            curves[f"nominal_physics[{inputs}]"] = nominal[inputs]["curve_model"]
         t0 = time.perf_counter()
 
-        def report(module, cpu, step, name=name, t0=t0):
-            s = score(Predictor(module, device="cpu"), args.test)
+        def report(module, cpu, step, name=name, t0=t0, inputs=inputs):
+            s = score(Predictor(module, device="cpu"), args.test, inputs, nominal[inputs]["curve_model"])
             row = _row(name, round(cpu / 120, 1), round(cpu / 60, 1), round((time.perf_counter() - t0) / 60, 1), step, s)
             _append(args.csv, row)
             print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
@@ -212,7 +274,7 @@ def main() -> None:
         budget = CpuBudget(args.minutes * 60 * 2, every=args.score_every and args.score_every * 120, report=report)
         result = fit(_config(name, args.train, args.test, args.runs_dir), callbacks=[budget])
         cpu, wall = budget.spent() / 60, (time.perf_counter() - t0) / 60
-        s = score(Predictor.from_checkpoint(result.last_ckpt, device="cpu"), args.test)
+        s = score(Predictor.from_checkpoint(result.last_ckpt, device="cpu"), args.test, inputs, nominal[inputs]["curve_model"])
         row = _row(name, args.minutes, round(cpu, 1), round(wall, 1), result.global_step, s)
         _append(args.csv, row)
         print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
