@@ -13,6 +13,7 @@ import os
 from robomorph.core.atomic import write_json, write_text
 from robomorph.core.normalizations import leaks_query_statistics, normalization_label
 from robomorph.evaluation.fit_bands import FIT_BANDS, LATEX_COLORS, fit_band
+from robomorph.reproduction.improved import DESCRIPTION, IMPROVED
 
 TABLE1_COLUMNS = ("r2", "r2_std", "rmse", "rmse_std")
 TABLE1_HEADS = ("R²", "σ(R²)", "RMSE", "σ(RMSE)")
@@ -46,18 +47,25 @@ def _layers(n: int) -> str:
     return f"{n} Layer{'s' if n != 1 else ''}"
 
 
-def table1_rows(results: dict[int, dict[str, dict]]) -> list[dict]:
+def _row_label(row: dict) -> str:
+    """``4``, or ``4 (improved)`` for the improved model's rows (rows written before it: the paper's)."""
+    return f"{row['n_layer']} (improved)" if row.get("model") == IMPROVED else str(row["n_layer"])
+
+
+def table1_rows(results: dict[int, dict[str, dict]], model: str = "paper") -> list[dict]:
     """One row per (depth, test store): approach-1 mean and std over trajectories of R² and RMSE.
 
     Args:
         results: ``{n_layer: {test name: metrics.json content}}``.
+        model: ``paper`` (the paper's architecture) or ``improved`` (Table 1's extra row:
+            :mod:`robomorph.reproduction.improved`).
     """
     rows = []
     for depth, tests in results.items():
         for test, res in tests.items():
             m = res["approach1"]["mean"]
             hold = res.get("baselines", {}).get("hold")
-            rows.append({"n_layer": depth, "test": test, "r2": m["r2"]["mean"], "r2_std": m["r2"]["std"],
+            rows.append({"n_layer": depth, "model": model, "test": test, "r2": m["r2"]["mean"], "r2_std": m["r2"]["std"],
                          "rmse": m["rmse"]["mean"], "rmse_std": m["rmse"]["std"], "n": res["meta"]["n"],
                          "hold_r2": hold["approach1"]["mean"]["r2"]["mean"] if hold else None})
     return rows
@@ -70,13 +78,17 @@ def write_table1(out: str, rows: list[dict], info: dict) -> dict:
              header_markdown(info), "",
              "| Layers | Test | " + " | ".join(TABLE1_HEADS) + " |", "|---|---|" + "---|" * len(TABLE1_HEADS)]
     for r in rows:
-        lines.append(f"| {r['n_layer']} | {r['test']} | {r['r2']:.3f} | {r['r2_std']:.3f} | {r['rmse']:.4f} "
+        lines.append(f"| {_row_label(r)} | {r['test']} | {r['r2']:.3f} | {r['r2_std']:.3f} | {r['rmse']:.4f} "
                      f"| {r['rmse_std']:.4f} |")
     lines += ["", "R² and RMSE: per trajectory and channel over the horizon, averaged over channels; mean and "
               "standard deviation (σ) over the test trajectories (the paper's first evaluation approach)."]
     holds = [f"{r['test']} {r['hold_r2']:.3f}" for r in rows if r["n_layer"] == rows[0]["n_layer"] and r["hold_r2"] is not None]
     if holds:
         lines.append("For scale: the hold baseline (last context output held) scores R² " + ", ".join(holds) + ".")
+    if any(r.get("model") == IMPROVED for r in rows):
+        extra = info.get(IMPROVED)
+        lines.append(f"Rows marked *improved*: {DESCRIPTION}, same training store, depth and steps as the paper's "
+                     "rows; leak-free." + (f" Added by `{extra['command']}` on {extra['date']}." if extra else ""))
     write_text(os.path.join(out, "table1.md"), "\n".join(lines) + "\n")
     write_text(os.path.join(out, "table1.tex"), table1_tex(rows, info))
     write_json(os.path.join(out, "table1.json"), doc)
@@ -87,11 +99,13 @@ def table1_tex(rows: list[dict], info: dict) -> str:
     """The paper's tabular: a block per depth, rows test0..test2, columns R², σ, RMSE, σ."""
     lines = [f"% {header_markdown(info)}", r"\begin{table}[!b]", r"\centering", r"\scriptsize",
              r"\begin{tabular}{c|cccc}"]
-    for depth in dict.fromkeys(r["n_layer"] for r in rows):
-        lines += [r"  \hline", rf"\multicolumn{{5}}{{c}}{{\textbf{{{_layers(depth)}}}}} \\", r"  \hline",
+    for block in dict.fromkeys(_row_label(r) for r in rows):
+        first = next(r for r in rows if _row_label(r) == block)
+        title = _layers(first["n_layer"]) + (", improved model" if first.get("model") == IMPROVED else "")
+        lines += [r"  \hline", rf"\multicolumn{{5}}{{c}}{{\textbf{{{title}}}}} \\", r"  \hline",
                   r"\textbf{TestA} & $R^2$ & $\sigma_{R^2}$ & RMSE & $\sigma_{RMSE}$ \\", r"  \hline"]
         lines += [rf"\textbf{{{r['test']}}} & {r['r2']:.3f} & {r['r2_std']:.3f} & {r['rmse']:.4f} & {r['rmse_std']:.4f} \\"
-                  for r in rows if r["n_layer"] == depth]
+                  for r in rows if _row_label(r) == block]
     lines += [r"  \hline", r"\end{tabular}",
               rf"\caption{{Impact of the number of layers on prediction accuracies (scale {info['scale']}).}}",
               r"\label{tab:layer_comp}", r"\end{table}"]

@@ -11,11 +11,15 @@ import pytest
 from robomorph import reproduce
 from robomorph.evaluation.fit_bands import FIT_BANDS
 from robomorph.reproduction import pipeline, skip
+from robomorph.reproduction.improved import improved_overrides
 from robomorph.reproduction.scales import SCALES
 
 os.environ.setdefault("WANDB_MODE", "disabled")
 TESTS = ["test0", "test1", "test2"]
 CI_DEPTHS = list(SCALES["ci"].depths)
+IMPROVED_RUN = f"table1-improved-L{SCALES['ci'].transfer_depth}-s{SCALES['ci'].train_steps}"
+# Table 1's rows: the paper's model at each depth, then the improved model at the middle one.
+ROWS = [(d, "paper", t) for d in CI_DEPTHS for t in TESTS] + [(SCALES["ci"].transfer_depth, "improved", t) for t in TESTS]
 
 
 @contextlib.contextmanager
@@ -64,11 +68,12 @@ def _md_table(path):
 def test_table1_has_the_papers_rows_and_columns(table1_run):
     root, calls = table1_run
     out = root / "out"
-    assert len(calls["fit"]) == 3 and len(set(calls["fit"])) == 3  # one training per depth
-    assert len(calls["evaluate"]) == 9  # every depth on every test store
+    # one training per depth, and the improved model at the middle depth
+    assert calls["fit"] == [f"table1-L{d}-s{SCALES['ci'].train_steps}" for d in CI_DEPTHS] + [IMPROVED_RUN]
+    assert len(calls["evaluate"]) == 12  # every model on every test store
     doc = json.load(open(out / "table1.json"))
     assert doc["columns"] == ["r2", "r2_std", "rmse", "rmse_std"]
-    assert [(r["n_layer"], r["test"]) for r in doc["rows"]] == [(d, t) for d in CI_DEPTHS for t in TESTS]
+    assert [(r["n_layer"], r["model"], r["test"]) for r in doc["rows"]] == ROWS
     for r in doc["rows"]:
         assert all(math.isfinite(r[c]) for c in doc["columns"])
         assert r["rmse"] > 0 and r["r2_std"] >= 0 and r["rmse_std"] >= 0
@@ -76,7 +81,7 @@ def test_table1_has_the_papers_rows_and_columns(table1_run):
 
     head, rows = _md_table(out / "table1.md")
     assert head == ["Layers", "Test", "R²", "σ(R²)", "RMSE", "σ(RMSE)"]
-    assert [(int(r[0]), r[1]) for r in rows] == [(d, t) for d in CI_DEPTHS for t in TESTS]
+    assert [(r[0], r[1]) for r in rows] == [(str(d) if m == "paper" else f"{d} (improved)", t) for d, m, t in ROWS]
     for md, js in zip(rows, doc["rows"]):
         assert float(md[2]) == pytest.approx(js["r2"], abs=1e-3) and float(md[4]) == pytest.approx(js["rmse"], abs=1e-4)
     text = open(out / "table1.md").read()
@@ -84,8 +89,62 @@ def test_table1_has_the_papers_rows_and_columns(table1_run):
     assert re.search(r"UTC \(\d+\.\d min into the command\)", text) and doc["info"]["elapsed_min"] >= 0
 
     tex = open(out / "table1.tex").read()
-    assert tex.count(r"\multicolumn{5}{c}") == 3 and r"\textbf{2 Layers}" in tex
-    assert tex.count(r"\textbf{test1} & ") == 3 and r"\label{tab:layer_comp}" in tex
+    assert tex.count(r"\multicolumn{5}{c}") == 4 and r"\textbf{2 Layers}" in tex
+    assert r"\textbf{2 Layers, improved model}" in tex
+    assert tex.count(r"\textbf{test1} & ") == 4 and r"\label{tab:layer_comp}" in tex
+    assert "Rows marked *improved*" in text
+
+
+def test_the_improved_row_is_the_default_recipes_options_on_the_papers_model(table1_run):
+    import yaml
+
+    from robomorph.predictor import Predictor
+
+    root, _ = table1_run
+    with open("datamodules/train_cpu.yaml") as f:
+        cpu = yaml.safe_load(f)
+    small = SCALES["small"]  # the paper's 200 + 800 window: the recipe's options unchanged
+    over = improved_overrides("datamodules/train_cpu.yaml", small.context_len, small.horizon, small.patch)
+    assert over == {"data": {k: cpu["data"][k] for k in ("context_min", "horizon_min", "window")},
+                    "model": {k: cpu["model"][k] for k in ("n_init", "anchor", "gaussian", "loss", "horizon_weight",
+                                                           "horizon_tau")}}
+    ci = SCALES["ci"]  # 30 + 60 steps in tokens of 5: scaled, multiples of the patch, within the window
+    over = improved_overrides("datamodules/train_cpu.yaml", ci.context_len, ci.horizon, ci.patch)
+    assert (over["data"]["context_min"], over["data"]["horizon_min"], over["model"]["n_init"]) == (10, 10, 5)
+    # the improved run is the paper's size and budget with those options; the paper's rows are not
+    pred = Predictor.from_checkpoint(skip.finished_ckpt(str(root / "work" / "runs" / IMPROVED_RUN)), device="cpu")
+    cfg = pred.model.config
+    assert pred.has_std and cfg.n_init == 5 and pred.model.anchor and cfg.n_layer == ci.transfer_depth
+    paper = Predictor.from_checkpoint(skip.finished_ckpt(
+        str(root / "work" / "runs" / f"table1-L{ci.transfer_depth}-s{ci.train_steps}")), device="cpu")
+    assert not paper.has_std and paper.model.config.n_init == 0 and not paper.model.anchor
+
+
+def test_improved_adds_its_rows_to_an_existing_table_and_refuses_without_one(table1_run, tmp_path, capsys):
+    root, _ = table1_run
+    doc = json.load(open(root / "out" / "table1.json"))
+    paper_rows = [r for r in doc["rows"] if r["model"] == "paper"]
+    out = tmp_path / "out"  # a table written before the improved row existed: the paper's rows only
+    out.mkdir()
+    (out / "table1.json").write_text(json.dumps({**doc, "rows": [
+        {k: v for k, v in r.items() if k != "model"} for r in paper_rows]}))
+    argv = _argv("improved", root)
+    argv[argv.index("--out") + 1] = str(out)
+    with spied() as calls:
+        assert reproduce.main(argv) == 0
+    assert calls == {"fit": [], "evaluate": []}  # the finished run and its evaluations are kept
+    new = json.load(open(out / "table1.json"))
+    assert new["rows"][:len(paper_rows)] == [{k: v for k, v in r.items() if k != "model"} for r in paper_rows]
+    assert new["rows"][len(paper_rows):] == [r for r in doc["rows"] if r["model"] == "improved"]
+    assert new["info"]["command"] == doc["info"]["command"] and "improved" in new["info"]["improved"]["command"]
+    assert "Added by `python -m robomorph.reproduce improved" in open(out / "table1.md").read()
+    capsys.readouterr()
+    argv[argv.index("--out") + 1] = str(tmp_path / "empty")
+    assert reproduce.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "table1.json not found" in err and "reproduce table1 --scale ci" in err
+    assert reproduce.main([*_argv("improved", root), "--normalization", "paper_window"]) == 2
+    assert "leak-free only" in capsys.readouterr().err
 
 
 def test_rerun_skips_finished_work_and_redoes_only_what_is_missing(table1_run):
@@ -197,7 +256,8 @@ def test_paper_window_table1_is_labelled_shares_the_stores_and_compares_side_by_
     cmp = json.load(open(out_pw / "table1_protocols.json"))
     assert [(r["n_layer"], r["paper_n_layer"], r["test"]) for r in cmp["rows"]] == [
         (d, p, t) for d, p in zip(CI_DEPTHS, (10, 12, 16)) for t in TESTS]
-    ts, pw = json.load(open(out / "table1.json"))["rows"], doc["rows"]
+    ts, pw = [r for r in json.load(open(out / "table1.json"))["rows"] if r["model"] == "paper"], doc["rows"]
+    assert len(pw) == len(ts) == 9  # the paper's protocol: the paper's architecture, no improved row
     for row, a, b in zip(cmp["rows"], ts, pw):
         assert row["train_stats"]["r2"] == a["r2"] and row["paper_window"]["rmse"] == b["rmse"]
     assert cmp["rows"][4]["paper"] == {"r2": 0.787, "rmse": 0.0454}  # 12 layers, test1 in the paper
@@ -232,7 +292,7 @@ def test_inputs_command_trains_its_own_runs_and_names_the_formulation(table1_run
     with spied() as calls:
         assert reproduce.main(argv) == 0
     # the stores are shared, the total-torque runs are not reused
-    assert len(calls["fit"]) == 3 and all(r.endswith("-command") for r in calls["fit"])
+    assert len(calls["fit"]) == 4 and all(r.endswith("-command") for r in calls["fit"])
     text = open(root / "out-command" / "table1.md").read()
     assert "inputs `command`" in text and "--inputs command" in text
     assert "inputs `total`" in open(root / "out" / "table1.md").read()
