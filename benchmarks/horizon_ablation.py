@@ -49,6 +49,7 @@ from robomorph.evaluation.evaluator import load_window, run_baselines
 from robomorph.evaluation.metrics import approach1_mean
 from robomorph.data.generation import generate
 from robomorph.data.store import open_store
+from robomorph.model.checkpoint import TrainedModel
 from robomorph.predictor import Predictor
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit
@@ -139,6 +140,16 @@ def _config(name: str, train: str, test: str, runs_dir: str) -> dict:
     cfg["model"].update({"warmup_steps": 0, "decay_steps": 10**9, "min_lr_ratio": 1.0})
     cfg["trainer"].update({"max_steps": 10**7, "val_check_interval": 250, "enable_progress_bar": False})
     return {**cfg, "run": name, "runs_dir": runs_dir, "wandb": "disabled", "seed_everything": 0}
+
+
+def _in_memory(module) -> TrainedModel:
+    """The weights being trained as the :class:`TrainedModel` a checkpoint would load into
+    (sharing the module's network and normalization): scoring mid-run without a checkpoint."""
+    h = module.hparams
+    model = TrainedModel(module.model_config, recenter=h.recenter, anchor=h.anchor, normalization=h.normalization,
+                         integrate=h.integrate)
+    model.net, model.normalizer = module.net, module.normalizer
+    return model
 
 
 def _inputs(name: str) -> str:
@@ -266,7 +277,7 @@ def main() -> None:
         t0 = time.perf_counter()
 
         def report(module, cpu, step, name=name, t0=t0, inputs=inputs):
-            s = score(Predictor(module, device="cpu"), args.test, inputs, nominal[inputs]["curve_model"])
+            s = score(Predictor(_in_memory(module), device="cpu"), args.test, inputs, nominal[inputs]["curve_model"])
             row = _row(name, round(cpu / 120, 1), round(cpu / 60, 1), round((time.perf_counter() - t0) / 60, 1), step, s)
             _append(args.csv, row)
             print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
