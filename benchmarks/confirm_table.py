@@ -4,6 +4,11 @@ physics of the same formulation.
 
     python benchmarks/confirm_table.py results/benchmarks/confirm60_total.csv \\
         results/benchmarks/confirm60_command.csv > results/benchmarks/confirm60.md
+    python benchmarks/confirm_table.py results/benchmarks/confirm60_total.csv \\
+        results/benchmarks/confirm60_command.csv --plot results/benchmarks/confirm60_curves.png
+
+``--plot`` draws the per-step joint RMS curves (``<csv stem>_curves.csv`` beside each CSV)
+of every predictor on a log scale, one panel per CSV.
 """
 
 from __future__ import annotations
@@ -42,10 +47,36 @@ def table(paths: list[str]) -> str:
         "windows from the trajectory start); R² and FIT: approach 1, mean over the 14 outputs.\n"
 
 
+def plot(paths: list[str], out: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(paths), figsize=(6.5 * len(paths), 4.2), sharey=True, squeeze=False)
+    for ax, path in zip(axes[0], paths):
+        with open(path.replace(".csv", "_curves.csv")) as f:
+            rows = list(csv.DictReader(f))
+        t = [int(r["step"]) / 60 for r in rows]  # 60 Hz
+        for name in rows[0]:
+            if name != "step":
+                ax.plot(t, [float(r[name]) for r in rows], label=name.replace("nominal_physics", "catalogue physics"))
+        ax.set(yscale="log", xlabel="time into the prediction [s]", title=path.split("/")[-1].replace(".csv", ""))
+        ax.grid(alpha=0.3, which="both")
+        ax.legend()
+    axes[0][0].set_ylabel("joint-angle RMS error [mrad]")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("csv", nargs="+")
-    print(table(p.parse_args().csv), end="")
+    p.add_argument("--plot", help="also draw the per-step curves into this PNG")
+    args = p.parse_args()
+    print(table(args.csv), end="")
+    if args.plot:
+        plot(args.csv, args.plot)
 
 
 if __name__ == "__main__":
