@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import sys
 
-from robomorph.core.errors import run_command
-from robomorph.training.fitting import StoppedBySignal, final_line, fit
+from robomorph.core.errors import SIGTERM_EXIT, StoppedBySignal, run_command
+from robomorph.training.fitting import final_line, fit
 
 
 def run(argv: list[str] | None) -> int:
@@ -16,7 +16,7 @@ def run(argv: list[str] | None) -> int:
         result = fit(argv)  # LightningCLI parses argv (sys.argv when None) and exits 2 itself on a bad flag
     except StoppedBySignal as stop:
         print(stop, file=sys.stderr)
-        return 128 + 15  # the shell's code for a SIGTERM stop: schedulers may requeue on it
+        return SIGTERM_EXIT
     print(f"best checkpoint: {result.best_ckpt}\nrun directory: {result.run_dir}")
     print(final_line(result))
     return 0

@@ -9,7 +9,7 @@ import argparse
 import os
 import sys
 
-from robomorph.core.errors import run_command
+from robomorph.core.errors import SIGTERM_EXIT, StoppedBySignal, run_command
 from robomorph.core.names import INPUTS, NORMALIZATIONS
 from robomorph.reproduction import pipeline
 from robomorph.reproduction.scales import SCALES
@@ -40,8 +40,12 @@ def build_parser() -> argparse.ArgumentParser:
 def run(args: argparse.Namespace, argv: list[str]) -> int:
     scale = SCALES[args.scale].scaled(args.steps_factor, args.scratch_ratio)
     command = " ".join(["python -m robomorph.reproduce", *argv])  # recorded in the tables' headers
-    pipeline.reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb,
-                       args.normalization, args.leak_free, args.inputs)
+    try:
+        pipeline.reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb,
+                           args.normalization, args.leak_free, args.inputs)
+    except StoppedBySignal as stop:  # a scheduler's stop mid-training: the run resumes from last.ckpt
+        print(stop, file=sys.stderr)
+        return SIGTERM_EXIT
     return 0
 
 

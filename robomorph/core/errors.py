@@ -37,6 +37,23 @@ def report(exc: BaseException) -> int:
     return USAGE_EXIT
 
 
+class StoppedBySignal(Exception):
+    """A run was stopped by SIGTERM (a scheduler's stop); ``last.ckpt`` holds ``step``.
+
+    Raised by :func:`robomorph.training.fitting.fit`; the doors that train print it as one
+    line and exit with :data:`SIGTERM_EXIT` (torch-free here, so they can catch it
+    without importing the training stack).
+    """
+
+    def __init__(self, run_dir: str, last_ckpt: str, step: int):
+        super().__init__(f"stopped by SIGTERM at step {step}: saved {last_ckpt}; "
+                         "re-run the same command to resume from there")
+        self.run_dir, self.last_ckpt, self.step = run_dir, last_ckpt, step
+
+
+SIGTERM_EXIT = 128 + 15  # the shell's code for a SIGTERM stop: schedulers may requeue on it
+
+
 def run_command(fn: Callable[[], int | None]) -> int:
     """Runs a command body; a :class:`RoboMorphError` becomes one line and exit code 2."""
     try:

@@ -27,6 +27,7 @@ from lightning.pytorch.loggers import WandbLogger
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 
 from robomorph.core.atomic import write_text
+from robomorph.core.errors import StoppedBySignal
 from robomorph.core.names import VAL_LOSS
 from robomorph.core.rundir import RunDir
 from robomorph.data.datamodule import RoboMorphDataModule
@@ -49,15 +50,6 @@ class FitResult:
     metrics: dict[str, float]
     global_step: int
     val_step: int | None = None  # the step of the validation that ``metrics`` reports
-
-
-class StoppedBySignal(Exception):
-    """The run was stopped by SIGTERM (a scheduler's stop); ``last.ckpt`` holds ``step``."""
-
-    def __init__(self, run_dir: str, last_ckpt: str, step: int):
-        super().__init__(f"stopped by SIGTERM at step {step}: saved {last_ckpt}; "
-                         "re-run the same command to resume from there")
-        self.run_dir, self.last_ckpt, self.step = run_dir, last_ckpt, step
 
 
 def _default_precision() -> str:

@@ -298,3 +298,22 @@ def test_inputs_command_trains_its_own_runs_and_names_the_formulation(table1_run
     assert "inputs `total`" in open(root / "out" / "table1.md").read()
     ckpt = skip.finished_ckpt(str(root / "work" / "runs" / calls["fit"][0]))
     assert Predictor.from_checkpoint(ckpt, device="cpu").inputs == "command"
+
+
+def test_a_sigterm_mid_training_is_one_line_and_exit_code_143(table1_run, monkeypatch, capsys):
+    import robomorph.training.fitting as fitting
+    from robomorph.core.errors import StoppedBySignal
+
+    root, _ = table1_run
+
+    def stopped(args, callbacks=None):  # what fit() raises after saving last.ckpt on a scheduler's SIGTERM
+        raise StoppedBySignal("runs/x", "runs/x/checkpoints/last.ckpt", 7)
+
+    monkeypatch.setattr(fitting, "fit", stopped)
+    argv = [*_argv("table1", root), "--inputs", "command"]
+    argv[argv.index("--work") + 1] = str(root / "work-sigterm")
+    capsys.readouterr()
+    assert reproduce.main(argv) == 143
+    err = capsys.readouterr().err.strip()
+    assert err == ("stopped by SIGTERM at step 7: saved runs/x/checkpoints/last.ckpt; re-run the same command to "
+                   "resume from there")
