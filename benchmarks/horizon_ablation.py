@@ -102,7 +102,8 @@ class CpuBudget(L.Callback):
         self.t0 = time.process_time()
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
-        if self.every and self.spent() >= min(self.next, self.seconds):
+        # The last point is the final scoring's (after fit returns), not scored twice here.
+        if self.every and self.next < self.seconds and self.spent() >= self.next:
             t = time.process_time()
             self.report(pl_module, self.spent(), trainer.global_step)
             pl_module.train()
