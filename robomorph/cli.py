@@ -12,6 +12,7 @@ COMMANDS = {
     "merge": "shards of one generation into one store",
     "fit": "train a meta-model",
     "evaluate": "a checkpoint on a store, beside the baselines",
+    "calibrate": "a Gaussian head's standard deviation, rescaled by horizon on held-out robots",
     "report": "the static HTML dashboard",
     "sweep": "Optuna studies over fit()",
     "reproduce": "the paper's tables and figures",

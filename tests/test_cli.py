@@ -27,6 +27,7 @@ BAD_INPUT = [
              "--wandb", "disabled"], "context_len must be >= 1"),
     ("evaluate", ["--ckpt", "{tmp}/missing.ckpt", "--data", "{tmp}/missing.zarr", "--out", "{tmp}/eval"],
      "checkpoint not found"),
+    ("calibrate", ["--ckpt", "{tmp}/missing.ckpt"], "checkpoint not found"),
     ("report", ["{tmp}/no_runs"], "does not exist"),
     ("sweep", ["{tmp}/no_space.yaml", "--n-trials", "1"], "config file not found"),
     ("sweep", ["summary", "--study-name", "nope", "--storage", "sqlite:///{tmp}/optuna.db"], "no study 'nope'"),

@@ -329,10 +329,20 @@ def score(predictor, w: Window, baselines: tuple[str, ...], arx_orders: tuple[in
               "meta": {"context_len": w.context_len, "horizon": w.horizon, "n": len(w.u), "dt": w.dt,
                        "y_names": names, "u_names": w.u_names, "device": str(getattr(predictor, "device", "")),
                        "baseline_notes": notes, "domain": w.attrs.get("domain"), "task": w.attrs.get("task"),
-                       "normalization": normalization, "std": std is not None, "inputs": w.inputs},
+                       "normalization": normalization, "std": std is not None, "inputs": w.inputs,
+                       "std_calibration": _calibration_meta(predictor) if std is not None else None},
               # The paper's protocol scales each window with its query outputs' statistics: say so first.
               "leaks_query_statistics": leaks_query_statistics(normalization)}
     return result, preds, std, base
+
+
+def _calibration_meta(predictor) -> dict | None:
+    """Where the stored std calibration was fitted (``robomorph.calibrate``), or None."""
+    cal = getattr(predictor, "calibration", None)
+    if cal is None:
+        return None
+    src = {k: v for k, v in cal.source.items() if k != "coverage"}
+    return {"method": cal.method, **src}
 
 
 def default_out(ckpt: str, data: str) -> str:
@@ -356,6 +366,13 @@ def summary_text(res: dict, out: str, horizons: bool = True) -> str:
         lines.append(f"  {b:16s} R2 {mb['r2']['mean']:8.3f}  FIT {mb['fit']['mean']:8.2f}  RMSE {mb['rmse']['mean']:.4g}"
                      + (f"  ({note})" if (note := diverged_note(notes.get(b, {}), meta["n"])) else ""))
     lines += [f"  skipped {b}: {why}" for b, why in res["skipped_baselines"].items()]
+    cal = meta.get("std_calibration")
+    if cal:
+        where = "the fit's validation split" if cal.get("split") == "val" else ", ".join(cal.get("data") or [])
+        same = cal.get("split") == "whole" and os.path.realpath(meta.get("data", "")) in {
+            os.path.realpath(p) for p in cal.get("data") or []}
+        lines.append(f"  std recalibrated by horizon ({cal['method']}) on {cal.get('n')} windows of {where}"
+                     + (": this store, so its coverage here is in-sample" if same else ""))
     if horizons and "horizons" in res:
         lines += ["RMS error by horizon (step k: k dt after the last context sample):", horizon_markdown(res["horizons"])]
     lines.append(f"written: {out}/ (metrics.json, metrics.csv, horizons.csv, table.md, *.png)")

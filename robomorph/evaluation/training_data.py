@@ -1,4 +1,5 @@
-"""The training split a checkpoint was fitted on, read back from its stores (for ``arx_train``).
+"""The splits a checkpoint was fitted with, read back from its stores (``arx_train``'s
+training data, the validation windows ``robomorph.calibrate`` fits on).
 
 Lightning saves the DataModule's arguments in the checkpoint (stores, split, seed,
 val_store, test_store); the same split function then gives back exactly the training
@@ -35,25 +36,36 @@ def training_rows(ckpt: dict, stores: list[str] | None = None) -> list[tuple[str
     """
     if stores:
         return [(p, np.arange(_open(p, "--arx-train-data").n)) for p in stores]
+    return split_of(ckpt, "train")
+
+
+def split_of(ckpt: dict, which: str, hint: str = "--arx-train-data") -> list[tuple[str, np.ndarray]]:
+    """``(store path, rows)`` of the checkpoint's ``train``, ``val`` or ``test`` split, as its
+    DataModule drew them; a ``val_store`` / ``test_store`` it was given counts whole.
+    ``hint`` names the option that replaces stores which cannot be read back."""
     dm = ckpt.get("datamodule_hyper_parameters") or {}
     paths = dm.get("stores")
     if not paths:
-        raise TrainingDataUnavailable("the checkpoint does not record its training stores: pass --arx-train-data")
+        raise TrainingDataUnavailable(f"the checkpoint does not record its training stores: pass {hint}")
+    own = dm.get(f"{which}_store") if which in ("val", "test") else None
+    if own:
+        return [(own, np.arange(_open(own, f"the checkpoint's {which}_store", hint).n))]
     paths = [paths] if isinstance(paths, str) else list(paths)
     f = held_out_fractions(tuple(dm.get("split", (0.8, 0.1, 0.1))), dm.get("val_store") is not None,
                            dm.get("test_store") is not None)
     out = []
     for k, path in enumerate(paths):
-        ds = _open(path, "the checkpoint's training store")
+        ds = _open(path, "the checkpoint's training store", hint)
         groups = ds.read(RECORDING_ARRAY) if RECORDING_ARRAY in ds.arrays else None
-        rows = split_rows(ds.n, f, int(dm.get("seed", 0)), k, groups=groups, path=path)["train"]
-        out.append((path, rows))
+        rows = split_rows(ds.n, f, int(dm.get("seed", 0)), k, groups=groups, path=path)[which]
+        if len(rows):
+            out.append((path, rows))
     return out
 
 
-def _open(path: str, what: str):
+def _open(path: str, what: str, hint: str = "--arx-train-data"):
     if not os.path.isdir(path):
-        raise TrainingDataUnavailable(f"{what} {path} is not found (moved?): pass --arx-train-data with its new path")
+        raise TrainingDataUnavailable(f"{what} {path} is not found (moved?): pass {hint} with its new path")
     return open_store(path)
 
 

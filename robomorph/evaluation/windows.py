@@ -90,8 +90,10 @@ def cut(a: np.ndarray, starts: np.ndarray, length: int) -> np.ndarray:
 
 
 def load_window(data: str, context_len: int, horizon: int, n: int | None, info: dict | None,
-                n_u: int, n_y: int, offset: str | int = "start", seed: int = 0, inputs: str = "total") -> Window:
-    """Reads and checks the first ``n`` trajectories of a store against the model.
+                n_u: int, n_y: int, offset: str | int = "start", seed: int = 0, inputs: str = "total",
+                rows: np.ndarray | None = None) -> Window:
+    """Reads and checks the first ``n`` trajectories of a store (of ``rows``, when given: trajectory
+    indices, e.g. a checkpoint's validation split) against the model.
 
     ``inputs`` picks the input array (``total``: ``u``, ``command``: ``u_cmd``); a store
     without the command is refused with a message saying to regenerate it.
@@ -119,7 +121,12 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
     if context_len < 1 or horizon < 1 or length > ds.steps:
         raise WindowError(f"context_len {context_len} + horizon {horizon} must fit in the store's T={ds.steps} steps "
                           "(both >= 1): pass shorter --context-len / --horizon")
-    rows = slice(0, min(n or total, total))
+    if rows is None:
+        rows = slice(0, min(n or total, total))
+    else:
+        rows = np.asarray(rows, dtype=np.int64)[:n]
+        if len(rows) == 0 or rows.min() < 0 or rows.max() >= total:
+            raise WindowError(f"{data}: trajectory rows must be non-empty and within 0..{total - 1}")
     u, y = ds.read_inputs(inputs, rows), ds.read("y", rows)
     starts = window_starts(offset, len(u), ds.steps, length, seed)
     y_first = y[:, 0].copy()

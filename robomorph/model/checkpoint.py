@@ -16,6 +16,7 @@ import torch
 from torch import nn
 
 from robomorph.core.errors import RoboMorphError
+from robomorph.model.calibration import CALIBRATION_KEY, CalibrationError, StdCalibration
 from robomorph.model.normalization import Normalizer
 from robomorph.model.transformer import MetaModel, ModelConfig
 
@@ -114,6 +115,8 @@ class TrainedModel(nn.Module):
 
     Attributes:
         gaussian: the network has a Gaussian head (:meth:`forward_dist` gives a std).
+        calibration: the per-horizon scale of that std fitted after training
+            (``python -m robomorph.calibrate``), or None: applied by :meth:`forward_dist`.
     """
 
     def __init__(self, config: ModelConfig, recenter: bool = False, anchor: bool = False,
@@ -122,6 +125,7 @@ class TrainedModel(nn.Module):
         self.config, self.anchor, self.integrate = config, bool(anchor), bool(integrate)
         self.gaussian = bool(config.gaussian)
         self.net = MetaModel(config)
+        self.calibration: StdCalibration | None = None
         self.normalizer = Normalizer(n_u=config.n_u, n_y=config.n_y, recenter=recenter, normalization=normalization)
 
     def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
@@ -131,9 +135,27 @@ class TrainedModel(nn.Module):
 
     def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
                      y_query_stats=None) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Mean (B, Th, n_y) and standard deviation (or None without a Gaussian head), physical units."""
+        """Mean (B, Th, n_y) and standard deviation (or None without a Gaussian head), physical units;
+        the standard deviation recalibrated by horizon when the model carries a calibration."""
+        mean, std = self.forward_dist_raw(u_ctx, y_ctx, u_query, y_query_stats)
+        if std is not None and self.calibration is not None:
+            std = self.calibration.apply(std)
+        return mean, std
+
+    def forward_dist_raw(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
+                         y_query_stats=None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """:meth:`forward_dist` without the calibration: the head's own standard deviation."""
         return simulate_dist(self.net, self.normalizer, self.anchor, u_ctx, y_ctx, u_query, y_query_stats,
                              self.integrate)
+
+    def set_calibration(self, calibration: StdCalibration | None) -> None:
+        """Attaches (or with None removes) a std calibration, checked against the model."""
+        if calibration is not None:
+            if not self.gaussian:
+                raise CalibrationError("this model has no Gaussian head, so it has no standard deviation to calibrate")
+            if calibration.n_y != self.config.n_y:
+                raise CalibrationError(f"the calibration has {calibration.n_y} channels, the model {self.config.n_y}")
+        self.calibration = calibration
 
 
 def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
@@ -141,7 +163,8 @@ def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
 
     Returns:
         ``(model in eval mode on the CPU, data info or None)``; the data info (channel names,
-        dt, training window) is None for checkpoints written before it was recorded.
+        dt, training window) is None for checkpoints written before it was recorded. A std
+        calibration stored in the checkpoint is attached to the model.
 
     Raises:
         CheckpointError: the file is missing, unreadable, or not a model written by ``fit``.
@@ -162,4 +185,9 @@ def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
         model.load_state_dict(state)
     except RuntimeError as exc:
         raise CheckpointError(f"{path} does not match its own hyper-parameters: {exc}") from exc
+    if ckpt.get(CALIBRATION_KEY) is not None:
+        try:
+            model.set_calibration(StdCalibration.from_dict(ckpt[CALIBRATION_KEY]))
+        except CalibrationError as exc:
+            raise CheckpointError(f"{path}: {exc}") from exc
     return model.eval(), ckpt.get(DATA_INFO_KEY)

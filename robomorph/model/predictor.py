@@ -17,6 +17,9 @@ evaluation against recorded outputs can do.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 import numpy as np
 import torch
 
@@ -42,6 +45,9 @@ class Predictor:
             or ``command`` (the command without the arm's gravity compensation).
         data_info: channel names, dt and the training window (None for checkpoints that predate it).
         has_std: the model has a Gaussian head (``simulate(..., return_std=True)`` works).
+        calibration: the per-horizon scale of that std stored in the checkpoint by
+            ``python -m robomorph.calibrate`` (a :class:`StdCalibration`), or None; ``simulate``
+            applies it.
         device: where it runs.
     """
 
@@ -58,6 +64,21 @@ class Predictor:
     def check_inputs(self, inputs: str | None) -> None:
         """Refuses inputs of the other formulation than the one the model was trained on."""
         check_model_inputs(self.inputs, inputs)
+
+    @property
+    def calibration(self):
+        return self.model.calibration
+
+    @contextlib.contextmanager
+    def raw_std(self) -> Iterator["Predictor"]:
+        """Within the block, ``simulate`` returns the Gaussian head's own standard deviation,
+        without the stored calibration (what calibrating is fitted on)."""
+        kept = self.model.calibration
+        self.model.calibration = None
+        try:
+            yield self
+        finally:
+            self.model.calibration = kept
 
     @property
     def leaks_query_statistics(self) -> bool:
@@ -131,7 +152,8 @@ class Predictor:
             inputs: which formulation the torques are (``total`` or ``command``); when
                 given, a mismatch with the training formulation is refused.
             return_std: also return the predicted standard deviation (models trained with
-                ``gaussian: true`` only).
+                ``gaussian: true`` only), recalibrated by horizon when the checkpoint
+                carries a calibration (:attr:`calibration`).
 
         Returns:
             y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``;

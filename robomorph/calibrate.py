@@ -1,0 +1,54 @@
+"""``python -m robomorph.calibrate`` (or ``robomorph calibrate``): a Gaussian head's std, rescaled by horizon.
+
+The door only; the machinery is :mod:`robomorph.evaluation.calibrating`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from robomorph.core.errors import run_command
+from robomorph.evaluation import calibrating
+from robomorph.model.calibration import METHODS
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m robomorph.calibrate", description=calibrating.__doc__.split("\n")[0])
+    p.add_argument("--ckpt", required=True, help="checkpoint of a model with a Gaussian head (written by robomorph.fit)")
+    p.add_argument("--data", help="a store of held-out robots (default: the fit's validation split, read back "
+                                  "from its stores)")
+    p.add_argument("--out", help="write the calibrated checkpoint here (default: the checkpoint, in place)")
+    p.add_argument("--method", choices=METHODS, default="nll",
+                   help="nll: the scale minimising the Gaussian NLL (default); quantile: exactly 68.3 %% inside ±1σ")
+    p.add_argument("--n", type=int, help="use at most N windows")
+    p.add_argument("--context-len", type=int, help="context steps (default: the checkpoint's)")
+    p.add_argument("--horizon", type=int, help="predicted steps (default: the checkpoint's)")
+    p.add_argument("--offset", default="start", help="where each window starts: start, random (seeded) or a step")
+    p.add_argument("--seed", type=int, default=0, help="seeds --offset random")
+    p.add_argument("--horizons", help="steps shown in the report, as evaluate's --horizons")
+    p.add_argument("--batch-size", type=int, default=64)
+    p.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
+    p.add_argument("--remove", action="store_true", help="drop a stored calibration instead")
+    return p
+
+
+def run(a: argparse.Namespace) -> int:
+    if a.remove:
+        had = calibrating.remove(a.ckpt, a.out)
+        print(f"{'removed the std calibration from' if had else 'no std calibration in'} {a.ckpt}"
+              + (f" (written: {a.out})" if a.out else ""))
+        return 0
+    report = calibrating.calibrate(a.ckpt, a.data, a.out, a.n, a.context_len, a.horizon, a.offset, a.seed, a.method,
+                                   a.batch_size, a.device, a.horizons)
+    print(calibrating.report_text(report))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_command(lambda: run(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,130 @@
+"""``robomorph.calibrate``: fitted on the validation split, stored atomically, used by the
+Predictor and evaluate, removable; bad input refused without touching the checkpoint."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from robomorph.data.splits import split_rows
+from robomorph.evaluation.calibrating import calibrate, remove
+from robomorph.evaluation.evaluator import evaluate, predict
+from robomorph.evaluation.windows import load_window
+from robomorph.model.calibration import CALIBRATION_KEY, fit
+from robomorph.model.checkpoint import load_checkpoint_file, load_trained
+from robomorph.model.predictor import Predictor
+from tests.conftest import CKPT_CONTEXT, CKPT_HORIZON, tiny_fit_args
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROBOTS = 40
+
+
+@pytest.fixture(scope="module")
+def gaussian(simulated_store, tmp_path_factory):
+    """(training store, best.ckpt of a tiny Gaussian-head model trained on it)."""
+    from robomorph.training.fitting import fit as train
+
+    store = simulated_store(robots=ROBOTS, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=1)
+    result = train(tiny_fit_args(store, tmp_path_factory.mktemp("runs"), "gauss",
+                                 model={"anchor": True, "gaussian": True, "loss": "nll"}))
+    return store, result.best_ckpt
+
+
+def _copy(ckpt: str, folder, name: str = "model.ckpt") -> str:
+    dst = str(folder / name)
+    with open(ckpt, "rb") as f, open(dst, "wb") as g:
+        g.write(f.read())
+    return dst
+
+
+def _query(store: str, rows=slice(0, 6)):
+    w = load_window(store, CKPT_CONTEXT, CKPT_HORIZON, None, None, 7, 14, rows=np.arange(ROBOTS)[rows])
+    return w.split()
+
+
+def test_it_fits_on_the_validation_robots_only_and_the_predictor_uses_it(gaussian, tmp_path):
+    store, best = gaussian
+    ckpt = _copy(best, tmp_path)
+    report = calibrate(ckpt, method="quantile")
+    src = report["calibration"]["source"]
+    val = split_rows(ROBOTS, (0.8, 0.1, 0.1), 0, 0)["val"]
+    assert (src["split"], src["data"], src["n"]) == ("val", [store], len(val))
+    # The same fit, done by hand on exactly the validation rows, gives the same scales.
+    raw = Predictor.from_checkpoint(best, device="cpu")
+    u_ctx, y_ctx, u_q, y_q = load_window(store, CKPT_CONTEXT, CKPT_HORIZON, None, raw.data_info, 7, 14,
+                                         rows=val).split()
+    mean, std = predict(raw, u_ctx, y_ctx, u_q, 64, with_std=True)
+    np.testing.assert_allclose(fit(y_q, mean, std, "quantile").scale, report["calibration"]["scale"], rtol=1e-5)
+    # Stored in the checkpoint; the predictor scales the std by it and keeps the mean.
+    assert load_checkpoint_file(ckpt)[CALIBRATION_KEY]["method"] == "quantile"
+    model, _ = load_trained(ckpt)
+    assert model.calibration is not None
+    pred = Predictor.from_checkpoint(ckpt, device="cpu")
+    u_ctx, y_ctx, u_q, _ = _query(store)
+    m0, s0 = raw.simulate(u_ctx, y_ctx, u_q, return_std=True)
+    m1, s1 = pred.simulate(u_ctx, y_ctx, u_q, return_std=True)
+    np.testing.assert_array_equal(m0, m1)
+    np.testing.assert_allclose(s1, s0 * pred.calibration.factors(CKPT_HORIZON)[None], rtol=1e-5)
+    with pred.raw_std():
+        np.testing.assert_allclose(pred.simulate(u_ctx, y_ctx, u_q, return_std=True)[1], s0, rtol=1e-6)
+    assert pred.calibration is not None  # restored after the block
+    # The report's coverage after calibration is that of the stored scales.
+    assert len(report["after"]["1sigma"]) == len(report["steps"])
+
+
+def test_evaluate_scores_the_calibrated_std_and_says_where_it_was_fitted(gaussian, tmp_path, simulated_store):
+    store, best = gaussian
+    ckpt = _copy(best, tmp_path)
+    calibrate(ckpt)
+    test = simulated_store(robots=8, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=7)
+    res = evaluate(ckpt, test, str(tmp_path / "eval"), baselines=("hold",), samples=0)
+    meta = res["meta"]["std_calibration"]
+    assert meta["split"] == "val" and meta["method"] == "nll" and meta["data"] == [store]
+    plain = evaluate(best, test, str(tmp_path / "eval0"), baselines=("hold",), samples=0)
+    assert plain["meta"]["std_calibration"] is None
+    assert res["approach1"] == plain["approach1"]  # the mean prediction is unchanged
+    assert res["horizons"]["calibration"] != plain["horizons"]["calibration"]
+
+
+def test_remove_and_out_leave_the_original_as_it_was(gaussian, tmp_path):
+    _, best = gaussian
+    ckpt = _copy(best, tmp_path)
+    before = open(ckpt, "rb").read()
+    out = str(tmp_path / "calibrated.ckpt")
+    calibrate(ckpt, out=out)
+    assert open(ckpt, "rb").read() == before and CALIBRATION_KEY in load_checkpoint_file(out)
+    assert remove(out) is True and CALIBRATION_KEY not in load_checkpoint_file(out)
+    assert load_trained(out)[0].calibration is None
+    assert remove(out) is False
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "WANDB_MODE": "disabled", "MUJOCO_GL": "disable"}
+    return subprocess.run([sys.executable, "-m", "robomorph.calibrate", *args], capture_output=True, text=True,
+                          cwd=ROOT, env=env, timeout=300)
+
+
+def test_refusals_are_one_line_exit_2_and_leave_the_checkpoint_untouched(gaussian, tiny_checkpoint, tmp_path):
+    store, best = gaussian
+    ckpt = _copy(best, tmp_path)
+    before = open(ckpt, "rb").read()
+    done = _cli("--ckpt", ckpt, "--data", store)
+    assert done.returncode == 2 and "is a training store" in done.stderr and "Traceback" not in done.stderr
+    plain = _copy(tiny_checkpoint, tmp_path, "plain.ckpt")
+    plain_bytes = open(plain, "rb").read()
+    done = _cli("--ckpt", plain)
+    assert done.returncode == 2 and "no Gaussian head" in done.stderr and "Traceback" not in done.stderr
+    assert open(ckpt, "rb").read() == before and open(plain, "rb").read() == plain_bytes
+    assert not [f for f in os.listdir(tmp_path) if f.endswith(".tmp")]
+
+
+def test_the_command_prints_the_coverage_before_and_after(gaussian, tmp_path, simulated_store):
+    _, best = gaussian
+    ckpt = _copy(best, tmp_path)
+    held_out = simulated_store(robots=8, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=9)
+    done = _cli("--ckpt", ckpt, "--data", held_out, "--horizons", "1,10,end")
+    assert done.returncode == 0, done.stderr
+    assert "±1σ before" in done.stdout and "whole store" in done.stdout and f"written: {ckpt}" in done.stdout
+    assert len([line for line in done.stdout.splitlines() if line.startswith("| 1") or line.startswith("| 60")]) == 3

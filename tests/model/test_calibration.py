@@ -1,0 +1,105 @@
+"""The per-horizon std calibration: knots, fitting, interpolation, storage, application."""
+
+import numpy as np
+import pytest
+import torch
+
+from robomorph.model.calibration import ONE_SIGMA, CalibrationError, StdCalibration, _bands, fit, knot_steps
+from robomorph.model.checkpoint import TrainedModel
+from robomorph.model.transformer import ModelConfig
+
+
+def test_knots_are_log_spaced_distinct_steps_from_one_to_the_horizon():
+    for h in (1, 2, 7, 60, 800):
+        k = knot_steps(h)
+        assert k[0] == 1 and k[-1] == h and (np.diff(k) > 0).all()
+    k = knot_steps(800)
+    ratios = k[1:] / k[:-1]
+    assert len(k) >= 10 and ratios[-3:].max() < 1.6  # dense at long horizons too
+    with pytest.raises(CalibrationError, match=">= 1"):
+        knot_steps(0)
+
+
+def test_the_bands_tile_every_step_once():
+    k = knot_steps(800)
+    bands = _bands(k, 800)
+    assert sorted(np.concatenate(bands).tolist()) == list(range(800))
+    assert all(k[i] - 1 in b for i, b in enumerate(bands))  # each knot lies in its own band
+
+
+def _synthetic(n=400, h=100, c=3, seed=0):
+    """Windows whose true spread is the predicted std times a factor growing with the step."""
+    rng = np.random.default_rng(seed)
+    mean = rng.normal(size=(n, h, c))
+    std = np.exp(rng.normal(size=(n, h, c)) * 0.3)
+    true_factor = (1 + np.arange(1, h + 1) / 20.0)[None, :, None] * np.array([1.0, 2.0, 0.5])
+    y = mean + std * true_factor * rng.normal(size=(n, h, c))
+    return y, mean, std, true_factor[0]
+
+
+def test_nll_scales_recover_the_true_spread_and_calibrate_coverage():
+    y, mean, std, true = _synthetic()
+    cal = fit(y, mean, std, "nll")
+    f = cal.factors(100)
+    assert f.shape == (100, 3)
+    np.testing.assert_allclose(f[np.asarray(cal.knots) - 1], true[np.asarray(cal.knots) - 1], rtol=0.15)
+    z = np.abs(y - mean) / (std * f[None])
+    raw = np.abs(y - mean) / std
+    assert abs((z <= 1).mean() - ONE_SIGMA) < 0.02 and abs((z <= 2).mean() - 0.954) < 0.02
+    assert abs((raw <= 1).mean() - ONE_SIGMA) > 0.1  # it was miscalibrated before
+
+
+def test_quantile_scales_put_68_percent_inside_one_sigma_in_every_band():
+    y, mean, std, _ = _synthetic(seed=1)
+    cal = fit(y, mean, std, "quantile")
+    z = np.abs(y - mean) / std
+    for i, band in enumerate(_bands(np.asarray(cal.knots), 100)):
+        inside = (z[:, band] <= np.asarray(cal.scale[i])).reshape(-1, 3).mean(0)
+        np.testing.assert_allclose(inside, ONE_SIGMA, atol=0.01)
+
+
+def test_factors_equal_the_scales_at_knots_interpolate_log_log_and_hold_outside():
+    cal = StdCalibration((1, 4, 16), ((1.0, 2.0), (2.0, 2.0), (8.0, 1.0)))
+    f = cal.factors(400)
+    np.testing.assert_allclose(f[[0, 3, 15]], [[1, 2], [2, 2], [8, 1]])
+    np.testing.assert_allclose(f[8 - 1, 0], 4.0)  # step 8, halfway from 4 to 16 in log step: sqrt(2 * 8)
+    np.testing.assert_allclose(f[399], [8.0, 1.0])  # flat beyond the last knot
+    assert cal.factors(5).shape == (5, 2)
+
+
+def test_a_calibration_round_trips_and_bad_ones_are_refused():
+    cal = StdCalibration((1, 5), ((1.5, 0.5), (2.0, 1.0)), "quantile", {"split": "val", "n": 12})
+    assert StdCalibration.from_dict(cal.to_dict()) == cal
+    for bad in ({"knots": [5, 1], "scale": [[1.0], [1.0]]}, {"knots": [1, 2], "scale": [[1.0], [-1.0]]},
+                {"knots": [1, 2], "scale": [[1.0]]}, {"knots": [1], "scale": [[float("nan")]]},
+                {"scale": [[1.0]]}, {"knots": [1], "scale": [[1.0]], "method": "isotonic"}):
+        with pytest.raises(CalibrationError):
+            StdCalibration.from_dict(bad)
+    with pytest.raises(CalibrationError, match="same shape|one shape"):
+        fit(np.zeros((4, 5, 2)), np.zeros((4, 5, 2)), np.ones((4, 6, 2)))
+    with pytest.raises(CalibrationError, match="at least 2"):
+        fit(np.zeros((1, 5, 2)), np.zeros((1, 5, 2)), np.ones((1, 5, 2)))
+
+
+def _model(gaussian: bool) -> TrainedModel:
+    torch.manual_seed(0)
+    m = TrainedModel(ModelConfig(n_u=2, n_y=3, d_model=16, n_head=2, n_layer=1, patch=5, max_context=40,
+                                 max_horizon=40, gaussian=gaussian)).eval()
+    return m
+
+
+def test_the_model_scales_its_std_and_leaves_the_mean_alone():
+    m = _model(True)
+    u_ctx, y_ctx, u_q = torch.randn(2, 20, 2), torch.randn(2, 20, 3), torch.randn(2, 30, 2)
+    with torch.no_grad():
+        mean0, std0 = m.forward_dist(u_ctx, y_ctx, u_q)
+        cal = StdCalibration((1, 10, 30), ((2.0, 1.0, 0.5), (3.0, 1.0, 0.5), (4.0, 1.0, 0.5)))
+        m.set_calibration(cal)
+        mean1, std1 = m.forward_dist(u_ctx, y_ctx, u_q)
+        _, raw = m.forward_dist_raw(u_ctx, y_ctx, u_q)
+    assert torch.equal(mean0, mean1) and torch.equal(raw, std0)
+    torch.testing.assert_close(std1, std0 * torch.as_tensor(cal.factors(30), dtype=std0.dtype))
+    with pytest.raises(CalibrationError, match="channels"):
+        m.set_calibration(StdCalibration((1,), ((1.0, 1.0),)))
+    with pytest.raises(CalibrationError, match="no Gaussian head"):
+        _model(False).set_calibration(cal)
