@@ -3,8 +3,10 @@
 1. Generates a small dataset of every task (multi-sine, chirp, OSC circle and spiral) with
    the recipes in ``datamodules/``, prints each summary and draws its trajectories.
 2. Trains the CPU-sized meta-model briefly on a multi-sine training set.
-3. Evaluates it on held-out robots it never saw (context alone), beside the baselines,
-   with the horizon and context sweeps, and prints the per-channel table.
+3. Recalibrates its predicted standard deviation by horizon on the training run's
+   validation robots (``robomorph.calibrate``), then evaluates it on held-out robots it
+   never saw (context alone), beside the baselines, with the horizon and context sweeps,
+   and prints the per-channel table.
 4. Writes the HTML report of all runs (``results/report.html``) and prints its path.
 5. Ends with the RMS errors by horizon in physical units (joint angles [mrad], end-effector
    position [mm] and orientation [mrad]) of the model, ``hold`` and ``nominal_physics``.
@@ -72,6 +74,7 @@ def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str, 
     from robomorph.evaluation.evaluator import evaluate, summary_text  # noqa: PLC0415
     from robomorph.reporting.dashboard import build_report, default_out  # noqa: PLC0415
 
+    calibrate_std(ckpt)
     out = RunDir.of_checkpoint(ckpt).eval_dir(test)
     res = evaluate(ckpt, test, out, sweep_horizon_spec="100:800:100", sweep_context_spec="20:200:20")
     with open(os.path.join(out, "table.md")) as f:
@@ -79,6 +82,18 @@ def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str, 
     print(summary_text(res, out, horizons=False))  # the demo closes with the horizon table
     report = build_report(runs_dir, default_out(runs_dir))
     return out, report, res
+
+
+def calibrate_std(ckpt: str) -> bool:
+    """Recalibrates a Gaussian head's std by horizon on the fit's validation robots (in place);
+    False for a model without one."""
+    from robomorph.evaluation.calibrating import calibrate, report_text  # noqa: PLC0415
+    from robomorph.model.checkpoint import load_trained  # noqa: PLC0415
+
+    if not load_trained(ckpt)[0].gaussian:
+        return False
+    print("\n" + report_text(calibrate(ckpt)))
+    return True
 
 
 def _ddhhmmss(seconds: float) -> str:
