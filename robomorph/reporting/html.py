@@ -245,8 +245,18 @@ def horizon_table(metrics: dict) -> str:
             label = esc(f"inside ±{sigma[0]}σ [%] (ideal {ideal})")
             rows.append(f'<tr>{td(label, cls="name")}{td("model", cls="name")}{cells}</tr>')
     note = ('<p class="note">RMS error by horizon over the test trajectories, in physical units; step k is k dt '
-            "after the last context sample (green: the model beats hold, red: it does not).</p>")
+            "after the last context sample (green: the model beats hold, red: it does not)."
+            + _calibration_note(dig(metrics, "meta", "std_calibration")) + "</p>")
     return note + table(head, rows)
+
+
+def _calibration_note(cal) -> str:
+    """Where the scored standard deviation was recalibrated (``robomorph.calibrate``), if it was."""
+    if not isinstance(cal, dict):
+        return ""
+    where = "the training run's validation robots" if cal.get("split") == "val" else "a held-out store"
+    return esc(f" The standard deviation was recalibrated by horizon ({cal.get('method', '?')}) on "
+               f"{cal.get('n', '?')} windows of {where}.")
 
 
 HORIZON_HEAD = "joints RMS [mrad] first step / 0.25 s / 1 s (hold)"

@@ -43,6 +43,10 @@ def test_horizon_table_marks_where_the_model_beats_hold_and_shows_coverage():
     assert colours == ["rgb(204, 235, 204)", "rgb(248, 209, 204)", "rgb(248, 209, 204)"]
     assert "inside ±1σ [%] (ideal 68.3)" in html and "inside ±2σ [%] (ideal 95.4)" in html
     assert "inside ±1σ" not in horizon_table({"horizons": _horizons(False)})
+    assert "recalibrated" not in html
+    cal = {"method": "nll", "split": "val", "n": 51, "data": ["ms_train.zarr"]}
+    marked = horizon_table({"horizons": _horizons(True), "meta": {"std_calibration": cal}})
+    assert "recalibrated by horizon (nll) on 51 windows of the training run&#x27;s validation robots" in marked
 
 
 def test_horizon_table_is_empty_without_a_readable_horizons_entry():
