@@ -70,8 +70,10 @@ def test_it_fits_on_the_validation_robots_only_and_the_predictor_uses_it(gaussia
     with pred.raw_std():
         np.testing.assert_allclose(pred.simulate(u_ctx, y_ctx, u_q, return_std=True)[1], s0, rtol=1e-6)
     assert pred.calibration is not None  # restored after the block
-    # The report's coverage after calibration is that of the stored scales.
-    assert len(report["after"]["1sigma"]) == len(report["steps"])
+    # Calibrating again fits on the head's own std, not on the calibrated one: same scales.
+    again = calibrate(ckpt, method="quantile")
+    np.testing.assert_allclose(again["calibration"]["scale"], report["calibration"]["scale"], rtol=1e-6)
+    assert again["before"] == report["before"] and len(again["after"]["1sigma"]) == len(again["steps"])
 
 
 def test_evaluate_scores_the_calibrated_std_and_says_where_it_was_fitted(gaussian, tmp_path, simulated_store):
