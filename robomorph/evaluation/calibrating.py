@@ -47,7 +47,7 @@ def _sources(ckpt_dict: dict, data: str | None) -> tuple[list[tuple[str, np.ndar
         if not sources:
             raise CalibrationError("the checkpoint's fit held out no validation robots (split val share 0): pass "
                                    "--data with a store of robots it was not trained on")
-        return [(p, r) for p, r in sources], "val"
+        return list(sources), "val"
     dm = ckpt_dict.get("datamodule_hyper_parameters") or {}
     stores = dm.get("stores") or []
     stores = [stores] if isinstance(stores, str) else list(stores)
