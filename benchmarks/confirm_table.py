@@ -42,7 +42,10 @@ def table(paths: list[str]) -> str:
                 lines.append("| " + " | ".join(_cells(r, "catalogue physics")) + " |")
         if models:
             lines.append("| " + " | ".join(_cells(models[-1], "hold", "hold")) + " |")
-        lines += ["| " + " | ".join(_cells(r, f"`{r['variant']}`")) + " |" for r in models]
+        # Runs on another training store name its size (horizon_ablation's train_robots column).
+        lines += ["| " + " | ".join(_cells(r, f"`{r['variant']}`" + (f", {r['train_robots']} robots"
+                                                                      if r.get("train_robots") else ""))) + " |"
+                  for r in models]
     return "\n".join(lines) + "\n\nJoint-angle RMS over robots and joints [mrad] at each query step (context 200, " \
         "windows from the trajectory start); R² and FIT: approach 1, mean over the 14 outputs.\n"
 
