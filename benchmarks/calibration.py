@@ -30,6 +30,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from robomorph.evaluation.calibrating import calibrate  # noqa: E402
 from robomorph.evaluation.evaluator import predict  # noqa: E402
+from robomorph.evaluation.horizons import coverage  # noqa: E402
 from robomorph.evaluation.windows import load_window  # noqa: E402
 from robomorph.model.calibration import StdCalibration  # noqa: E402
 from robomorph.model.checkpoint import load_checkpoint_file  # noqa: E402
@@ -51,9 +52,10 @@ def score(y: np.ndarray, mean: np.ndarray, std: np.ndarray, factors: np.ndarray,
     """Coverage at STEPS, mean miss over all steps (joints) and NLL relative to factors = 1 (all channels)."""
     z_raw = np.abs(y - mean) / std
     z = z_raw / factors[None]
+    cover = coverage(y, mean, std * factors[None], list(range(1, y.shape[1] + 1)), tuple(joints))
     out = {}
     for k in (1, 2):
-        per_step = (z[..., joints] <= k).mean(axis=(0, 2))
+        per_step = np.asarray(cover[f"{k}sigma"])
         out[f"cover{k}"] = [float(per_step[t]) for t in STEPS if t < len(per_step)]
         out[f"miss{k}"] = float(np.abs(per_step - TARGET[k]).mean())
     out["dnll"] = float(np.mean(np.log(factors)[None] + 0.5 * z ** 2 - 0.5 * z_raw ** 2))

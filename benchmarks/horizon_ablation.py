@@ -219,7 +219,7 @@ def score(pred: Predictor, test: str, inputs: str = "total", nominal: np.ndarray
     return out
 
 
-def _row(name: str, budget: float, cpu: float, wall: float, steps: int, s: dict) -> dict:
+def _row(name: str, budget: float, cpu: float, wall: float, steps: int, s: dict, train_robots: int | str = "") -> dict:
     row = {"variant": name, "inputs": _inputs(name) if name in VARIANTS else name.split("[")[-1].rstrip("]"),
            "budget_2core_min": budget, "cpu_min": cpu, "wall_min": wall, "steps": steps}
     row |= {f"model_mrad_{t}": round(float(s["curve_model"][t]), 2) for t in STEPS}
@@ -233,6 +233,7 @@ def _row(name: str, budget: float, cpu: float, wall: float, steps: int, s: dict)
     for key in ("random_model", "random_hold"):
         row |= {f"{key}_mrad_{t}": round(float(s[key][t]), 2) if key in s else "" for t in RANDOM_STEPS}
     row["random_below_hold_everywhere"] = s.get("random_below_hold_everywhere", "")
+    row["train_robots"] = train_robots  # "" for the catalogue robot, which is not trained
     return row
 
 
@@ -276,7 +277,6 @@ def main() -> None:
         if inputs not in nominal:  # before the budget starts: catalogue physics, once per formulation
             nominal[inputs] = physics(args.test, inputs)
             row = _row(f"nominal_physics[{inputs}]", 0, 0, 0, 0, nominal[inputs])
-            row["train_robots"] = ""  # the catalogue robot is not trained
             _append(args.csv, row)
             print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
             curves[f"nominal_physics[{inputs}]"] = nominal[inputs]["curve_model"]
@@ -284,8 +284,8 @@ def main() -> None:
 
         def report(module, cpu, step, name=name, t0=t0, inputs=inputs):
             s = score(Predictor(_in_memory(module), device="cpu"), args.test, inputs, nominal[inputs]["curve_model"])
-            row = _row(name, round(cpu / 120, 1), round(cpu / 60, 1), round((time.perf_counter() - t0) / 60, 1), step, s)
-            row["train_robots"] = n_train
+            row = _row(name, round(cpu / 120, 1), round(cpu / 60, 1), round((time.perf_counter() - t0) / 60, 1), step, s,
+                       n_train)
             _append(args.csv, row)
             print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
 
@@ -293,8 +293,7 @@ def main() -> None:
         result = fit(_config(name, args.train, args.test, args.runs_dir, args.val_share), callbacks=[budget])
         cpu, wall = budget.spent() / 60, (time.perf_counter() - t0) / 60
         s = score(Predictor.from_checkpoint(result.last_ckpt, device="cpu"), args.test, inputs, nominal[inputs]["curve_model"])
-        row = _row(name, args.minutes, round(cpu, 1), round(wall, 1), result.global_step, s)
-        row["train_robots"] = n_train
+        row = _row(name, args.minutes, round(cpu, 1), round(wall, 1), result.global_step, s, n_train)
         _append(args.csv, row)
         print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
         curves[name] = s["curve_model"]

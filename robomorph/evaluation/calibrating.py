@@ -115,11 +115,12 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
               "date": time.strftime("%Y-%m-%d %H:%M:%S")}
     cal = fit(y_q, mean, std, method, source=source)
     steps = parse_horizons(horizons_spec, int(horizon), dt)
-    std_after = cal.factors(int(horizon))[None] * std
+    factors = cal.factors(int(horizon))
+    std_after = factors[None] * std
     report = {"ckpt": ckpt, "out": out or ckpt, "calibration": cal.to_dict(), "steps": steps,
               "seconds": [s * dt for s in steps] if dt else None,
               "before": coverage(y_q, mean, std, steps), "after": coverage(y_q, mean, std_after, steps),
-              "scale": [float(np.median(cal.factors(s)[-1])) for s in steps]}
+              "scale": [float(np.median(factors[s - 1])) for s in steps]}
     cal.source["coverage"] = {"steps": steps, "before": report["before"], "after": report["after"]}
     ckpt_dict[CALIBRATION_KEY] = cal.to_dict()
     _write(ckpt_dict, out or ckpt)
