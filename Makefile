@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-fast install clean
+.PHONY: demo test test-fast docs install clean
 
 install: $(STAMP)
 
@@ -28,5 +28,10 @@ test-fast: $(STAMP)
 	bash tools/ensure_postgres.sh
 	$(PY) -m pytest -q -m "not slow"
 
+# The documentation site, offline, into site/ (open site/index.html); --strict turns a broken
+# link, a missing page or a failed include into an error.
+docs: $(STAMP)
+	$(PY) -m mkdocs build --strict --site-dir site
+
 clean:
-	rm -rf $(VENV) data results/runs .pytest_cache
+	rm -rf $(VENV) data results/runs site .pytest_cache

@@ -2,10 +2,12 @@
 
 For each checkpoint: fit the calibration on the fit's validation robots with each method
 (``robomorph.calibrate``, into temporary copies), then score the head's own std and each
-calibrated one on a held-out store, from the trajectory start and from random offsets
-(seed 0, 300 predicted steps): joint-angle ±1σ / ±2σ coverage at the README's five horizons, the mean absolute
-miss of 68.3 % / 95.4 % over all predicted steps, and the mean Gaussian NLL per value
-relative to the uncalibrated head (negative: better; units cancel).
+calibrated one on a held-out store with :func:`robomorph.evaluation.scoring.score_windows`,
+from the trajectory start and from random offsets (seed 0, ``--random-horizon`` steps):
+joint-angle ±1σ / ±2σ coverage at steps 1, 15, 60, 300 and 800 (first step, 0.25 s, 1 s,
+5 s, the end; step k is k dt after the last context sample), the mean absolute miss of
+68.3 % / 95.4 % over all predicted steps (joints), and the mean Gaussian NLL per value (all
+channels) relative to the uncalibrated head (negative: better; units cancel).
 
     python benchmarks/calibration.py \\
         --ckpt total-best=data/quality/confirm_runs_total/full/checkpoints/best.ckpt \\
@@ -18,101 +20,87 @@ relative to the uncalibrated head (negative: better; units cancel).
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import sys
 import tempfile
 
-import numpy as np
 import torch
+from common import print_provenance
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from robomorph.evaluation.calibrating import calibrate  # noqa: E402
-from robomorph.evaluation.evaluator import predict  # noqa: E402
-from robomorph.evaluation.horizons import coverage  # noqa: E402
-from robomorph.evaluation.windows import load_window  # noqa: E402
-from robomorph.model.calibration import StdCalibration  # noqa: E402
-from robomorph.model.checkpoint import load_checkpoint_file  # noqa: E402
-from robomorph.model.predictor import Predictor  # noqa: E402
-
-STEPS = (0, 15, 60, 300, 799)  # first step, 0.25 s, 1 s, 5 s, 13.3 s at 60 Hz (0-based)
-TARGET = {1: 0.6827, 2: 0.9545}
-RANDOM_HORIZON = 300  # as benchmarks/horizon_ablation.py: context 200 + 300 steps from a random offset
+from robomorph.core.errors import run_command
+from robomorph.core.results import markdown_table, write_rows
+from robomorph.evaluation.calibrating import calibrate
+from robomorph.evaluation.scoring import Predictions, score_windows
+from robomorph.evaluation.windows import load_window
+from robomorph.model.calibration import StdCalibration
+from robomorph.model.files import read_model
+from robomorph.model.predictor import Predictor
 
 
-def _windows(pred: Predictor, test: str, offset: str):
+def _windows(pred: Predictor, test: str, offset: str, random_horizon: int):
     """The training window from the start; from random offsets, a shorter horizon leaves them room."""
     info = pred.data_info
-    horizon = info["horizon"] if offset == "start" else RANDOM_HORIZON
+    horizon = info["horizon"] if offset == "start" else random_horizon
     return load_window(test, info["context_len"], horizon, None, info, pred.n_u, pred.n_y, offset, 0, pred.inputs)
 
 
-def score(y: np.ndarray, mean: np.ndarray, std: np.ndarray, factors: np.ndarray, joints: list[int]) -> dict:
-    """Coverage at STEPS, mean miss over all steps (joints) and NLL relative to factors = 1 (all channels)."""
-    z_raw = np.abs(y - mean) / std
-    z = z_raw / factors[None]
-    cover = coverage(y, mean, std * factors[None], list(range(1, y.shape[1] + 1)), tuple(joints))
+def score_methods(pred: Predictor, w, cals: dict) -> dict:
+    """Per method: coverage at the default steps and miss (joints), NLL relative to the head's own std."""
+    with pred.raw_std():
+        raw = score_windows(pred, w, ())
+    mean, std = raw.preds["model"], raw.std
     out = {}
-    for k in (1, 2):
-        per_step = np.asarray(cover[f"{k}sigma"])
-        out[f"cover{k}"] = [float(per_step[t]) for t in STEPS if t < len(per_step)]
-        out[f"miss{k}"] = float(np.abs(per_step - TARGET[k]).mean())
-    out["dnll"] = float(np.mean(np.log(factors)[None] + 0.5 * z ** 2 - 0.5 * z_raw ** 2))
+    for method, cal in cals.items():
+        s = raw if cal is None else score_windows(Predictions(mean, std * cal.factors(w.horizon)[None]), w, ())
+        h, c = s.result["horizons"], s.result["calibration"]
+        out[method] = {"steps": h["steps"], "cover1": h["calibration"]["joints"]["1sigma"],
+                       "cover2": h["calibration"]["joints"]["2sigma"],
+                       "miss1": c["coverage_miss"]["joints"]["1sigma"], "miss2": c["coverage_miss"]["joints"]["2sigma"],
+                       "dnll": c["nll"]["all"] - raw.result["calibration"]["nll"]["all"]}
     return out
 
 
-def main() -> None:
+def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--ckpt", action="append", required=True, metavar="NAME=CKPT")
     p.add_argument("--test", required=True, help="held-out store (robots neither trained nor calibrated on)")
     p.add_argument("--csv", default="results/benchmarks/calibration.csv")
+    p.add_argument("--random-horizon", type=int, default=300, help="predicted steps from random offsets")
     p.add_argument("--threads", type=int, default=2)
-    a = p.parse_args()
+    a = p.parse_args(argv)
+    print_provenance()
     torch.set_num_threads(a.threads)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for item in a.ckpt:
             name, ckpt = item.split("=", 1)
             pred = Predictor.from_checkpoint(ckpt, device="cpu")
-            step = int(load_checkpoint_file(ckpt)["global_step"])
+            step = int(read_model(ckpt).get("global_step", 0))
             cals = {"none": None}
             for method in ("nll", "quantile"):
-                out = os.path.join(tmp, f"{name}-{method}.ckpt")
-                report = calibrate(ckpt, out=out, method=method)
+                report = calibrate(ckpt, out=os.path.join(tmp, f"{name}-{method}.ckpt"), method=method)
                 cals[method] = StdCalibration.from_dict(report["calibration"])
                 print(f"{name}: {method} fitted on {report['calibration']['source']['n']} validation windows",
                       file=sys.stderr)
             for offset in ("start", "random"):
-                w = _windows(pred, a.test, offset)
-                u_ctx, y_ctx, u_q, y_q = w.split()
-                y_q = y_q.astype(np.float64)
-                joints = [i for i, n in enumerate(w.y_names) if n.startswith("q")]
-                with pred.raw_std():
-                    mean, std = predict(pred, u_ctx, y_ctx, u_q, 64, with_std=True)
-                for method, cal in cals.items():
-                    f = np.ones(std.shape[1:]) if cal is None else cal.factors(std.shape[1])
-                    s = score(y_q, mean, std, f, joints)
-                    rows.append({"model": name, "step": step, "offset": offset, "method": method, "windows": len(u_ctx),
+                w = _windows(pred, a.test, offset, a.random_horizon)
+                for method, s in score_methods(pred, w, cals).items():
+                    rows.append({"model": name, "step": step, "offset": offset, "method": method, "windows": len(w.u),
+                                 "steps": "/".join(map(str, s["steps"])),
                                  "cover1sigma": "/".join(f"{c:.2f}" for c in s["cover1"]),
                                  "cover2sigma": "/".join(f"{c:.2f}" for c in s["cover2"]),
                                  "miss1sigma": round(s["miss1"], 4), "miss2sigma": round(s["miss2"], 4),
                                  "dnll_vs_raw": round(s["dnll"], 4)})
                     print(rows[-1], file=sys.stderr)
-    os.makedirs(os.path.dirname(a.csv) or ".", exist_ok=True)
-    with open(a.csv, "w", newline="") as f:
-        wr = csv.DictWriter(f, fieldnames=list(rows[0]))
-        wr.writeheader()
-        wr.writerows(rows)
-    head = ["model", "training step", "windows", "method", "±1σ coverage (5 horizons)", "±2σ coverage", "mean miss ±1σ / ±2σ",
-            "ΔNLL vs head"]
-    print("| offset | " + " | ".join(head) + " |")
-    print("|" + "---|" * (len(head) + 1))
-    for r in rows:
-        print(f"| {r['offset']} | {r['model']} | {r['step']} | {r['windows']} | {r['method']} | {r['cover1sigma']} | "
-              f"{r['cover2sigma']} | {100 * r['miss1sigma']:.1f} / {100 * r['miss2sigma']:.1f} pts | "
-              f"{r['dnll_vs_raw']:+.3f} |")
+    write_rows(a.csv, rows)
+    head = ["offset", "model", "training step", "windows", "method", "steps", "±1σ coverage", "±2σ coverage",
+            "mean miss ±1σ / ±2σ", "ΔNLL vs head"]
+    print(markdown_table(head, [[r["offset"], r["model"], r["step"], r["windows"], r["method"], r["steps"],
+                                 r["cover1sigma"], r["cover2sigma"],
+                                 f"{100 * r['miss1sigma']:.1f} / {100 * r['miss2sigma']:.1f} pts",
+                                 f"{r['dnll_vs_raw']:+.3f}"] for r in rows]))
 
 
 if __name__ == "__main__":
-    main()
+    # A refused result file (another header) or a bad setting: one line, exit code 2.
+    sys.exit(run_command(main))

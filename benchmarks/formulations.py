@@ -17,29 +17,34 @@ R^2 and FIT over the 800 steps, and the steps and minutes trained.
 from __future__ import annotations
 
 import argparse
-import csv
 import os
+import sys
 import time
 
-import numpy as np
 import torch
+from common import MULTISINE, TRAIN_CPU, print_provenance
 
+from robomorph.core.errors import run_command
+from robomorph.core.results import markdown_table, write_rows
 from robomorph.data.generation import generate
-from robomorph.evaluation import metrics
-from robomorph.evaluation.evaluator import load_window, predict, run_baselines
+from robomorph.evaluation.scoring import score_windows
+from robomorph.evaluation.windows import load_window
 from robomorph.predictor import Predictor
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit
 
-HORIZON_STEPS = (60, 300, 800)  # 1 s, 5 s, 13.3 s at 60 Hz
-CONTEXT, HORIZON = 200, 800
-Q = slice(7, 14)  # joint angles in y
+STEPS = (60, 300, 800)  # 1 s, 5 s, 13.3 s at 60 Hz (step k: k dt after the last context sample)
 
 
-def _data(out: str, robots: int, held_out: int) -> tuple[str, str]:
+def _steps(horizon: int) -> list[int]:
+    """STEPS within the horizon, and its end."""
+    return sorted({k for k in STEPS if k <= horizon} | {horizon})
+
+
+def _data(out: str, robots: int, held_out: int, steps: int) -> tuple[str, str]:
     train, test = os.path.join(out, "ms_train.zarr"), os.path.join(out, "ms_heldout.zarr")
-    generate(load_recipe("datamodules/multisine.yaml", {"robots": robots, "seed": 0}), train, progress=False)
-    generate(load_recipe("datamodules/multisine.yaml", {"robots": held_out, "seed": 1}), test, progress=False)
+    generate(load_recipe(MULTISINE, {"robots": robots, "seed": 0, "steps": steps}), train, progress=False)
+    generate(load_recipe(MULTISINE, {"robots": held_out, "seed": 1, "steps": steps}), test, progress=False)
     return train, test
 
 
@@ -47,42 +52,44 @@ def _train(inputs: str, train: str, test: str, args) -> tuple[str, int, float]:
     """Trains one formulation; returns (best checkpoint, steps, minutes)."""
     t0 = time.perf_counter()
     result = fit([
-        "--config", "datamodules/train_cpu.yaml", "--data.stores", train, "--data.test_store", test,
+        "--config", TRAIN_CPU, "--data.stores", train, "--data.test_store", test,
         "--data.split", "[0.95, 0.05, 0.0]", "--data.inputs", inputs, "--data.val_subset", str(args.val_subset),
         "--model.decay_steps", str(args.steps), "--model.warmup_steps", str(min(500, args.steps // 10)),
         "--model.d_model", str(args.d_model), "--model.n_layer", str(args.n_layer), "--model.patch", str(args.patch),
         "--data.batch_size", str(args.batch),
         "--trainer.max_steps", str(args.steps), "--trainer.max_time", f"00:00:{int(args.max_minutes):02d}:00",
         "--trainer.val_check_interval", str(max(2, args.steps // 6)), "--trainer.enable_progress_bar", "false",
+        "--data.context_len", str(args.context), "--data.horizon", str(args.horizon),
         "--run", f"formulation_{inputs}", "--runs_dir", os.path.join(args.out, "runs"), "--wandb", "disabled",
+        *(part for item in args.set or [] for part in ("--" + item.partition("=")[0], item.partition("=")[2])),
     ])
     return result.best_ckpt or result.last_ckpt, result.global_step, (time.perf_counter() - t0) / 60
 
 
-def _row(inputs: str, source: str, y_q: np.ndarray, pred: np.ndarray, steps: int, minutes: float) -> dict:
-    err = pred[..., Q] - y_q[..., Q]  # (N, H, 7)
-    row = {"inputs": inputs, "predictor": source, "steps": steps, "minutes": round(minutes, 1)}
-    for h in HORIZON_STEPS:
-        row[f"joint_rms_mrad_{h}"] = float(np.sqrt(np.mean(err[:, h - 1] ** 2)) * 1e3)
-    row["r2_a1"] = float(metrics.approach1_mean(y_q, pred, "r2"))
-    row["fit_a1"] = float(metrics.approach1_mean(y_q, pred, "fit"))
-    return row
+def _rows(inputs: str, s, steps: int, minutes: float) -> list[dict]:
+    """One row per scored source: joint RMS [mrad] at STEPS (1-based), approach-1 R² and FIT."""
+    rows = []
+    for source in s.preds:
+        summary = s.summary(source)
+        row = {"inputs": inputs, "predictor": source, "steps": steps if source == "model" else 0,
+               "minutes": round(minutes, 1) if source == "model" else 0.0}
+        row |= {f"joint_rms_mrad_step{k}": s.at(source, "joints", k) for k in _steps(s.y.shape[1])}
+        row |= {"r2_a1": summary["r2"], "fit_a1": summary["fit"]}
+        rows.append(row)
+    return rows
 
 
 def _score(inputs: str, ckpt: str, test: str, steps: int, minutes: float) -> list[dict]:
     predictor = Predictor.from_checkpoint(ckpt, device="cpu")
-    w = load_window(test, CONTEXT, HORIZON, None, predictor.data_info, predictor.n_u, predictor.n_y, inputs=inputs)
-    u_ctx, y_ctx, u_q, y_q = w.split()
-    y_q = y_q.astype(np.float64)
-    rows = [_row(inputs, "model", y_q, predict(predictor, u_ctx, y_ctx, u_q, 64), steps, minutes)]
-    base, skipped, _ = run_baselines(w, ("hold", "nominal_physics", "true_physics"), (2, 2))
-    if skipped:
-        raise RuntimeError(f"baselines skipped: {skipped}")
-    rows += [_row(inputs, name, y_q, p, 0, 0.0) for name, p in base.items()]
-    return rows
+    info = predictor.data_info
+    w = load_window(test, info["context_len"], info["horizon"], None, info, predictor.n_u, predictor.n_y, inputs=inputs)
+    s = score_windows(predictor, w, ("hold", "nominal_physics", "true_physics"), _steps(w.horizon))
+    if s.result["skipped_baselines"]:
+        raise RuntimeError(f"baselines skipped: {s.result['skipped_baselines']}")
+    return _rows(inputs, s, steps, minutes)
 
 
-def main() -> None:
+def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=1500, help="optimizer steps per formulation")
     p.add_argument("--max-minutes", type=float, default=12.0, help="wall-clock cap per formulation")
@@ -93,26 +100,26 @@ def main() -> None:
     p.add_argument("--n-layer", type=int, default=4, help="encoder and decoder depth (train_cpu.yaml: 4)")
     p.add_argument("--patch", type=int, default=10, help="steps per token (train_cpu.yaml: 10)")
     p.add_argument("--batch", type=int, default=32, help="trajectories per batch (train_cpu.yaml: 32)")
+    p.add_argument("--context", type=int, default=200)
+    p.add_argument("--horizon", type=int, default=800)
+    p.add_argument("--trajectory-steps", type=int, default=1000, help="steps per generated trajectory")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="further fit settings, e.g. data.context_min=null (recorded in config.yaml)")
     p.add_argument("--out", default="data/formulations")
     p.add_argument("--csv", default="results/benchmarks/formulations.csv")
-    args = p.parse_args()
+    args = p.parse_args(argv)
+    print_provenance()
     torch.set_num_threads(os.cpu_count() or 2)
     os.makedirs(args.out, exist_ok=True)
-    train, test = _data(args.out, args.robots, args.held_out)
+    train, test = _data(args.out, args.robots, args.held_out, args.trajectory_steps)
     rows = []
     for inputs in ("total", "command"):
         ckpt, steps, minutes = _train(inputs, train, test, args)
         print(f"{inputs}: {steps} steps in {minutes:.1f} min -> {ckpt}", flush=True)
         rows += _score(inputs, ckpt, test, steps, minutes)
-    keys = list(rows[0])
-    with open(args.csv, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=keys)
-        writer.writeheader()
-        writer.writerows(rows)
-    print(" ".join(f"{k:>16s}" for k in keys))
-    for r in rows:
-        print(" ".join(f"{v:>16.4g}" if isinstance(v, float) else f"{v!s:>16s}" for v in r.values()))
-
+    write_rows(args.csv, rows)
+    print(markdown_table(list(rows[0]), [list(r.values()) for r in rows]))
 
 if __name__ == "__main__":
-    main()
+    # A refused result file (another header) or a bad setting: one line, exit code 2.
+    sys.exit(run_command(main))

@@ -21,6 +21,7 @@ import tempfile
 import time
 
 import numpy as np
+from common import print_provenance
 from mujoco import rollout
 
 from robomorph.data.generation import generate
@@ -70,6 +71,7 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=1000)
     p.add_argument("--workers", type=int, default=os.cpu_count())
     args = p.parse_args()
+    print_provenance()
     print(f"cores={os.cpu_count()} workers={args.workers} steps={args.steps}")
 
     elapsed, simulated, attrs = _pipeline("multisine", args.robots, args.workers, args.steps)

@@ -15,6 +15,7 @@ import time
 
 import torch
 import torch.nn.functional as F
+from common import print_provenance
 
 from robomorph.model.transformer import MetaModel, ModelConfig
 
@@ -49,6 +50,7 @@ def main() -> None:
     p.add_argument("--big-iters", type=int, default=2, help="timed iterations for the paper-size model")
     p.add_argument("--no-big", action="store_true", help="skip the paper-size model (about 1-2 min)")
     args = p.parse_args()
+    print_provenance()
     torch.set_num_threads(args.threads)
 
     common = dict(max_context=CONTEXT, max_horizon=HORIZON)

@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 import torch
+from common import print_provenance
 
 from robomorph.data.statistics import Stats
 from robomorph.model.checkpoint import TrainedModel
@@ -33,6 +34,7 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=50)
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args()
+    print_provenance()
     torch.set_num_threads(args.threads)
     rng = np.random.default_rng(0)
     u, y = rng.normal(size=(1000, 7)).astype(np.float32), rng.normal(size=(1000, 14)).astype(np.float32)

@@ -31,6 +31,7 @@ import math
 import os
 
 import numpy as np
+from common import print_provenance
 
 from robomorph.core.config import from_dict
 from robomorph.data.generation import GenerationError
@@ -119,6 +120,7 @@ def main() -> None:
     p.add_argument("--data", default="data/predictability", help="where the stores go (gitignored)")
     p.add_argument("--workers", type=int, default=None)
     args = p.parse_args()
+    print_provenance()
     worst = {"total": math.inf, "command": math.inf}
     for mode in args.modes.split(","):
         path = make_store(mode, args)

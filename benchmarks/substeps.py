@@ -14,6 +14,7 @@ import argparse
 import time
 
 import numpy as np
+from common import print_provenance
 
 from robomorph.sim import episode, filters, panda
 from robomorph.sim.open_loop import OpenLoopEngine
@@ -44,6 +45,7 @@ def main() -> None:
     p.add_argument("--ref", type=int, default=64)
     p.add_argument("--substeps", default="2,4,8,16")
     args = p.parse_args()
+    print_provenance()
     base = load_recipe(f"datamodules/{args.task}.yaml", {"steps": args.steps})
     ref, ref_verdicts, _ = simulate(replace(base, substeps=args.ref), args.robots)
     print(f"task={args.task} robots={args.robots} steps={args.steps} reference substeps={args.ref}")

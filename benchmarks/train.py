@@ -21,6 +21,7 @@ import lightning.pytorch as L
 import numpy as np
 import torch
 import torch.nn.functional as F
+from common import print_provenance
 
 from robomorph.data.statistics import Stats
 from robomorph.training.module import MetaModule
@@ -121,6 +122,7 @@ def main() -> None:
     p.add_argument("--context", type=int, default=200)
     p.add_argument("--horizon", type=int, default=800)
     args = p.parse_args()
+    print_provenance()
     torch.set_num_threads(args.threads)
     device = "cuda" if torch.cuda.is_available() else "cpu"
     default = {"d_model": 128, "n_head": 4, "n_layer": 4, "patch": 10}

@@ -13,6 +13,7 @@ COMMANDS = {
     "fit": "train a meta-model",
     "evaluate": "a checkpoint on a store, beside the baselines",
     "calibrate": "a Gaussian head's standard deviation, rescaled by horizon on held-out robots",
+    "export": "a checkpoint as an inference-only model folder (safetensors + JSON)",
     "report": "the static HTML dashboard",
     "sweep": "Optuna studies over fit()",
     "reproduce": "the paper's tables and figures",

@@ -16,7 +16,8 @@ from robomorph.sim.recipe import load_recipe
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m robomorph.generate", description=generation.__doc__.split("\n")[0])
-    p.add_argument("--config", help="recipe YAML (datamodules/*.yaml); flags override its fields")
+    p.add_argument("--config", help="recipe: a shipped name (multisine, chirp, circle, spiral, mixture) or a YAML "
+                   "path; flags override its fields")
     p.add_argument("--task", help="multisine | chirp | circle | spiral")
     p.add_argument("--robots", type=int, help="valid trajectories to keep")
     p.add_argument("--steps", type=int, help="samples per trajectory")

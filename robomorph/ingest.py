@@ -42,6 +42,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", help="domain name recorded in the store (default: real)")
     p.add_argument("--u-units", type=_units, help="unit of each --u-cols column, comma-separated (e.g. 'N m,N m')")
     p.add_argument("--y-units", type=_units, help="unit of each --y-cols column, comma-separated (e.g. rad,rad)")
+    p.add_argument("--resample", type=float, metavar="HZ",
+                   help="resample every log to HZ with an anti-aliasing filter before cutting windows (--steps and "
+                        "--stride then count samples at HZ); the store records the logs' own rate (original_dt)")
+    p.add_argument("--layout", choices=("panda",),
+                   help="panda: --u-cols are the Panda's 7 joint torques and --y-cols its 7 joint angles [rad]; the "
+                        "store gets the simulator's channel names and EE pose computed with the catalogue kinematics")
     return p
 
 
@@ -55,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
             ds = ingest.ingest(args.files, args.u_cols, args.y_cols, args.out, args.steps, dt=args.dt,
                                time_col=args.time_col, stride=args.stride, fmt=args.fmt,
                                overwrite=args.overwrite, name=args.name, time_tol=args.time_tol,
-                               u_cmd_cols=args.u_cmd_cols, u_units=args.u_units, y_units=args.y_units)
+                               u_cmd_cols=args.u_cmd_cols, u_units=args.u_units, y_units=args.y_units,
+                               resample_hz=args.resample, layout=args.layout)
     finally:
         _print_warnings(caught)
     used = len(args.files) - len(ds.attrs["skipped_recordings"])
@@ -63,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {r['source']}: {r['samples']} samples -> {r['windows']} windows, "
               f"{r['tail_dropped']} tail samples dropped")
     print(f"{args.out}: {ds.n} windows x {ds.steps} steps (dt={ds.dt:.6g} s, n_u={len(ds.u_names)}, "
-          f"n_y={len(ds.y_names)}) from {used} of {len(args.files)} recordings")
+          f"n_y={len(ds.y_names)}) from {used} of {len(args.files)} recordings"
+          + (f", resampled from {1 / ds.attrs['original_dt']:.6g} Hz" if args.resample else ""))
     return 0
 
 

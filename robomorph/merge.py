@@ -17,12 +17,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("parts", nargs="+", help="shard stores (complete)")
     p.add_argument("--out", required=True)
     p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--allow-partial", action="store_true",
+                   help="merge a subset of the shards into a store marked partial (default: every shard is required)")
     return p
 
 
 def run(args: argparse.Namespace) -> int:
-    attrs = merging.merge(args.parts, args.out, args.overwrite)
-    print(f"{args.out}: {attrs['n']} trajectories from {len(args.parts)} shards")
+    attrs = merging.merge(args.parts, args.out, args.overwrite, allow_partial=args.allow_partial)
+    print(f"{args.out}: {attrs['n']} trajectories from {len(args.parts)} shards"
+          + (f" (partial: shards {attrs['missing_shards']} missing)" if attrs.get("partial") else ""))
     return 0
 
 

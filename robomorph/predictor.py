@@ -4,6 +4,6 @@ evaluation that uses it too; a deployed model needs only ``robomorph.model`` and
 ``robomorph.core``.
 """
 
-from robomorph.model.predictor import PredictionError, Predictor
+from robomorph.model.predictor import MAX_INPUT_STDS, PredictionError, Predictor
 
-__all__ = ["PredictionError", "Predictor"]
+__all__ = ["MAX_INPUT_STDS", "PredictionError", "Predictor"]

@@ -10,6 +10,7 @@ import argparse
 import sys
 
 from robomorph.core.errors import UsageError, run_command
+from robomorph.core.names import check_plain_name
 from robomorph.tuning import runner, summary
 from robomorph.tuning.space import load_space
 from robomorph.tuning.storage import open_storage
@@ -18,7 +19,7 @@ from robomorph.tuning.storage import open_storage
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m robomorph.sweep", description=runner.__doc__.split("\n")[0],
                                 epilog="python -m robomorph.sweep summary --help: the study's table")
-    p.add_argument("space", help="search space file, e.g. sweeps/architecture_cpu.yaml")
+    p.add_argument("space", help="search space: a YAML path or a shipped space's name, e.g. architecture_cpu")
     p.add_argument("--n-trials", type=int, required=True, help="finished trials the study should hold")
     p.add_argument("--storage", help="SQLAlchemy URL (default: sqlite:///results/sweeps/optuna.db)")
     p.add_argument("--study-name", help="default: the space's name")
@@ -41,6 +42,8 @@ def build_summary_parser() -> argparse.ArgumentParser:
 
 
 def run(a: argparse.Namespace) -> int:
+    if a.study_name is not None:
+        check_plain_name(a.study_name, "--study-name")  # it names folders under --runs-dir
     if a.n_trials < 1:
         raise UsageError("--n-trials must be >= 1")
     space = runner.with_overrides(load_space(a.space), a.set)
@@ -54,6 +57,7 @@ def run(a: argparse.Namespace) -> int:
 
 
 def run_summary(a: argparse.Namespace) -> int:
+    check_plain_name(a.study_name, "--study-name")
     study = summary.load_study(a.study_name, a.storage)
     out = a.out or summary.summary_dir(a.runs_dir or summary.runs_dir_of(study), a.study_name)
     summary.claim_summary_dir(out, a.study_name, a.storage)

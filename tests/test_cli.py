@@ -28,6 +28,7 @@ BAD_INPUT = [
     ("evaluate", ["--ckpt", "{tmp}/missing.ckpt", "--data", "{tmp}/missing.zarr", "--out", "{tmp}/eval"],
      "checkpoint not found"),
     ("calibrate", ["--ckpt", "{tmp}/missing.ckpt"], "checkpoint not found"),
+    ("export", ["--ckpt", "{tmp}/missing.ckpt", "--out", "{tmp}/model"], "checkpoint not found"),
     ("report", ["{tmp}/no_runs"], "does not exist"),
     ("sweep", ["{tmp}/no_space.yaml", "--n-trials", "1"], "config file not found"),
     ("sweep", ["summary", "--study-name", "nope", "--storage", "sqlite:///{tmp}/optuna.db"], "no study 'nope'"),

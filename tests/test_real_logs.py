@@ -107,3 +107,108 @@ def test_your_own_robot_workflow(tmp_path, capsys):
     # arx_train saw exactly the training store (val and test came from their own stores)
     assert res["meta"]["baseline_notes"]["arx_train"]["trajectories"] == train.n
     assert res["meta"]["n"] == 3 and res["meta"]["u_names"] == [f"tau{i}" for i in range(1, 7)]
+
+
+# ---------------------------------------------------------------- resampling, the Panda layout, splits
+
+def _write_csv(path, columns: dict) -> str:
+    names = list(columns)
+    rows = np.stack([columns[n] for n in names], axis=1)
+    np.savetxt(path, rows, delimiter=",", header=",".join(names), comments="", fmt="%.9g")
+    return str(path)
+
+
+def test_resample_filters_what_the_new_rate_cannot_hold(tmp_path, capsys):
+    # A 1 kHz log: a slow 2 Hz motion plus a 400 Hz vibration. At 100 Hz, 400 Hz folds onto
+    # 0 Hz: every 10th sample sees the vibration at one phase, a constant offset of 0.5.
+    t = np.arange(4000) / 1000.0
+    slow = np.sin(2 * np.pi * 2 * t)
+    vib = 0.5 * np.sin(2 * np.pi * 400 * t + np.pi / 2)
+    log = _write_csv(tmp_path / "arm.csv", {"t": t, "tau": slow + vib, "q": slow})
+    out = str(tmp_path / "slow.zarr")
+    assert ingest_main([log, "--u-cols", "tau", "--y-cols", "q", "--time-col", "t", "--resample", "100",
+                        "--steps", "100", "--out", out]) == 0
+    assert "resampled from 1000 Hz" in capsys.readouterr().out
+    ds = open_store(out)
+    assert ds.dt == pytest.approx(0.01) and ds.attrs["original_dt"] == pytest.approx(0.001)
+    assert ds.n == 4 and ds.attrs["recordings"][0]["original_samples"] == 4000
+    u = ds.read("u")[:, :, 0].reshape(-1)
+    truth = np.sin(2 * np.pi * 2 * np.arange(400) / 100.0)
+    naive = (slow + vib)[::10]
+    assert np.abs(naive - truth).max() > 0.45  # decimation without a filter: the vibration aliased
+    assert np.abs(u - truth)[5:-5].max() < 0.02  # filtered: the slow motion only
+    np.testing.assert_allclose(ds.read("y")[:, :, 0].reshape(-1)[5:-5], truth[5:-5], atol=0.02)
+
+
+def test_resample_refuses_a_rate_no_integer_ratio_reaches(tmp_path, capsys):
+    log = _write_csv(tmp_path / "a.csv", {"tau": np.zeros(50), "q": np.zeros(50)})
+    code = ingest_main([log, "--u-cols", "tau", "--y-cols", "q", "--dt", "0.001", "--resample", "3.14159265",
+                        "--steps", "10", "--out", str(tmp_path / "o.zarr")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error: cannot resample from 1000 Hz") and "Traceback" not in err
+    assert not os.path.exists(tmp_path / "o.zarr")
+
+
+def test_panda_layout_computes_the_simulators_end_effector_pose(simulated_store, tmp_path):
+    from robomorph.sim import panda
+
+    sim = open_store(simulated_store(robots=3, steps=60, seed=4))
+    u, y = sim.read("u"), sim.read("y")
+    logs = []
+    for i in range(sim.n):  # a "real" log: torques and joint angles only, named as the arm's driver names them
+        cols = {f"effort{j}": u[i, :, j] for j in range(7)}
+        cols.update({f"position{j}": y[i, :, 7 + j] for j in range(7)})
+        logs.append(_write_csv(tmp_path / f"panda{i}.csv", cols))
+    out = str(tmp_path / "real.zarr")
+    assert ingest_main([*logs, "--u-cols", ",".join(f"effort{j}" for j in range(7)),
+                        "--y-cols", ",".join(f"position{j}" for j in range(7)), "--dt", str(sim.dt),
+                        "--steps", "60", "--layout", "panda", "--out", out]) == 0
+    real = open_store(out)
+    assert real.u_names == list(panda.U_NAMES) and real.y_names == list(panda.Y_NAMES)
+    assert real.attrs["y_units"][:3] == ["m"] * 3 and real.attrs["y_units"][7:] == ["rad"] * 7
+    np.testing.assert_allclose(real.read("u"), u, atol=1e-6)
+    # The pose from the catalogue kinematics is the one the simulator recorded (float32 precision).
+    np.testing.assert_allclose(real.read("y"), y, atol=2e-6)
+
+
+def test_panda_layout_needs_seven_joints(tmp_path, capsys):
+    log = _write_csv(tmp_path / "a.csv", {"tau": np.zeros(50), "q": np.zeros(50)})
+    code = ingest_main([log, "--u-cols", "tau", "--y-cols", "q", "--dt", "0.01", "--steps", "10", "--layout", "panda",
+                        "--out", str(tmp_path / "o.zarr")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--layout panda needs 7 --u-cols" in err and "Traceback" not in err
+
+
+def _recording_store(store_factory, path, recordings: int, windows: int = 6, seed: int = 0) -> str:
+    from tests.conftest import linear_system
+
+    u, y = linear_system(recordings * windows, 40, seed=seed)
+    index = np.repeat(np.arange(recordings), windows).astype(np.int32)
+    return store_factory(path, u, y, extras={"recording_index": ((), "int32", index)})
+
+
+def test_a_single_training_recording_with_a_val_store_still_trains(store_factory, tmp_path):
+    from robomorph.data.datamodule import RoboMorphDataModule
+    from robomorph.data.splits import SplitAdaptedWarning
+
+    train = _recording_store(store_factory, tmp_path / "train.zarr", recordings=1)
+    val = _recording_store(store_factory, tmp_path / "val.zarr", recordings=1, seed=1)
+    dm = RoboMorphDataModule(stores=train, val_store=val, context_len=10, horizon=20, batch_size=2)
+    with pytest.warns(SplitAdaptedWarning, match="test split is empty.*--data.test_store"):
+        dm.setup()
+    assert len(dm.splits[0]["train"]) == 6 and len(dm.splits[0]["test"]) == 0 and len(dm.val_set) == 6
+
+
+def test_without_held_out_stores_the_message_names_them_and_the_split(store_factory, tmp_path):
+    from robomorph.data.datamodule import RoboMorphDataModule
+    from robomorph.data.splits import SplitError
+
+    train = _recording_store(store_factory, tmp_path / "train.zarr", recordings=1)
+    with pytest.raises(SplitError, match="leaves none for training; give --data.val_store"):
+        RoboMorphDataModule(stores=train, context_len=10, horizon=20, batch_size=2).setup()
+    val = _recording_store(store_factory, tmp_path / "val.zarr", recordings=1, seed=1)
+    test = _recording_store(store_factory, tmp_path / "test.zarr", recordings=1, seed=2)
+    # Both held-out stores given: the store's own shares are dropped, everything trains.
+    dm = RoboMorphDataModule(stores=train, val_store=val, test_store=test, context_len=10, horizon=20, batch_size=2)
+    dm.setup()
+    assert len(dm.splits[0]["train"]) == 6

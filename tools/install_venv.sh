@@ -33,7 +33,8 @@ else
   echo "torch==$TORCH_CPU" > "$constraints"
   "${PIP[@]}" install -q -c "$constraints" "torch==$TORCH_CPU"
 fi
-"${PIP[@]}" install -q -c "$constraints" -e ".[test]"
+# docs: MkDocs, Material and mkdocstrings, so `make docs` and its strict-build test work.
+"${PIP[@]}" install -q -c "$constraints" -e ".[test,docs]"
 # dm-robotics-panda ships the Panda MJCF and meshes (Apache-2.0); its own dependencies
 # (the dm_robotics stack) are not needed to read the assets, so they are skipped.
 "${PIP[@]}" install -q --no-deps "dm-robotics-panda==0.4.8"

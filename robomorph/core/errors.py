@@ -8,6 +8,8 @@ traceback; anything else is a bug and still raises.
 
 from __future__ import annotations
 
+import errno
+import os
 import sys
 from collections.abc import Callable
 
@@ -28,6 +30,42 @@ class MissingInputError(RoboMorphError, FileNotFoundError):
 
 class OutputExistsError(RoboMorphError, FileExistsError):
     """An output path holds something the command refuses to replace."""
+
+
+class DeviceError(RoboMorphError, ValueError):
+    """A ``--device`` / accelerator that this machine does not have or torch does not know."""
+
+
+class FileSystemError(RoboMorphError, OSError):
+    """The file system refused a read or write: read-only, no permission, full, or a path
+    through a file. Raised by :func:`run_command` from the operating system's error."""
+
+
+# Errors of the operating system that come from where a command was pointed (a read-only
+# mount, a folder without write permission, a full disk or quota, a path through a file),
+# not from a bug: every command reports them as one line. Others (EBADF, EINVAL, ...) still raise.
+_PATH_ERRNOS = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EFBIG,
+                errno.ENOTDIR, errno.EISDIR, errno.ENOENT, errno.EEXIST, errno.ENAMETOOLONG, errno.ENOTEMPTY,
+                errno.EXDEV, errno.ELOOP}
+_PATH_ADVICE = {
+    errno.EROFS: "the file system is mounted read-only; choose an output on a writable one",
+    errno.EACCES: "choose another output folder or change its permissions",
+    errno.EPERM: "choose another output folder or change its permissions",
+    errno.ENOSPC: "the disk is full; free space or choose an output on another disk (nothing was lost: "
+                  "files are replaced only once completely written)",
+    errno.EDQUOT: "the disk quota is exhausted; free space or choose an output on another disk",
+    errno.EFBIG: "the file grew past the file-size limit; raise the limit or write less",
+    errno.ENOTDIR: "a part of the path is a file, not a folder; choose another path",
+    errno.EEXIST: "something is in the way (a file where a folder is needed?); choose another path",
+}
+
+
+def describe_os_error(exc: OSError) -> str:
+    """One line for an operating-system error: what failed, on which path, and what to do."""
+    where = " -> ".join(os.fspath(f) for f in (exc.filename, exc.filename2) if f is not None)
+    what = exc.strerror or str(exc)
+    advice = _PATH_ADVICE.get(exc.errno, "check the path")
+    return f"{what}: {where}; {advice}" if where else f"{what}; {advice}"
 
 
 def report(exc: BaseException) -> int:
@@ -55,8 +93,17 @@ SIGTERM_EXIT = 128 + 15  # the shell's code for a SIGTERM stop: schedulers may r
 
 
 def run_command(fn: Callable[[], int | None]) -> int:
-    """Runs a command body; a :class:`RoboMorphError` becomes one line and exit code 2."""
+    """Runs a command body; a :class:`RoboMorphError` becomes one line and exit code 2.
+
+    So does an :class:`OSError` of the file system the command was pointed at (read-only,
+    no permission, full, a path through a file: see ``_PATH_ERRNOS``), whichever library
+    raised it: the user fixes the path or the disk, not the code.
+    """
     try:
         return int(fn() or 0)
     except RoboMorphError as exc:
         return report(exc)
+    except OSError as exc:
+        if exc.errno not in _PATH_ERRNOS:
+            raise
+        return report(FileSystemError(describe_os_error(exc)))

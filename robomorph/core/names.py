@@ -7,6 +7,8 @@ importing it.
 
 from __future__ import annotations
 
+from robomorph.core.errors import UsageError
+
 # Log keys, namespaced as the lightning-hydra-template does (``logs/metrics.csv`` columns).
 TRAIN_LOSS, VAL_LOSS, VAL_R2, VAL_FIT, LR = "train/loss", "val/loss", "val/r2", "val/fit", "lr"
 TEST_LOSS, TEST_R2, TEST_FIT = "test/loss", "test/r2", "test/fit"
@@ -39,3 +41,24 @@ INPUTS = ("total", "command")
 # Which parameters a fine-tuned model keeps fixed, and the transfer regimes of Table 2.
 FREEZE_MODES = ("none", "encoder", "all_but_head")
 REGIMES = ("zero_shot", "finetune", "scratch")
+
+
+def check_plain_name(value: str, what: str) -> str:
+    """Returns ``value`` when it is a plain name (one folder or file name); raises otherwise.
+
+    Run and study names become folder names under ``--runs_dir``: a separator, ``.``/``..``
+    or an absolute path would write elsewhere (``--run ../../x``) or make the runs folder
+    itself a run (``--run .``). A leading dot is refused too: the writers' lock files are
+    hidden names beside the folders they guard (:mod:`robomorph.core.locks`).
+
+    Args:
+        value: the name given.
+        what: how the user gave it, for the message (``--run``, ``--study-name``, ``name:``).
+
+    Raises:
+        UsageError: ``value`` is empty, starts with ``.``, or holds ``/``, ``\\`` or a NUL.
+    """
+    if not isinstance(value, str) or not value or value.startswith(".") or any(c in value for c in "/\\\0"):
+        raise UsageError(f"{what} {value!r} is not a plain name: give a name without '/' or '\\' "
+                         "that does not start with '.' (it names a folder inside the runs folder)")
+    return value

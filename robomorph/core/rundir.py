@@ -16,6 +16,13 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+from robomorph.core.errors import RoboMorphError
+from robomorph.core.names import check_plain_name
+
+
+class RunDirError(RoboMorphError, ValueError):
+    """A run folder whose state cannot be used as it is (e.g. a damaged resume point)."""
+
 
 @dataclass(frozen=True)
 class RunDir:
@@ -28,8 +35,8 @@ class RunDir:
 
     @classmethod
     def named(cls, runs_dir: str | os.PathLike, run: str) -> RunDir:
-        """The run ``run`` under ``runs_dir``."""
-        return cls(os.path.join(os.fspath(runs_dir), run))
+        """The run ``run`` under ``runs_dir``; ``run`` must be a plain name (never a path)."""
+        return cls(os.path.join(os.fspath(runs_dir), check_plain_name(run, "run name")))
 
     @classmethod
     def of_checkpoint(cls, ckpt: str | os.PathLike) -> RunDir:
@@ -69,9 +76,34 @@ class RunDir:
         return os.path.join(self.path, "eval")
 
     def eval_dir(self, store: str | os.PathLike) -> str:
-        """``eval/<name>``, where a store path ``data/x.zarr`` gives the name ``x``."""
-        name = os.path.basename(os.path.normpath(os.fspath(store))).removesuffix(".zarr")
-        return os.path.join(self.evals, name)
+        """``eval/<name>``, where a store path ``data/x.zarr`` gives the name ``x``.
+
+        Always a folder directly inside ``eval/``: the name comes from the store's absolute
+        path (so ``..`` or ``x/..`` name the folder they point to, not ``eval/..``), and a
+        name that is empty or starts with a dot becomes ``store``.
+        """
+        name = os.path.basename(os.path.abspath(os.fspath(store))).removesuffix(".zarr")
+        return os.path.join(self.evals, name if name and not name.startswith(".") else "store")
+
+    def check_resume_point(self) -> None:
+        """Raises when ``checkpoints/last.ckpt`` is there but is no readable file.
+
+        Without this a folder (or a dangling link) in its place reads as "no checkpoint":
+        the run restarts at step 0, appends duplicate rows to its log, then fails to save.
+        Whether a readable file is a valid checkpoint is the checkpoint loader's to judge.
+        """
+        last = self.last_ckpt
+        if not os.path.lexists(last):
+            return
+        fix = (f"delete it to start this run again from step 0, or pass a fresh --run (the resume point of "
+               f"{self.path} is damaged)")
+        if os.path.isdir(last):
+            raise RunDirError(f"{last} is a folder, not a checkpoint: {fix}")
+        try:
+            with open(last, "rb") as f:
+                f.read(1)
+        except OSError as exc:
+            raise RunDirError(f"{last} cannot be read ({exc.strerror or exc}): {fix}") from exc
 
     @property
     def wandb(self) -> str:

@@ -1,2 +1,7 @@
 """Data: the Zarr store schema (one reader/writer), generation and ingest into stores, merging,
 summaries, training statistics and the DataModule."""
+
+# The documented entry point: `from robomorph.data import open_store`.
+from robomorph.data.store import open_store  # noqa: E402
+
+__all__ = ["open_store"]

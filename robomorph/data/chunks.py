@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 from collections.abc import Iterator
 
-from zarr.codecs import BloscCodec
+from zarr.codecs import BloscCodec, Crc32cCodec
 
 from robomorph.core.errors import RoboMorphError
 
@@ -48,13 +48,16 @@ def problem(path: str, group, name: str, key: str) -> str | None:
     file = os.path.join(path, name, *key.split("/"))
     if not os.path.isfile(file):
         return "missing" if name in _FILLED else None
-    if not isinstance(group[name].metadata.codecs[-1], BloscCodec):
+    codecs = list(group[name].metadata.codecs)
+    # Stores of this version end in a 4-byte CRC32C after the blosc frame; older ones in the frame.
+    tail = 4 if isinstance(codecs[-1], Crc32cCodec) else 0
+    if len(codecs) < 1 + bool(tail) or not isinstance(codecs[-1 - bool(tail)], BloscCodec):
         return None
     size = os.path.getsize(file)
     with open(file, "rb") as f:
         head = f.read(16)
     # A blosc frame records its own length in bytes 12..15.
-    expected = int.from_bytes(head[12:16], "little") if len(head) == 16 else None
+    expected = int.from_bytes(head[12:16], "little") + tail if len(head) == 16 else None
     return None if expected == size else f"truncated ({size} of {expected or '?'} bytes)"
 
 
@@ -85,6 +88,8 @@ def undecodable(path: str, group, n: int, name: str, exc: BaseException) -> Stor
             arr[first:last + 1]
         except Exception as bad:  # noqa: BLE001  (codec errors vary: blosc, zstd, json, ...)
             why = (str(bad).strip().splitlines() or [type(bad).__name__])[0]
+            if "checksum" in why.lower():  # zarr's Crc32cCodec: flipped bytes, same size
+                return StoreDamagedError(describe(path, [(name, key, first, last, "cannot be decoded: it fails its checksum (bytes corrupted)")]))
             return StoreDamagedError(describe(path, [(name, key, first, last, f"cannot be decoded: {why}")]))
     why = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
     return StoreDamagedError(f"{path}: reading array '{name}' failed ({why}); {REPAIR}")

@@ -29,7 +29,7 @@ from robomorph.core.normalizations import check_normalization
 
 # DataError re-exported: callers catch it from here.
 from robomorph.data.sources import DataError, Source, check_lengths, compatible, scan  # noqa: F401
-from robomorph.data.splits import check_held_out, held_out_fractions, split_rows
+from robomorph.data.splits import check_held_out, split_store
 from robomorph.data.statistics import Stats, StatsAccumulator
 from robomorph.data.windows import VAL_STREAM, MixtureSampler, WindowDataset, pairs
 
@@ -86,7 +86,7 @@ class RoboMorphDataModule(L.LightningDataModule):
                  normalization: Literal[NORMALIZATIONS] = "train_stats",
                  inputs: Literal[INPUTS] = "total"):
         super().__init__()
-        self.save_hyperparameters()
+        self.save_hyperparameters(ignore=["context_len"])  # the module logs the resolved length (one key, one value)
         self.stores = [stores] if isinstance(stores, str) else list(stores)
         self.weights, self.test_store, self.val_store = weights, test_store, val_store
         # The argument; the resolved length (also from context_frac) is the property context_len.
@@ -165,10 +165,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         return n
 
     def _make_splits(self, sources: list[Source]) -> None:
-        f = held_out_fractions(self.split, self.val_store is not None, self.test_store is not None)
         # A store that records recording_index (ingest) is split by recording.
-        self.splits = [split_rows(src.n, f, self.seed, k, groups=src.groups, path=src.path)
-                       for k, src in enumerate(sources[:len(self.stores)])]
+        self.splits = [split_store(src.n, self.split, self.seed, k, src.groups, src.path, self.val_store,
+                                   self.test_store) for k, src in enumerate(sources[:len(self.stores)])]
         empty = np.zeros(0, dtype=np.int64)
         for role, path in (("val", self.val_store), ("test", self.test_store)):
             if path is not None:

@@ -21,6 +21,7 @@ from tqdm import tqdm
 
 from robomorph.core.config import ConfigError
 from robomorph.core.errors import OutputExistsError, RoboMorphError
+from robomorph.core.locks import exclusive_on
 from robomorph.data.store import STATUS_COMPLETE, DatasetWriter, SchemaError, create_store, open_store
 from robomorph.sim import episode, panda
 from robomorph.sim.filters import REASONS
@@ -240,6 +241,7 @@ def _check_rate(recipe: Recipe, prog: _Progress, processed: int, target: int) ->
         )
 
 
+@exclusive_on("out")  # one writer per store: two would mix their robots in one store
 def generate(recipe: Recipe, out: str, workers: int | None = None, shard: Shard = Shard(),
              overwrite: bool = False, progress: bool = True) -> dict:
     """Generates (or resumes, or finds complete) the dataset of ``recipe`` at ``out``.

@@ -32,6 +32,7 @@ store's ``u_cmd``, read by ``data.inputs: command``), one column per joint as we
 from __future__ import annotations
 
 import csv
+import math
 import os
 import warnings
 import zipfile
@@ -40,6 +41,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from robomorph.core.errors import MissingInputError, RoboMorphError
+from robomorph.data import real_logs
+from robomorph.core.locks import exclusive_on
 from robomorph.data.store import Dataset, check_writable, create_store, open_store
 
 FORMATS = ("csv", "npz", "mat")
@@ -182,8 +185,13 @@ def read_log(path: str, fmt: str = "auto") -> dict[str, np.ndarray]:
     return {k: np.asarray(v, dtype=np.float64) for k, v in cols.items()}
 
 
-def _check_columns(cols: dict[str, np.ndarray], wanted: list[str], path: str) -> None:
-    """Refuses unknown columns (listing the available ones) and non-finite values."""
+# The store holds float32: a larger magnitude would be written as inf without a word.
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def _check_columns(cols: dict[str, np.ndarray], wanted: list[str], path: str, stored: list[str] | None = None) -> None:
+    """Refuses unknown columns (listing the available ones), non-finite values and, in the
+    ``stored`` columns (written as float32), values beyond float32's range."""
     missing = [c for c in wanted if c not in cols]
     if missing:
         available = ", ".join(cols) or "(none: NPZ/MAT logs need one vector per column, or 'data' plus 'names')"
@@ -195,6 +203,12 @@ def _check_columns(cols: dict[str, np.ndarray], wanted: list[str], path: str) ->
                 f"column {c!r} in {path} holds NaN/inf (first bad row: sample {bad[0]} counting from 0, {bad.size} in all); "
                 "fill or cut the missing samples before ingesting"
             )
+    for c in stored or []:
+        big = np.flatnonzero(np.abs(cols[c]) > _FLOAT32_MAX)
+        if big.size:
+            raise IngestError(
+                f"column {c!r} in {path}: sample {big[0]} (counting from 0; {big.size} in all) is {cols[c][big[0]]:.6g}, "
+                f"beyond the float32 range (±{_FLOAT32_MAX:.4g}) the store holds; rescale the column (wrong unit?)")
 
 
 def _sample_time(t: np.ndarray, path: str, tol: float) -> float:
@@ -249,37 +263,44 @@ def _check_args(files: list[str], u_cols: list[str], y_cols: list[str], steps: i
         raise IngestError(f"--steps and --stride must be >= 1, got steps={steps}, stride={stride}")
     if (dt is None) == (time_col is None):
         raise IngestError("give exactly one of --dt (seconds) or --time-col (a column of timestamps in seconds)")
-    if dt is not None and not dt > 0:
-        raise IngestError(f"--dt must be positive, got {dt}")
+    if dt is not None and not (dt > 0 and math.isfinite(dt)):
+        raise IngestError(f"--dt must be a positive, finite number of seconds, got {dt}")
     if not time_tol >= 0:
         raise IngestError(f"--time-tol must be >= 0, got {time_tol}")
 
 
-def _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol, u_cmd_cols=None):
+def _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol, u_cmd_cols=None,
+                     dt=None, resample_hz=None, layout=None):
     """Reads and checks every log: ``([(file index, u, y, starts, u_cmd)], dts, skipped, report)``,
-    the report giving per recording its samples, windows and dropped tail samples."""
+    the report giving per recording its samples (at the store's rate), windows and dropped
+    tail samples. With ``resample_hz`` each recording is resampled (anti-aliased) first;
+    with ``layout`` its ``y`` is put in the layout's channels (:mod:`robomorph.data.real_logs`)."""
     recs, dts, skipped, report = [], [], [], []
     for index, path in enumerate(files):
         cols = read_log(path, fmt)
         # Checked even for recordings skipped below: a wrong name is wrong in every file.
-        _check_columns(cols, [*u_cols, *(u_cmd_cols or []), *y_cols, *([time_col] if time_col else [])], path)
-        length = len(cols[u_cols[0]])
+        _check_columns(cols, [*u_cols, *(u_cmd_cols or []), *y_cols, *([time_col] if time_col else [])], path,
+                       stored=[*u_cols, *(u_cmd_cols or []), *y_cols])
+        rec_dt = _sample_time(cols[time_col], path, time_tol) if time_col and len(cols[time_col]) >= 2 else dt
+        arrays = [np.stack([cols[c] for c in names], axis=1).astype(np.float32) if names else None
+                  for names in (u_cols, y_cols, u_cmd_cols)]  # (L, n_u), (L, n_y), (L, n_u) or None
+        if resample_hz and rec_dt:
+            arrays = [None if a is None else real_logs.resample(a, rec_dt, resample_hz) for a in arrays]
+        u, y, u_cmd = arrays
+        length = len(u)
         starts = _window_starts(length, steps, stride)
         # Samples after the last window that no window covers (all of a too-short recording).
         tail = length - int(starts[-1]) - steps if len(starts) else length
         report.append({"source": os.path.basename(path), "samples": length, "windows": len(starts),
-                       "tail_dropped": tail})
+                       "tail_dropped": tail, **({"original_samples": len(cols[u_cols[0]])} if resample_hz else {})})
         if length < steps:
             warnings.warn(f"skipping {path}: {length} samples, fewer than --steps {steps}",
                           ShortRecordingWarning, stacklevel=3)
             skipped.append(os.path.basename(path))
             continue
-        if time_col:
-            dts.append((path, _sample_time(cols[time_col], path, time_tol)))
-        u = np.stack([cols[c] for c in u_cols], axis=1).astype(np.float32)  # (L, n_u)
-        y = np.stack([cols[c] for c in y_cols], axis=1).astype(np.float32)  # (L, n_y)
-        u_cmd = None if u_cmd_cols is None else np.stack([cols[c] for c in u_cmd_cols], axis=1).astype(np.float32)
-        recs.append((index, u, y, starts, u_cmd))
+        if time_col:  # a 1-sample recording has no sample time: _sample_time says so
+            dts.append((path, rec_dt if rec_dt is not None else _sample_time(cols[time_col], path, time_tol)))
+        recs.append((index, u, real_logs.apply_layout(layout, y), starts, u_cmd))
     return recs, dts, skipped, report
 
 
@@ -295,11 +316,12 @@ def _common_dt(dts: list[tuple[str, float]], tol: float) -> float:
     return mean
 
 
+@exclusive_on("out")  # one writer per store
 def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, steps: int,
            dt: float | None = None, time_col: str | None = None, stride: int | None = None,
            fmt: str = "auto", overwrite: bool = False, name: str | None = None,
            time_tol: float = 0.01, u_cmd_cols: list[str] | None = None, u_units: list[str] | None = None,
-           y_units: list[str] | None = None) -> Dataset:
+           y_units: list[str] | None = None, resample_hz: float | None = None, layout: str | None = None) -> Dataset:
     """Cuts recorded logs into windows and writes them as a RoboMorph dataset.
 
     Args:
@@ -320,6 +342,11 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
             ``u_cmd`` (``data.inputs: command``). None: the store has only ``u``.
         u_units, y_units: the unit of each input / output column (e.g. ``"N m"``, ``"rad"``),
             recorded in the store and used to label plots.
+        resample_hz: resample every recording to this rate (Hz) with an anti-aliasing filter
+            before cutting windows (``steps`` and ``stride`` count samples at this rate); the
+            store's dt is ``1 / resample_hz`` and ``attrs['original_dt']`` the logs'.
+        layout: ``"panda"``: the columns are the Panda's 7 torques and 7 joint angles; the
+            store gets the simulator's channel names and EE pose (see :mod:`robomorph.data.real_logs`).
 
     Returns:
         The finished dataset, opened for reading.
@@ -333,23 +360,29 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
     dt_arg, stride = dt, (steps if stride is None else stride)
     _check_args(files, u_cols, y_cols, steps, dt, time_col, stride, time_tol, u_cmd_cols)
     _check_units(u_cols, y_cols, u_units, y_units)
+    real_logs.check_layout(layout, u_cols, y_cols, u_cmd_cols)
+    if resample_hz is not None and dt is not None:
+        real_logs.rate_ratio(dt, resample_hz)  # refuse an impossible rate before reading the logs
     check_writable(out, overwrite)  # refuse a bad --out before reading large logs
     recs, dts, skipped, report = _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol,
-                                                  u_cmd_cols)
+                                                  u_cmd_cols, dt, resample_hz, layout)
     total = sum(len(r[3]) for r in recs)
     if total == 0:
         raise IngestError(f"no windows: every recording is shorter than --steps {steps}; lower --steps")
     dt = _common_dt(dts, time_tol) if time_col else float(dt)
-    cmd_names = None if u_cmd_cols is None else list(u_cmd_cols)
-    config = {"files": list(files), "u_cols": list(u_cols), "u_cmd_cols": cmd_names, "y_cols": list(y_cols),
-              "steps": steps, "stride": stride, "dt": dt_arg, "time_col": time_col, "fmt": fmt, "name": name,
-              "time_tol": time_tol, "u_units": u_units, "y_units": y_units}
+    original_dt, dt = dt, (1.0 / resample_hz if resample_hz else dt)
+    u_names, y_names, cmd_names, y_units_stored = real_logs.layout_names(layout, u_cols, y_cols, u_cmd_cols, y_units)
+    config = {"files": list(files), "u_cols": list(u_cols), "u_cmd_cols": u_cmd_cols and list(u_cmd_cols),
+              "y_cols": list(y_cols), "steps": steps, "stride": stride, "dt": dt_arg, "time_col": time_col, "fmt": fmt,
+              "name": name,
+              "time_tol": time_tol, "u_units": u_units, "y_units": y_units, "resample_hz": resample_hz,
+              "layout": layout}
     attrs = {"dt": dt, "domain": name or "real", "task": "ingested", "config": config, "seed": None,
              "sources": [os.path.basename(f) for f in files], "skipped_recordings": skipped,
              "recordings": report, "u_units": list(u_units or [""] * len(u_cols)),
-             "y_units": list(y_units or [""] * len(y_cols)),
+             "y_units": list(y_units_stored or [""] * len(y_names)), "original_dt": original_dt,
              "requested": total, "attempted": total, "kept": total, "rejected": {}}
-    writer = create_store(out, total, steps, list(u_cols), list(y_cols), [], attrs,
+    writer = create_store(out, total, steps, u_names, y_names, [], attrs,
                           extras={"recording_index": ((), "int32"), "window_start": ((), "int64")},
                           overwrite=overwrite, u_cmd_names=cmd_names)
     _write_windows(writer, recs, steps)

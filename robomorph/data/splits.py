@@ -11,6 +11,7 @@ one recording lands in the same split.
 from __future__ import annotations
 
 import os
+import warnings
 
 import numpy as np
 
@@ -63,9 +64,39 @@ def split_rows(n: int, fractions: tuple[float, float, float], seed: int, store_i
     if not chosen["train"]:
         raise SplitError(
             f"{path}: its {n} windows come from {len(ids)} recording(s), and a split by recording "
-            f"(split {list(fractions)}) leaves none for training; give data.val_store (and "
-            "data.test_store) ingested from other recordings, or record more logs")
+            f"(shares {[round(f, 3) for f in fractions]} of train, val, test) leaves none for training")
     return {k: np.flatnonzero(np.isin(groups, v)) for k, v in chosen.items()}
+
+
+class SplitAdaptedWarning(UserWarning):
+    """A store's in-store held-out share was dropped so that it keeps training data."""
+
+
+def split_store(n: int, split: tuple[float, float, float], seed: int, store_index: int, groups: np.ndarray | None,
+                path: str, val_store: str | None, test_store: str | None) -> dict[str, np.ndarray]:
+    """:func:`split_rows` of one training store when validation and/or test may come from
+    their own stores (``val_store``, ``test_store``).
+
+    When a split by recording leaves no recording for training (one or two long logs) and
+    validation comes from ``val_store``, the store's remaining test share is dropped (with a
+    :class:`SplitAdaptedWarning`): every recording trains, the test split is empty. Otherwise
+    the error names what to give: ``--data.val_store`` / ``--data.test_store`` or ``--data.split``.
+    """
+    fractions = held_out_fractions(split, val_store is not None, test_store is not None)
+    try:
+        return split_rows(n, fractions, seed, store_index, groups=groups, path=path)
+    except SplitError as exc:
+        if val_store is None:
+            raise SplitError(f"{exc}; give --data.val_store (and --data.test_store) ingested from other "
+                             "recordings, or record more logs") from None
+        if test_store is None:
+            warnings.warn(f"{path}: its windows come from too few recordings to hold out a test share and still "
+                          "train; every recording trains and the test split is empty (give --data.test_store to "
+                          "test, or --data.split with a test share of 0 to silence this)", SplitAdaptedWarning,
+                          stacklevel=2)
+            return split_rows(n, (1.0, 0.0, 0.0), seed, store_index, groups=groups, path=path)
+        raise SplitError(f"{exc}; with --data.val_store and --data.test_store given, pass --data.split "
+                         "'[1, 0, 0]' to train on all of it") from None
 
 
 def held_out_fractions(split: tuple[float, float, float], val_store: bool, test_store: bool

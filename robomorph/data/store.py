@@ -22,19 +22,23 @@ unless asked to read its valid prefix, so an interrupted job never looks finishe
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
+import json
 import os
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import zarr
-from zarr.codecs import BloscCodec
+from zarr.codecs import BloscCodec, Crc32cCodec
 from zarr.storage import LocalStore
 
+# A plain import of the submodule: `from robomorph.data import chunks` would make the store
+# depend on the package, whose __init__ re-exports open_store from here (an import cycle).
+import robomorph.data.chunks as chunks
 from robomorph import __version__
 from robomorph.core.errors import MissingInputError, OutputExistsError, RoboMorphError
 from robomorph.core.inputs import INPUT_ARRAYS, InputsError, check_inputs
-from robomorph.data import chunks
 from robomorph.data.chunks import StoreDamagedError  # noqa: F401  (part of this module's API)
 
 # 2 added ``u_cmd`` (the command formulation). Version 1 stores read as before; they
@@ -46,7 +50,9 @@ STATUS_IN_PROGRESS = "in_progress"
 STATUS_COMPLETE = "complete"
 # lz4 over zstd: simulated floats barely compress either way and lz4 writes faster
 # (README, section 4).
-_COMPRESSORS = [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")]
+# The CRC32C checksum after it makes a chunk whose bytes were flipped (disk, copy, network)
+# fail to read instead of decoding to wrong values; stores written before it read as before.
+_COMPRESSORS = [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"), Crc32cCodec()]
 _REQUIRED_ATTRS = ("schema", "schema_version", "u_names", "y_names", "param_names", "dt", "status", "n")
 
 
@@ -140,6 +146,9 @@ def create_store(path: str, n: int, steps: int, u_names: list[str], y_names: lis
                        u_cmd_names)
     except OSError as exc:  # e.g. a read-only file system, or a disk that is full
         raise StorePathError(f"cannot write the store {path}: {exc.strerror or exc}; choose another --out") from exc
+    except zarr.errors.BaseZarrError as exc:  # e.g. ContainsArrayError: a second writer created it first
+        raise StorePathError(f"cannot create the store {path}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}; "
+                             "is another command writing it at the same time? Wait for it or choose another --out") from exc
 
 
 def _create(path: str, n: int, steps: int, u_names: list[str], y_names: list[str], param_names: list[str],
@@ -383,3 +392,52 @@ def open_store(path: str, allow_incomplete: bool = False) -> Dataset:
             "(re-run the same generate command) or open it with allow_incomplete=True"
         )
     return Dataset(path=path, group=group, n=int(attrs["n"]))
+
+
+# Attributes that differ between two writes of the same data (when, by which version): left
+# out of the fingerprint, so a store regenerated from the same recipe and seed matches too.
+_VOLATILE_ATTRS = ("created", "finished", "package_version")
+
+
+def fingerprint(path: str) -> str:
+    """A content fingerprint of a store: equal for a byte-identical copy wherever it lies.
+
+    The hash covers the attributes (channels, dt, recipe or sources, seed, counts; not the
+    time of writing) and the bytes of the first, middle and last chunk files of ``u`` and
+    ``y``: cheap (three chunks per array) and different for any other store. ``fit``
+    records it for each training store, so ``evaluate`` and ``calibrate`` recognize their
+    training data under another path.
+    """
+    group = _open_group(path, mode="r")
+    attrs = {k: v for k, v in dict(group.attrs).items() if k not in _VOLATILE_ATTRS}
+    digest = hashlib.sha256(json.dumps(attrs, sort_keys=True, default=str).encode())
+    n = int(attrs.get("n", 0))
+    for name in ("u", "y"):
+        keys = [key for _, key, _, _ in chunks.chunk_rows(group, name, n)]
+        for key in sorted(set(keys[:1] + keys[len(keys) // 2:len(keys) // 2 + 1] + keys[-1:])):
+            file = os.path.join(path, name, *key.split("/"))
+            digest.update(f"{name}/{key}".encode())
+            if os.path.isfile(file):
+                with open(file, "rb") as f:
+                    digest.update(f.read())
+    return digest.hexdigest()[:32]
+
+
+def recorded_match(path: str, stores: list[str], fingerprints: dict[str, str] | None) -> str | None:
+    """Which of ``stores`` (as a checkpoint recorded them) ``path`` is, or None.
+
+    Compared by content (:func:`fingerprint`) when ``fingerprints`` (store -> fingerprint,
+    written at fit time) are given, so a copy under another path is recognized; by path
+    otherwise (checkpoints written before fingerprints were recorded).
+    """
+    real = os.path.realpath(path)
+    for store in stores:
+        if os.path.realpath(store) == real:
+            return store
+    if not fingerprints or not os.path.isdir(path):
+        return None
+    try:
+        mine = fingerprint(path)
+    except RoboMorphError:
+        return None
+    return next((store for store, recorded in fingerprints.items() if recorded == mine), None)

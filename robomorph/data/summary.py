@@ -25,7 +25,7 @@ from matplotlib.figure import Figure
 from robomorph.core.atomic import save_figure
 from robomorph.core.errors import UsageError
 from robomorph.data.store import Dataset, StoreDamagedError
-from robomorph.data.units import channel_label, channel_units
+from robomorph.data.units import channel_label, channel_units, literal_text
 
 SAMPLE_ROWS = 256
 # Attributes the summary shows in its own sections; the rest are listed as they are.
@@ -242,6 +242,7 @@ def params_plot_path(path: str) -> str:
     return f"{root}_params{ext or '.png'}"
 
 
+@literal_text
 def plot(dataset: Dataset, path: str, n_traj: int = 3, seed: int = 0) -> list[str]:
     """Plots trajectories to ``path`` and parameter histograms to :func:`params_plot_path`.
 

@@ -16,3 +16,22 @@ def channel_units(attrs: dict[str, Any], kind: str) -> list[str]:
 def channel_label(name: str, unit: str) -> str:
     """``"q1 [rad]"``, or the bare name when the unit is unknown (a plot's axis label)."""
     return f"{name} [{unit}]" if unit else name
+
+
+def literal_text(fn):
+    """Decorates a plotting function so that its text is drawn as written.
+
+    Channel names, units and ``--compare`` names are the user's: matplotlib would read a
+    pair of ``$`` in them as TeX and fail on whatever lies between. ``text.parse_math`` is
+    read when a text is created, so the whole function runs under it.
+    """
+    import functools  # noqa: PLC0415
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        import matplotlib  # noqa: PLC0415  (plotting is optional at import time)
+
+        with matplotlib.rc_context({"text.parse_math": False}):
+            return fn(*args, **kwargs)
+
+    return wrapper

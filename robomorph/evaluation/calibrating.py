@@ -18,15 +18,15 @@ from __future__ import annotations
 
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 
-from robomorph.core.atomic import atomic_open
-from robomorph.core.errors import RoboMorphError
+from robomorph.core.atomic import check_replaceable
 from robomorph.evaluation import training_data
-from robomorph.evaluation.evaluator import predict
-from robomorph.evaluation.horizons import coverage, parse_horizons
-from robomorph.evaluation.windows import EvaluationError, check_counts, check_patch, load_window, parse_offset
+from robomorph.evaluation.horizons import parse_horizons
+from robomorph.evaluation.scoring import Predictions, score_windows
+from robomorph.evaluation.windows import EvaluationError, Window, check_counts, check_patch, load_window, parse_offset
 from robomorph.model.calibration import CALIBRATION_KEY, CalibrationError, fit
 
 
@@ -51,26 +51,34 @@ def _sources(ckpt_dict: dict, data: str | None) -> tuple[list[tuple[str, np.ndar
     dm = ckpt_dict.get("datamodule_hyper_parameters") or {}
     stores = dm.get("stores") or []
     stores = [stores] if isinstance(stores, str) else list(stores)
-    if os.path.realpath(data) in {os.path.realpath(p) for p in stores}:
-        raise CalibrationError(f"{data} is a training store of this checkpoint: the model has seen most of its robots, "
+    # By content when the fit recorded fingerprints: a copy of a training store is one too.
+    from robomorph.data.store import recorded_match  # noqa: PLC0415
+    from robomorph.model.files import DATA_INFO_KEY  # noqa: PLC0415
+
+    fingerprints = (ckpt_dict.get(DATA_INFO_KEY) or {}).get("store_fingerprints")
+    if recorded_match(data, stores, fingerprints) is not None:
+        raise CalibrationError(f"{data} is a training store of this checkpoint (same content): the model has seen most "
+                               "of its robots, "
                                "so its errors there understate those on new robots; drop --data to use the fit's "
                                "validation split, or give a store of other robots")
     return [(data, None)], "whole"
 
 
-def _windows(predictor, sources, n, context_len, horizon, offset, seed):
-    """(u_ctx, y_ctx, u_query, y_query) of all sources, and the last store's dt."""
-    parts, dt = [], None
+def _windows(predictor, sources, n, context_len, horizon, offset, seed) -> Window:
+    """The windows of all sources, as one window set (the attributes of the last store)."""
+    parts = []
     left = n
     for path, rows in sources:
         if left is not None and left <= 0:
             break
         w = load_window(path, context_len, horizon, left, predictor.data_info, predictor.n_u, predictor.n_y, offset,
                         seed, predictor.inputs, rows=rows)
-        parts.append(w.split())
-        dt = w.dt
+        parts.append(w)
         left = None if left is None else left - len(w.u)
-    return tuple(np.concatenate([p[i] for p in parts]) for i in range(4)), dt
+    if len(parts) == 1:
+        return parts[0]
+    joined = {k: np.concatenate([getattr(p, k) for p in parts]) for k in ("u", "y", "params", "starts", "y_first")}
+    return replace(parts[-1], **joined)
 
 
 def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,
@@ -91,35 +99,37 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
         A report: the calibration's provenance, and the ±1σ/±2σ coverage of the calibration
         windows before and after at the reported steps.
     """
-    from robomorph.model.checkpoint import load_checkpoint_file  # noqa: PLC0415
+    from robomorph.model.files import read_model  # noqa: PLC0415  (a checkpoint or a model folder)
 
     check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     offset = parse_offset(offset)
     predictor = _predictor(ckpt, device)
-    ckpt_dict = load_checkpoint_file(ckpt)
+    ckpt_dict = read_model(ckpt)
     sources, split = _sources(ckpt_dict, data)
     info = predictor.data_info or {}
     context_len, horizon = context_len or info.get("context_len"), horizon or info.get("horizon")
     if context_len is None or horizon is None:
         raise EvaluationError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
     check_patch(predictor.patch, [int(context_len)])
-    (u_ctx, y_ctx, u_q, y_q), dt = _windows(predictor, sources, n, int(context_len), int(horizon), offset, seed)
-    if len(u_ctx) < 2:
-        raise CalibrationError(f"only {len(u_ctx)} calibration window: pass --data with a store of more robots")
-    y_q = y_q.astype(np.float64)
+    w = _windows(predictor, sources, n, int(context_len), int(horizon), offset, seed)
+    if len(w.u) < 2:
+        raise CalibrationError(f"only {len(w.u)} calibration window: pass --data with a store of more robots")
+    steps = parse_horizons(horizons_spec, int(horizon), w.dt)
     with predictor.raw_std():
-        mean, std = predict(predictor, u_ctx, y_ctx, u_q, batch_size, desc="calibration windows", y_query=y_q,
-                            with_std=True)
-    source = {"data": [p for p, _ in sources], "split": split, "n": int(len(u_ctx)), "context_len": int(context_len),
+        before = score_windows(predictor, w, (), steps, batch_size=batch_size)
+    mean, std = before.preds["model"], before.std
+    source = {"data": [p for p, _ in sources], "split": split, "n": int(len(w.u)), "context_len": int(context_len),
               "horizon": int(horizon), "offset": offset, "seed": int(seed), "normalization": predictor.normalization,
               "date": time.strftime("%Y-%m-%d %H:%M:%S")}
-    cal = fit(y_q, mean, std, method, source=source)
-    steps = parse_horizons(horizons_spec, int(horizon), dt)
+    cal = fit(before.y, mean, std, method, source=source)
     factors = cal.factors(int(horizon))
-    std_after = factors[None] * std
+    after = score_windows(Predictions(mean, factors[None] * std), w, (), steps)
     report = {"ckpt": ckpt, "out": out or ckpt, "calibration": cal.to_dict(), "steps": steps,
-              "seconds": [s * dt for s in steps] if dt else None,
-              "before": coverage(y_q, mean, std, steps), "after": coverage(y_q, mean, std_after, steps),
+              "seconds": [s * w.dt for s in steps],
+              "before": before.result["horizons"]["calibration"]["all"],
+              "after": after.result["horizons"]["calibration"]["all"],
+              "nll": {"before": before.result["calibration"]["nll"]["all"],
+                      "after": after.result["calibration"]["nll"]["all"]},
               "scale": [float(np.median(factors[s - 1])) for s in steps]}
     cal.source["coverage"] = {"steps": steps, "before": report["before"], "after": report["after"]}
     ckpt_dict[CALIBRATION_KEY] = cal.to_dict()
@@ -129,9 +139,9 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
 
 def remove(ckpt: str, out: str | None = None) -> bool:
     """Drops a stored calibration (writing ``out``, default in place); False when there was none."""
-    from robomorph.model.checkpoint import load_checkpoint_file  # noqa: PLC0415
+    from robomorph.model.files import read_model  # noqa: PLC0415  (a checkpoint or a model folder)
 
-    ckpt_dict = load_checkpoint_file(ckpt)
+    ckpt_dict = read_model(ckpt)
     had = ckpt_dict.pop(CALIBRATION_KEY, None) is not None
     if had or (out and os.path.abspath(out) != os.path.abspath(ckpt)):
         _write(ckpt_dict, out or ckpt)
@@ -139,28 +149,32 @@ def remove(ckpt: str, out: str | None = None) -> bool:
 
 
 def _write(ckpt_dict: dict, path: str) -> None:
-    """The checkpoint, written whole or not at all (a reader sees the old file or the new)."""
-    import torch  # noqa: PLC0415
+    """The checkpoint (or model folder), written whole or not at all, in the format it was read in."""
+    from robomorph.model.files import write_model  # noqa: PLC0415
 
-    if os.path.isdir(path):
-        raise RoboMorphError(f"--out {path} is a folder: give the checkpoint file to write")
-    with atomic_open(path, "wb") as f:
-        torch.save(ckpt_dict, f)
+    if not os.path.isdir(path):  # a model folder's own writer guards what it replaces
+        check_replaceable(path, "checkpoint", "--out")  # never a page, a log or a store's file
+    write_model(ckpt_dict, path)
 
 
 def report_text(report: dict) -> str:
     """The terminal summary: where it was fitted, and the coverage before and after."""
+    from robomorph.core.results import markdown_table  # noqa: PLC0415
+
     src = report["calibration"]["source"]
+    secs = report.get("seconds") or [None] * len(report["steps"])
+    b, a = report["before"], report["after"]
+    rows = [[s, "" if t is None else f"{t:.3g}", f"{report['scale'][i]:.3g}", f"{b['1sigma'][i]:.1%}",
+             f"{a['1sigma'][i]:.1%}", f"{b['2sigma'][i]:.1%}", f"{a['2sigma'][i]:.1%}"]
+            for i, (s, t) in enumerate(zip(report["steps"], secs))]
     lines = [f"std calibration ({report['calibration']['method']}) fitted on {src['n']} windows of "
              f"{', '.join(src['data'])} ({'validation split' if src['split'] == 'val' else 'whole store'}), "
              f"context {src['context_len']}, horizon {src['horizon']}",
-             "| step | seconds | scale (median over channels) | ±1σ before | ±1σ after | ±2σ before | ±2σ after |",
-             "|---|---|---|---|---|---|---|"]
-    secs = report.get("seconds") or [None] * len(report["steps"])
-    for i, (s, t) in enumerate(zip(report["steps"], secs)):
-        b, a = report["before"], report["after"]
-        lines.append(f"| {s} | {'' if t is None else f'{t:.3g}'} | {report['scale'][i]:.3g} | {b['1sigma'][i]:.1%} | "
-                     f"{a['1sigma'][i]:.1%} | {b['2sigma'][i]:.1%} | {a['2sigma'][i]:.1%} |")
+             markdown_table(["step", "seconds", "scale (median over channels)", "±1σ before", "±1σ after",
+                             "±2σ before", "±2σ after"], rows)]
+    if "nll" in report:
+        lines.append(f"mean Gaussian NLL per value over the horizon: {report['nll']['before']:.4g} before, "
+                     f"{report['nll']['after']:.4g} after")
     lines.append("(coverage on the calibration windows themselves; ideal 68.3 % / 95.4 %; score it on a test "
                  "store with robomorph.evaluate)")
     lines.append(f"written: {report['out']}")

@@ -24,6 +24,7 @@ Quantities (``Group``): the channels are grouped by what they measure.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 
@@ -33,6 +34,8 @@ from robomorph.core.errors import RoboMorphError
 
 DEFAULT_HORIZONS = "1,0.25s,1s,5s,end"
 SIGMAS = (1, 2)
+# The share of a Gaussian inside ±1σ and ±2σ.
+IDEAL = {s: math.erf(s / math.sqrt(2)) for s in SIGMAS}
 _POS = ("ee_x", "ee_y", "ee_z")
 _QUAT = ("ee_qx", "ee_qy", "ee_qz", "ee_qw")
 _JOINT = re.compile(r"q\d+$")
@@ -161,6 +164,29 @@ def coverage(y: np.ndarray, mean: np.ndarray, std: np.ndarray, steps: list[int],
     return {f"{s}sigma": (z <= s).mean(axis=(0, 2)).tolist() for s in SIGMAS}
 
 
+def coverage_miss(y: np.ndarray, mean: np.ndarray, std: np.ndarray,
+                  channels: tuple[int, ...] | None = None) -> dict[str, float]:
+    """Mean absolute distance of the ±1σ / ±2σ coverage from its Gaussian ideal over all steps.
+
+    Returns:
+        ``{"1sigma": ..., "2sigma": ...}`` in fractions (0.05: five percentage points off on average).
+    """
+    cover = coverage(y, mean, std, list(range(1, y.shape[1] + 1)), channels)
+    return {f"{s}sigma": float(np.abs(np.asarray(cover[f"{s}sigma"]) - IDEAL[s]).mean()) for s in SIGMAS}
+
+
+def gaussian_nll(y: np.ndarray, mean: np.ndarray, std: np.ndarray, channels: tuple[int, ...] | None = None) -> float:
+    """Mean Gaussian negative log-likelihood per value [nats] of ``y`` under ``N(mean, std²)``.
+
+    It depends on the units of the channels (a std in metres against one in millimetres), so
+    compare it only between predictions of the same windows.
+    """
+    cols = list(range(y.shape[-1])) if channels is None else list(channels)
+    s = np.maximum(std[..., cols], 1e-300)
+    z = (y[..., cols] - mean[..., cols]) / s
+    return float(np.mean(0.5 * np.log(2 * np.pi) + np.log(s) + 0.5 * z**2))
+
+
 def horizon_report(y: np.ndarray, preds: dict[str, np.ndarray], y_names: list[str], dt: float,
                    steps: list[int], std: np.ndarray | None = None, y_units: list[str] | None = None) -> dict:
     """The ``horizons`` entry of ``metrics.json``: RMS errors per source, quantity and step.
@@ -171,8 +197,8 @@ def horizon_report(y: np.ndarray, preds: dict[str, np.ndarray], y_names: list[st
         std: (N, H, n_y) the model's predicted standard deviation, when it gives one; then
             ``calibration`` holds its ±1σ / ±2σ coverage per step (all channels, and per quantity).
 
-    With both ``model`` and ``hold`` among ``preds``, ``below_hold`` says per quantity
-    over which share of all H steps the model beats hold (:func:`below_hold`).
+    With ``model`` among ``preds``, ``below`` says for every other source and quantity over
+    which share of all H steps the model's error is below that source's (:func:`below`).
     """
     groups = groups_for(y_names, y_units)
     idx = [k - 1 for k in steps]
@@ -180,44 +206,47 @@ def horizon_report(y: np.ndarray, preds: dict[str, np.ndarray], y_names: list[st
            "quantities": {g.name: {"unit": g.unit, "channels": [y_names[i] for i in g.channels], "kind": g.kind}
                           for g in groups},
            "rms": {src: {g.name: error_curve(y, p, g)[idx].tolist() for g in groups} for src, p in preds.items()}}
-    if "hold" in preds and "model" in preds:
-        out["below_hold"] = {g.name: below_hold(y, preds["model"], preds["hold"], g) for g in groups}
+    if "model" in preds and len(preds) > 1:
+        out["below"] = {src: {g.name: below(y, preds["model"], p, g) for g in groups}
+                        for src, p in preds.items() if src != "model"}
     if std is not None:
         out["calibration"] = {"all": coverage(y, preds["model"], std, steps),
                               **{g.name: coverage(y, preds["model"], std, steps, g.channels) for g in groups}}
     return out
 
 
-def below_hold(y: np.ndarray, model: np.ndarray, hold: np.ndarray, group: Group) -> dict:
-    """Where over the whole horizon the model's RMS error is below that of holding the last output.
+def below(y: np.ndarray, model: np.ndarray, other: np.ndarray, group: Group) -> dict:
+    """Where over the whole horizon the model's RMS error is below that of another source.
 
     Returns:
         ``fraction``: of all steps; ``first_not_below``: the first 1-based step where it is
         not (None when it is below at every step).
     """
-    below = error_curve(y, model, group) < error_curve(y, hold, group)
-    worse = np.flatnonzero(~below)
-    return {"fraction": float(below.mean()), "first_not_below": int(worse[0]) + 1 if len(worse) else None}
+    is_below = error_curve(y, model, group) < error_curve(y, other, group)
+    worse = np.flatnonzero(~is_below)
+    return {"fraction": float(is_below.mean()), "first_not_below": int(worse[0]) + 1 if len(worse) else None}
 
 
 def horizon_markdown(h: dict, sources: tuple[str, ...] | None = None) -> str:
-    """A markdown table (rows: quantity and source; columns: steps) of a :func:`horizon_report`."""
+    """A markdown table (rows: quantity and source; columns: steps) of a :func:`horizon_report`,
+    then the coverage of the model's ±1σ/±2σ bands and the shares of steps below each baseline."""
+    from robomorph.core.results import markdown_table  # noqa: PLC0415
+
     names = [s for s in (sources or tuple(h["rms"])) if s in h["rms"]]
     cols = [f"step {k} ({t:.3g} s)" for k, t in zip(h["steps"], h["seconds"])]
-    lines = ["| quantity | source | " + " | ".join(cols) + " |", "|---|---|" + "---:|" * len(cols)]
+    rows = []
     for q, info in h["quantities"].items():
         label = f"{q} [{info['unit']}]" if info["unit"] else q
-        for src in names:
-            lines.append(f"| {label} | {src} | " + " | ".join(f"{v:.4g}" for v in h["rms"][src][q]) + " |")
-    cal = h.get("calibration")
-    if cal:
-        for s in SIGMAS:
-            lines.append(f"| inside ±{s}σ [%] | model | " + " | ".join(f"{100 * v:.1f}" for v in cal["all"][f"{s}sigma"])
-                         + " |")
-    below = h.get("below_hold")
-    if below:
+        rows += [[label, src, *(f"{v:.4g}" for v in h["rms"][src][q])] for src in names]
+    for s in SIGMAS:
+        if h.get("calibration"):
+            rows.append([f"inside ±{s}σ [%]", "model", *(f"{100 * v:.1f}" for v in h["calibration"]["all"][f"{s}sigma"])])
+    lines = [markdown_table(["quantity", "source", *cols], rows, align=["left", "left", *["right"] * len(cols)])]
+    for src, by_q in h.get("below", {}).items():
+        if src not in names:
+            continue
         parts = [f"{q} {100 * b['fraction']:.0f} %" + (f" (first step not below: {b['first_not_below']})"
-                                                       if b["first_not_below"] else "") for q, b in below.items()]
+                                                       if b["first_not_below"] else "") for q, b in by_q.items()]
         lines += ["", f"Share of the {h.get('horizon', '')} predicted steps where the model's RMS error is below "
-                  "hold's: " + "; ".join(parts)]
+                  f"{src}'s: " + "; ".join(parts)]
     return "\n".join(lines) + "\n"

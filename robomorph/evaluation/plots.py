@@ -13,7 +13,7 @@ import numpy as np
 
 from robomorph.core import metrics
 from robomorph.core.atomic import save_figure
-from robomorph.data.units import channel_label
+from robomorph.data.units import channel_label, literal_text
 from robomorph.evaluation import horizons
 
 _STYLE = {"model": dict(color="C0", lw=1.4), "hold": dict(color="C7", ls=":"),
@@ -36,6 +36,7 @@ def _grid(n: int) -> tuple[int, int]:
     return (n + cols - 1) // cols, cols
 
 
+@literal_text
 def plot_samples(path: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[str, np.ndarray],
                  names: list[str], dt: float, index: int, std: np.ndarray | None = None) -> str:
     """Context, truth and every source's prediction of trajectory ``index``, all channels.
@@ -72,6 +73,7 @@ def plot_samples(path: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[s
     return path
 
 
+@literal_text
 def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray], dt: float,
                       names: list[str], steps: list[int] = (), y_units: list[str] | None = None) -> str:
     """RMS error over trajectories against time into the horizon, in physical units, log-log.
@@ -105,6 +107,7 @@ def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray
     return path
 
 
+@literal_text
 def plot_r2_distribution(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray], names: list[str]) -> str:
     """Per-channel spread of per-trajectory R^2 (approach 1) for every source, clipped at -1."""
     plt = _plt()
@@ -128,6 +131,7 @@ def plot_r2_distribution(path: str, y_true: np.ndarray, preds: dict[str, np.ndar
     return path
 
 
+@literal_text
 def plot_sweep(path: str, rows: list[dict], key: str) -> str:
     """Mean R^2 and FIT, approaches 1 and 2, against ``key`` (``horizon`` or ``context_len``).
 

@@ -4,6 +4,7 @@ fitted on the model's training data (``arx_train``) and other checkpoints (``--c
 from __future__ import annotations
 
 from robomorph.evaluation.baselines import BASELINES, CEILINGS, TrainedARX
+from robomorph.evaluation.windows import EvaluationError
 
 
 def fit_arx_train(orders: tuple[int, int], train_blocks) -> TrainedARX:
@@ -18,13 +19,13 @@ def load_other(name: str, ckpt: str, w, device: str | None):  # w: evaluation.wi
     from robomorph.model.predictor import Predictor  # noqa: PLC0415
 
     if name in BASELINES + CEILINGS + ("model",):
-        raise ValueError(f"--compare {name}=...: {name!r} names a baseline; choose another name")
+        raise EvaluationError(f"--compare {name}=...: {name!r} names a baseline; choose another name")
     other = Predictor.from_checkpoint(ckpt, device=device)
     info = other.data_info or {}
     if (info.get("u_names"), info.get("y_names")) != (w.u_names, w.y_names):
-        raise ValueError(f"--compare {name}: {ckpt} was trained on other channels ({info.get('u_names')} -> "
+        raise EvaluationError(f"--compare {name}: {ckpt} was trained on other channels ({info.get('u_names')} -> "
                          f"{info.get('y_names')}) than the store's ({w.u_names} -> {w.y_names})")
     patch = int(other.patch)
     if w.context_len % patch:
-        raise ValueError(f"--compare {name}: context {w.context_len} is not a multiple of its patch {patch}")
+        raise EvaluationError(f"--compare {name}: context {w.context_len} is not a multiple of its patch {patch}")
     return other

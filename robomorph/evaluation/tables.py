@@ -7,6 +7,7 @@ import os
 
 from robomorph.core.atomic import atomic_open, write_text
 from robomorph.core.normalizations import leaks_query_statistics, normalization_label
+from robomorph.core.results import markdown_table
 from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
 from robomorph.evaluation.horizons import horizon_markdown
 
@@ -59,22 +60,23 @@ def table_markdown(result: dict) -> str:
     meta, a1, a2 = result["meta"], result["approach1"], result["approach2"]
     base = result.get("baselines", {})
     head = ["channel", "R² (1)", "FIT (1)", "R² (2)", "FIT (2)"] + [f"{b} FIT (1)" for b in base]
+    rows = []
+    for ch in a1["channels"]:
+        r, f = a1["channels"][ch]["r2"], a1["channels"][ch]["fit"]
+        rows.append([ch, f"{r['mean']:.3f} ± {r['std']:.3f}", f"{_fit(f['mean'])} ± {f['std']:.1f}",
+                     f"{a2['channels'][ch]['r2']:.3f}", _fit(a2["channels"][ch]["fit"]),
+                     *(_fit(b["approach1"]["channels"][ch]["fit"]["mean"]) for b in base.values())])
+    m = a1["mean"]
+    rows.append(["**mean**", f"{m['r2']['mean']:.3f} ± {m['r2']['std']:.3f}",
+                 f"{_fit(m['fit']['mean'])} ± {m['fit']['std']:.1f}", f"{a2['mean']['r2']:.3f}", _fit(a2["mean"]["fit"]),
+                 *(_fit(b["approach1"]["mean"]["fit"]["mean"]) for b in base.values())])
     lines = [f"Model `{os.path.basename(meta['ckpt'])}` on `{meta['data']}`: {meta['n']} trajectories, "
              f"context {meta['context_len']}, horizon {meta['horizon']} steps. (1): approach 1, mean ± std over "
              "trajectories; (2): approach 2, trajectories concatenated.", "",
              normalization_markdown(meta.get("normalization")), "",
-             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for ch in a1["channels"]:
-        r, f = a1["channels"][ch]["r2"], a1["channels"][ch]["fit"]
-        cells = [ch, f"{r['mean']:.3f} ± {r['std']:.3f}", f"{_fit(f['mean'])} ± {f['std']:.1f}",
-                 f"{a2['channels'][ch]['r2']:.3f}", _fit(a2["channels"][ch]["fit"])]
-        cells += [_fit(b["approach1"]["channels"][ch]["fit"]["mean"]) for b in base.values()]
-        lines.append("| " + " | ".join(cells) + " |")
-    m = a1["mean"]
-    cells = ["**mean**", f"{m['r2']['mean']:.3f} ± {m['r2']['std']:.3f}", f"{_fit(m['fit']['mean'])} ± {m['fit']['std']:.1f}",
-             f"{a2['mean']['r2']:.3f}", _fit(a2["mean"]["fit"])]
-    cells += [_fit(b["approach1"]["mean"]["fit"]["mean"]) for b in base.values()]
-    lines.append("| " + " | ".join(cells) + " |")
+             *([f"**⚠ In-sample: `{meta.get('in_sample_store')}` is a training store of this model; these scores "
+                "include robots it was trained on.**", ""] if meta.get("in_sample") else []),
+             markdown_table(head, rows)]
     legend = ", ".join(f"{b.mark} {b.label}" for b in FIT_BANDS)
     lines += ["", f"FIT colour convention (the paper's Table 3): {legend}."]
     notes = meta.get("baseline_notes", {})

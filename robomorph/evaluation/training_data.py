@@ -10,12 +10,13 @@ validation or test data.
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Callable, Iterator
 
 import numpy as np
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.data.splits import RECORDING_ARRAY, held_out_fractions, split_rows
+from robomorph.data.splits import RECORDING_ARRAY, SplitAdaptedWarning, split_store
 from robomorph.data.store import open_store
 
 # Trajectories read per block, and at most this many in all (a least-squares fit of a few
@@ -51,13 +52,15 @@ def split_of(ckpt: dict, which: str, hint: str = "--arx-train-data") -> list[tup
     if own:
         return [(own, np.arange(_open(own, f"the checkpoint's {which}_store", hint).n))]
     paths = [paths] if isinstance(paths, str) else list(paths)
-    f = held_out_fractions(tuple(dm.get("split", (0.8, 0.1, 0.1))), dm.get("val_store") is not None,
-                           dm.get("test_store") is not None)
+    split = tuple(dm.get("split", (0.8, 0.1, 0.1)))
     out = []
     for k, path in enumerate(paths):
         ds = _open(path, "the checkpoint's training store", hint)
         groups = ds.read(RECORDING_ARRAY) if RECORDING_ARRAY in ds.arrays else None
-        rows = split_rows(ds.n, f, int(dm.get("seed", 0)), k, groups=groups, path=path)[which]
+        with warnings.catch_warnings():  # the fit said so already; the rows are the fit's either way
+            warnings.simplefilter("ignore", SplitAdaptedWarning)
+            rows = split_store(ds.n, split, int(dm.get("seed", 0)), k, groups, path, dm.get("val_store"),
+                               dm.get("test_store"))[which]
         if len(rows):
             out.append((path, rows))
     return out
@@ -89,9 +92,9 @@ def reader(ckpt_path: str, stores: list[str] | None = None) -> Callable[[], Iter
     """A function that reads the training blocks of a checkpoint when called (only a
     baseline that needs them pays for the reading)."""
     def read() -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        from robomorph.model.checkpoint import load_checkpoint_file  # noqa: PLC0415  (torch only here)
+        from robomorph.model.files import read_model  # noqa: PLC0415  (torch only here)
 
-        ckpt = load_checkpoint_file(ckpt_path)
+        ckpt = read_model(ckpt_path)
         inputs = (ckpt.get("datamodule_hyper_parameters") or {}).get("inputs") or "total"
         return blocks(training_rows(ckpt, stores), inputs=inputs)
     return read

@@ -8,7 +8,7 @@ from a seeded stream, so the model is scored mid-motion as a controller meets it
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -40,6 +40,16 @@ class Window:
         """``u_ctx, y_ctx, u_query, y_query`` with the query always starting at ``self.context_len``."""
         c, h, c0 = context_len or self.context_len, horizon or self.horizon, self.context_len
         return self.u[:, c0 - c:c0], self.y[:, c0 - c:c0], self.u[:, c0:c0 + h], self.y[:, c0:c0 + h]
+
+    def cut(self, context_len: int | None = None, horizon: int | None = None) -> "Window":
+        """The same windows with a shorter context (its last ``context_len`` steps) and/or a
+        shorter horizon (its first ``horizon`` steps): the query still starts at the same sample."""
+        c, h, c0 = context_len or self.context_len, horizon or self.horizon, self.context_len
+        if not (1 <= c <= c0 and 1 <= h <= self.horizon):
+            raise WindowError(f"cut to context {c} and horizon {h}: both must lie within the window's "
+                              f"{c0} + {self.horizon} steps")
+        rows = slice(c0 - c, c0 + h)
+        return replace(self, u=self.u[:, rows], y=self.y[:, rows], context_len=c, horizon=h)
 
 
 def parse_offset(text: str | int | None) -> str | int:
@@ -114,6 +124,11 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
         for what, ours, theirs in (("u_names", u_names, info["u_names"]), ("y_names", ds.y_names, info["y_names"])):
             if list(ours) != list(theirs):
                 raise WindowError(f"{data} has {what} {list(ours)} but the checkpoint was trained on {list(theirs)}")
+        # A model learns the dynamics per step: at another sample time it predicts another robot.
+        if info.get("dt") and abs(ds.dt - float(info["dt"])) > 1e-6 * float(info["dt"]):
+            raise WindowError(f"{data} is sampled at dt={ds.dt:.6g} s but the checkpoint was trained at "
+                              f"dt={float(info['dt']):.6g} s; resample the logs to the training rate "
+                              "(robomorph ingest --resample HZ) or train on data at this rate")
     elif (len(ds.u_names), len(ds.y_names)) != (n_u, n_y):
         raise WindowError(f"{data} has n_u={len(ds.u_names)}, n_y={len(ds.y_names)} but the checkpoint expects "
                           f"n_u={n_u}, n_y={n_y}")

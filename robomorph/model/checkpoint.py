@@ -1,27 +1,28 @@
-"""Reading a trained model back from a checkpoint, without the training code.
+"""Reading a trained model back from a checkpoint or a model folder, without the training code.
 
 A checkpoint written by ``robomorph fit`` holds ``hyper_parameters`` (the architecture and
 ``n_u``/``n_y``), a ``state_dict`` with ``net.*`` (the :class:`MetaModel`) and
 ``normalizer.*`` (its :class:`Normalizer`) entries, and what the model was trained on under
-:data:`DATA_INFO_KEY`. :func:`load_trained` rebuilds the plain modules from it, so
-inference needs only ``robomorph.model`` and ``robomorph.core`` (no Lightning).
+:data:`DATA_INFO_KEY`; a folder written by ``robomorph export`` holds the same in
+safetensors and JSON. Both are read by :mod:`robomorph.model.files`, which runs nothing
+stored in them. :func:`load_trained` rebuilds the plain modules, so inference needs only
+``robomorph.model`` and ``robomorph.core`` (no Lightning).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 
 import torch
 from torch import nn
 
-from robomorph.core.errors import RoboMorphError
 from robomorph.model.calibration import CALIBRATION_KEY, CalibrationError, StdCalibration
+
+# The reader of model files; these names are imported from here by the rest of the package.
+from robomorph.model.files import DATA_INFO_KEY, CheckpointError, load_checkpoint_file, read_model  # noqa: F401
 from robomorph.model.normalization import Normalizer
 from robomorph.model.transformer import MetaModel, ModelConfig
 
-# Checkpoint entry holding what the model was trained on (channel names, dt, window lengths).
-DATA_INFO_KEY = "robomorph_data"
 # State entries of the training wrapper that inference does not need.
 _TRAINING_ONLY = ("stats_ready",)
 # Per-step change of the normalized outputs that one unit of network output means with
@@ -29,24 +30,6 @@ _TRAINING_ONLY = ("stats_ready",)
 # channel's standard deviation), so that an untrained network's random walk over 800 steps
 # stays within a few standard deviations.
 INTEGRATE_SCALE = 0.05
-
-
-class CheckpointError(RoboMorphError, RuntimeError):
-    """A checkpoint is missing, corrupt, or does not fit the model asked for."""
-
-
-def load_checkpoint_file(path: str) -> dict:
-    """Reads a checkpoint with an error that says what is wrong with it."""
-    if not os.path.isfile(path):
-        raise CheckpointError(f"checkpoint not found: {path}")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # noqa: BLE001  (any unreadable file)
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise CheckpointError(f"{path} is not a readable checkpoint (corrupt or truncated?): {first}") from exc
-    if not isinstance(ckpt, dict) or "state_dict" not in ckpt or "hyper_parameters" not in ckpt:
-        raise CheckpointError(f"{path} is not a RoboMorph/Lightning checkpoint (no state_dict/hyper_parameters)")
-    return ckpt
 
 
 def model_config(hparams: dict) -> ModelConfig:
@@ -159,17 +142,18 @@ class TrainedModel(nn.Module):
 
 
 def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
-    """Rebuilds the trained model of a checkpoint.
+    """Rebuilds the trained model of a checkpoint or of a model folder (``robomorph export``).
 
     Returns:
         ``(model in eval mode on the CPU, data info or None)``; the data info (channel names,
         dt, training window) is None for checkpoints written before it was recorded. A std
-        calibration stored in the checkpoint is attached to the model.
+        calibration stored with the model is attached to it.
 
     Raises:
-        CheckpointError: the file is missing, unreadable, or not a model written by ``fit``.
+        CheckpointError: the file is missing, unreadable, refused as unsafe, or not a model
+            written by ``fit``.
     """
-    ckpt = load_checkpoint_file(path)
+    ckpt = read_model(path)
     hp = ckpt["hyper_parameters"]
     if hp.get("n_u") is None or hp.get("n_y") is None:
         raise CheckpointError(f"{path} lacks n_u/n_y: it was not written by robomorph fit")

@@ -2,6 +2,7 @@
 
     from robomorph import Predictor
     pred = Predictor.from_checkpoint("results/runs/ms/checkpoints/best.ckpt")
+    pred = Predictor.from_pretrained("model/")   # or a folder written by robomorph export
     y_query = pred.simulate(u_ctx, y_ctx, u_query)   # physical units in and out
 
 This is what a model predictive controller calls: given a window of measured torques and
@@ -23,14 +24,45 @@ from collections.abc import Iterator
 import numpy as np
 import torch
 
-from robomorph.core.errors import RoboMorphError
+from robomorph.core.errors import DeviceError, RoboMorphError
 from robomorph.core.inputs import check_model_inputs
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
 from robomorph.model.checkpoint import CheckpointError, TrainedModel, load_trained
 
 
 class PredictionError(RoboMorphError, ValueError):
-    """Inputs the model cannot predict from (wrong shape, non-finite, or overflowing)."""
+    """Inputs the model cannot predict from (wrong shape or length, non-finite, far outside
+    the training range, or overflowing)."""
+
+
+# How far (in training standard deviations of each torque channel) inputs may lie from the
+# training mean before simulate refuses them. Measured on a multi-sine model: its own data
+# reach 5.2, a chirp store (another task, a legitimate transfer) 19, and torques in the
+# wrong units (x1000, N m given as mN m) thousands. 100 lets every transfer through and
+# stops unit errors, which otherwise return plausible-looking numbers.
+MAX_INPUT_STDS = 100.0
+
+
+def resolve_device(device: str | torch.device | None) -> torch.device:
+    """The torch device for ``--device`` (default: cuda when available), or a one-line
+    :class:`DeviceError` for a name torch does not know or a device this machine lacks."""
+    try:
+        dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    except (RuntimeError, TypeError) as exc:
+        raise DeviceError(f"--device {device!r} is not a device: {exc}; use cpu, cuda or cuda:N") from None
+    if dev.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise DeviceError(f"--device {device}: CUDA is not available on this machine (torch "
+                              f"{torch.__version__}); use --device cpu")
+        if dev.index is not None and dev.index >= count:
+            raise DeviceError(f"--device {device}: this machine has {count} CUDA device(s), "
+                              f"cuda:0..cuda:{count - 1}")
+    elif dev.type == "mps" and not torch.backends.mps.is_available():
+        raise DeviceError(f"--device {device}: MPS is not available on this machine; use --device cpu")
+    elif dev.type not in ("cpu", "cuda", "mps"):
+        raise DeviceError(f"--device {device}: robomorph runs on cpu, cuda or mps, not {dev.type}")
+    return dev
 
 
 class Predictor:
@@ -49,10 +81,14 @@ class Predictor:
             ``python -m robomorph.calibrate`` (a :class:`StdCalibration`), or None; ``simulate``
             applies it.
         device: where it runs.
+        max_input_std: ``simulate`` refuses torques further than this many training
+            standard deviations from the training mean (default :data:`MAX_INPUT_STDS`;
+            None: no check).
     """
 
     def __init__(self, model: TrainedModel, device: str | torch.device | None = None, data_info: dict | None = None):
-        self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+        self.device = resolve_device(device)
+        self.max_input_std: float | None = MAX_INPUT_STDS
         self.model = model.to(self.device).eval()
         self.n_u, self.n_y, self.patch = model.config.n_u, model.config.n_y, model.config.patch
         self.normalization: str = model.normalizer.normalization
@@ -87,15 +123,41 @@ class Predictor:
 
     @classmethod
     def from_checkpoint(cls, path: str, device: str | torch.device | None = None) -> "Predictor":
-        """Loads a checkpoint written by ``robomorph fit`` (clear errors for bad files)."""
+        """Loads a checkpoint written by ``robomorph fit``, or a model folder written by
+        ``robomorph export`` (clear errors for bad files; nothing stored in them is run)."""
         model, info = load_trained(path)
         return cls(model, device, info)
+
+    @classmethod
+    def from_pretrained(cls, path: str, device: str | torch.device | None = None) -> "Predictor":
+        """Loads an inference-only model folder written by ``robomorph export``
+        (``model.safetensors`` + ``config.json``); a training checkpoint is read as well.
+
+        Raises:
+            CheckpointError: the folder is missing, incomplete, altered, or of another format.
+        """
+        return cls.from_checkpoint(path, device)
 
     def _check(self, name: str, x: torch.Tensor, width: int) -> None:
         if x.shape[-1] != width:
             raise PredictionError(f"{name} has {x.shape[-1]} channels, the model expects {width}")
         if not torch.isfinite(x).all():
             raise PredictionError(f"{name} holds NaN or inf values")
+
+    def _check_range(self, u_ctx: torch.Tensor, u_query: torch.Tensor) -> None:
+        """Refuses torques far outside the training range (wrong units, most often)."""
+        if self.max_input_std is None or u_ctx.numel() == 0 or u_query.numel() == 0:
+            return  # empty arrays: the network's own checks name them
+        stats = self.model.normalizer
+        z = torch.cat([((u - stats.u_mean) / stats.u_std).abs().amax(dim=(0, 1)) for u in (u_ctx, u_query)])
+        z = z.view(2, -1).amax(0)  # (n_u,) the furthest sample of each channel
+        worst = int(torch.argmax(z))
+        if float(z[worst]) > self.max_input_std:
+            names = (self.data_info or {}).get("u_names") or [f"u{i}" for i in range(self.n_u)]
+            raise PredictionError(
+                f"the inputs reach {float(z[worst]):.3g} training standard deviations (channel {names[worst]!r}), "
+                f"far outside the training range (refused above {self.max_input_std:g}); check their units and "
+                "scale (the checkpoint expects the training data's), or set Predictor.max_input_std")
 
     def _check_output(self, y: torch.Tensor, inputs: list[torch.Tensor]) -> None:
         """Refuses non-finite predictions instead of handing them on without a word."""
@@ -163,7 +225,10 @@ class Predictor:
             NormalizationError: ``y_query_stats`` missing for a ``paper_window`` model, given
                 for another, or of the wrong shape.
             InputsError: ``inputs`` names the other formulation.
-            PredictionError: arrays of the wrong shape, non-finite inputs, or non-finite predictions.
+            PredictionError: arrays of the wrong shape or length (empty, a context that is not a
+                multiple of the patch, longer than the positional tables, mismatched batches),
+                non-finite inputs, torques further than ``max_input_std`` training standard
+                deviations from the training mean, or non-finite predictions.
             CheckpointError: ``return_std`` for a model without a Gaussian head.
         """
         self.check_inputs(inputs)
@@ -181,7 +246,14 @@ class Predictor:
             tensors = [t.unsqueeze(0) for t in tensors]
         for name, t, w in zip(("u_ctx", "y_ctx", "u_query"), tensors, (self.n_u, self.n_y, self.n_u)):
             self._check(name, t, w)
-        mean, std = self.model.forward_dist(*tensors, self._query_stats(y_query_stats, len(tensors[0])))
+        self._check_range(tensors[0], tensors[2])
+        stats = self._query_stats(y_query_stats, len(tensors[0]))
+        try:
+            mean, std = self.model.forward_dist(*tensors, stats)
+        except RoboMorphError:
+            raise
+        except ValueError as exc:  # the network's shape and length checks: the caller's arrays
+            raise PredictionError(str(exc)) from None
         self._check_output(mean, tensors)
         out = [t[0] if single else t for t in (mean, std) if t is not None]
         if as_numpy:

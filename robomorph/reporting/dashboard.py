@@ -16,9 +16,7 @@ normalization are marked. A file that cannot be read becomes a visible warning o
 from __future__ import annotations
 
 import csv
-import io
 import json
-import math
 import os
 import sys
 from dataclasses import dataclass, field
@@ -27,14 +25,14 @@ from pathlib import Path
 
 import yaml
 
-from robomorph.core.atomic import write_text
+from robomorph.core.atomic import check_replaceable, write_text
 from robomorph.core.errors import RoboMorphError
-from robomorph.core.names import CURVES
 from robomorph.core.rundir import RunDir
 from robomorph.reporting import html as rh
+from robomorph.reporting.curves import curves_figure, plot_curves, read_curves  # noqa: F401  (re-exported)
 from robomorph.reporting.html import fit_colour
 
-__all__ = ["build_report", "default_out", "load_run", "read_curves", "ReportError", "RunData", "EvalData"]
+__all__ = ["build_report", "curves_figure", "default_out", "load_run", "read_curves", "ReportError", "RunData", "EvalData"]
 
 # Run-level facts shown in the overview, looked up anywhere in the resolved config.
 FACTS = ("d_model", "n_layer", "n_head", "patch", "context_len", "horizon", "normalization")
@@ -85,48 +83,51 @@ class RunData:
         return None
 
 
-def read_curves(path: Path) -> tuple[dict[str, tuple[list[float], list[float]]], list[str]]:
-    """The (steps, values) of each of :data:`CURVES` in a Lightning CSVLogger file.
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
-    Rows are sparse (each row holds the keys logged at that moment), so a point is kept
-    only where both ``step`` and the value are present and finite.
 
-    Returns:
-        The curves found, and notes on what is missing or unreadable.
+class _Guard:
+    """Reads files of one run folder, refusing any path that a symbolic link leads out of it.
+
+    The report is meant to be shared: a ``sample_0.png`` (or ``config.yaml``) that links to
+    ``/etc/passwd`` must not carry that file into the page. What is refused becomes a warning.
     """
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        rows, header = list(reader), set(reader.fieldnames or ())
-    if "step" not in header:
-        return {}, [f"{path.name} has no 'step' column; no curves"]
-    curves, notes, bad = {}, [], 0
-    for key in CURVES:
-        if key not in header:
-            notes.append(f"{path.name} has no '{key}' column")
-            continue
-        steps, values = [], []
-        for row in rows:
-            try:
-                step, value = float(row["step"] or "nan"), float(row[key] or "nan")
-            except (TypeError, ValueError):
-                bad += 1
-                continue
-            if math.isfinite(step) and math.isfinite(value):
-                steps.append(step)
-                values.append(value)
-        if steps:
-            curves[key] = (steps, values)
-        else:
-            notes.append(f"{path.name}: '{key}' has no values yet")
-    if bad:
-        notes.append(f"{path.name}: skipped {bad} non-numeric cells")
-    return curves, notes
+
+    def __init__(self, run_dir: Path, warnings: list[str]):
+        self.root, self.warnings = run_dir.resolve(), warnings
+
+    def allows(self, path: Path) -> bool:
+        """Whether ``path``, every link followed, stays inside the run folder (warns if not)."""
+        try:
+            inside = path.resolve().is_relative_to(self.root)
+        except (OSError, RuntimeError):  # a link loop
+            inside = False
+        if not inside:
+            rel = path.relative_to(self.root) if path.is_relative_to(self.root) else path
+            self.warnings.append(f"{rel}: a symbolic link leading outside the run folder; not read")
+        return inside
+
+    def file(self, path: Path) -> bool:
+        return path.is_file() and self.allows(path)
+
+    def files(self, folder: Path, pattern: str) -> list[Path]:
+        return [p for p in sorted(folder.glob(pattern)) if self.file(p)]
+
+    def png(self, path: Path, where: str) -> bytes | None:
+        """The bytes of a real PNG file; a file of any other kind is left out with a warning."""
+        data = path.read_bytes()
+        if not data.startswith(PNG_MAGIC):
+            self.warnings.append(f"{where}/{path.name} is not a PNG image; not embedded")
+            return None
+        return data
 
 
-def _load_config(run: RunData) -> None:
+def _load_config(run: RunData, guard: _Guard) -> None:
     path = Path(RunDir(str(run.path)).config)
     if not path.is_file():
         run.notes.append("no config.yaml")
+        return
+    if not guard.allows(path):
         return
     run.config_text = path.read_text(errors="replace")
     try:
@@ -140,14 +141,18 @@ def _load_config(run: RunData) -> None:
         run.warnings.append(f"config.yaml holds a {type(parsed).__name__}, not a mapping; shown as text only")
 
 
-def _load_eval(path: Path) -> EvalData:
+def _load_eval(path: Path, run_dir: Path) -> EvalData:
     ev = EvalData(name=path.name)
-    ev.pngs = [(p.name, p.read_bytes()) for p in sorted(path.glob("*.png"))]
-    if (path / "table.md").is_file():
+    guard = _Guard(run_dir, ev.warnings)
+    pngs = [(p.name, guard.png(p, f"eval/{path.name}")) for p in guard.files(path, "*.png")]
+    ev.pngs = [(name, data) for name, data in pngs if data is not None]
+    if guard.file(path / "table.md"):
         ev.table_md = (path / "table.md").read_text(errors="replace")
     metrics_path = path / "metrics.json"
     if not metrics_path.is_file():
         ev.warnings.append(f"eval/{path.name} has no metrics.json")
+        return ev
+    if not guard.allows(metrics_path):
         return ev
     try:
         metrics = json.loads(metrics_path.read_text())
@@ -162,25 +167,35 @@ def _load_eval(path: Path) -> EvalData:
 
 
 def load_run(path: Path) -> RunData:
-    """Reads one run directory; whatever is missing or broken becomes a note or a warning."""
+    """Reads one run directory; whatever is missing or broken becomes a note or a warning.
+
+    No symbolic link is followed out of ``path``, and only real PNG files are embedded.
+    """
     run, layout = RunData(name=path.name, path=path), RunDir(str(path))
-    _load_config(run)
+    guard = _Guard(path, run.warnings)
+    _load_config(run, guard)
     csv_path = Path(layout.metrics_csv)
-    if csv_path.is_file():
+    if csv_path.is_file() and guard.allows(csv_path):
         try:
             run.curves, notes = read_curves(csv_path)
             run.notes.extend(notes)
         except (csv.Error, OSError, UnicodeDecodeError) as e:
             run.warnings.append(f"logs/metrics.csv is unreadable: {e}")
-    else:
+    elif not csv_path.is_file():
         run.notes.append("no logs/metrics.csv; no training curves")
-    run.checkpoints = [(p.name, p.stat().st_size) for p in sorted(Path(layout.checkpoints).glob("*.ckpt"))]
+    run.checkpoints = [(p.name, p.stat().st_size) for p in guard.files(Path(layout.checkpoints), "*.ckpt")]
     eval_dir = Path(layout.evals)
-    if eval_dir.is_dir():
-        run.evals = [_load_eval(p) for p in sorted(eval_dir.iterdir()) if p.is_dir()]
+    if eval_dir.is_dir() and guard.allows(eval_dir):
+        run.evals = [_load_eval(p, path) for p in sorted(eval_dir.iterdir()) if p.is_dir() and guard.allows(p)]
     if not run.evals:
         run.notes.append("no evaluations (run `python -m robomorph.evaluate` to add some)")
     return run
+
+
+def _outside(path: Path, root: Path) -> RunData:
+    """A run folder that links out of the runs folder: shown by name, with nothing read."""
+    return RunData(name=path.name, path=path,
+                   warnings=[f"the run folder is a symbolic link leading outside {str(root)!r}; not read"])
 
 
 def find_runs(runs_dir: str | os.PathLike) -> list[RunData]:
@@ -200,46 +215,8 @@ def find_runs(runs_dir: str | os.PathLike) -> list[RunData]:
     if not dirs:
         raise ReportError(f"no runs found in {str(root)!r}: expected sub-folders <run>/ with config.yaml, "
                          "logs/metrics.csv, checkpoints/ or eval/ (as written by `python -m robomorph.fit`)")
-    return [load_run(p) for p in dirs]
-
-
-def plot_curves(runs: list[RunData]) -> bytes | None:
-    """One PNG with a panel per curve in :data:`CURVES`, a line per run; None without curves."""
-    if not any(run.curves for run in runs):
-        return None
-    from matplotlib import colormaps
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(5.0 * len(CURVES), 4.0), layout="constrained")
-    axes = fig.subplots(1, len(CURVES))
-    colours = colormaps["tab10"]
-    for ax, key in zip(axes, CURVES):
-        log = key.endswith("loss")
-        for i, run in enumerate(runs):
-            if key not in run.curves:
-                continue
-            steps, values = run.curves[key]
-            if log:  # a log axis cannot show non-positive losses
-                kept = [(s, v) for s, v in zip(steps, values) if v > 0]
-                steps, values = [s for s, _ in kept], [v for _, v in kept]
-            ax.plot(steps, values, color=colours(i % 10), label=run.name, lw=1.4, marker="." if len(steps) < 30 else None)
-        if log:
-            ax.set_yscale("log")
-        elif ax.has_data() and ax.get_ylim()[0] < -1.0 < ax.get_ylim()[1]:
-            # Early R² can be hugely negative; clipping keeps the useful range readable.
-            ax.set_ylim(bottom=-1.0)
-        ax.set(title=key, xlabel="step")
-        ax.grid(alpha=0.3)
-    handles, labels = [], []
-    for ax in axes:
-        for h, label in zip(*ax.get_legend_handles_labels()):
-            if label not in labels:
-                handles.append(h)
-                labels.append(label)
-    fig.legend(handles, labels, loc="outside right upper", fontsize="small")
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    return buf.getvalue()
+    real = root.resolve()
+    return [load_run(p) if p.resolve().is_relative_to(real) else _outside(p, root) for p in dirs]
 
 
 def _size(n: float) -> str:
@@ -256,28 +233,27 @@ def _anchor(i: int) -> str:
     return f"run-{i}"
 
 
-def overview_html(runs: list[RunData]) -> str:
+def overview(runs: list[RunData]) -> rh.Table:
     """One row per run and evaluation: model size, windows, mean approach-1 scores."""
-    head = ["run", "evaluation", *FACTS, "A1 R²", "A1 FIT", "A1 RMSE", "best baseline (A1 FIT)", rh.HORIZON_HEAD]
+    head = ("run", "evaluation", *FACTS, "A1 R²", "A1 FIT", "A1 RMSE", "best baseline (A1 FIT)", rh.HORIZON_HEAD)
     rows = []
     for i, run in enumerate(runs):
-        facts = "".join(rh.td(rh.esc(rh.DASH if run.fact(k) is None else run.fact(k))) for k in FACTS)
-        link = rh.td(f'<a href="#{_anchor(i)}">{rh.esc(run.name)}</a>', cls="name")
+        facts = tuple(rh.Cell(str(rh.DASH if run.fact(k) is None else run.fact(k))) for k in FACTS)
+        link = rh.Cell(run.name, cls="name", href=f"#{_anchor(i)}")
         scored = [ev for ev in run.evals if ev.metrics is not None]
         if not scored:
             why = "no evaluation" if not run.evals else "no readable metrics.json"
-            rows.append(f"<tr>{link}{rh.td(rh.esc(why), cls='name')}{facts}" + rh.td(rh.DASH) * 5 + "</tr>")
+            rows.append(rh.Row((link, rh.Cell(why, cls="name"), *facts, *[rh.Cell(rh.DASH)] * 5)))
         for ev in scored:
             r2, fit, rmse = (rh.mean_stat(ev.metrics, "approach1", m) for m in ("r2", "fit", "rmse"))
             best = rh.best_baseline(ev.metrics)
-            best_cell = rh.td(rh.esc(f"{best[0]}: {best[1]:.1f}"), fit_colour(best[1])) if best else rh.td(rh.DASH)
+            best_cell = rh.Cell(f"{best[0]}: {best[1]:.1f}", fit_colour(best[1])) if best else rh.Cell(rh.DASH)
             colour = fit_colour(fit[0])
-            rows.append(
-                f"<tr>{link}{rh.td(rh.esc(ev.name) + rh.leak_badge(ev.metrics), cls='name')}{facts}"
-                f"{rh.td(rh.esc(rh.fmt(*r2, 'r2')), colour)}{rh.td(rh.esc(rh.fmt(*fit, 'fit')), colour)}"
-                f"{rh.td(rh.esc(rh.fmt(*rmse, 'rmse')))}{best_cell}{rh.horizon_cell(ev.metrics)}</tr>"
-            )
-    return rh.table([rh.esc(h) for h in head], rows)
+            marks = rh.badges(ev.metrics) + ((IN_SAMPLE_BADGE,) if _in_sample(ev.metrics) else ())
+            rows.append(rh.Row((link, rh.Cell(ev.name, cls="name", badges=marks), *facts,
+                                rh.Cell(rh.fmt(*r2, "r2"), colour), rh.Cell(rh.fmt(*fit, "fit"), colour),
+                                rh.Cell(rh.fmt(*rmse, "rmse")), best_cell, rh.horizon_cell(ev.metrics))))
+    return rh.Table(head, tuple(rows))
 
 
 def _plain(value) -> str:
@@ -289,63 +265,52 @@ def _plain(value) -> str:
     return str(value)
 
 
-def eval_html(ev: EvalData) -> str:
-    """One evaluation: summary line, warnings, per-channel table, plots, raw table.md."""
-    parts = [f"<h4>Evaluation <code>{rh.esc(ev.name)}</code></h4>"]
-    parts += [rh.warn(w) for w in ev.warnings] + [rh.leak_note(ev.metrics)]
+IN_SAMPLE_BADGE = "in-sample"
+
+
+def _in_sample(metrics) -> str | None:
+    """The training store an evaluation scored the model on (``meta.in_sample``), or None."""
+    meta = metrics.get("meta") if isinstance(metrics, dict) else None
+    if not isinstance(meta, dict) or not meta.get("in_sample"):
+        return None
+    return str(meta.get("in_sample_store") or "a training store")
+
+
+def eval_view(ev: EvalData) -> dict:
+    """What the template shows of one evaluation: warnings, meta, tables, plots, table.md."""
+    store = _in_sample(ev.metrics)
+    in_sample = [f"In-sample: {store} is a training store of this model; these scores include robots it was "
+                 "trained on, not how it generalizes."] if store else []
+    view = {"name": ev.name, "warnings": ev.warnings + rh.notes(ev.metrics) + in_sample, "meta": [], "skipped": [],
+            "channels": None, "horizons": None, "table_md": ev.table_md,
+            "figures": [(rh.png_uri(png), name) for name, png in ev.pngs]}
     if ev.metrics is not None:
-        meta = ev.metrics.get("meta")
+        meta, skipped = ev.metrics.get("meta"), ev.metrics.get("skipped_baselines")
         if isinstance(meta, dict):
-            shown = {k: v for k, v in meta.items() if v not in (None, "", [], {})}
-            items = " · ".join(f"{rh.esc(k)}: <code>{rh.esc(_plain(v))}</code>" for k, v in shown.items())
-            parts.append(f'<p class="meta">{items}</p>')
-        skipped = ev.metrics.get("skipped_baselines")
+            view["meta"] = [(k, _plain(v)) for k, v in meta.items() if v not in (None, "", [], {})]
         if isinstance(skipped, dict):
-            parts += [f'<p class="note">baseline <b>{rh.esc(k)}</b> skipped: {rh.esc(v)}</p>' for k, v in skipped.items()]
-        parts += [rh.channel_table(ev.metrics), rh.horizon_table(ev.metrics)]
-    parts += [rh.figure(png, name) for name, png in ev.pngs]
-    if ev.table_md:
-        parts.append(f"<details><summary>table.md</summary><pre>{rh.esc(ev.table_md)}</pre></details>")
-    return "\n".join(parts)
+            view["skipped"] = list(skipped.items())
+        view["channels"], view["horizons"] = rh.channel_grid(ev.metrics), rh.horizon_grid(ev.metrics)
+    return view
 
 
-def run_html(run: RunData, index: int) -> str:
-    """The section of one run."""
-    parts = [f'<section id="{_anchor(index)}"><h3>Run <code>{rh.esc(run.name)}</code></h3>',
-             f'<p class="meta">{rh.esc(run.path)}</p>']
-    parts += [rh.warn(w) for w in run.warnings]
-    parts += [f'<p class="note">{rh.esc(n)}</p>' for n in run.notes]
-    if run.checkpoints:
-        items = "".join(f"<li><code>{rh.esc(name)}</code> — {_size(size)}</li>" for name, size in run.checkpoints)
-        parts.append(f"<p>Checkpoints:</p><ul>{items}</ul>")
-    if run.config_text is not None:
-        parts.append(f"<details><summary>config.yaml</summary><pre>{rh.esc(run.config_text)}</pre></details>")
-    parts += [eval_html(ev) for ev in run.evals]
-    parts.append("</section>")
-    return "\n".join(parts)
+def run_view(run: RunData, index: int) -> dict:
+    """What the template shows of one run."""
+    return {"anchor": _anchor(index), "name": run.name, "path": str(run.path), "warnings": run.warnings,
+            "notes": run.notes, "checkpoints": [(name, _size(size)) for name, size in run.checkpoints],
+            "config_text": run.config_text, "evals": [eval_view(ev) for ev in run.evals]}
 
 
 def render(runs: list[RunData], title: str, runs_dir: str) -> str:
-    """The whole page for ``runs``."""
-    warnings = [f"{run.name}: {w}" for run in runs for w in run.all_warnings]
-    stamp = datetime.now().strftime("%Y-%m-%d %H:%M")
-    nav = " ".join(f'<a href="#{_anchor(i)}">{rh.esc(run.name)}</a>' for i, run in enumerate(runs))
+    """The whole page for ``runs`` (templates/report.html.j2)."""
     curves = plot_curves(runs)
-    parts = [
-        f"<header><h1>{rh.esc(title)}</h1><p class='sub'>{len(runs)} run(s) in <code>{rh.esc(runs_dir)}</code>"
-        f" · generated {stamp}</p><nav>{nav}</nav></header>",
-        *(rh.warn(w) for w in warnings),
-        "<h2>Overview</h2>", rh.legend_html(),
-        '<p class="note">A1: approach 1, mean (± std) over test trajectories; A2: approach 2. '
-        "FIT and R² cells are coloured by FIT.</p>",
-        overview_html(runs),
-        "<h2>Training curves</h2>",
-        rh.figure(curves, "train/loss, val/loss (log scale) and val/r2 against step") if curves
-        else '<p class="note">No run has a logs/metrics.csv with curves.</p>',
-        "<h2>Runs</h2>",
-        *(run_html(run, i) for i, run in enumerate(runs)),
-    ]
-    return rh.page(title, "\n".join(parts))
+    return rh.render("report.html.j2", title=title, runs_dir=str(runs_dir),
+                     stamp=datetime.now().strftime("%Y-%m-%d %H:%M"),
+                     warnings=[f"{run.name}: {w}" for run in runs for w in run.all_warnings],
+                     legend=rh.legend(), overview=overview(runs), curves=rh.png_uri(curves) if curves else None,
+                     curves_caption="train/loss, val/loss (log scale where every value is positive, linear "
+                                    "otherwise) and val/r2 against step",
+                     runs=[run_view(run, i) for i, run in enumerate(runs)])
 
 
 def build_report(runs_dir: str, out: str, title: str = "RoboMorph training report") -> str:
@@ -361,7 +326,10 @@ def build_report(runs_dir: str, out: str, title: str = "RoboMorph training repor
 
     Raises:
         ReportError: ``runs_dir`` is missing or holds no run.
+        OutputExistsError: ``out`` is a folder, lies in a store or holds something other
+            than an HTML page (a checkpoint, a log): it is never replaced.
     """
+    check_replaceable(out, "html", "--out")
     runs = find_runs(runs_dir)
     for run in runs:
         for w in run.all_warnings:

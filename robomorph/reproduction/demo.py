@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 from robomorph.core.errors import UsageError
 from robomorph.core.names import TASKS
+from robomorph.core.recipes import locate
 from robomorph.core.rundir import RunDir
 from robomorph.data.store import open_store
 from robomorph.data.summary import plot, summarize
@@ -59,7 +60,7 @@ def train(out_dir: str, robots: int, minutes: float, runs_dir: str) -> tuple[str
 
     train = _generate("multisine", os.path.join(out_dir, "ms_train.zarr"), {"robots": robots, "seed": 0}, None)
     test = _generate("multisine", os.path.join(out_dir, "ms_heldout.zarr"), {"robots": 64, "seed": 1}, None)
-    result = fit(["--config", "datamodules/train_cpu.yaml", "--data.stores", train, "--data.test_store", test,
+    result = fit(["--config", locate("datamodules/train_cpu.yaml"), "--data.stores", train, "--data.test_store", test,
                   "--data.split", "[0.95, 0.05, 0.0]", "--trainer.max_time", _ddhhmmss(minutes * 60),
                   "--trainer.val_check_interval", "200", "--run", "demo", "--runs_dir", runs_dir])
     ckpt = result.best_ckpt or result.last_ckpt

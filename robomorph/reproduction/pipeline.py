@@ -60,6 +60,7 @@ from robomorph.core.errors import MissingInputError, UsageError
 from robomorph.core.names import INPUTS, NORMALIZATIONS, REGIMES
 from robomorph.core.normalizations import leaks_query_statistics
 from robomorph.core.overrides import merge
+from robomorph.core.recipes import locate
 from robomorph.core.rundir import RunDir
 from robomorph.reproduction import skip
 from robomorph.reproduction.improved import IMPROVED, improved_overrides
@@ -128,12 +129,8 @@ def prepared_store(plan: Plan, key: str, target: str) -> str:
 
 
 def recipe_path(name: str) -> str:
-    """``datamodules/<name>.yaml`` of the working directory, else of the repository holding the package."""
-    for root in (os.getcwd(), os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))):
-        path = os.path.join(root, "datamodules", f"{name}.yaml")
-        if os.path.isfile(path):
-            return path
-    raise MissingInputError(f"datamodules/{name}.yaml not found: run from the repository root")
+    """``datamodules/<name>.yaml`` of the working directory, else the shipped recipe ``name``."""
+    return locate(f"datamodules/{name}.yaml", "datamodules")
 
 
 def base_args(plan: Plan, depth: int, stores: list[str], run: str, steps: int) -> dict:

@@ -21,6 +21,7 @@ from robomorph.core.atomic import write_json, write_text
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.names import NORMALIZATIONS
 from robomorph.core.normalizations import leaks_query_statistics, normalization_label
+from robomorph.core.results import markdown_table
 from robomorph.reproduction.tables import header_markdown
 
 # The paper's Table 1 (tab:layer_comp in paper/robomorph.tex): layers -> test -> (R², σ(R²), RMSE, σ(RMSE)).
@@ -97,6 +98,23 @@ def summary(rows: list[dict]) -> dict:
     return out
 
 
+def _cell(v: float | None, digits: int) -> str:
+    return "–" if v is None else f"{v:.{digits}f}"
+
+
+def _rows(doc: dict) -> list[list[str]]:
+    """One row per depth and test store, then the mean over all of them."""
+    s, rows = doc["summary"], []
+    for r in doc["rows"]:
+        p = r["paper"] or {}
+        rows.append([f"{r['n_layer']} / {r['paper_n_layer'] or '–'}", r["test"], _cell(r["train_stats"]["r2"], 3),
+                     _cell(r["paper_window"]["r2"], 3), _cell(p.get("r2"), 3), _cell(r["train_stats"]["rmse"], 4),
+                     _cell(r["paper_window"]["rmse"], 4), _cell(p.get("rmse"), 4)])
+    rows.append(["**mean**", "all", *(_cell(s[k][m], d) for m, d in (("r2", 3), ("rmse", 4))
+                                      for k in ("train_stats", "paper_window", "paper"))])
+    return rows
+
+
 def markdown(doc: dict) -> str:
     """The side-by-side table with both runs' provenance and what the columns mean."""
     s = doc["summary"]
@@ -105,20 +123,8 @@ def markdown(doc: dict) -> str:
              f"- paper_window: {header_markdown(doc['paper_window_info'], False)}", "",
              f"{normalization_label('train_stats')}", "",
              f"**⚠ {normalization_label('paper_window')}**", "",
-             "| Layers (ours / paper) | Test | R² train_stats | R² paper_window | R² paper | "
-             "RMSE train_stats | RMSE paper_window | RMSE paper |", "|---|---|---|---|---|---|---|---|"]
-
-    def cell(v: float | None, digits: int) -> str:
-        return "–" if v is None else f"{v:.{digits}f}"
-
-    for r in doc["rows"]:
-        p = r["paper"] or {}
-        lines.append(f"| {r['n_layer']} / {r['paper_n_layer'] or '–'} | {r['test']} | {cell(r['train_stats']['r2'], 3)} | "
-                     f"{cell(r['paper_window']['r2'], 3)} | {cell(p.get('r2'), 3)} | {cell(r['train_stats']['rmse'], 4)} | "
-                     f"{cell(r['paper_window']['rmse'], 4)} | {cell(p.get('rmse'), 4)} |")
-    lines.append(f"| **mean** | all | {cell(s['train_stats']['r2'], 3)} | {cell(s['paper_window']['r2'], 3)} | "
-                 f"{cell(s['paper']['r2'], 3)} | {cell(s['train_stats']['rmse'], 4)} | "
-                 f"{cell(s['paper_window']['rmse'], 4)} | {cell(s['paper']['rmse'], 4)} |")
+             markdown_table(["Layers (ours / paper)", "Test", "R² train_stats", "R² paper_window", "R² paper",
+                             "RMSE train_stats", "RMSE paper_window", "RMSE paper"], _rows(doc))]
     lines += ["", "R² and RMSE: approach 1 (per trajectory and channel over the horizon, averaged over channels, "
               "then over test trajectories). Both of our columns train the same models on the same stores with the "
               "same budgets; only the normalization differs. The paper's column is its Table 1 (10 / 12 / 16 "

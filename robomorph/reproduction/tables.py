@@ -12,6 +12,7 @@ import os
 
 from robomorph.core.atomic import write_json, write_text
 from robomorph.core.normalizations import leaks_query_statistics, normalization_label
+from robomorph.core.results import markdown_table
 from robomorph.evaluation.fit_bands import FIT_BANDS, LATEX_COLORS, fit_band
 from robomorph.reproduction.improved import DESCRIPTION, IMPROVED
 
@@ -76,10 +77,9 @@ def write_table1(out: str, rows: list[dict], info: dict) -> dict:
     doc = {"info": info, "columns": list(TABLE1_COLUMNS), "rows": rows}
     lines = ["# Table 1: impact of the number of layers (in-distribution multi-sine, approach 1)", "",
              header_markdown(info), "",
-             "| Layers | Test | " + " | ".join(TABLE1_HEADS) + " |", "|---|---|" + "---|" * len(TABLE1_HEADS)]
-    for r in rows:
-        lines.append(f"| {_row_label(r)} | {r['test']} | {r['r2']:.3f} | {r['r2_std']:.3f} | {r['rmse']:.4f} "
-                     f"| {r['rmse_std']:.4f} |")
+             markdown_table(["Layers", "Test", *TABLE1_HEADS],
+                            [[_row_label(r), r["test"], f"{r['r2']:.3f}", f"{r['r2_std']:.3f}", f"{r['rmse']:.4f}",
+                              f"{r['rmse_std']:.4f}"] for r in rows])]
     lines += ["", "R² and RMSE: per trajectory and channel over the horizon, averaged over channels; mean and "
               "standard deviation (σ) over the test trajectories (the paper's first evaluation approach)."]
     holds = [f"{r['test']} {r['hold_r2']:.3f}" for r in rows if r["n_layer"] == rows[0]["n_layer"] and r["hold_r2"] is not None]
@@ -150,11 +150,11 @@ def write_table2(out: str, data: dict, titles: dict[str, str], info: dict) -> di
     regimes = data["regimes"]
     head = ["Channel"] + [f"{titles[g]} {m}" for g in regimes for m in ("R²", "FIT")]
     lines = ["# Table 2: zero-shot, fine-tuning and training from scratch on the spiral task (approach 2)", "",
-             header_markdown(info), "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for ch, cells in data["rows"].items():
-        label = "**mean**" if ch == "mean" else ch
-        vals = [f"{cells[g]['r2']:.3f} | {cells[g]['mark']} {cells[g]['fit']:.2f}" for g in regimes]
-        lines.append(f"| {label} | " + " | ".join(vals) + " |")
+             header_markdown(info), "",
+             markdown_table(head, [["**mean**" if ch == "mean" else ch,
+                                    *(v for g in regimes for v in (f"{cells[g]['r2']:.3f}",
+                                                                   f"{cells[g]['mark']} {cells[g]['fit']:.2f}"))]
+                                   for ch, cells in data["rows"].items()])]
     legend = ", ".join(f"{b.mark} {b.label}" for b in FIT_BANDS)
     mean = data["rows"]["mean"]
     a1 = "; ".join(f"{titles[g]} R² {mean[g]['r2_a1']:.3g}, FIT {mean[g]['fit_a1']:.3g}" for g in regimes)

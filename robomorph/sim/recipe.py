@@ -9,6 +9,7 @@ from typing import Any, Literal
 from robomorph.core.config import ConfigError, from_dict, load_yaml, to_dict
 from robomorph.core.names import GRAVITY_MODES, OSC_TASKS, TASKS
 from robomorph.core.overrides import merge
+from robomorph.core.recipes import locate
 from robomorph.sim.filters import FilterConfig
 from robomorph.sim.osc import OSCConfig
 from robomorph.sim.paths import CircleConfig, SpiralConfig
@@ -91,9 +92,11 @@ class Recipe:
 
 
 def load_recipe(path: str | None = None, overrides: dict[str, Any] | None = None) -> Recipe:
-    """Builds a recipe from an optional YAML file and flag overrides (flags win)."""
+    """Builds a recipe from an optional YAML file (a path or a shipped recipe's name, see
+    :func:`robomorph.core.recipes.locate`) and flag overrides (flags win)."""
     # A flag left unset (None) keeps the file's value.
-    data = merge(load_yaml(path) if path else {}, {k: v for k, v in (overrides or {}).items() if v is not None})
+    flags = {k: v for k, v in (overrides or {}).items() if v is not None}
+    data = merge(load_yaml(locate(path, "datamodules")) if path else {}, flags)
     if "dt" in data and isinstance(data["dt"], int):
         data["dt"] = float(data["dt"])
     return from_dict(Recipe, data)

@@ -11,15 +11,22 @@ from lightning.pytorch.loggers import CSVLogger
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 from robomorph.core.atomic import atomic_open, write_bytes
+from robomorph.model.files import load_checkpoint_file
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
     """``torch.save`` through the atomic writer: a crash mid-save leaves the previous
-    checkpoint intact instead of a truncated file."""
+    checkpoint intact instead of a truncated file. Reading (a resume's ``ckpt_path``) goes
+    through the package's one reader, which runs nothing stored in the file."""
 
     def save_checkpoint(self, checkpoint: dict[str, Any], path: str, storage_options: Any | None = None) -> None:
         with atomic_open(path, "wb") as f:
             torch.save(checkpoint, f)
+
+    def load_checkpoint(self, path, map_location: Any = None, weights_only: bool | None = None) -> dict[str, Any]:
+        # Whatever Lightning or the environment (TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD) asks for,
+        # a resume reads tensors and plain values only.
+        return load_checkpoint_file(str(path))
 
 
 class ResumableCSVLogger(CSVLogger):

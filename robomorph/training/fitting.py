@@ -12,6 +12,7 @@ the same ``--run`` resumes from ``last.ckpt`` at the same step, optimizer and sc
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import shutil
@@ -28,7 +29,8 @@ from lightning.pytorch.utilities.exceptions import SIGTERMException
 
 from robomorph.core.atomic import write_text
 from robomorph.core.errors import StoppedBySignal
-from robomorph.core.names import VAL_LOSS
+from robomorph.core.locks import exclusive
+from robomorph.core.names import VAL_LOSS, check_plain_name
 from robomorph.core.rundir import RunDir
 from robomorph.data.datamodule import RoboMorphDataModule
 from robomorph.model.checkpoint import load_checkpoint_file
@@ -36,6 +38,7 @@ from robomorph.training import preflight
 from robomorph.training.callbacks import BestAndLast, FinalValidation, SaveOnSigterm
 from robomorph.training.checkpoints import AtomicCheckpointIO, ResumableCSVLogger, prune_log
 from robomorph.training.module import FROM_DATA, SCHEDULE_KEY, MetaModule, schedule_change
+from robomorph.training.progress import progress_callbacks, quiet_lightning
 
 _RUN_ENV = "ROBOMORPH_RUN_NAME"  # shared with DDP worker processes, which re-run this script
 
@@ -84,6 +87,9 @@ class RoboMorphCLI(LightningCLI):
                             help="offline (default: no account needed), online, or disabled")
         parser.add_argument("--project", type=str, default="robomorph", help="wandb project")
         parser.add_argument("--group", type=str | None, default=None, help="wandb group (e.g. a sweep study)")
+        parser.add_argument("--verbose", type=bool, default=False,
+                            help="also show Lightning's own messages: tips, accelerator lines, deprecation "
+                                 "warnings and the model summary")
         # One setting, two users: the data records it, the model's normalizer applies it.
         parser.link_arguments("data.recenter", "model.recenter")
         parser.link_arguments("data.normalization", "model.normalization")
@@ -94,7 +100,7 @@ class RoboMorphCLI(LightningCLI):
 
     def run_dir(self) -> RunDir:
         cfg = self.config
-        name = cfg.run or os.environ.get(_RUN_ENV) or time.strftime("run-%Y%m%d-%H%M%S")
+        name = check_plain_name(cfg.run or os.environ.get(_RUN_ENV) or time.strftime("run-%Y%m%d-%H%M%S"), "--run")
         os.environ[_RUN_ENV] = name
         return RunDir.named(cfg.runs_dir, name)
 
@@ -112,14 +118,24 @@ class RoboMorphCLI(LightningCLI):
             FinalValidation(),
             SaveOnSigterm(ckpt_dir),
         ]
-        existing = self._get(self.config_init, "trainer", default={}).get("callbacks") or []
-        kwargs["callbacks"] = list(existing) + callbacks + list(self.extra_callbacks)
+        trainer_cfg = self._get(self.config_init, "trainer", default={})
+        # Steps against the budget, not epochs: ours replaces Lightning's bar (on unless disabled).
+        callbacks += progress_callbacks(trainer_cfg.get("enable_progress_bar") is not False)
+        kwargs["callbacks"] = list(trainer_cfg.get("callbacks") or []) + callbacks + list(self.extra_callbacks)
         kwargs["default_root_dir"] = run.path
         kwargs["logger"] = _loggers(run, cfg)
         kwargs["plugins"] = [AtomicCheckpointIO()]
-        if self._get(self.config_init, "trainer", default={}).get("precision") is None:
+        if trainer_cfg.get("precision") is None:
             kwargs["precision"] = _default_precision()
-        return super().instantiate_trainer(**kwargs)
+        # Lightning speaks while the trainer is built (tips, accelerators) and while it fits:
+        # quiet from here until fit() closes this stack.
+        self.quiet = contextlib.ExitStack()
+        self.quiet.enter_context(quiet_lightning(bool(cfg.verbose)))
+        try:
+            return super().instantiate_trainer(**kwargs)
+        except BaseException:
+            self.quiet.close()
+            raise
 
 
 def _loggers(run: RunDir, cfg) -> list:
@@ -177,6 +193,7 @@ def _configured_max_steps(run: RunDir) -> int | None:
 
 
 def _resume_path(cli: RoboMorphCLI, run: RunDir) -> str | None:
+    run.check_resume_point()  # a folder or unreadable file there is no "new run"
     last = run.last_ckpt
     asked = cli.config.ckpt_path
     if asked == "last" or (asked is None and os.path.isfile(last)):
@@ -206,6 +223,17 @@ def fit(args: list[str] | dict | None = None, callbacks: list | None = None) -> 
         callbacks: extra Lightning callback objects (e.g. a sweep's pruning callback).
     """
     cli = build_cli(args, callbacks)
+    with cli.quiet, _run_lock(cli):
+        return _fit(cli)
+
+
+def _run_lock(cli: RoboMorphCLI):
+    """One writer per run folder (two would mix their logs and configs). DDP workers re-run
+    this script: the launching process (global rank 0) holds the lock for them all."""
+    return exclusive(cli._run.path, "run folder") if cli.trainer.is_global_zero else contextlib.nullcontext()
+
+
+def _fit(cli: RoboMorphCLI) -> FitResult:
     run, trainer, module = cli._run, cli.trainer, cli.model
     ckpt = _resume_path(cli, run)
     _preflight(cli, ckpt)

@@ -31,12 +31,11 @@ from robomorph.core.normalizations import check_normalization
 from robomorph.model.checkpoint import (
     DATA_INFO_KEY,
     CheckpointError,
-    load_checkpoint_file,
+    TrainedModel,
     model_config,
     predict_normalized_dist,
-    simulate,
-    simulate_dist,
 )
+from robomorph.model.files import read_model
 from robomorph.model.normalization import Normalizer, query_stats
 from robomorph.model.transformer import MetaModel, ModelConfig
 from robomorph.training.losses import ModelOptionError, check_loss, elementwise_loss, horizon_weights, whole_patches
@@ -52,10 +51,14 @@ SCHEDULE_KEY = "robomorph_schedule"
 
 
 def data_info(dm) -> dict:
-    """Channel names, sample time and window lengths of a set-up DataModule (JSON-able)."""
+    """Channel names, sample time and window lengths of a set-up DataModule (JSON-able), and
+    a content fingerprint of each training store (evaluate and calibrate recognize a copy)."""
+    from robomorph.data.store import fingerprint  # noqa: PLC0415
+
     return {"u_names": list(dm.u_names), "y_names": list(dm.y_names), "dt": float(dm.dt),
             "context_len": int(dm.context_len), "horizon": int(dm.horizon),
-            "stores": [str(s) for s in dm.stores], "inputs": str(getattr(dm, "inputs", "total"))}
+            "stores": [str(s) for s in dm.stores], "inputs": str(getattr(dm, "inputs", "total")),
+            "store_fingerprints": {str(s): fingerprint(str(s)) for s in dm.stores}}
 
 
 class ModelSettingsError(ModelOptionError):
@@ -93,7 +96,7 @@ class MetaModule(L.LightningModule):
             is added back (a context value: nothing of the query leaks). The prediction
             then starts where the robot is instead of having to locate it first.
         integrate: the network predicts per-step changes summed from the last context output.
-        init_ckpt: start from this checkpoint's weights and normalization (transfer).
+        init_ckpt: start from this checkpoint's (or model folder's) weights and normalization (transfer).
         freeze: ``none``, ``encoder`` or ``all_but_head``.
         reinit_io: when the checkpoint's n_u / n_y differ, re-initialize the input
             embeddings and the head instead of failing.
@@ -165,9 +168,12 @@ class MetaModule(L.LightningModule):
         return settings_config({**dict(self.hparams), "n_u": n_u, "n_y": n_y})
 
     def _build(self, n_u: int, n_y: int) -> None:
-        self.net = MetaModel(self.model_config)
-        self.normalizer = Normalizer(n_u=n_u, n_y=n_y, recenter=self.hparams.recenter,
-                                     normalization=self.hparams.normalization)
+        h = self.hparams
+        trained = TrainedModel(self.model_config, recenter=h.recenter, anchor=h.anchor, normalization=h.normalization,
+                               integrate=h.integrate)
+        # Outside the module tree, so the checkpoint keys stay ``net.*`` and ``normalizer.*``.
+        self.__dict__["_trained"] = trained
+        self.net, self.normalizer = trained.net, trained.normalizer
         self.register_buffer("stats_ready", torch.tensor(False))
         _freeze(self.net, self.hparams.freeze)
 
@@ -206,6 +212,14 @@ class MetaModule(L.LightningModule):
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         self.data_info = checkpoint.get(DATA_INFO_KEY, self.data_info)
 
+    @property
+    def trained_model(self) -> TrainedModel:
+        """The network and normalization being trained, as the :class:`TrainedModel` that
+        ``Predictor.from_checkpoint`` loads (same tensors): ``Predictor(module.trained_model)``."""
+        if self.net is None:
+            raise RoboMorphError("the model has no n_u/n_y yet: pass them (robomorph fit links them from the data)")
+        return self.__dict__["_trained"]
+
     # --------------------------------------------------------------------- forward
     def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
                 y_query_stats=None) -> torch.Tensor:
@@ -214,14 +228,12 @@ class MetaModule(L.LightningModule):
         ``y_query_stats`` (mean, std of the query outputs, (B, n_y) each) is needed, and used,
         only under ``normalization="paper_window"``.
         """
-        return simulate(self.net, self.normalizer, self.hparams.anchor, u_ctx, y_ctx, u_query, y_query_stats,
-                        self.hparams.integrate)
+        return self.trained_model.forward_dist_raw(u_ctx, y_ctx, u_query, y_query_stats)[0]
 
     def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None
                      ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Mean and standard deviation (None without a Gaussian head), both in physical units."""
-        return simulate_dist(self.net, self.normalizer, self.hparams.anchor, u_ctx, y_ctx, u_query, y_query_stats,
-                             self.hparams.integrate)
+        return self.trained_model.forward_dist_raw(u_ctx, y_ctx, u_query, y_query_stats)
 
     def _query_stats(self, batch: dict):
         """The batch's query-output statistics when the normalization uses them (the paper's leak), else None."""
@@ -309,7 +321,7 @@ def _load_transferred(module: MetaModule, path: str) -> bool:
     channels without ``reinit_io``, ``source`` statistics for other channels and another
     architecture.
     """
-    ckpt = load_checkpoint_file(path)
+    ckpt = read_model(path)  # a training checkpoint or an exported model folder
     src = ckpt["hyper_parameters"]
     same_io = (src.get("n_u"), src.get("n_y")) == (module.hparams.n_u, module.hparams.n_y)
     theirs, ours = src.get("normalization", "train_stats"), module.hparams.get("normalization", "train_stats")

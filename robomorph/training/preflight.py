@@ -11,6 +11,7 @@ import os
 
 from robomorph.core.errors import RoboMorphError
 from robomorph.model.checkpoint import CheckpointError, load_checkpoint_file
+from robomorph.model.files import read_model
 from robomorph.training.module import check_context
 
 # Hyper-parameters that fix the network's tensors: a resume must agree on all of them.
@@ -69,6 +70,6 @@ def check_resume(module, dm, ckpt_path: str) -> int:
 
 
 def check_init(module) -> None:
-    """A transfer's ``init_ckpt`` is a readable checkpoint (its fit is checked when it loads)."""
+    """A transfer's ``init_ckpt`` is a readable checkpoint or model folder (its fit is checked when it loads)."""
     if module.hparams.get("init_ckpt"):
-        load_checkpoint_file(module.hparams.init_ckpt)
+        read_model(module.hparams.init_ckpt)

@@ -216,6 +216,7 @@ def _evaluate(trial: optuna.Trial, space: Space, ckpt: str | None, out: str) -> 
 def run_sweep(space: Space, n_trials: int, storage=None, study_name: str | None = None,
               runs_dir: str = "results/runs", wandb: str = "offline") -> optuna.Study:
     """Runs trials until the study holds ``n_trials`` finished (complete or pruned) trials."""
+    space.check_inputs()
     study = open_study(space, storage, study_name)
     done = len(study.get_trials(deepcopy=False, states=STATES_DONE))
     if done >= n_trials:
@@ -229,11 +230,16 @@ def run_sweep(space: Space, n_trials: int, storage=None, study_name: str | None 
 
 
 def with_overrides(space: Space, pairs: list[str]) -> Space:
-    """``space`` with ``KEY=VALUE`` pairs (dotted keys, YAML values) set in its base arguments."""
-    flat = {}
+    """``space`` with ``KEY=VALUE`` pairs (dotted keys, YAML values) set: ``transfer.*`` keys in
+    its transfer settings, any other in the fit() arguments of every trial, over the base and
+    the budget (``--set trainer.max_steps=5`` shortens every trial)."""
+    flat, transfer = {}, dict(space.transfer)
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep or "." not in key:
             raise SpaceError(f"--set takes section.argument=value, got {pair!r}")
-        flat[key] = yaml.safe_load(value)
-    return dataclasses.replace(space, base=merge(space.base, unflatten(flat)))
+        if key.startswith("transfer."):
+            transfer[key.removeprefix("transfer.")] = yaml.safe_load(value)
+        else:
+            flat[key] = yaml.safe_load(value)
+    return dataclasses.replace(space, overrides=merge(space.overrides, unflatten(flat)), transfer=transfer).check()

@@ -20,17 +20,26 @@ A parameter ``transfer.regime`` (choices from :data:`robomorph.training.transfer
 the transfer-learning regime of each trial. With ``objective.data`` set, the objective is
 the evaluation metric on that store (approach 1 mean, e.g. ``r2`` or ``fit``) instead of
 a validation metric logged by training.
+
+Each space tunes one model: a Gaussian head is trained with ``nll`` and ``nll`` needs the
+head, so a space whose choices would pair them otherwise is refused. The ``budget`` is
+each trial's trainer limits and wins over the base's config file (``train_cpu.yaml``
+asks for 20,000 steps; a space's ``budget.max_steps`` is what its trials train); giving
+a limit in both ``budget`` and ``base.trainer`` is refused. ``--set`` overrides
+(:func:`robomorph.tuning.runner.with_overrides`) win over both.
 """
 
 from __future__ import annotations
 
 import inspect
+import os
 from dataclasses import dataclass, field
 from typing import Any
 
 from robomorph.core.config import load_yaml
+from robomorph.core.recipes import locate
 from robomorph.core.errors import RoboMorphError
-from robomorph.core.names import METRICS, REGIMES
+from robomorph.core.names import METRICS, REGIMES, check_plain_name
 from robomorph.core.overrides import merge, unflatten
 
 SAMPLERS = ("tpe", "random", "grid")
@@ -80,6 +89,7 @@ class Space:
     pruner: dict = field(default_factory=lambda: {"name": "median"})
     eval_data: str | None = None
     transfer: dict = field(default_factory=dict)
+    overrides: dict = field(default_factory=dict)  # nested fit() arguments from the command line (--set)
 
     def suggest(self, trial) -> dict[str, Any]:
         """Draws every parameter of ``trial``: ``{dotted name: value}``."""
@@ -90,15 +100,55 @@ class Space:
         return {p.name: list(p.choices) for p in self.params}
 
     def fit_args(self, values: dict[str, Any], run: str, runs_dir: str) -> dict:
-        """The nested fit() arguments of one trial (``transfer.*`` values left out)."""
-        base = dict(self.base)
-        config = base.pop("config", None)
-        args = merge(load_yaml(config), base) if config else merge(base, None)
+        """The nested fit() arguments of one trial (``transfer.*`` values left out).
+
+        Later layers win: the base's config file, the base, the budget (so a config file's
+        ``trainer.max_steps`` never outlasts the space's), the command line's overrides,
+        the trial's values.
+        """
+        args = merge(self.base_args(), {"trainer": self.budget})
+        args = merge(args, self.overrides)
         args = merge(args, unflatten({k: v for k, v in values.items() if not k.startswith("transfer.")}))
-        # The budget is each trial's default; trainer arguments given in base win.
-        args["trainer"] = merge(self.budget, args.get("trainer"))
         args.update(run=run, runs_dir=runs_dir)
         return args
+
+    def base_args(self) -> dict:
+        """The base's config file (a path or a shipped recipe's name) with the base over it."""
+        base = dict(self.base)
+        config = base.pop("config", None)
+        return merge(load_yaml(locate(config, "datamodules")), base) if config else merge(base, None)
+
+    def check(self, where: str = "space") -> Space:
+        """Refuses a space whose trials would train a model other than the one it tunes:
+        ``nll`` without the Gaussian head (refused by the model anyway), or a Gaussian head
+        trained with ``mse``/``huber`` (its variance head never learns). Returns ``self``."""
+        model = merge(self.base_args().get("model"), self.overrides.get("model"))
+        searched = {p.name: p.choices for p in self.params}
+        defaults = _model_defaults()
+        losses = searched.get("model.loss") or (model.get("loss", defaults["loss"]),)
+        heads = searched.get("model.gaussian") or (model.get("gaussian", defaults["gaussian"]),)
+        for loss in losses:
+            for gaussian in heads:
+                if (loss == "nll") != bool(gaussian):
+                    fix = ("search nll with model.gaussian true" if gaussian else "set model.gaussian true for nll")
+                    raise SpaceError(f"{where}: a trial would train model.loss {loss} with model.gaussian "
+                                     f"{str(bool(gaussian)).lower()}: the Gaussian head needs the nll loss, and nll "
+                                     f"needs the head ({fix}, or drop the mismatched choice)")
+        return self
+
+    def check_inputs(self) -> None:
+        """The pre-trained checkpoint a transfer space starts from exists (before any trial)."""
+        regimes = next((p.choices for p in self.params if p.name == "transfer.regime"), ()) or ()
+        ckpt = self.transfer.get("init_ckpt")
+        if set(regimes) & {"zero_shot", "finetune"} and not os.path.isfile(str(ckpt)):
+            raise SpaceError(f"transfer.init_ckpt {ckpt} does not exist: pre-train it first (the command is in the "
+                             "space file's header) or pass --set transfer.init_ckpt=PATH")
+
+
+def _model_defaults() -> dict[str, Any]:
+    from robomorph.training.module import MetaModule  # noqa: PLC0415  (heavy; only when validating)
+
+    return {k: v.default for k, v in inspect.signature(MetaModule.__init__).parameters.items()}
 
 
 def _known_args() -> dict[str, set[str]]:
@@ -156,6 +206,11 @@ def parse_space(data: dict, where: str = "space") -> Space:
         raise SpaceError(f"{where}: objective needs a metric and direction minimize|maximize, got {objective!r}")
     if objective.get("data") and metric not in EVAL_METRICS:
         raise SpaceError(f"{where}: an evaluation objective takes a metric from {EVAL_METRICS}, got {metric!r}")
+    budget, base_trainer = data.get("budget") or {}, (data.get("base") or {}).get("trainer") or {}
+    both = sorted(set(budget) & set(base_trainer))
+    if both:
+        raise SpaceError(f"{where}: {', '.join(f'budget.{k} and base.trainer.{k}' for k in both)} are both set: "
+                         "keep the budget's (the per-trial limits) and drop the other")
     params = data.get("params")
     if not isinstance(params, dict) or not params:
         raise SpaceError(f"{where}: params must map at least one parameter to its distribution")
@@ -177,11 +232,13 @@ def parse_space(data: dict, where: str = "space") -> Space:
         if set(regime.choices) & {"zero_shot", "finetune"} and not (data.get("transfer") or {}).get("init_ckpt"):
             raise SpaceError(f"{where}: zero_shot and finetune start from transfer.init_ckpt; name the "
                              "pre-trained checkpoint there")
-    return Space(name=str(data.get("name") or "sweep"), metric=metric, direction=direction, params=parsed,
-                 base=data.get("base") or {}, budget=data.get("budget") or {}, sampler=sampler, pruner=pruner,
-                 eval_data=objective.get("data"), transfer=data.get("transfer") or {})
+    study = check_plain_name(str(data.get("name") or "sweep"), f"{where}: name")  # it names folders
+    return Space(name=study, metric=metric, direction=direction, params=parsed,
+                 base=data.get("base") or {}, budget=budget, sampler=sampler, pruner=pruner,
+                 eval_data=objective.get("data"), transfer=data.get("transfer") or {}).check(where)
 
 
 def load_space(path: str) -> Space:
-    """Reads and validates ``sweeps/<space>.yaml``."""
+    """Reads and validates a space: a path, or a shipped space's name (``ci``, ``sweeps/ci.yaml``)."""
+    path = locate(path, "sweeps")
     return parse_space(load_yaml(path), where=path)

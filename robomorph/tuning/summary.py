@@ -20,6 +20,7 @@ import os
 import optuna
 
 from robomorph.core.atomic import atomic_open, write_json, write_text
+from robomorph.core.results import markdown_table
 from robomorph.tuning.space import SpaceError
 from robomorph.tuning.storage import open_storage, storage_identity
 
@@ -63,8 +64,7 @@ def summarize(study: optuna.Study, out_dir: str | None = None) -> str:
     counts = {s: sum(r["state"] == s for r in rows) for s in ("COMPLETE", "PRUNED", "FAIL", "RUNNING", "WAITING")}
     lines = [f"# Study `{study.study_name}` ({study.direction.name.lower()})", "",
              "trials: " + ", ".join(f"{k.lower()} {v}" for k, v in counts.items() if v), "",
-             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    lines += ["| " + " | ".join(_fmt(r.get(k)) for k in head) + " |" for r in rows]
+             markdown_table(head, [[_fmt(r.get(k)) for k in head] for r in rows])]
     try:
         best = study.best_trial
         lines += ["", f"**best**: trial {best.number}, value {_fmt(best.value)}, params {best.params}, "

@@ -32,3 +32,48 @@ def test_only_whole_file_modes(tmp_path):
     with pytest.raises(ValueError, match="mode 'w' or 'wb'"):
         with atomic_open(tmp_path / "x", "a"):
             pass
+
+
+def _checkpoint_bytes(tmp_path) -> bytes:
+    import zipfile  # torch.save's format: a zip archive holding <name>/data.pkl
+
+    path = tmp_path / "made.ckpt"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("made/data.pkl", b"\x80\x02}q\x00.")
+    return path.read_bytes()
+
+
+def test_a_writer_replaces_only_files_of_its_own_kind(tmp_path):
+    from robomorph.core.atomic import check_replaceable
+    from robomorph.core.errors import OutputExistsError
+
+    ckpt = tmp_path / "best.ckpt"
+    ckpt.write_bytes(_checkpoint_bytes(tmp_path))
+    page = tmp_path / "report.html"
+    page.write_text("<!DOCTYPE html>\n<html><body>old</body></html>\n")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my notes\n")
+    (tmp_path / "empty.html").write_bytes(b"")
+    check_replaceable(tmp_path / "new.html", "html")  # absent: fine
+    check_replaceable(page, "html")
+    check_replaceable(tmp_path / "empty.html", "html")  # nothing to lose
+    check_replaceable(ckpt, "checkpoint")
+    for path, kind, found in [(ckpt, "html", "a checkpoint"), (notes, "html", "a file of another kind"),
+                              (page, "checkpoint", "an HTML page"), (tmp_path, "html", "a folder"),
+                              (notes, "checkpoint", "a file of another kind")]:
+        with pytest.raises(OutputExistsError, match=f"--out {path} is {found}") as err:
+            check_replaceable(path, kind)
+        assert "\n" not in str(err.value) and "choose another --out" in str(err.value)
+
+
+def test_nothing_is_written_into_a_zarr_store(tmp_path):
+    from robomorph.core.atomic import check_replaceable
+    from robomorph.core.errors import OutputExistsError
+
+    store = tmp_path / "ms.zarr"
+    (store / "u").mkdir(parents=True)
+    (store / "zarr.json").write_text('{"zarr_format": 3, "node_type": "group", "attributes": {}}')
+    for path in (store / "report.html", store / "u" / "x.ckpt", store / "zarr.json", store):
+        with pytest.raises(OutputExistsError, match=f"inside the Zarr store {store}|is a folder"):
+            check_replaceable(path, "html" if path.suffix != ".ckpt" else "checkpoint")
+    assert not (store / "report.html").exists()

@@ -1,5 +1,8 @@
 import os
 
+import pytest
+
+from robomorph.core.errors import RoboMorphError
 from robomorph.core.rundir import RunDir
 
 
@@ -28,3 +31,36 @@ def test_looks_like_run(tmp_path):
     assert not run.looks_like_run()
     os.makedirs(run.checkpoints)
     assert run.looks_like_run()
+
+
+@pytest.mark.parametrize("bad", ["..", "../../x", "/abs/path", ".", "a/b"])
+def test_a_run_name_that_is_not_plain_is_refused(tmp_path, bad):
+    with pytest.raises(RoboMorphError, match="is not a plain name"):
+        RunDir.named(tmp_path / "runs", bad)
+
+
+@pytest.mark.parametrize("store", ["..", "x/..", ".", "/", "../..", ".zarr", "a/.zarr/", "../up.zarr"])
+def test_an_evaluation_folder_never_leaves_the_runs_eval_folder(tmp_path, monkeypatch, store):
+    monkeypatch.chdir(tmp_path)
+    run = RunDir.named(tmp_path / "runs", "ms")
+    out = run.eval_dir(store)
+    evals = os.path.realpath(run.evals)
+    assert os.path.dirname(os.path.realpath(out)) == evals, (store, out)
+    assert os.path.basename(out) not in ("", ".", "..")
+
+
+def test_a_resume_point_that_is_a_folder_is_named_with_what_to_do(tmp_path):
+    run = RunDir.named(tmp_path, "r")
+    run.check_resume_point()  # no last.ckpt: a new run
+    os.makedirs(run.last_ckpt)
+    with pytest.raises(RoboMorphError, match="last.ckpt is a folder") as err:
+        run.check_resume_point()
+    assert "delete it" in str(err.value) and "--run" in str(err.value) and "\n" not in str(err.value)
+    os.rmdir(run.last_ckpt)
+    os.symlink(tmp_path / "nowhere", run.last_ckpt)
+    with pytest.raises(RoboMorphError, match="last.ckpt .*cannot be read"):
+        run.check_resume_point()
+    os.remove(run.last_ckpt)
+    with open(run.last_ckpt, "wb") as f:
+        f.write(b"PK")
+    run.check_resume_point()  # a file: its content is the checkpoint loader's to judge

@@ -186,6 +186,11 @@ ERRORS = {
     "two_rates": (lambda p: [_slow_npz(p)], {"dt": None, "time_col": "t"}, IngestError,
                   r"differ in sample time.*resample"),
     "dt_and_time": (lambda p: [], {"time_col": "t"}, IngestError, r"exactly one of --dt .* or --time-col"),
+    "dt_inf": (lambda p: [], {"dt": float("inf")}, IngestError, r"--dt must be a positive, finite number.*got inf"),
+    "dt_nan": (lambda p: [], {"dt": float("nan")}, IngestError, r"--dt must be a positive, finite number.*got nan"),
+    # 1e39 is a finite float64 but inf as the store's float32: refused, naming column and row.
+    "float32_overflow": (lambda p: [_edited_csv(p, "big.csv", 8, "5.14,0.1,1e39,1,2,3")], {}, IngestError,
+                         r"column 'tau2' in .*big.csv: sample 7 .* is 1e\+39, beyond the float32 range"),
 }
 
 

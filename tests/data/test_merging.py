@@ -1,5 +1,7 @@
 """Merging shard stores: rows in shard order, counts summed, mismatched shards refused."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -35,3 +37,16 @@ def test_shards_of_different_recipes_or_the_same_shard_twice_are_refused(store_f
         merge([p0, again], str(tmp_path / "y.zarr"))
     with pytest.raises(ValueError, match="at least one"):
         merge([], str(tmp_path / "z.zarr"))
+
+
+def test_an_output_that_is_or_holds_an_input_is_refused_before_anything_is_read(store_factory, tmp_path):
+    from robomorph.data.merging import MergeError
+
+    p0, u0 = _shard(store_factory, tmp_path / "s0.zarr", 0, seed=0)
+    p1, _ = _shard(store_factory, tmp_path / "s1.zarr", 1, seed=1)
+    os.symlink(p0, tmp_path / "alias.zarr")
+    for out in (p0, p0 + "/", str(tmp_path / "alias.zarr"), os.path.join(p0, "inner.zarr")):
+        with pytest.raises(MergeError, match="is one of the stores to merge"):
+            merge([p0, p1], out, overwrite=True)
+    np.testing.assert_allclose(open_store(p0).read("u"), u0.astype(np.float32))  # the input is intact
+    assert sorted(os.listdir(p0)) == sorted(os.listdir(p1))

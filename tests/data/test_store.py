@@ -179,3 +179,86 @@ def test_schema_1_stores_stay_readable_and_say_to_regenerate_for_the_command(tmp
     zarr.open_group(str(path), mode="r+").attrs["schema_version"] = 99
     with pytest.raises(SchemaError, match="schema_version 99"):
         open_store(str(path))
+
+
+def test_flipped_bytes_fail_the_checksum_and_name_the_chunk(tmp_path):
+    path = tmp_path / "a.zarr"
+    w = _make(path, n=4, steps=50, chunk=2)
+    u, y, p = _rows(4, 50)
+    w.append(u, y, p)
+    w.finalize()
+    f = _chunk_file(path, "y", 1)
+    data = bytearray(open(f, "rb").read())
+    data[len(data) // 2] ^= 0x01  # one bit inside the data, size unchanged
+    open(f, "wb").write(bytes(data))
+    ds = open_store(str(path))
+    assert ds.describe_damage() is None  # same size: only reading it can tell
+    np.testing.assert_array_equal(ds.read("y", slice(0, 2)), y[:2])  # the intact chunk still reads
+    with pytest.raises(StoreDamagedError, match=r"'y' chunk c/1/0/0 \(trajectories 2\.\.3\) cannot be decoded: "
+                                                r"it fails its checksum"):
+        ds.read("y")
+
+
+def test_a_truncated_chunk_with_a_checksum_is_found_without_decoding(tmp_path):
+    path = tmp_path / "a.zarr"
+    w = _make(path, n=4, steps=50, chunk=2)
+    w.append(*_rows(4, 50))
+    w.finalize()
+    f = _chunk_file(path, "u", 0)
+    data = open(f, "rb").read()
+    assert open_store(str(path)).describe_damage() is None  # the trailing CRC is counted in the expected size
+    open(f, "wb").write(data[:-9])
+    assert "'u' chunk c/0/0/0 (trajectories 0..1) truncated" in open_store(str(path)).describe_damage()
+
+
+def test_stores_written_without_checksums_still_read(tmp_path, monkeypatch):
+    from zarr.codecs import BloscCodec
+
+    import robomorph.data.store as store
+
+    monkeypatch.setattr(store, "_COMPRESSORS", [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")])
+    path = tmp_path / "old.zarr"
+    w = _make(path, n=4, steps=50, chunk=2)
+    u, y, p = _rows(4, 50)
+    w.append(u, y, p)
+    w.finalize()
+    monkeypatch.undo()
+    ds = open_store(str(path))
+    assert [type(c).__name__ for c in ds.group["u"].metadata.codecs] == ["BytesCodec", "BloscCodec"]
+    np.testing.assert_array_equal(ds.read("u"), u)
+    assert ds.describe_damage() is None
+    open(_chunk_file(path, "u", 1), "r+b").truncate(30)
+    assert "truncated" in ds.describe_damage()
+
+
+def test_new_stores_carry_crc32c_checksums(tmp_path):
+    path = tmp_path / "a.zarr"
+    w = _make(path, extras={"tag": ((), "int16")})
+    w.append(*_rows(5), extras={"tag": np.arange(5, dtype=np.int16)})
+    w.finalize()
+    group = open_store(str(path)).group
+    for name in ("u", "y", "params", "tag"):
+        assert type(group[name].metadata.codecs[-1]).__name__ == "Crc32cCodec", name
+
+
+def test_fingerprint_matches_a_copy_and_not_another_store(tmp_path):
+    import shutil
+
+    from robomorph.data.store import fingerprint, recorded_match
+
+    a = tmp_path / "a.zarr"
+    w = _make(a, n=6, steps=20, chunk=2)
+    w.append(*_rows(6, 20))
+    w.finalize()
+    copy = tmp_path / "elsewhere" / "copy.zarr"
+    shutil.copytree(a, copy)
+    b = tmp_path / "b.zarr"
+    w = _make(b, n=6, steps=20, chunk=2)
+    w.append(*_rows(6, 20, seed=1))
+    w.finalize()
+    assert fingerprint(str(copy)) == fingerprint(str(a)) != fingerprint(str(b))
+    recorded = {str(a): fingerprint(str(a))}
+    assert recorded_match(str(copy), [str(a)], recorded) == str(a)
+    assert recorded_match(str(copy), [str(a)], None) is None  # old checkpoints: by path only
+    assert recorded_match(str(a), [str(a)], None) == str(a)
+    assert recorded_match(str(b), [str(a)], recorded) is None

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from robomorph.report import main
-from robomorph.reporting.dashboard import ReportError, build_report, read_curves
+from robomorph.reporting.dashboard import ReportError, build_report, curves_figure, load_run, read_curves
 from robomorph.reporting.html import fit_colour
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -165,7 +165,7 @@ def test_paper_window_evaluations_are_marked_and_others_are_not(tmp_path):
     assert len(marked) == 1 and "leaky" in marked[0] and "test0" in marked[0]
     assert "<td>paper_window</td>" in marked[0]  # the run's normalization, a fact from its config
     sections = page.split('<section id="run-')[1:]
-    assert "the query outputs&#x27; statistics" in sections[1] and "query outputs" not in sections[0]
+    assert "the query outputs&#39; statistics" in sections[1] and "query outputs" not in sections[0]
 
 
 def test_report_escapes_file_text(report):
@@ -202,6 +202,61 @@ def test_read_curves_keeps_only_logged_points(tmp_path):
 
 
 # --- robustness ---------------------------------------------------------------------------
+
+def test_negative_losses_are_plotted_on_a_linear_axis(tmp_path):
+    """A Gaussian NLL goes below zero: every logged point must be drawn, none dropped by a log axis."""
+    root = tmp_path / "runs"
+    nll = make_run(root, "nll", evals=())
+    rows = [HEADER] + [f"0,1e-4,,,{s},{1.5 - 0.5 * i},,," for i, s in enumerate((9, 19, 29, 39, 49, 59))]
+    rows += [f"0,,,,{s},,50.0,{v},0.5" for s, v in ((19, 0.4), (39, -0.8), (59, -2.5))]
+    (nll / "logs" / "metrics.csv").write_text("\n".join(rows) + "\n")
+    make_run(root, "positive", evals=())
+    runs = [load_run(root / name) for name in ("nll", "positive")]
+    fig = curves_figure(runs)
+    axes = {ax.get_title().split(" ")[0]: ax for ax in fig.axes}
+    for key, want in (("train/loss", [1.5, 1.0, 0.5, 0.0, -0.5, -1.0]), ("val/loss", [0.4, -0.8, -2.5])):
+        ax = axes[key]
+        assert ax.get_yscale() == "linear" and "linear scale" in ax.get_title()
+        drawn = {line.get_label(): line.get_xydata() for line in ax.get_lines()}
+        assert drawn["nll"][:, 1].tolist() == want  # every point, the negative ones included
+        assert len(drawn["positive"]) == len(runs[1].curves[key][0])
+    # Losses that are all positive keep the log axis.
+    only_positive = curves_figure(runs[1:])
+    assert [ax.get_yscale() for ax in only_positive.axes] == ["log", "log", "linear"]
+    page = Path(build_report(str(root), str(tmp_path / "report.html"))).read_text()
+    assert "linear otherwise" in page
+
+
+def test_the_report_follows_no_symlink_out_of_the_run_and_embeds_only_pngs(tmp_path):
+    root = tmp_path / "runs"
+    run = make_run(root, "alpha")
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "secret.txt").write_text("SECRET-TOKEN root:x:0:0")
+    (outside / "real.png").write_bytes(make_png(3))  # a real image, but not the run's
+    ev = run / "eval" / "heldout"
+    (ev / "sample_0.png").symlink_to("/etc/passwd")
+    (ev / "sample_1.png").symlink_to(outside / "real.png")
+    (ev / "sample_2.png").write_text("SECRET-TOKEN not an image")  # inside, but not a PNG
+    (ev / "sample_3.png").symlink_to(ev / "rollout.png")  # a link that stays inside is fine
+    (run / "config.yaml").unlink()
+    (run / "config.yaml").symlink_to(outside / "secret.txt")
+    (run / "eval" / "linked").symlink_to(outside, target_is_directory=True)
+    (root / "elsewhere").symlink_to(make_run(tmp_path / "other", "elsewhere"), target_is_directory=True)
+    page = Path(build_report(str(root), str(tmp_path / "report.html"))).read_text()
+    assert "SECRET-TOKEN" not in page and "root:x:0:0" not in page
+    uris = re.findall(r'<img src="data:image/png;base64,([^"]*)"', page)
+    embedded = [base64.b64decode(u) for u in uris]
+    assert all(png.startswith(b"\x89PNG\r\n\x1a\n") for png in embedded)
+    assert len(embedded) == 3  # the curves, rollout.png and its in-run link sample_3.png
+    assert (outside / "real.png").read_bytes() not in embedded and (ev / "rollout.png").read_bytes() in embedded
+    warnings = re.findall(r'<div class="warn">([^<]*)</div>', page)
+    for name in ("sample_0.png", "sample_1.png", "config.yaml", "eval/linked"):
+        assert any(name in w and "outside the run folder" in w for w in warnings), name
+    assert any("sample_2.png is not a PNG image" in w for w in warnings)
+    assert any("elsewhere" in w and "symbolic link leading outside" in w for w in warnings)
+
+
 
 def test_malformed_files_become_warnings(tmp_path, capsys):
     root = tmp_path / "runs"

@@ -1,6 +1,7 @@
 """The page's building blocks: FIT colours, escaping, metric text, the channel table, and the
 per-horizon table from what ``evaluate`` writes into metrics.json."""
 
+import html as stdlib_html
 import json
 import re
 
@@ -12,8 +13,11 @@ from robomorph.evaluation.horizons import horizon_report
 from robomorph.reporting.dashboard import build_report
 from robomorph.reporting.html import (
     best_baseline,
+    Cell,
+    Row,
+    Table,
+    _macro,
     channel_table,
-    esc,
     fit_colour,
     fmt,
     horizon_table,
@@ -46,7 +50,7 @@ def test_horizon_table_marks_where_the_model_beats_hold_and_shows_coverage():
     assert "recalibrated" not in html
     cal = {"method": "nll", "split": "val", "n": 51, "data": ["ms_train.zarr"]}
     marked = horizon_table({"horizons": _horizons(True), "meta": {"std_calibration": cal}})
-    assert "recalibrated by horizon (nll) on 51 windows of the training run&#x27;s validation robots" in marked
+    assert "recalibrated by horizon (nll) on 51 windows of the training run&#39;s validation robots" in marked
 
 
 def test_horizon_table_is_empty_without_a_readable_horizons_entry():
@@ -75,11 +79,12 @@ def test_overview_cell_gives_the_models_joint_error_at_the_first_step_quarter_se
     y = np.zeros((2, 80, len(NAMES)))
     preds = {"model": y + 0.001 * np.arange(1, 81)[None, :, None], "hold": y + 0.002}
     h = horizon_report(y, preds, NAMES, 1 / 60, [1, 15, 60, 80])
-    assert horizon_cell({"horizons": h}) == "<td>1 / 15 / 60 (2 / 2 / 2)</td>"
+    assert horizon_cell({"horizons": h}).text == "1 / 15 / 60 (2 / 2 / 2)"
+    assert _macro("cell", horizon_cell({"horizons": h})) == "<td>1 / 15 / 60 (2 / 2 / 2)</td>"
     del h["rms"]["hold"]
-    assert horizon_cell({"horizons": h}) == "<td>1 / 15 / 60</td>"
-    assert horizon_cell({}) == "<td>—</td>"
-    assert horizon_cell({"horizons": {"steps": [1], "seconds": ["x"], "rms": {"model": {"joints": [1.0]}}}}) == "<td>—</td>"
+    assert horizon_cell({"horizons": h}).text == "1 / 15 / 60"
+    assert horizon_cell({}).text == "—"
+    assert horizon_cell({"horizons": {"steps": [1], "seconds": ["x"], "rms": {"model": {"joints": [1.0]}}}}).text == "—"
 
 
 @pytest.mark.parametrize(
@@ -94,7 +99,13 @@ def test_fit_colour_follows_the_paper_convention(fit, colour):
 
 
 def test_text_is_escaped_and_numbers_formatted():
-    assert esc('<a href="x">') == "&lt;a href=&quot;x&quot;&gt;"
+    nasty = '<a href="x">\'&'
+    cell = _macro("cell", Cell(nasty, colour='red"><script>', cls="name", href='#"><b>', badges=("<i>",)))
+    assert "<a href=\"x\">" not in cell and "<script>" not in cell and "<b>" not in cell and "<i>" not in cell
+    assert cell.count("&lt;a href=&#34;x&#34;&gt;&#39;&amp;") == 1  # text escaped, quotes included
+    assert stdlib_html.unescape(re.sub(r"<[^>]+>", "", cell)) == nasty + "<i>"
+    grid = _macro("grid", Table(("<th>",), (Row((Cell("<td>"),), cls='x"'),)))
+    assert "&lt;th&gt;" in grid and "&lt;td&gt;" in grid and 'class="x&#34;"' in grid
     assert (fmt(0.91234, 0.01, "r2"), fmt(87.25, None, "fit"), fmt(0.012345, None, "rmse"), fmt(None, None, "r2")) == \
         ("0.912 ± 0.010", "87.2", "0.0123", "—")
 

@@ -1,0 +1,93 @@
+"""What ``ingest`` does to real logs beyond cutting windows: resampling and the Panda layout.
+
+* ``--resample HZ``: torque-controlled arms log at 1 kHz, models are trained at tens of Hz.
+  Taking every n-th sample folds everything above the new Nyquist frequency (motor noise,
+  a 400 Hz vibration) onto the slow signal; :func:`resample` filters first
+  (``scipy.signal.resample_poly``: a Kaiser-windowed low-pass FIR at the new Nyquist
+  frequency, applied by a polyphase filter), so the store holds what a sensor at the new
+  rate with an anti-aliasing filter would have recorded. The store keeps the log's rate in
+  ``attrs['original_dt']``.
+* ``--layout panda``: a log of the Panda's seven torques and seven joint angles is stored
+  with the simulator's channel names and ``y`` (EE x y z, EE quaternion X Y Z W, q0..q6),
+  the pose computed from the joint angles with the catalogue model's kinematics
+  (:func:`robomorph.sim.kinematics.ee_pose`), so a model trained in simulation reads it.
+"""
+
+from __future__ import annotations
+
+import math
+from fractions import Fraction
+
+import numpy as np
+
+from robomorph.core.errors import RoboMorphError
+
+LAYOUTS = ("panda",)
+# Largest relative difference between the asked rate ratio and the integer ratio used.
+_RATIO_TOL = 1e-3
+
+
+class RealLogError(RoboMorphError, ValueError):
+    """A resampling rate or layout that the logs cannot be given."""
+
+
+def rate_ratio(dt: float, hz: float) -> tuple[int, int]:
+    """``(up, down)``: the small integers whose ratio turns samples ``dt`` apart into ``hz``."""
+    if not (math.isfinite(hz) and hz > 0):
+        raise RealLogError(f"--resample must be a positive, finite rate in Hz, got {hz}")
+    exact = dt * hz  # new rate / old rate
+    ratio = Fraction(exact).limit_denominator(1000)
+    if ratio == 0 or abs(float(ratio) - exact) > _RATIO_TOL * exact:
+        raise RealLogError(f"cannot resample from {1 / dt:.6g} Hz to {hz:.6g} Hz by a ratio of integers up to 1000; "
+                           "choose a rate that divides the log's (e.g. 1000 Hz -> 100, 125, 200 or 250 Hz)")
+    return ratio.numerator, ratio.denominator
+
+
+def resample(x: np.ndarray, dt: float, hz: float) -> np.ndarray:
+    """(L, C) samples ``dt`` apart -> (L', C) at ``hz``, low-pass filtered against aliasing.
+
+    The ends are padded by extending the signal linearly (``padtype="line"``), not with
+    zeros, so a log that does not start and end at 0 gets no transient at its edges.
+    """
+    from scipy.signal import resample_poly  # noqa: PLC0415  (scipy only when resampling)
+
+    up, down = rate_ratio(dt, hz)
+    if up == down:
+        return np.asarray(x, dtype=np.float32)
+    out = resample_poly(np.asarray(x, dtype=np.float64), up, down, axis=0, padtype="line")
+    return out.astype(np.float32)
+
+
+def check_layout(layout: str | None, u_cols: list[str], y_cols: list[str], u_cmd_cols: list[str] | None) -> None:
+    """Refuses a layout the columns do not fit (the Panda: 7 torques, 7 joint angles)."""
+    if layout is None:
+        return
+    if layout not in LAYOUTS:
+        raise RealLogError(f"unknown --layout {layout!r}; choose one of {', '.join(LAYOUTS)}")
+    from robomorph.sim import panda  # noqa: PLC0415
+
+    for flag, cols in (("--u-cols", u_cols), ("--y-cols", y_cols), ("--u-cmd-cols", u_cmd_cols)):
+        if cols is not None and len(cols) != panda.N_JOINT:
+            raise RealLogError(f"--layout panda needs {panda.N_JOINT} {flag} (joints 1..7 in order: torques for "
+                               f"--u-cols/--u-cmd-cols, joint angles in rad for --y-cols), got {len(cols)}")
+
+
+def apply_layout(layout: str | None, y: np.ndarray) -> np.ndarray:
+    """``y`` in the layout's channels: for the Panda, (L, 7) joint angles -> (L, 14) pose + angles."""
+    if layout is None:
+        return y
+    from robomorph.sim.kinematics import ee_pose  # noqa: PLC0415  (MuJoCo only for this layout)
+
+    return np.concatenate([ee_pose(y), y], axis=1).astype(np.float32)
+
+
+def layout_names(layout: str | None, u_cols: list[str], y_cols: list[str], u_cmd_cols: list[str] | None,
+                 y_units: list[str] | None) -> tuple[list[str], list[str], list[str] | None, list[str] | None]:
+    """``(u names, y names, u_cmd names, y units)`` of the store: the columns' own names, or the layout's."""
+    if layout is None:
+        return list(u_cols), list(y_cols), None if u_cmd_cols is None else list(u_cmd_cols), y_units
+    from robomorph.sim import panda  # noqa: PLC0415
+
+    units = ["m"] * 3 + [""] * 4 + list(y_units or ["rad"] * panda.N_JOINT)
+    return (list(panda.U_NAMES), list(panda.Y_NAMES), None if u_cmd_cols is None else list(panda.U_CMD_NAMES),
+            units)

@@ -1,0 +1,139 @@
+"""The predictions a scoring compares: the model's (in batches) and the baselines' on a window set.
+
+Any object with ``simulate(u_ctx, y_ctx, u_query)`` returning ``(N, H, n_y)`` can be the
+predictor (a :class:`robomorph.model.predictor.Predictor`, a stand-in in a test, another
+checkpoint); ``return_std=True`` is asked for only when it accepts it.
+"""
+
+from __future__ import annotations
+
+import inspect
+import sys
+
+import numpy as np
+
+from robomorph.core.errors import RoboMorphError
+from robomorph.core.normalizations import NormalizationError, query_output_stats
+from robomorph.evaluation import references
+from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
+from robomorph.evaluation.windows import EvaluationError, Window
+
+
+def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None,
+            with_std: bool = False):
+    """The model's predictions in batches, with a progress bar on stderr.
+
+    ``y_query`` (the true outputs) is read only by a ``paper_window`` model, which needs
+    their statistics (the paper's protocol); any other model never receives them.
+
+    Returns:
+        (N, H, n_y) means, or with ``with_std`` the pair (means, standard deviations).
+    """
+    from tqdm.auto import tqdm  # noqa: PLC0415
+
+    leaks = getattr(predictor, "leaks_query_statistics", False)
+    if leaks and y_query is None:
+        raise NormalizationError("a paper_window model needs the query outputs' statistics: pass y_query to predict()")
+    means, stds = [], []
+    for s in tqdm(range(0, len(u_ctx), batch_size), desc=desc, unit="batch", leave=False,
+                  disable=not sys.stderr.isatty() and len(u_ctx) <= batch_size):
+        part = slice(s, s + batch_size)
+        out = predictor.simulate(u_ctx[part], y_ctx[part], u_query[part], **_extra(predictor, y_query, part, with_std))
+        mean = out[0] if with_std else out
+        if with_std:
+            stds.append(out[1])
+        means.append(mean)
+    mean = np.concatenate(means).astype(np.float64)
+    return (mean, np.concatenate(stds).astype(np.float64)) if with_std else mean
+
+
+def _extra(predictor, y_query, part: slice, with_std: bool) -> dict:
+    """Keyword arguments of ``simulate`` beyond the three arrays: only those this call needs,
+    so any object with ``simulate(u_ctx, y_ctx, u_query)`` can be evaluated."""
+    kwargs = {}
+    if getattr(predictor, "leaks_query_statistics", False):
+        kwargs["y_query_stats"] = query_output_stats(y_query[part])
+    if with_std:
+        kwargs["return_std"] = True
+    return kwargs
+
+
+def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
+    """Whether ``predictor.simulate(..., return_std=True)`` returns a standard deviation.
+
+    Asked of the first trajectory: a predictor without the keyword, one that refuses it
+    (a model without a Gaussian head) or one that answers ``(mean, None)`` gives none.
+    """
+    try:
+        params = inspect.signature(predictor.simulate).parameters
+        if "return_std" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+            return False
+        out = predictor.simulate(u_ctx[:1], y_ctx[:1], u_query[:1], **_extra(predictor, y_query, slice(0, 1), True))
+    except (NotImplementedError, RoboMorphError, ValueError, TypeError):
+        return False
+    return isinstance(out, tuple) and len(out) == 2 and out[1] is not None
+
+
+def check_baselines(names) -> None:
+    """Refuses a baseline name that is not one of :data:`BASELINES` or :data:`CEILINGS`."""
+    for name in names:
+        if name not in BASELINES + CEILINGS:
+            raise EvaluationError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
+
+
+def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int],
+                  train_blocks=None) -> tuple[dict, dict, dict]:
+    """Predictions of the baselines that apply, the reasons of those skipped, and notes.
+
+    ``train_blocks``: a function returning the training data as ``(u, y)`` blocks (for
+    ``arx_train``; see :mod:`robomorph.evaluation.training_data`).
+    """
+    check_baselines(names)
+    u_ctx, y_ctx, u_q, _ = w.split()
+    preds, skipped, notes = {}, {}, {}
+    for name in names:
+        if name == "hold":
+            preds[name] = hold(u_ctx, y_ctx, u_q).astype(np.float64)
+        elif name in ("arx", "arx_train"):
+            try:
+                arx = ARX(*arx_orders) if name == "arx" else references.fit_arx_train(arx_orders, train_blocks)
+                preds[name] = arx(u_ctx, y_ctx, u_q)
+                notes[name] = {"na": arx.na, "nb": arx.nb, "diverged_held": arx.diverged}
+                if name == "arx_train":
+                    notes[name]["trajectories"] = arx.trajectories
+            except ValueError as exc:  # too short a context, or no training data to read
+                skipped[name] = str(exc)
+        else:  # nominal_physics, true_physics
+            from robomorph.evaluation.physics import NominalPhysics, NotApplicable, check_params  # noqa: PLC0415
+
+            try:
+                sim = NominalPhysics(w.attrs, inputs=w.inputs)
+                if name == "true_physics":
+                    check_params(w.attrs)
+            except NotApplicable as exc:
+                skipped[name] = str(exc)
+                continue
+            params = w.params if name == "true_physics" else nominal_params(sim, w)
+            preds[name] = _batched(sim, u_ctx, y_ctx, u_q, name.replace("_", " "), params=params)
+    return preds, skipped, notes
+
+
+def nominal_params(sim, w: Window) -> np.ndarray | None:
+    """Nominal parameters with the joint springs anchored where each robot started (its
+    trajectory's first sample), as the generator anchored them; None (the simulator anchors
+    at the context's first sample) when every window opens its trajectory, where they agree."""
+    from robomorph.sim import panda  # noqa: PLC0415  (NominalPhysics checked the Panda layout)
+
+    if not w.starts.any():
+        return None
+    q = w.y_first[:, [w.y_names.index(f"q{i}") for i in range(panda.N_JOINT)]]
+    return np.stack([sim.params(q0.astype(np.float64)) for q0 in q])
+
+
+def _batched(fn, u_ctx, y_ctx, u_q, desc: str, size: int = 16, params=None) -> np.ndarray:
+    from tqdm.auto import tqdm  # noqa: PLC0415
+
+    parts = [fn(u_ctx[s:s + size], y_ctx[s:s + size], u_q[s:s + size],
+                params=None if params is None else params[s:s + size])
+             for s in tqdm(range(0, len(u_ctx), size), desc=desc, unit="batch", leave=False)]
+    return np.concatenate(parts).astype(np.float64)

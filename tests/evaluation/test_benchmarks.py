@@ -1,0 +1,114 @@
+"""Every benchmark script runs end to end at a tiny setting, so none of them can rot.
+
+The figures they print are not checked (they measure this machine); what is checked is
+that each runs, scores through the one scoring path, and writes result files that carry
+their provenance and the steps they say (1-based).
+"""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from robomorph.core.results import read_provenance, read_rows
+
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+pytestmark = pytest.mark.slow
+# A tiny model and window on top of datamodules/train_cpu.yaml (horizon-aware ranges shrunk to fit).
+TINY = ["model.d_model=16", "model.n_head=2", "model.n_layer=1", "model.warmup_steps=1", "data.batch_size=4",
+        "data.val_subset=2", "data.context_min=10", "data.horizon_min=10", "trainer.val_check_interval=1",
+        "data.split=[0.75, 0.25, 0.0]"]
+
+
+def run(script: str, *args: str, ok: bool = True) -> subprocess.CompletedProcess:
+    env = {**os.environ, "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"}
+    done = subprocess.run([sys.executable, os.path.join("benchmarks", script), *map(str, args)], cwd=REPO,
+                          capture_output=True, text=True, env=env, timeout=600)
+    if ok:
+        assert done.returncode == 0, done.stderr[-3000:]
+    return done
+
+
+def sets(*items: str) -> list[str]:
+    return [part for item in items for part in ("--set", item)]
+
+
+def test_horizon_ablation_and_its_table(tmp_path):
+    csv = tmp_path / "ablation.csv"
+    common = ["--train", tmp_path / "train.zarr", "--test", tmp_path / "test.zarr", "--robots", 12, "--held-out", 4,
+              "--trajectory-steps", 100, "--context", 30, "--random-horizon", 20, "--runs-dir", tmp_path / "runs",
+              "--csv", csv, "--threads", 1]
+    done = run("horizon_ablation.py", *common, "--horizon", 40, "--variants", "default,full", "--steps", 2,
+               "--score-every", 1, *sets(*TINY))
+    assert done.stdout.startswith("*Produced by `benchmarks/horizon_ablation.py")
+    rows = read_rows(str(csv))
+    assert [r["variant"] for r in rows] == ["nominal_physics[total]", "default", "default", "full", "full"]
+    assert [r["steps"] for r in rows[1:]] == ["1", "2", "1", "2"]  # --score-every 1, then the end
+    assert {"model_mrad_step1", "model_mrad_step15", "model_mrad_step40", "random_model_mrad_step20"} <= set(rows[0])
+    assert rows[-1]["cover1sigma"] and not rows[2]["cover1sigma"]  # full has a Gaussian head, default none
+    assert read_provenance(str(csv))[0]["command"].startswith("benchmarks/horizon_ablation.py")
+    curves = read_rows(str(tmp_path / "ablation_curves.csv"))
+    assert [int(r["step"]) for r in curves] == list(range(1, 41))
+    config = (tmp_path / "runs" / "full" / "config.yaml").read_text()
+    assert "max_steps: 2" in config and "warmup_steps: 1" in config  # the schedule that ran is the one recorded
+    # Other steps are other columns: appending them to this file is refused in one line.
+    again = run("horizon_ablation.py", *common, "--horizon", 30, "--variants", "default", "--steps", 1,
+                *sets(*TINY), ok=False)
+    errors = [line for line in again.stderr.splitlines() if line.startswith("error: ")]
+    assert again.returncode == 2 and len(errors) == 1 and "Traceback" not in again.stderr
+    assert "other columns than the rows to append" in errors[0]
+    assert len(read_rows(str(csv))) == len(rows)
+    table = run("confirm_table.py", csv, "--out", tmp_path / "t.md")
+    text = (tmp_path / "t.md").read_text()
+    assert table.returncode == 0 and text.startswith("*Produced by") and "catalogue physics" in text
+    assert "benchmarks/horizon_ablation.py" in text.split("Rows from:")[1]
+
+
+def test_quality_vs_time_measures_train_cpu_yaml_and_calibration_scores_it(tmp_path):
+    out = tmp_path / "q"
+    run("quality_vs_time.py", "--out", out, "--robots", 12, "--held-out", 4, "--trajectory-steps", 100,
+        "--minutes", 2, "--offset-horizon", 20, "--name", "tiny",
+        *sets(*TINY, "trainer.max_steps=2", "data.context_len=30", "data.horizon=40"))
+    config = (out / "runs" / "tiny" / "config.yaml").read_text()
+    for line in ("loss: nll", "anchor: true", "n_init: 20", "gaussian: true", "max_steps: 2"):  # train_cpu.yaml's
+        assert line in config, line
+    start = read_rows(str(out / "quality_horizons_start.csv"))
+    assert len(start) == 1 and "joints_model_step15_mrad" in start[0] and "joints_below_hold_fraction" in start[0]
+    assert read_provenance(str(out / "quality_horizons_random.csv"))
+    assert len(read_rows(str(out / "tiny.csv"))) == 2
+    ckpt = next((out / "runs" / "tiny" / "checkpoints").glob("*.ckpt"))
+    done = run("calibration.py", "--ckpt", f"tiny={ckpt}", "--test", out / "ms_heldout.zarr", "--csv",
+               tmp_path / "cal.csv", "--random-horizon", 20, "--threads", 1)
+    rows = read_rows(str(tmp_path / "cal.csv"))
+    assert [(r["offset"], r["method"]) for r in rows] == [(o, m) for o in ("start", "random")
+                                                           for m in ("none", "nll", "quantile")]
+    assert rows[0]["steps"] == "1/15/40" and rows[0]["dnll_vs_raw"] == "0.0"
+    assert "ΔNLL vs head" in done.stdout
+
+
+def test_formulations(tmp_path):
+    run("formulations.py", "--out", tmp_path / "f", "--csv", tmp_path / "f.csv", "--robots", 12, "--held-out", 4,
+        "--trajectory-steps", 100, "--context", 30, "--horizon", 40, "--steps", 2, "--max-minutes", 2,
+        "--val-subset", 2, "--d-model", 16, "--n-layer", 1, "--patch", 5, "--batch", 4,
+        *sets("model.n_head=2", "data.context_min=10", "data.horizon_min=10", "data.split=[0.75, 0.25, 0.0]"))
+    rows = read_rows(str(tmp_path / "f.csv"))
+    assert [(r["inputs"], r["predictor"]) for r in rows] == [
+        (i, p) for i in ("total", "command") for p in ("model", "hold", "nominal_physics", "true_physics")]
+    assert "joint_rms_mrad_step40" in rows[0]
+
+
+@pytest.mark.parametrize("script,args", [
+    ("generate.py", ["--robots", 4, "--osc-robots", 2, "--steps", 40, "--workers", 1]),
+    ("model_speed.py", ["--iters", 1, "--no-big", "--threads", 1]),
+    ("predict.py", ["--repeats", 1, "--threads", 1]),
+    ("train.py", ["--steps", 1, "--batch", 2, "--context", 20, "--horizon", 20, "--threads", 1]),
+    ("substeps.py", ["--robots", 2, "--steps", 20, "--ref", 4, "--substeps", "2"]),
+    ("predictability.py", ["--robots", 2, "--steps", 60, "--modes", "true_model", "--workers", 1, "--data", "{tmp}"]),
+    ("real_log_fixture.py", ["--out", "{tmp}", "--lengths", "30,20"]),
+])
+def test_printing_benchmarks_run_at_a_tiny_setting(script, args, tmp_path):
+    done = run(script, *(str(a).format(tmp=tmp_path) for a in args))
+    assert done.stdout.strip()
+    if script != "real_log_fixture.py":  # a data fixture, not a result
+        assert done.stdout.startswith("*Produced by")

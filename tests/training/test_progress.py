@@ -1,0 +1,83 @@
+"""What ``fit`` prints: steps against the budget and one line per validation, without
+Lightning's epochs, tips and model summary (unless --verbose)."""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from robomorph.training.fitting import build_cli
+from robomorph.training.progress import Budget, StepBar, ValidationLines, clock
+from tests.conftest import CKPT_CONTEXT, CKPT_HORIZON, tiny_fit_args
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+LINE = re.compile(r"^validation at step (\d+)/(\d+): val/loss (-?[\d.e+-]+), val/fit (-?[\d.e+-]+) \| elapsed (\d+:\d\d)$")
+
+
+@pytest.fixture(scope="module")
+def store(linear_store):
+    return linear_store(n=32, steps=CKPT_CONTEXT + CKPT_HORIZON)
+
+
+def _fit_cli(store, tmp_path, run, *flags, **sections) -> tuple[subprocess.CompletedProcess, str]:
+    """``python -m robomorph.fit`` of the tiny model (7 steps, validating every 3) in a subprocess."""
+    args = tiny_fit_args(store, tmp_path / "runs", run, steps=7, **sections)
+    config = tmp_path / f"{run}.yaml"
+    config.write_text(yaml.safe_dump(args))
+    env = {**os.environ, "WANDB_MODE": "disabled"}
+    env.pop("PYTHONWARNINGS", None)
+    done = subprocess.run([sys.executable, "-m", "robomorph.fit", "--config", str(config), *flags], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done, str(tmp_path / "runs" / run)
+
+
+def _validations(run_dir: str) -> list[int]:
+    with open(os.path.join(run_dir, "logs", "metrics.csv")) as f:
+        return [int(r["step"]) for r in csv.DictReader(f) if r.get("val/loss")]
+
+
+def test_fit_prints_one_line_per_validation_and_nothing_of_lightnings(store, tmp_path):
+    done, run_dir = _fit_cli(store, tmp_path, "quiet")
+    out = done.stdout + done.stderr
+    lines = [m for m in map(LINE.match, out.splitlines()) if m]
+    logged = _validations(run_dir)
+    # every 3 steps and the last one (the CSV log counts steps from 0)
+    assert [int(m[1]) for m in lines] == [3, 6, 7] and [s + 1 for s in logged] == [3, 6, 7]
+    assert all(m[2] == "7" for m in lines)
+    for noise in ("Epoch", "Tip", "litlogger", "litmodels", "GPU available", "Total params", "| Name", "Deprecat"):
+        assert noise not in out, noise
+
+
+def test_verbose_shows_lightnings_messages_and_the_summary(store, tmp_path):
+    done, _ = _fit_cli(store, tmp_path, "loud", "--verbose", "true", trainer={"enable_model_summary": True})
+    out = done.stdout + done.stderr
+    assert "Total params" in out and "GPU available" in out
+    assert len([line for line in out.splitlines() if LINE.match(line)]) == 3
+
+
+def test_the_bar_counts_optimizer_steps_and_replaces_lightnings(store, tmp_path):
+    cli = build_cli(tiny_fit_args(store, tmp_path, "bar", steps=40, trainer={"enable_progress_bar": True,
+                                                                           "max_time": "00:00:10:00"}))
+    with cli.quiet:
+        trainer = cli.trainer
+        assert isinstance(trainer.progress_bar_callback, StepBar)
+        assert sum(isinstance(cb, ValidationLines) for cb in trainer.callbacks) == 1
+        budget = Budget(trainer)
+        assert budget.max_steps == 40 and budget.cap == pytest.approx(600.0)
+        assert budget.steps(12) == "12/40" and budget.time().endswith(" of 10:00")
+    off = build_cli(tiny_fit_args(store, tmp_path, "nobar"))  # enable_progress_bar false: lines only
+    with off.quiet:
+        assert off.trainer.progress_bar_callback is None
+        assert any(isinstance(cb, ValidationLines) for cb in off.trainer.callbacks)
+        assert Budget(off.trainer).cap is None and Budget(off.trainer).steps(3) == "3/6"
+
+
+def test_clock():
+    assert (clock(0), clock(65.4), clock(3725), clock(-1)) == ("0:00", "1:05", "1:02:05", "0:00")
