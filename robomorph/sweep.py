@@ -26,7 +26,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--runs-dir", default="results/runs")
     p.add_argument("--wandb", default="offline", choices=("offline", "online", "disabled"))
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a base fit() argument, e.g. --set data.stores=data/ms.zarr (repeatable)")
+                   help="override a fit() argument of every trial (over the base and the budget), e.g. --set "
+                        "data.stores=data/ms.zarr, or a transfer setting, e.g. --set transfer.init_ckpt=CKPT "
+                        "(repeatable)")
     p.add_argument("--heartbeat", type=int, default=60, help="seconds between a running trial's heartbeats")
     p.add_argument("--grace", type=int, default=180, help="seconds without heartbeat before a trial counts as dead")
     return p

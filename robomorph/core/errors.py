@@ -51,8 +51,7 @@ _PATH_ADVICE = {
     errno.EROFS: "the file system is mounted read-only; choose an output on a writable one",
     errno.EACCES: "choose another output folder or change its permissions",
     errno.EPERM: "choose another output folder or change its permissions",
-    errno.ENOSPC: "the disk is full; free space or choose an output on another disk (nothing was lost: "
-                  "files are replaced only once completely written)",
+    errno.ENOSPC: "the disk is full; free space or choose an output on another disk",
     errno.EDQUOT: "the disk quota is exhausted; free space or choose an output on another disk",
     errno.EFBIG: "the file grew past the file-size limit; raise the limit or write less",
     errno.ENOTDIR: "a part of the path is a file, not a folder; choose another path",

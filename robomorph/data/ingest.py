@@ -41,8 +41,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from robomorph.core.errors import MissingInputError, RoboMorphError
-from robomorph.data import real_logs
 from robomorph.core.locks import exclusive_on
+from robomorph.data import real_logs
 from robomorph.data.store import Dataset, check_writable, create_store, open_store
 
 FORMATS = ("csv", "npz", "mat")
@@ -361,8 +361,10 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
     _check_args(files, u_cols, y_cols, steps, dt, time_col, stride, time_tol, u_cmd_cols)
     _check_units(u_cols, y_cols, u_units, y_units)
     real_logs.check_layout(layout, u_cols, y_cols, u_cmd_cols)
-    if resample_hz is not None and dt is not None:
-        real_logs.rate_ratio(dt, resample_hz)  # refuse an impossible rate before reading the logs
+    if resample_hz is not None:  # refuse an impossible rate before reading the logs
+        real_logs.check_rate(resample_hz)
+        if dt is not None:
+            real_logs.rate_ratio(dt, resample_hz)
     check_writable(out, overwrite)  # refuse a bad --out before reading large logs
     recs, dts, skipped, report = _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol,
                                                   u_cmd_cols, dt, resample_hz, layout)

@@ -31,10 +31,15 @@ class RealLogError(RoboMorphError, ValueError):
     """A resampling rate or layout that the logs cannot be given."""
 
 
-def rate_ratio(dt: float, hz: float) -> tuple[int, int]:
-    """``(up, down)``: the small integers whose ratio turns samples ``dt`` apart into ``hz``."""
+def check_rate(hz: float) -> None:
+    """Refuses a ``--resample`` rate that is not a positive, finite number of Hz."""
     if not (math.isfinite(hz) and hz > 0):
         raise RealLogError(f"--resample must be a positive, finite rate in Hz, got {hz}")
+
+
+def rate_ratio(dt: float, hz: float) -> tuple[int, int]:
+    """``(up, down)``: the small integers whose ratio turns samples ``dt`` apart into ``hz``."""
+    check_rate(hz)
     exact = dt * hz  # new rate / old rate
     ratio = Fraction(exact).limit_denominator(1000)
     if ratio == 0 or abs(float(ratio) - exact) > _RATIO_TOL * exact:

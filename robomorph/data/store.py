@@ -33,11 +33,9 @@ import zarr
 from zarr.codecs import BloscCodec, Crc32cCodec
 from zarr.storage import LocalStore
 
-# A plain import of the submodule: `from robomorph.data import chunks` would make the store
-# depend on the package, whose __init__ re-exports open_store from here (an import cycle).
-import robomorph.data.chunks as chunks
+import robomorph.data.chunks as chunks  # not via the package: its __init__ imports this module
 from robomorph import __version__
-from robomorph.core.errors import MissingInputError, OutputExistsError, RoboMorphError
+from robomorph.core.errors import MissingInputError, OutputExistsError, RoboMorphError, describe_os_error
 from robomorph.core.inputs import INPUT_ARRAYS, InputsError, check_inputs
 from robomorph.data.chunks import StoreDamagedError  # noqa: F401  (part of this module's API)
 
@@ -232,10 +230,16 @@ class DatasetWriter:
             target = self.group[name]
             if tuple(arr.shape[1:]) != tuple(target.shape[1:]):
                 raise ValueError(f"{name} rows have shape {arr.shape[1:]}, the store expects {target.shape[1:]}")
-            if k:
-                target[self.n:self.n + k] = arr
-        self.n += k
-        self.group.attrs.update({"n": self.n, **(progress or {})})
+        try:
+            for name, arr in (("u", u), ("y", y), ("params", params), *(extras or {}).items()):
+                if k:
+                    self.group[name][self.n:self.n + k] = arr
+            self.n += k
+            self.group.attrs.update({"n": self.n, **(progress or {})})
+        except OSError as exc:  # a full disk, a file system turned read-only: name the store
+            raise StorePathError(
+                f"cannot write the store {self.path}: {describe_os_error(exc)}; its first {self.n} trajectories are "
+                "kept and it stays marked in progress (generate resumes it when run again)") from exc
 
     def finalize(self, **attrs: Any) -> None:
         """Marks the store complete (the last write of a job)."""

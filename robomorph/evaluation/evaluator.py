@@ -183,8 +183,8 @@ IN_SAMPLE_NOTE = ("in-sample: this store is one the model was trained on ({store
 
 
 def default_out(ckpt: str, data: str) -> str:
-    """``<run>/eval/<store name>`` for a checkpoint in ``<run>/checkpoints/``."""
-    return RunDir.of_checkpoint(ckpt).eval_dir(data)
+    """``<run>/eval/<store name>`` for a checkpoint in ``<run>/checkpoints/`` (or a model folder in ``<run>/``)."""
+    return RunDir.of_checkpoint(os.path.join(ckpt, "config.json") if os.path.isdir(ckpt) else ckpt).eval_dir(data)
 
 
 def summary_text(res: dict, out: str, horizons: bool = True) -> str:

@@ -11,6 +11,10 @@ with a per-channel table of the model beside every baseline, coloured with the p
 fit-index convention (:func:`robomorph.reporting.html.fit_colour`); scores of the paper's
 normalization are marked. A file that cannot be read becomes a visible warning on the page
 (and on stderr), never a crash: a report is most wanted exactly when some run went wrong.
+
+The page is meant to be shared: no symbolic link is followed out of a run folder, and only
+files that really are PNG images are embedded. The markup is the package's Jinja2
+templates (``reporting/templates/``), rendered with autoescaping.
 """
 
 from __future__ import annotations

@@ -282,9 +282,9 @@ class NoStd(StandIn):
 
 def test_calibration_of_a_predicted_std_equals_a_direct_count(setup, tmp_path):
     from robomorph.data.store import open_store
+    from robomorph.evaluation.plots import write_all
     from robomorph.evaluation.scoring import score_windows
     from robomorph.evaluation.sources import gives_std
-    from robomorph.evaluation.plots import write_all
     from robomorph.evaluation.windows import load_window
 
     _, _, test = setup
@@ -311,8 +311,8 @@ def test_calibration_of_a_predicted_std_equals_a_direct_count(setup, tmp_path):
 
 def test_nominal_physics_from_offsets_anchors_the_springs_where_the_robot_started(setup):
     from robomorph.data.store import open_store
-    from robomorph.evaluation.sources import nominal_params
     from robomorph.evaluation.physics import NominalPhysics
+    from robomorph.evaluation.sources import nominal_params
     from robomorph.evaluation.windows import load_window
 
     _, _, test = setup
