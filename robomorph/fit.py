@@ -9,8 +9,7 @@ import sys
 
 from lightning.fabric.utilities.exceptions import MisconfigurationException
 
-from robomorph.core.errors import (SIGTERM_EXIT, DeviceError, FileSystemError, StoppedBySignal, UsageError,
-                                   run_command)
+from robomorph.core.errors import SIGTERM_EXIT, DeviceError, FileSystemError, StoppedBySignal, UsageError, run_command
 from robomorph.core.recipes import locate_config_args
 from robomorph.training.fitting import final_line, fit
 

@@ -3,7 +3,9 @@
 Every error the package raises because of what a user gave it (a flag, a file, a store, a
 checkpoint, a recipe) derives from :class:`RoboMorphError`, and its message names the
 problem and what to do. Commands turn it into one line on stderr and exit code 2, with no
-traceback; anything else is a bug and still raises.
+traceback; so do the operating system's errors about the place a command was pointed at
+(read-only, no permission, full, a path through a file). Anything else is a bug and still
+raises.
 """
 
 from __future__ import annotations
@@ -61,7 +63,8 @@ _PATH_ADVICE = {
 
 def describe_os_error(exc: OSError) -> str:
     """One line for an operating-system error: what failed, on which path, and what to do."""
-    where = " -> ".join(os.fspath(f) for f in (exc.filename, exc.filename2) if f is not None)
+    where = " -> ".join(os.fsdecode(f) if isinstance(f, (str, bytes, os.PathLike)) else str(f)
+                        for f in (exc.filename, exc.filename2) if f is not None)
     what = exc.strerror or str(exc)
     advice = _PATH_ADVICE.get(exc.errno, "check the path")
     return f"{what}: {where}; {advice}" if where else f"{what}; {advice}"

@@ -5,7 +5,9 @@ are lost: a missing file reads as the fill value (NaN) without a word; a truncat
 raises a codec error ("error during blosc decompression"), or, when blosc stored the data
 uncompressed, decodes to garbage without an error. :func:`damaged` finds the first two
 kinds from the files alone (cheap: a stat and 16 bytes per chunk); :func:`undecodable`
-names the chunk behind a codec error.
+names the chunk behind a codec error. Flipped bytes of unchanged size decode to wrong values
+without a word, unless the store carries checksums: stores written now end every chunk in a
+CRC32C (Zarr's ``crc32c`` codec), whose mismatch fails the read and is named the same way.
 """
 
 from __future__ import annotations
@@ -89,7 +91,7 @@ def undecodable(path: str, group, n: int, name: str, exc: BaseException) -> Stor
         except Exception as bad:  # noqa: BLE001  (codec errors vary: blosc, zstd, json, ...)
             why = (str(bad).strip().splitlines() or [type(bad).__name__])[0]
             if "checksum" in why.lower():  # zarr's Crc32cCodec: flipped bytes, same size
-                return StoreDamagedError(describe(path, [(name, key, first, last, "cannot be decoded: it fails its checksum (bytes corrupted)")]))
+                why = "it fails its checksum (bytes corrupted)"
             return StoreDamagedError(describe(path, [(name, key, first, last, f"cannot be decoded: {why}")]))
     why = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
     return StoreDamagedError(f"{path}: reading array '{name}' failed ({why}); {REPAIR}")
