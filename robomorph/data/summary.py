@@ -25,7 +25,7 @@ from matplotlib.figure import Figure
 from robomorph.core.atomic import save_figure
 from robomorph.core.errors import UsageError
 from robomorph.data.store import Dataset, StoreDamagedError
-from robomorph.data.units import channel_label, channel_units, literal_text
+from robomorph.data.units import channel_label, channel_units, literal
 
 SAMPLE_ROWS = 256
 # Attributes the summary shows in its own sections; the rest are listed as they are.
@@ -208,12 +208,12 @@ def _plot_trajectories(ds: Dataset, path: str, idx: np.ndarray) -> None:
     for c, ax in enumerate(_grid(fig, len(ds.u_names), len(ds.y_names), ncols)):
         for k, row in enumerate(idx):
             ax.plot(t, data[k, :, c], lw=0.9, color=f"C{k % 10}", label=f"trajectory {row}")
-        ax.set_title(names[c], fontsize=9)
+        ax.set_title(literal(names[c]), fontsize=9)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
     handles, labels = fig.axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside upper right", ncols=min(len(idx), 6), fontsize=8)
-    fig.suptitle(f"{ds.attrs.get('domain')} / {ds.attrs.get('task')}: {len(idx)} of {ds.n} trajectories",
+    fig.suptitle(literal(f"{ds.attrs.get('domain')} / {ds.attrs.get('task')}: {len(idx)} of {ds.n} trajectories"),
                  fontsize=11, x=0.02, ha="left")
     fig.supxlabel("time [s]", fontsize=9)
     save_figure(fig, path, dpi=100)
@@ -230,9 +230,9 @@ def _plot_params(ds: Dataset, path: str) -> None:
         ax = fig.add_subplot(rows, ncols, j + 1)
         values = params[:, j][np.isfinite(params[:, j])]
         ax.hist(values, bins=bins, color="C0")
-        ax.set_title(name, fontsize=8)
+        ax.set_title(literal(name), fontsize=8)
         ax.tick_params(labelsize=6)
-    fig.suptitle(f"{ds.attrs.get('domain')}: parameters over {ds.n} trajectories", fontsize=11)
+    fig.suptitle(literal(f"{ds.attrs.get('domain')}: parameters over {ds.n} trajectories"), fontsize=11)
     save_figure(fig, path, dpi=100)
 
 
@@ -242,7 +242,6 @@ def params_plot_path(path: str) -> str:
     return f"{root}_params{ext or '.png'}"
 
 
-@literal_text
 def plot(dataset: Dataset, path: str, n_traj: int = 3, seed: int = 0) -> list[str]:
     """Plots trajectories to ``path`` and parameter histograms to :func:`params_plot_path`.
 

@@ -18,20 +18,12 @@ def channel_label(name: str, unit: str) -> str:
     return f"{name} [{unit}]" if unit else name
 
 
-def literal_text(fn):
-    """Decorates a plotting function so that its text is drawn as written.
+def literal(text) -> str:
+    """``text`` as matplotlib draws it verbatim: every ``$`` escaped.
 
-    Channel names, units and ``--compare`` names are the user's: matplotlib would read a
-    pair of ``$`` in them as TeX and fail on whatever lies between. ``text.parse_math`` is
-    read when a text is created, so the whole function runs under it.
+    Channel names, units, domains and ``--compare`` names are the user's: matplotlib would
+    read a pair of ``$`` in them as TeX and fail on whatever lies between. Escaping the
+    user's text (rather than switching mathtext off) keeps matplotlib's own TeX, such as the
+    ``10^4`` tick labels of log axes.
     """
-    import functools  # noqa: PLC0415
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        import matplotlib  # noqa: PLC0415  (plotting is optional at import time)
-
-        with matplotlib.rc_context({"text.parse_math": False}):
-            return fn(*args, **kwargs)
-
-    return wrapper
+    return str(text).replace("$", r"\$")

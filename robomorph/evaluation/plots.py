@@ -13,7 +13,7 @@ import numpy as np
 
 from robomorph.core import metrics
 from robomorph.core.atomic import save_figure
-from robomorph.data.units import channel_label, literal_text
+from robomorph.data.units import channel_label, literal
 from robomorph.evaluation import horizons
 
 _STYLE = {"model": dict(color="C0", lw=1.4), "hold": dict(color="C7", ls=":"),
@@ -36,7 +36,6 @@ def _grid(n: int) -> tuple[int, int]:
     return (n + cols - 1) // cols, cols
 
 
-@literal_text
 def plot_samples(path: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[str, np.ndarray],
                  names: list[str], dt: float, index: int, std: np.ndarray | None = None) -> str:
     """Context, truth and every source's prediction of trajectory ``index``, all channels.
@@ -59,8 +58,8 @@ def plot_samples(path: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[s
                 ax.fill_between(t_q, mean - k * sd, mean + k * sd, color=_STYLE["model"]["color"], alpha=alpha, lw=0,
                                 label=f"model ±{k}σ")
         for src, y in preds.items():
-            ax.plot(t_q, y[index, :, i], label=src, **_STYLE.get(src, {}))
-        ax.set_title(name, fontsize=9)
+            ax.plot(t_q, y[index, :, i], label=literal(src), **_STYLE.get(src, {}))
+        ax.set_title(literal(name), fontsize=9)
         ax.tick_params(labelsize=7)
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
@@ -73,7 +72,6 @@ def plot_samples(path: str, y_ctx: np.ndarray, y_true: np.ndarray, preds: dict[s
     return path
 
 
-@literal_text
 def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray], dt: float,
                       names: list[str], steps: list[int] = (), y_units: list[str] | None = None) -> str:
     """RMS error over trajectories against time into the horizon, in physical units, log-log.
@@ -90,7 +88,7 @@ def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray
     t = np.arange(1, y_true.shape[1] + 1) * dt
     for ax, g in zip(axes.flat, groups):
         for src, y in preds.items():
-            ax.plot(t, np.maximum(horizons.error_curve(y_true, y, g), 1e-12), label=src, **_STYLE.get(src, {}))
+            ax.plot(t, np.maximum(horizons.error_curve(y_true, y, g), 1e-12), label=literal(src), **_STYLE.get(src, {}))
         for k in steps:
             ax.axvline(k * dt, color="0.6", ls=":", lw=0.8)
         # Log time too: the first second, what a controller uses, would be a sliver otherwise.
@@ -107,7 +105,6 @@ def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray
     return path
 
 
-@literal_text
 def plot_r2_distribution(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray], names: list[str]) -> str:
     """Per-channel spread of per-trajectory R^2 (approach 1) for every source, clipped at -1."""
     plt = _plt()
@@ -120,8 +117,8 @@ def plot_r2_distribution(path: str, y_true: np.ndarray, preds: dict[str, np.ndar
         color = _STYLE.get(src, {}).get("color", f"C{k}")
         for b in box["boxes"]:
             b.set(facecolor=color, alpha=0.5)
-        ax.plot([], [], color=color, lw=6, alpha=0.5, label=src)
-    ax.set_xticks(np.arange(len(names)), names, rotation=45, fontsize=8)
+        ax.plot([], [], color=color, lw=6, alpha=0.5, label=literal(src))
+    ax.set_xticks(np.arange(len(names)), [literal(n) for n in names], rotation=45, fontsize=8)
     ax.set(ylabel="R² per trajectory (clipped at -1)", ylim=(-1.05, 1.05), title="R² distribution per channel")
     ax.axhline(0, color="0.5", lw=0.6)
     ax.legend(fontsize=8, loc="lower left")
@@ -131,7 +128,6 @@ def plot_r2_distribution(path: str, y_true: np.ndarray, preds: dict[str, np.ndar
     return path
 
 
-@literal_text
 def plot_sweep(path: str, rows: list[dict], key: str) -> str:
     """Mean R^2 and FIT, approaches 1 and 2, against ``key`` (``horizon`` or ``context_len``).
 
@@ -147,7 +143,7 @@ def plot_sweep(path: str, rows: list[dict], key: str) -> str:
     for ax, (metric, label, floor) in zip(axes, panels):
         for src in sources:
             values = np.maximum([r[src].get(metric, np.nan) for r in rows], floor)
-            ax.plot(x, values, marker="o", ms=3, label=src, **_STYLE.get(src, {}))
+            ax.plot(x, values, marker="o", ms=3, label=literal(src), **_STYLE.get(src, {}))
         top = 1.0 if metric.startswith("r2") else 100.0
         ax.set(xlabel="prediction horizon [steps]" if key == "horizon" else "context length [steps]",
                ylabel=label, ylim=(floor - 0.05 * (top - floor), top + 0.05 * (top - floor)))
