@@ -11,15 +11,8 @@ says, per recording, how many samples it held, how many windows it gave and how 
 samples after its last window were dropped. ``--u-units`` / ``--y-units`` record each
 column's unit (``attrs['u_units']``, ``attrs['y_units']``); plots label axes with them.
 
-Input formats (``--format auto`` picks by extension):
-
-* CSV (``.csv``): a header row with the column names, then one numeric row per sample.
-  Empty cells and ``nan`` count as missing values and are refused.
-* NPZ (``.npz``): one array per column, named after the column, of shape (L,) or (L, 1).
-  Alternatively a 2-D array ``data`` of shape (L, C) plus a 1-D string array ``names`` of
-  its C column names; that pair takes precedence when both are present.
-* MAT (``.mat``, read with ``scipy.io.loadmat``): one variable per column, a row or column
-  vector named after the column.
+Input formats (CSV, NPZ, MAT; ``--format auto`` picks by extension): see
+:mod:`robomorph.data.log_files`, which reads them.
 
 All inputs are read and checked (columns, missing values, sample time) before the store
 is created, so a bad log never leaves a half-written dataset behind.
@@ -31,158 +24,25 @@ store's ``u_cmd``, read by ``data.inputs: command``), one column per joint as we
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import warnings
-import zipfile
-from typing import Any, Mapping
 
 import numpy as np
 
-from robomorph.core.errors import MissingInputError, RoboMorphError
 from robomorph.core.locks import exclusive_on
 from robomorph.data import real_logs
+from robomorph.data.log_files import FORMATS, IngestError, read_log
 from robomorph.data.store import Dataset, check_writable, create_store, open_store
 
-FORMATS = ("csv", "npz", "mat")
-_EXTENSIONS = {".csv": "csv", ".npz": "npz", ".mat": "mat"}
+__all__ = ["FORMATS", "IngestError", "ShortRecordingWarning", "ingest", "read_log"]
+
 # Windows written per append: bounds memory when overlapping windows repeat samples.
 _WRITE_BLOCK = 64
 
 
-class IngestError(RoboMorphError, ValueError):
-    """A log cannot be turned into a dataset as asked (the message says what to change)."""
-
-
 class ShortRecordingWarning(UserWarning):
     """A recording holds fewer samples than one window and was skipped."""
-
-
-def _detect_format(path: str, fmt: str) -> str:
-    if fmt != "auto":
-        if fmt not in FORMATS:
-            raise IngestError(f"unknown format {fmt!r}; choose one of auto, {', '.join(FORMATS)}")
-        return fmt
-    ext = os.path.splitext(path)[1].lower()
-    if ext not in _EXTENSIONS:
-        raise IngestError(
-            f"cannot tell the format of {path} from its extension {ext!r}; rename it to "
-            f".csv/.npz/.mat or pass --format {'|'.join(FORMATS)}"
-        )
-    return _EXTENSIONS[ext]
-
-
-def _float_cell(text: str) -> float:
-    # Empty cells are missing samples: they become NaN and the NaN check names them.
-    return float(text) if text.strip() else np.nan
-
-
-def _read_csv(path: str) -> dict[str, np.ndarray]:
-    # utf-8-sig: spreadsheet exports often start with a byte-order mark.
-    with open(path, newline="", encoding="utf-8-sig") as f:
-        header = next(csv.reader(f), None)
-    if not header:
-        raise IngestError(f"{path} is empty: a CSV log needs a header row of column names")
-    names = [h.strip() for h in header]
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise IngestError(f"{path}: the header names {dup} more than once; column names must be unique")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # a header-only log is reported below as too short
-            data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64, encoding="utf-8-sig")
-    except ValueError:
-        # loadtxt's message is vague; re-read slowly to name the bad cell.
-        data = _read_csv_slowly(path, names)
-    if data.size == 0:
-        data = np.empty((0, len(names)))
-    if data.shape[1] != len(names):
-        raise IngestError(f"{path}: the header names {len(names)} columns but rows hold {data.shape[1]} values")
-    return {name: data[:, j] for j, name in enumerate(names)}
-
-
-def _read_csv_slowly(path: str, names: list[str]) -> np.ndarray:
-    rows = []
-    with open(path, newline="", encoding="utf-8-sig") as f:
-        reader = csv.reader(f)
-        next(reader)
-        for line, row in enumerate(reader, start=2):
-            if not row:
-                continue  # blank lines, as loadtxt skips them
-            if len(row) != len(names):
-                raise IngestError(f"{path} line {line}: {len(row)} values but the header names {len(names)} columns")
-            try:
-                rows.append([_float_cell(c) for c in row])
-            except ValueError:
-                bad = next(j for j, c in enumerate(row) if not _is_number(c))
-                raise IngestError(
-                    f"{path} line {line}, column {names[bad]!r}: {row[bad]!r} is not a number"
-                ) from None
-    return np.asarray(rows, dtype=np.float64).reshape(-1, len(names))
-
-
-def _is_number(text: str) -> bool:
-    try:
-        _float_cell(text)
-    except ValueError:
-        return False
-    return True
-
-
-def _columns_of(mapping: Mapping[str, Any], path: str) -> dict[str, np.ndarray]:
-    """Named arrays of an NPZ/MAT file -> its columns (see the module docstring)."""
-    if "data" in mapping and "names" in mapping:
-        data, names = np.asarray(mapping["data"]), np.asarray(mapping["names"]).reshape(-1)
-        if data.ndim != 2 or data.shape[1] != len(names):
-            raise IngestError(f"{path}: 'data' has shape {data.shape} but 'names' lists {len(names)} columns")
-        return {str(n).strip(): data[:, j] for j, n in enumerate(names)}
-    cols = {}
-    for key, value in mapping.items():
-        arr = np.asarray(value)
-        if key.startswith("__") or arr.dtype.kind not in "biuf":
-            continue  # loadmat headers and non-numeric variables are not columns
-        if arr.ndim == 1 or (arr.ndim == 2 and 1 in arr.shape):
-            cols[key] = arr.reshape(-1)
-    return cols
-
-
-def read_log(path: str, fmt: str = "auto") -> dict[str, np.ndarray]:
-    """Reads one log file into ``column name -> 1-D float64 array``.
-
-    Args:
-        path: the log file.
-        fmt: ``auto`` (by extension), ``csv``, ``npz`` or ``mat``.
-
-    Raises:
-        FileNotFoundError: the file does not exist.
-        IngestError: unknown format, unreadable file or unparsable values.
-    """
-    if not os.path.isfile(path):
-        raise MissingInputError(f"log file not found: {path}")
-    kind = _detect_format(path, fmt)
-    try:
-        if kind == "csv":
-            cols = _read_csv(path)
-        elif kind == "npz":
-            if not zipfile.is_zipfile(path):  # else np.load guesses "pickle" and says so
-                raise IngestError(f"{path} is not an NPZ archive (write it with numpy.savez)")
-            with np.load(path, allow_pickle=False) as npz:
-                cols = _columns_of({k: npz[k] for k in npz.files}, path)
-        else:
-            from scipy.io import loadmat  # noqa: PLC0415  (scipy only when MAT logs are read)
-
-            cols = _columns_of(loadmat(path), path)
-    except IngestError:
-        raise
-    except NotImplementedError as exc:  # loadmat on MATLAB v7.3 (HDF5) files
-        raise IngestError(f"cannot read {path}: {exc}; save it with save(..., '-v7') instead") from exc
-    except Exception as exc:  # noqa: BLE001  (any parser failure means: not a readable log)
-        raise IngestError(f"cannot read {path} as {kind.upper()}: {exc}") from exc
-    lengths = {len(v) for v in cols.values()}
-    if len(lengths) > 1:
-        raise IngestError(f"{path}: columns have different lengths {sorted(lengths)}; one recording needs one length")
-    return {k: np.asarray(v, dtype=np.float64) for k, v in cols.items()}
 
 
 # The store holds float32: a larger magnitude would be written as inf without a word.
@@ -269,12 +129,27 @@ def _check_args(files: list[str], u_cols: list[str], y_cols: list[str], steps: i
         raise IngestError(f"--time-tol must be >= 0, got {time_tol}")
 
 
+def _check_request(files: list[str], u_cols: list[str], y_cols: list[str], steps: int, dt: float | None,
+                   time_col: str | None, stride: int, time_tol: float, u_cmd_cols: list[str] | None,
+                   u_units: list[str] | None, y_units: list[str] | None, layout: str | None,
+                   resample_hz: float | None) -> None:
+    """Every check of ``ingest``'s arguments that needs no log: a bad call fails before any is read."""
+    _check_args(files, u_cols, y_cols, steps, dt, time_col, stride, time_tol, u_cmd_cols)
+    _check_units(u_cols, y_cols, u_units, y_units)
+    real_logs.check_layout(layout, u_cols, y_cols, u_cmd_cols)
+    if resample_hz is not None:  # refuse an impossible rate before reading the logs
+        real_logs.check_rate(resample_hz)
+        if dt is not None:
+            real_logs.rate_ratio(dt, resample_hz)
+
+
 def _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol, u_cmd_cols=None,
                      dt=None, resample_hz=None, layout=None):
     """Reads and checks every log: ``([(file index, u, y, starts, u_cmd)], dts, skipped, report)``,
     the report giving per recording its samples (at the store's rate), windows and dropped
     tail samples. With ``resample_hz`` each recording is resampled (anti-aliased) first;
-    with ``layout`` its ``y`` is put in the layout's channels (:mod:`robomorph.data.real_logs`)."""
+    with ``layout`` its ``y`` is put in the layout's channels (:mod:`robomorph.data.real_logs`).
+    Refuses logs of which no recording gives a window."""
     recs, dts, skipped, report = [], [], [], []
     for index, path in enumerate(files):
         cols = read_log(path, fmt)
@@ -301,6 +176,8 @@ def _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_t
         if time_col:  # a 1-sample recording has no sample time: _sample_time says so
             dts.append((path, rec_dt if rec_dt is not None else _sample_time(cols[time_col], path, time_tol)))
         recs.append((index, u, real_logs.apply_layout(layout, y), starts, u_cmd))
+    if not recs:
+        raise IngestError(f"no windows: every recording is shorter than --steps {steps}; lower --steps")
     return recs, dts, skipped, report
 
 
@@ -325,7 +202,7 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
     """Cuts recorded logs into windows and writes them as a RoboMorph dataset.
 
     Args:
-        files: log files, one recording each (CSV, NPZ or MAT; see the module docstring).
+        files: log files, one recording each (CSV, NPZ or MAT; see :mod:`robomorph.data.log_files`).
         u_cols: total joint torque columns, in the order of the store's ``u`` channels.
         y_cols: output columns, in the order of the store's ``y`` channels.
         out: the store directory to create.
@@ -358,42 +235,43 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
             ``overwrite``) an existing dataset.
     """
     dt_arg, stride = dt, (steps if stride is None else stride)
-    _check_args(files, u_cols, y_cols, steps, dt, time_col, stride, time_tol, u_cmd_cols)
-    _check_units(u_cols, y_cols, u_units, y_units)
-    real_logs.check_layout(layout, u_cols, y_cols, u_cmd_cols)
-    if resample_hz is not None:  # refuse an impossible rate before reading the logs
-        real_logs.check_rate(resample_hz)
-        if dt is not None:
-            real_logs.rate_ratio(dt, resample_hz)
+    _check_request(files, u_cols, y_cols, steps, dt, time_col, stride, time_tol, u_cmd_cols, u_units, y_units,
+                   layout, resample_hz)
     check_writable(out, overwrite)  # refuse a bad --out before reading large logs
     recs, dts, skipped, report = _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol,
                                                   u_cmd_cols, dt, resample_hz, layout)
     total = sum(len(r[3]) for r in recs)
-    if total == 0:
-        raise IngestError(f"no windows: every recording is shorter than --steps {steps}; lower --steps")
     dt = _common_dt(dts, time_tol) if time_col else float(dt)
     original_dt, dt = dt, (1.0 / resample_hz if resample_hz else dt)
     u_names, y_names, cmd_names, y_units_stored = real_logs.layout_names(layout, u_cols, y_cols, u_cmd_cols, y_units)
+    # The call's arguments as given: the store records how to ingest it again.
     config = {"files": list(files), "u_cols": list(u_cols), "u_cmd_cols": u_cmd_cols and list(u_cmd_cols),
               "y_cols": list(y_cols), "steps": steps, "stride": stride, "dt": dt_arg, "time_col": time_col, "fmt": fmt,
-              "name": name,
-              "time_tol": time_tol, "u_units": u_units, "y_units": y_units, "resample_hz": resample_hz,
+              "name": name, "time_tol": time_tol, "u_units": u_units, "y_units": y_units, "resample_hz": resample_hz,
               "layout": layout}
-    attrs = {"dt": dt, "domain": name or "real", "task": "ingested", "config": config, "seed": None,
-             "sources": [os.path.basename(f) for f in files], "skipped_recordings": skipped,
-             "recordings": report, "u_units": list(u_units or [""] * len(u_cols)),
-             "y_units": list(y_units_stored or [""] * len(y_names)), "original_dt": original_dt,
-             "requested": total, "attempted": total, "kept": total, "rejected": {}}
-    writer = create_store(out, total, steps, u_names, y_names, [], attrs,
-                          extras={"recording_index": ((), "int32"), "window_start": ((), "int64")},
-                          overwrite=overwrite, u_cmd_names=cmd_names)
-    _write_windows(writer, recs, steps)
-    writer.finalize()
+    attrs = _store_attrs(config, dt, original_dt, report, skipped, total, y_units_stored or [""] * len(y_names))
+    _write_store(out, recs, steps, (u_names, y_names, cmd_names), attrs, overwrite)
     return open_store(out)
 
 
-def _write_windows(writer, recs: list, steps: int) -> None:
-    """Appends every recording's windows, ``_WRITE_BLOCK`` at a time."""
+def _store_attrs(config: dict, dt: float, original_dt: float, report: list[dict], skipped: list[str],
+                 total: int, y_units: list[str]) -> dict:
+    """The ingested store's attributes: the call (``config``), its sources and what became of
+    each recording, the units, the sample times and the counts (every window is kept)."""
+    return {"dt": dt, "domain": config["name"] or "real", "task": "ingested", "config": config, "seed": None,
+            "sources": [os.path.basename(f) for f in config["files"]], "skipped_recordings": skipped,
+            "recordings": report, "u_units": list(config["u_units"] or [""] * len(config["u_cols"])),
+            "y_units": list(y_units), "original_dt": original_dt,
+            "requested": total, "attempted": total, "kept": total, "rejected": {}}
+
+
+def _write_store(out: str, recs: list, steps: int, names: tuple, attrs: dict, overwrite: bool) -> None:
+    """Creates the store (``names``: u, y and command channel names), appends every
+    recording's windows, ``_WRITE_BLOCK`` at a time, and marks it complete."""
+    u_names, y_names, cmd_names = names
+    writer = create_store(out, sum(len(r[3]) for r in recs), steps, u_names, y_names, [], attrs,
+                          extras={"recording_index": ((), "int32"), "window_start": ((), "int64")},
+                          overwrite=overwrite, u_cmd_names=cmd_names)
     for index, u, y, starts, u_cmd in recs:
         for b in range(0, len(starts), _WRITE_BLOCK):
             block = starts[b:b + _WRITE_BLOCK]
@@ -402,3 +280,4 @@ def _write_windows(writer, recs: list, steps: int) -> None:
             if u_cmd is not None:
                 extras["u_cmd"] = u_cmd[rows]
             writer.append(u[rows], y[rows], np.zeros((len(block), 0), np.float32), extras=extras)
+    writer.finalize()

@@ -52,7 +52,7 @@ def _sources(ckpt_dict: dict, data: str | None) -> tuple[list[tuple[str, np.ndar
     stores = dm.get("stores") or []
     stores = [stores] if isinstance(stores, str) else list(stores)
     # By content when the fit recorded fingerprints: a copy of a training store is one too.
-    from robomorph.data.store import recorded_match  # noqa: PLC0415
+    from robomorph.data.fingerprints import recorded_match  # noqa: PLC0415
     from robomorph.model.files import DATA_INFO_KEY  # noqa: PLC0415
 
     fingerprints = (ckpt_dict.get(DATA_INFO_KEY) or {}).get("store_fingerprints")

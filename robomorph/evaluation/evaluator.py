@@ -171,7 +171,7 @@ def in_sample(info: dict | None, data: str) -> dict:
     is one of the checkpoint's training stores, by content fingerprint (a copy elsewhere
     counts) or, for checkpoints that predate fingerprints, by path. Its scores then measure
     how well the model fits robots it was trained on, not how it generalizes."""
-    from robomorph.data.store import recorded_match  # noqa: PLC0415
+    from robomorph.data.fingerprints import recorded_match  # noqa: PLC0415
 
     info = info or {}
     match = recorded_match(data, list(info.get("stores") or []), info.get("store_fingerprints"))

@@ -227,6 +227,12 @@ def below(y: np.ndarray, model: np.ndarray, other: np.ndarray, group: Group) -> 
     return {"fraction": float(is_below.mean()), "first_not_below": int(worse[0]) + 1 if len(worse) else None}
 
 
+def _percent(fraction: float) -> str:
+    """A share in percent that reads 100 only when it is all of the steps (799 of 800 is 99.9)."""
+    text = f"{100 * fraction:.0f}"
+    return f"{100 * fraction:.1f}" if text in ("0", "100") and 0 < fraction < 1 else text
+
+
 def horizon_markdown(h: dict, sources: tuple[str, ...] | None = None) -> str:
     """A markdown table (rows: quantity and source; columns: steps) of a :func:`horizon_report`,
     then the coverage of the model's ±1σ/±2σ bands and the shares of steps below each baseline."""
@@ -245,7 +251,7 @@ def horizon_markdown(h: dict, sources: tuple[str, ...] | None = None) -> str:
     for src, by_q in h.get("below", {}).items():
         if src not in names:
             continue
-        parts = [f"{q} {100 * b['fraction']:.0f} %" + (f" (first step not below: {b['first_not_below']})"
+        parts = [f"{q} {_percent(b['fraction'])} %" + (f" (first step not below: {b['first_not_below']})"
                                                        if b["first_not_below"] else "") for q, b in by_q.items()]
         lines += ["", f"Share of the {h.get('horizon', '')} predicted steps where the model's RMS error is below "
                   f"{src}'s: " + "; ".join(parts)]

@@ -65,6 +65,29 @@ def resolve_device(device: str | torch.device | None) -> torch.device:
     return dev
 
 
+def _as_batch(arrays, widths: tuple[int, int, int], device: torch.device) -> tuple[list[torch.Tensor], bool]:
+    """``(u_ctx, y_ctx, u_query)``, numpy or torch, as float32 tensors (B, T, C) on ``device``,
+    and whether they came unbatched (T, C).
+
+    Raises:
+        PredictionError: arrays not all batched or all unbatched, channel counts other than
+            ``widths``, or NaN / inf values (each named).
+    """
+    tensors = [torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x,
+                               dtype=torch.float32, device=device) for x in arrays]
+    single = tensors[0].dim() == 2
+    if any(t.dim() != (2 if single else 3) for t in tensors):
+        raise PredictionError("give all three arrays unbatched (T, C) or all batched (B, T, C)")
+    if single:
+        tensors = [t.unsqueeze(0) for t in tensors]
+    for name, t, width in zip(("u_ctx", "y_ctx", "u_query"), tensors, widths):
+        if t.shape[-1] != width:
+            raise PredictionError(f"{name} has {t.shape[-1]} channels, the model expects {width}")
+        if not torch.isfinite(t).all():
+            raise PredictionError(f"{name} holds NaN or inf values")
+    return tensors, single
+
+
 class Predictor:
     """Wraps a :class:`TrainedModel` for inference on numpy or torch arrays.
 
@@ -137,12 +160,6 @@ class Predictor:
             CheckpointError: the folder is missing, incomplete, altered, or of another format.
         """
         return cls.from_checkpoint(path, device)
-
-    def _check(self, name: str, x: torch.Tensor, width: int) -> None:
-        if x.shape[-1] != width:
-            raise PredictionError(f"{name} has {x.shape[-1]} channels, the model expects {width}")
-        if not torch.isfinite(x).all():
-            raise PredictionError(f"{name} holds NaN or inf values")
 
     def _check_range(self, u_ctx: torch.Tensor, u_query: torch.Tensor) -> None:
         """Refuses torques far outside the training range (wrong units, most often)."""
@@ -237,15 +254,7 @@ class Predictor:
                                   "train one with --model.gaussian true --model.loss nll, or drop return_std")
         as_numpy = not isinstance(u_query, torch.Tensor)
         dtype = getattr(u_query, "dtype", None)
-        tensors = [torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x,
-                                   dtype=torch.float32, device=self.device) for x in (u_ctx, y_ctx, u_query)]
-        single = tensors[0].dim() == 2
-        if any(t.dim() != (2 if single else 3) for t in tensors):
-            raise PredictionError("give all three arrays unbatched (T, C) or all batched (B, T, C)")
-        if single:
-            tensors = [t.unsqueeze(0) for t in tensors]
-        for name, t, w in zip(("u_ctx", "y_ctx", "u_query"), tensors, (self.n_u, self.n_y, self.n_u)):
-            self._check(name, t, w)
+        tensors, single = _as_batch((u_ctx, y_ctx, u_query), (self.n_u, self.n_y, self.n_u), self.device)
         self._check_range(tensors[0], tensors[2])
         stats = self._query_stats(y_query_stats, len(tensors[0]))
         try:

@@ -30,35 +30,22 @@ from robomorph.core.names import (
 from robomorph.core.normalizations import check_normalization
 from robomorph.model.checkpoint import (
     DATA_INFO_KEY,
-    CheckpointError,
     TrainedModel,
     model_config,
     predict_normalized_dist,
 )
-from robomorph.model.files import read_model
 from robomorph.model.normalization import Normalizer, query_stats
 from robomorph.model.transformer import MetaModel, ModelConfig
+from robomorph.training.data_record import check_channels, data_info
 from robomorph.training.losses import ModelOptionError, check_loss, elementwise_loss, horizon_weights, whole_patches
 from robomorph.training.optim import lr_factor as _lr_factor
 from robomorph.training.optim import optimizers
+from robomorph.training.pretrained import apply_freeze, start_from
 
 # Constructor arguments that the data decide: robomorph fit links them from the datamodule.
 FROM_DATA = ("n_u", "n_y", "context_len")
-# Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
-IO_LAYERS = ("encoder.embed", "decoder.embed", "decoder.init_embed", "head")
 # Checkpoint entry holding the trainer's max_steps, so a resume can say how the schedule changes.
 SCHEDULE_KEY = "robomorph_schedule"
-
-
-def data_info(dm) -> dict:
-    """Channel names, sample time and window lengths of a set-up DataModule (JSON-able), and
-    a content fingerprint of each training store (evaluate and calibrate recognize a copy)."""
-    from robomorph.data.store import fingerprint  # noqa: PLC0415
-
-    return {"u_names": list(dm.u_names), "y_names": list(dm.y_names), "dt": float(dm.dt),
-            "context_len": int(dm.context_len), "horizon": int(dm.horizon),
-            "stores": [str(s) for s in dm.stores], "inputs": str(getattr(dm, "inputs", "total")),
-            "store_fingerprints": {str(s): fingerprint(str(s)) for s in dm.stores}}
 
 
 class ModelSettingsError(ModelOptionError):
@@ -175,33 +162,22 @@ class MetaModule(L.LightningModule):
         self.__dict__["_trained"] = trained
         self.net, self.normalizer = trained.net, trained.normalizer
         self.register_buffer("stats_ready", torch.tensor(False))
-        _freeze(self.net, self.hparams.freeze)
+        apply_freeze(self.net, self.hparams.freeze)
 
     def setup(self, stage: str) -> None:
         dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
         if dm is None:
             return
-        if self.net is None:
-            raise RoboMorphError("the model has no n_u/n_y: pass them (robomorph fit links them from the data)")
-        if (dm.n_u, dm.n_y) != (self.hparams.n_u, self.hparams.n_y):
-            raise CheckpointError(
-                f"the data has n_u={dm.n_u}, n_y={dm.n_y} but the model was built for "
-                f"n_u={self.hparams.n_u}, n_y={self.hparams.n_y}"
-            )
+        check_channels(dm, self.hparams.n_u, self.hparams.n_y)
         if stage == "fit" or self.data_info is None:
             self.data_info = data_info(dm)
         if stage == "fit" and self.hparams.init_ckpt and not self.resuming and not getattr(self, "_transferred", False):
-            self._transfer(self.hparams.init_ckpt)
+            start_from(self, self.hparams.init_ckpt)
             self._transferred = True
         if not bool(self.stats_ready):
             # A resumed or transferred model keeps the statistics it was trained with.
             self.normalizer.set_stats(dm.stats)
             self.stats_ready.fill_(True)
-
-    def _transfer(self, path: str) -> None:
-        from_source = _load_transferred(self, path)
-        self.stats_ready.fill_(from_source)  # the pretrained normalization came along only with source
-        _freeze(self.net, self.hparams.freeze)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.data_info is not None:
@@ -304,54 +280,6 @@ def settings_config(hparams: dict) -> ModelConfig:
         raise ModelSettingsError(f"{str(exc).replace('ModelConfig.', '--model.')}") from exc
 
 
-def _freeze(net: torch.nn.Module, mode: str) -> None:
-    """Leaves trainable only what ``freeze`` mode ``mode`` trains."""
-    for name, p in net.named_parameters():
-        if mode == "encoder":
-            p.requires_grad = not name.startswith("enc")
-        elif mode == "all_but_head":
-            p.requires_grad = name.startswith("head")
-
-
-def _load_transferred(module: MetaModule, path: str) -> bool:
-    """Loads a pretrained checkpoint's weights into ``module``; True when its normalization came too.
-
-    The statistics (and their "ready" flag) come along only with ``normalization_from=source``;
-    otherwise ``setup`` computes them from this run's data. Refuses another protocol, other
-    channels without ``reinit_io``, ``source`` statistics for other channels and another
-    architecture.
-    """
-    ckpt = read_model(path)  # a training checkpoint or an exported model folder
-    src = ckpt["hyper_parameters"]
-    same_io = (src.get("n_u"), src.get("n_y")) == (module.hparams.n_u, module.hparams.n_y)
-    theirs, ours = src.get("normalization", "train_stats"), module.hparams.get("normalization", "train_stats")
-    if theirs != ours:
-        raise CheckpointError(f"{path} was trained with normalization {theirs!r}, this run uses {ours!r}: "
-                              "transfer between the same protocol only (set data.normalization to match)")
-    if not same_io and not module.hparams.reinit_io:
-        raise CheckpointError(
-            f"{path} was trained with n_u={src.get('n_u')}, n_y={src.get('n_y')}; this model has "
-            f"n_u={module.hparams.n_u}, n_y={module.hparams.n_y}. Set reinit_io=true to re-initialize the "
-            "input embeddings and the head (the rest transfers)."
-        )
-    from_source = module.hparams.get("normalization_from", "target") == "source"
-    if from_source and not same_io:
-        raise CheckpointError(
-            f"normalization_from=source needs the checkpoint's channels, but {path} has n_u={src.get('n_u')}, "
-            f"n_y={src.get('n_y')} and this data n_u={module.hparams.n_u}, n_y={module.hparams.n_y}: "
-            "use --model.normalization_from target (statistics of the new training data)")
-    state = {k: v for k, v in ckpt["state_dict"].items()
-             if (from_source or not _is_stats(k)) and (same_io or not _is_io(k))}
-    missing, unexpected = module.load_state_dict(state, strict=False)
-    allowed_missing = [k for k in missing if (not from_source and _is_stats(k)) or (not same_io and _is_io(k))]
-    if set(missing) - set(allowed_missing) - {"stats_ready"} or unexpected:
-        raise CheckpointError(
-            f"{path} does not match this architecture (missing {sorted(set(missing) - set(allowed_missing))[:5]}, "
-            f"unexpected {sorted(unexpected)[:5]}): use the same d_model, n_head, layers and patch"
-        )
-    return from_source
-
-
 def check_context(context_len: int | None, patch: int, max_context: int) -> None:
     """The encoder needs whole patches and a positional table that covers the context.
 
@@ -391,9 +319,3 @@ def schedule_change(old_hparams: dict, old_max_steps: int | None, new_hparams, n
            for h, t in ((old_hparams, old_total), (new_hparams, new_total))]
     return (f"{head}: the cosine learning-rate decay now ends at step {new_total} instead of {old_total} "
             f"(lr at step {step}: {lrs[0]:.3g} -> {lrs[1]:.3g}); pin --model.decay_steps to keep it")
-def _is_stats(key: str) -> bool:
-    return key.startswith("normalizer.") or key == "stats_ready"
-
-
-def _is_io(key: str) -> bool:
-    return any(key.startswith(f"net.{layer}.") for layer in IO_LAYERS)

@@ -37,10 +37,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from robomorph.core.config import load_yaml
-from robomorph.core.recipes import locate
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.names import METRICS, REGIMES, check_plain_name
 from robomorph.core.overrides import merge, unflatten
+from robomorph.core.recipes import locate
 
 SAMPLERS = ("tpe", "random", "grid")
 PRUNERS = ("median", "none")

@@ -239,26 +239,3 @@ def test_new_stores_carry_crc32c_checksums(tmp_path):
     group = open_store(str(path)).group
     for name in ("u", "y", "params", "tag"):
         assert type(group[name].metadata.codecs[-1]).__name__ == "Crc32cCodec", name
-
-
-def test_fingerprint_matches_a_copy_and_not_another_store(tmp_path):
-    import shutil
-
-    from robomorph.data.store import fingerprint, recorded_match
-
-    a = tmp_path / "a.zarr"
-    w = _make(a, n=6, steps=20, chunk=2)
-    w.append(*_rows(6, 20))
-    w.finalize()
-    copy = tmp_path / "elsewhere" / "copy.zarr"
-    shutil.copytree(a, copy)
-    b = tmp_path / "b.zarr"
-    w = _make(b, n=6, steps=20, chunk=2)
-    w.append(*_rows(6, 20, seed=1))
-    w.finalize()
-    assert fingerprint(str(copy)) == fingerprint(str(a)) != fingerprint(str(b))
-    recorded = {str(a): fingerprint(str(a))}
-    assert recorded_match(str(copy), [str(a)], recorded) == str(a)
-    assert recorded_match(str(copy), [str(a)], None) is None  # old checkpoints: by path only
-    assert recorded_match(str(a), [str(a)], None) == str(a)
-    assert recorded_match(str(b), [str(a)], recorded) is None

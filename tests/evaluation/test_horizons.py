@@ -142,3 +142,12 @@ def test_below_hold_counts_the_steps_where_the_model_beats_hold():
     assert below(y, model, model + 1.0, g["joints"]) == {"fraction": 1.0, "first_not_below": None}
     rep = horizon_report(y, {"model": model, "hold": hold}, PANDA, 0.1, [1])
     assert rep["below"]["hold"]["joints"]["fraction"] == 0.6
+
+
+def test_shares_read_100_percent_only_when_every_step_is_below():
+    from robomorph.evaluation.horizons import _percent
+
+    assert _percent(1.0) == "100" and _percent(0.0) == "0"
+    assert _percent(799 / 800) == "99.9"  # one step above hold is not "100 %"
+    assert _percent(1 / 800) == "0.1"
+    assert _percent(0.94) == "94"

@@ -108,13 +108,14 @@ def test_evaluate_reads_a_folder_as_it_reads_the_checkpoint(trained, tmp_path):
 
 
 def test_a_folder_seeds_a_transfer_with_its_weights_and_statistics(trained, tmp_path):
-    from robomorph.training.module import MetaModule, _load_transferred
+    from robomorph.training.module import MetaModule
+    from robomorph.training.pretrained import load_pretrained
 
     _, ckpt = trained
     export(ckpt, str(tmp_path / "model"))
     hp = {k: v for k, v in read_model(ckpt)["hyper_parameters"].items() if not k.startswith("_")}
     module = MetaModule(**{**hp, "normalization_from": "source"})
-    assert _load_transferred(module, str(tmp_path / "model")) is True
+    assert load_pretrained(module, str(tmp_path / "model")) is True
     state = load_checkpoint_file(ckpt)["state_dict"]
     for k, v in module.state_dict().items():
         if k != "stats_ready":

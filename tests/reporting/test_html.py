@@ -12,11 +12,11 @@ from robomorph.evaluation import metrics
 from robomorph.evaluation.horizons import horizon_report
 from robomorph.reporting.dashboard import build_report
 from robomorph.reporting.html import (
-    best_baseline,
     Cell,
     Row,
     Table,
     _macro,
+    best_baseline,
     channel_table,
     fit_colour,
     fmt,

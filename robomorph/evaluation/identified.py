@@ -1,0 +1,108 @@
+"""The ``identified_physics`` baseline: the engineer's answer, identify the robot, then simulate it.
+
+For each window, the physical parameters a context can reveal (a mass per link; damping,
+armature and friction loss per joint) are fitted to the context by bounded, regularized
+least squares over MuJoCo rollouts (:mod:`robomorph.sim.identify`): bounded by the recipe's
+randomization ranges and pulled weakly toward the catalogue values. The fitted robot is then
+simulated over the horizon exactly as ``nominal_physics`` simulates the catalogue robot
+(same formulation, same gravity compensation), from the last context sample with the joint
+velocity the fitted simulation has there, which follows the context's dynamics instead of
+a polynomial through its last samples.
+
+Each window costs a fit of its own (seconds where the other baselines take milliseconds);
+:meth:`IdentifiedPhysics.notes` reports that cost per window beside the fit's quality, so a
+learned (amortized) identification can be compared on accuracy and on time.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from robomorph.evaluation.baselines import estimate_velocity
+from robomorph.evaluation.physics import NominalPhysics
+from robomorph.sim.identify import Fit, IdentifyConfig
+
+NAME = "identified_physics"
+
+
+class IdentifiedPhysics:
+    """Callable ``(u_ctx, y_ctx, u_query) -> y_query`` for stores of the simulated Panda.
+
+    Args:
+        attrs: the store's attributes (domain, channel names and generator config).
+        inputs: ``total`` (torques given are ``u``) or ``command`` (they are ``u_cmd``).
+        config: how the parameters are fitted (:class:`robomorph.sim.identify.IdentifyConfig`).
+
+    Raises:
+        NotApplicable: the store is not a simulated Panda store with its generator config
+            (imported real logs, other domains, another channel layout): there are no
+            catalogue values or ranges to fit within.
+    """
+
+    def __init__(self, attrs: dict, inputs: str = "total", config: IdentifyConfig | None = None):
+        from robomorph.core.config import from_dict  # noqa: PLC0415
+        from robomorph.sim.identify import Identifier  # noqa: PLC0415  (MuJoCo only when used)
+        from robomorph.sim.recipe import Recipe  # noqa: PLC0415
+
+        self.physics = NominalPhysics(attrs, inputs)  # refuses stores it cannot simulate
+        self.identifier = Identifier(from_dict(Recipe, attrs["config"], "store config"), inputs, config)
+        self.fits: list[Fit] = []
+        self.seconds: list[float] = []  # per window: the fit and the horizon's simulation
+
+    def close(self) -> None:
+        self.identifier.close()
+
+    def __enter__(self) -> "IdentifiedPhysics":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __call__(self, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray, base: np.ndarray | None = None,
+                 at_rest: np.ndarray | None = None) -> np.ndarray:
+        """Predicts ``y_query`` (B, H, n_y).
+
+        Args:
+            base: (B, P) the catalogue parameter vectors to start from, with each robot's
+                springs anchored where it started (default: anchored at the context's first
+                sample, right when the context opens the trajectory).
+            at_rest: (B,) whether each context opens its trajectory (the robot starts at
+                rest: zero initial velocity); default: the velocity at the context's first
+                sample is estimated from its first samples.
+        """
+        sim, nj = self.physics, self.physics._nj
+        q_ctx = y_ctx[..., sim._q].astype(np.float64)
+        # The velocity at the first context sample: a cubic through the first samples, in reverse time.
+        qvel_start = -estimate_velocity(q_ctx[:, ::-1], sim.dt)
+        if at_rest is not None:
+            qvel_start[np.asarray(at_rest, dtype=bool)] = 0.0
+        torque_ctx = u_ctx.astype(np.float64)
+        torque = np.concatenate([u_ctx[:, -1:], u_query], axis=1).astype(np.float64)
+        out = []
+        for b in range(len(u_ctx)):
+            t0 = time.perf_counter()
+            start = sim.params(q_ctx[b, 0]) if base is None else np.asarray(base[b], dtype=np.float64)
+            fit = self.identifier.fit(start, q_ctx[b], torque_ctx[b], qvel_start[b])
+            y = sim.rollout(torque[b], q_ctx[b, -1], fit.qvel_end[:nj], fit.params)
+            if np.dot(y[0, sim._quat], y_ctx[b, -1, sim._quat]) < 0:  # the context's sign convention
+                y[:, sim._quat] *= -1.0
+            out.append(y[1:])
+            self.fits.append(fit)
+            self.seconds.append(time.perf_counter() - t0)
+        return np.stack(out)
+
+    def notes(self) -> dict:
+        """The cost per window and the fits' quality, for ``metrics.json``'s ``baseline_notes``."""
+        if not self.fits:
+            return {}
+        f, s = self.fits, np.asarray(self.seconds)
+        return {"seconds_per_window": float(s.mean()), "seconds_per_window_max": float(s.max()),
+                "seconds_total": float(s.sum()), "windows": len(f),
+                "iterations_mean": float(np.mean([x.iterations for x in f])),
+                "rollouts_per_window": float(np.mean([x.rollouts for x in f])),
+                "converged": int(sum(x.converged for x in f)),
+                "context_rms_mrad": {"catalogue": 1e3 * float(np.sqrt(np.mean([x.rms_start ** 2 for x in f]))),
+                                     "identified": 1e3 * float(np.sqrt(np.mean([x.rms ** 2 for x in f])))},
+                "parameters": list(f[0].names), "threads": len(self.identifier._datas)}

@@ -1,0 +1,89 @@
+"""Starting a run from a pretrained model (``--model.init_ckpt``): its weights, optionally its
+normalization, and the parts of the network kept frozen (``--model.freeze``).
+
+:class:`robomorph.training.module.MetaModule` calls :func:`start_from` once, when training
+begins (not on a resume: the run's own checkpoint then supplies the weights).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from robomorph.model.checkpoint import CheckpointError
+from robomorph.model.files import read_model
+
+# Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
+IO_LAYERS = ("encoder.embed", "decoder.embed", "decoder.init_embed", "head")
+
+
+def apply_freeze(net: torch.nn.Module, mode: str) -> None:
+    """Leaves trainable only what ``freeze`` mode ``mode`` trains."""
+    for name, p in net.named_parameters():
+        if mode == "encoder":
+            p.requires_grad = not name.startswith("enc")
+        elif mode == "all_but_head":
+            p.requires_grad = name.startswith("head")
+
+
+def start_from(module: torch.nn.Module, path: str) -> None:
+    """Loads ``path``'s weights into a built ``MetaModule`` and freezes what its ``freeze`` says.
+
+    Its normalization counts as ready only when it came along (``normalization_from=source``);
+    otherwise the module's ``setup`` computes it from this run's training data.
+    """
+    from_source = load_pretrained(module, path)
+    module.stats_ready.fill_(from_source)
+    apply_freeze(module.net, module.hparams.freeze)
+
+
+def load_pretrained(module: torch.nn.Module, path: str) -> bool:
+    """Loads a pretrained checkpoint's weights into ``module``; True when its normalization came too.
+
+    The statistics (and their "ready" flag) come along only with ``normalization_from=source``;
+    otherwise ``setup`` computes them from this run's data. Refuses another protocol, other
+    channels without ``reinit_io``, ``source`` statistics for other channels and another
+    architecture.
+    """
+    ckpt = read_model(path)  # a training checkpoint or an exported model folder
+    src = ckpt["hyper_parameters"]
+    same_io = (src.get("n_u"), src.get("n_y")) == (module.hparams.n_u, module.hparams.n_y)
+    theirs, ours = src.get("normalization", "train_stats"), module.hparams.get("normalization", "train_stats")
+    if theirs != ours:
+        raise CheckpointError(f"{path} was trained with normalization {theirs!r}, this run uses {ours!r}: "
+                              "transfer between the same protocol only (set data.normalization to match)")
+    if not same_io and not module.hparams.reinit_io:
+        raise CheckpointError(
+            f"{path} was trained with n_u={src.get('n_u')}, n_y={src.get('n_y')}; this model has "
+            f"n_u={module.hparams.n_u}, n_y={module.hparams.n_y}. Set reinit_io=true to re-initialize the "
+            "input embeddings and the head (the rest transfers)."
+        )
+    from_source = module.hparams.get("normalization_from", "target") == "source"
+    if from_source and not same_io:
+        raise CheckpointError(
+            f"normalization_from=source needs the checkpoint's channels, but {path} has n_u={src.get('n_u')}, "
+            f"n_y={src.get('n_y')} and this data n_u={module.hparams.n_u}, n_y={module.hparams.n_y}: "
+            "use --model.normalization_from target (statistics of the new training data)")
+    state = {k: v for k, v in ckpt["state_dict"].items()
+             if (from_source or not _is_stats(k)) and (same_io or not _is_io(k))}
+    ours = module.state_dict()
+    # Checked first: torch refuses other shapes with a page-long RuntimeError, after loading the rest.
+    reshaped = sorted(k for k, v in state.items() if k in ours and tuple(v.shape) != tuple(ours[k].shape))
+    if reshaped:
+        raise CheckpointError(f"{path} does not match this architecture (other shapes of {reshaped[:5]}): "
+                              "use the same d_model, n_head, layers and patch")
+    missing, unexpected = module.load_state_dict(state, strict=False)
+    allowed_missing = [k for k in missing if (not from_source and _is_stats(k)) or (not same_io and _is_io(k))]
+    if set(missing) - set(allowed_missing) - {"stats_ready"} or unexpected:
+        raise CheckpointError(
+            f"{path} does not match this architecture (missing {sorted(set(missing) - set(allowed_missing))[:5]}, "
+            f"unexpected {sorted(unexpected)[:5]}): use the same d_model, n_head, layers and patch"
+        )
+    return from_source
+
+
+def _is_stats(key: str) -> bool:
+    return key.startswith("normalizer.") or key == "stats_ready"
+
+
+def _is_io(key: str) -> bool:
+    return any(key.startswith(f"net.{layer}.") for layer in IO_LAYERS)
