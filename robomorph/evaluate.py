@@ -11,7 +11,7 @@ import sys
 from robomorph.core.errors import UsageError, run_command
 from robomorph.core.names import INPUTS, NORMALIZATIONS
 from robomorph.evaluation import evaluator
-from robomorph.evaluation.baselines import BASELINES, CEILINGS
+from robomorph.evaluation.baselines import BASELINES, CEILINGS, OPT_IN
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -23,7 +23,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizon", type=int, help="predicted steps (default: the checkpoint's)")
     p.add_argument("--n", type=int, help="evaluate only the first N trajectories")
     p.add_argument("--baselines", default=",".join(BASELINES),
-                   help=f"comma list from {BASELINES + CEILINGS}, or 'none' (true_physics reads the hidden "
+                   help=f"comma list from {BASELINES + OPT_IN + CEILINGS}, or 'none' (identified_physics fits "
+                        "each window's parameters: seconds per window; true_physics reads the hidden "
                         "parameters: a predictability ceiling, not a competitor)")
     p.add_argument("--sweep-horizon", help="horizons to sweep, e.g. 200:800:50 or 100,400,800")
     p.add_argument("--sweep-context", help="context lengths to sweep, e.g. 20:200:20")

@@ -12,7 +12,12 @@ gets: the context ``u_ctx (B, Tc, n_u)``, ``y_ctx (B, Tc, n_y)`` and the query i
   samples and simulated freely over the horizon.
 - ``nominal_physics``: the catalogue Panda (no randomization) simulated in MuJoCo from
   the state at the end of the context, driven by the recorded torques.
-- ``true_physics`` (opt-in): the same with each robot's *true* stored parameters, which
+- ``identified_physics`` (opt-in): the physical parameters a context reveals (a mass per
+  link; damping, armature and friction loss per joint) fitted to each window's context,
+  within the randomization ranges, then that robot simulated like ``nominal_physics``
+  (:mod:`robomorph.evaluation.identified`). Each window is a fit of seconds, so it runs only
+  when named.
+- ``true_physics`` (opt-in): ``nominal_physics`` with each robot's *true* stored parameters, which
   no predictor gets: how far the dynamics themselves stay predictable from the estimated
   state. Driven by the total torque, tiny state errors grow tenfold about every 57 steps
   (g(q) is paid at the recorded state); driven by the command on an arm compensating its
@@ -26,6 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 BASELINES = ("hold", "arx", "arx_train", "nominal_physics")
+# Competitors run only when named (--baselines): each window costs a fit of its own.
+OPT_IN = ("identified_physics",)
 # Not a competitor (it reads the parameters the model never sees) but the ceiling of
 # physics itself: each robot's own parameters, from the same estimated state. Opt-in.
 CEILINGS = ("true_physics",)

@@ -37,7 +37,7 @@ from robomorph.evaluation.baselines import BASELINES
 from robomorph.evaluation.horizons import horizon_markdown, parse_horizons
 from robomorph.evaluation.scoring import Scores, score_windows
 from robomorph.evaluation.sources import check_baselines
-from robomorph.evaluation.tables import diverged_note, write_csv, write_horizons_csv, write_table
+from robomorph.evaluation.tables import cost_note, diverged_note, write_csv, write_horizons_csv, write_table
 
 # Window, EvaluationError and parse_range re-exported: callers import them from here.
 from robomorph.evaluation.windows import (  # noqa: F401
@@ -198,12 +198,13 @@ def summary_text(res: dict, out: str, horizons: bool = True) -> str:
                      "paper's protocol), not those of a deployable model")
     if meta.get("in_sample"):
         lines.append("  " + IN_SAMPLE_NOTE.format(store=meta.get("in_sample_store")))
-    lines.append(f"  {'model':16s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}")
+    lines.append(f"  {'model':18s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}")
     notes = meta.get("baseline_notes", {})
     for b, r in res["baselines"].items():
         mb = r["approach1"]["mean"]
-        lines.append(f"  {b:16s} R2 {mb['r2']['mean']:8.3f}  FIT {mb['fit']['mean']:8.2f}  RMSE {mb['rmse']['mean']:.4g}"
-                     + (f"  ({note})" if (note := diverged_note(notes.get(b, {}), meta["n"])) else ""))
+        lines.append(f"  {b:18s} R2 {mb['r2']['mean']:8.3f}  FIT {mb['fit']['mean']:8.2f}  RMSE {mb['rmse']['mean']:.4g}"
+                     + (f"  ({note})" if (note := diverged_note(notes.get(b, {}), meta["n"])) else "")
+                     + (f"  ({note})" if (note := cost_note(notes.get(b, {}))) else ""))
     lines += [f"  skipped {b}: {why}" for b, why in res["skipped_baselines"].items()]
     cal = meta.get("std_calibration")
     if cal:

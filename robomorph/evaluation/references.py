@@ -3,7 +3,7 @@ fitted on the model's training data (``arx_train``) and other checkpoints (``--c
 
 from __future__ import annotations
 
-from robomorph.evaluation.baselines import BASELINES, CEILINGS, TrainedARX
+from robomorph.evaluation.baselines import BASELINES, CEILINGS, OPT_IN, TrainedARX
 from robomorph.evaluation.windows import EvaluationError
 
 
@@ -18,7 +18,7 @@ def load_other(name: str, ckpt: str, w, device: str | None):  # w: evaluation.wi
     """Another checkpoint (``--compare name=ckpt``), checked against the evaluated windows."""
     from robomorph.model.predictor import Predictor  # noqa: PLC0415
 
-    if name in BASELINES + CEILINGS + ("model",):
+    if name in BASELINES + OPT_IN + CEILINGS + ("model",):
         raise EvaluationError(f"--compare {name}=...: {name!r} names a baseline; choose another name")
     other = Predictor.from_checkpoint(ckpt, device=device)
     info = other.data_info or {}

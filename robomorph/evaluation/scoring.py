@@ -130,7 +130,8 @@ def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold"
             When it gives a standard deviation, its calibration is scored too.
         windows: the context and query windows (:func:`robomorph.evaluation.windows.load_window`).
         baselines: names of :data:`robomorph.evaluation.baselines.BASELINES` (and
-            ``true_physics``); one that does not apply is skipped with its reason.
+            ``identified_physics``, ``true_physics``); one that does not apply is skipped
+            with its reason.
         steps: where the per-step errors are reported: 1-based steps or a ``--horizons``
             text such as ``"1,0.25s,1s,5s,end"`` (default that one); full curves are in
             :meth:`Scores.curve` either way.

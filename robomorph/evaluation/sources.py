@@ -15,7 +15,7 @@ import numpy as np
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.normalizations import NormalizationError, query_output_stats
 from robomorph.evaluation import references
-from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, hold
+from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, OPT_IN, hold
 from robomorph.evaluation.windows import EvaluationError, Window
 
 
@@ -75,10 +75,10 @@ def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
 
 
 def check_baselines(names) -> None:
-    """Refuses a baseline name that is not one of :data:`BASELINES` or :data:`CEILINGS`."""
+    """Refuses a baseline name that is not one of :data:`BASELINES`, :data:`OPT_IN` or :data:`CEILINGS`."""
     for name in names:
-        if name not in BASELINES + CEILINGS:
-            raise EvaluationError(f"unknown baseline {name!r}; choose from {BASELINES + CEILINGS}")
+        if name not in BASELINES + OPT_IN + CEILINGS:
+            raise EvaluationError(f"unknown baseline {name!r}; choose from {BASELINES + OPT_IN + CEILINGS}")
 
 
 def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int],
@@ -102,6 +102,14 @@ def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]
                 if name == "arx_train":
                     notes[name]["trajectories"] = arx.trajectories
             except ValueError as exc:  # too short a context, or no training data to read
+                skipped[name] = str(exc)
+        elif name == "identified_physics":
+            from robomorph.evaluation.identified import predict_windows  # noqa: PLC0415
+            from robomorph.evaluation.physics import NotApplicable  # noqa: PLC0415
+
+            try:
+                preds[name], notes[name] = predict_windows(w, anchors=nominal_params)  # notes: the cost per window
+            except NotApplicable as exc:
                 skipped[name] = str(exc)
         else:  # nominal_physics, true_physics
             from robomorph.evaluation.physics import NominalPhysics, NotApplicable, check_params  # noqa: PLC0415

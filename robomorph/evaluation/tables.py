@@ -55,6 +55,14 @@ def diverged_note(note: dict, n: int) -> str:
     return f"{k} of {n} trajectories diverged: held instead" if k else ""
 
 
+def cost_note(note: dict) -> str:
+    """``"fit 4.2 s per window (max 7.9 s), 10 iterations"`` for a baseline that fits each window."""
+    if "seconds_per_window" not in note:
+        return ""
+    return (f"fit {note['seconds_per_window']:.3g} s per window (max {note['seconds_per_window_max']:.3g} s), "
+            f"{note['iterations_mean']:.3g} iterations")
+
+
 def table_markdown(result: dict) -> str:
     """Per-channel R^2 and FIT (approaches 1 and 2) of the model, FIT of each baseline."""
     meta, a1, a2 = result["meta"], result["approach1"], result["approach2"]
@@ -83,6 +91,8 @@ def table_markdown(result: dict) -> str:
     for b in base:
         if note := diverged_note(notes.get(b, {}), meta["n"]):
             lines.append(f"Baseline `{b}`: {note} (its scores include those held predictions).")
+        if note := cost_note(notes.get(b, {})):
+            lines.append(f"Baseline `{b}`: {note}.")
     for b, why in result.get("skipped_baselines", {}).items():
         lines.append(f"Skipped baseline `{b}`: {why}")
     if "horizons" in result:

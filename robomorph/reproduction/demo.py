@@ -9,7 +9,8 @@
    and prints the per-channel table.
 4. Writes the HTML report of all runs (``results/report.html``) and prints its path.
 5. Ends with the RMS errors by horizon in physical units (joint angles [mrad], end-effector
-   position [mm] and orientation [mrad]) of the model, ``hold`` and ``nominal_physics``.
+   position [mm] and orientation [mrad]) of the model, ``hold``, ``nominal_physics`` and
+   ``identified_physics`` (with its fitting cost per window).
 
 Re-running skips datasets that are complete and resumes the training run.
 """
@@ -72,12 +73,14 @@ def train(out_dir: str, robots: int, minutes: float, runs_dir: str) -> tuple[str
 
 def evaluate_and_report(ckpt: str, test: str, runs_dir: str) -> tuple[str, str, dict]:
     """Scores held-out robots (model and baselines, both sweeps) and builds the HTML report."""
+    from robomorph.evaluation.baselines import BASELINES, OPT_IN  # noqa: PLC0415
     from robomorph.evaluation.evaluator import evaluate, summary_text  # noqa: PLC0415
     from robomorph.reporting.dashboard import build_report, default_out  # noqa: PLC0415
 
     calibrate_std(ckpt)
     out = RunDir.of_checkpoint(ckpt).eval_dir(test)
-    res = evaluate(ckpt, test, out, sweep_horizon_spec="100:800:100", sweep_context_spec="20:200:20")
+    res = evaluate(ckpt, test, out, baselines=BASELINES + OPT_IN, sweep_horizon_spec="100:800:100",
+                   sweep_context_spec="20:200:20")
     with open(os.path.join(out, "table.md")) as f:
         print("\n" + f.read())
     print(summary_text(res, out, horizons=False))  # the demo closes with the horizon table
@@ -124,10 +127,13 @@ def run_demo(out_dir: str = "data/demo", robots: int = 32, steps: int = 1000, tr
 
 
 def horizon_summary(res: dict) -> str:
-    """The closing table: RMS error by horizon of the model, hold and nominal physics."""
+    """The closing table: RMS error by horizon of the model, hold, nominal and identified physics."""
     from robomorph.evaluation.horizons import horizon_markdown  # noqa: PLC0415
+    from robomorph.evaluation.tables import cost_note  # noqa: PLC0415
 
     meta = res["meta"]
+    cost = cost_note(meta.get("baseline_notes", {}).get("identified_physics", {}))
     return (f"\nRMS error by horizon on {meta['n']} held-out robots (context {meta['context_len']} steps; "
             "step k is k dt after the last context sample):\n"
-            + horizon_markdown(res["horizons"], ("model", "hold", "nominal_physics")))
+            + horizon_markdown(res["horizons"], ("model", "hold", "nominal_physics", "identified_physics"))
+            + (f"\nidentified_physics: {cost}.\n" if cost else ""))

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import os
 import shutil
 import sys
@@ -207,11 +208,18 @@ def build_cli(args: list[str] | dict | None = None, callbacks: list | None = Non
     if args is not None:
         # Called as a function (tests, sweeps, demo): the caller's own command line is not ours.
         warnings.filterwarnings("ignore", message="LightningCLI's args parameter is intended")
-    return cls(
-        MetaModule, RoboMorphDataModule, run=False, args=args, trainer_defaults=TRAINER_DEFAULTS,
-        save_config_callback=None, seed_everything_default=0,
-        parser_kwargs={"prog": "python -m robomorph.fit", "description": __doc__.split("\n")[0]},
-    )
+    # "Seed set to N" would precede any one-line error of a bad command; the seed is in config.yaml.
+    seed_log = logging.getLogger("lightning.fabric.utilities.seed")
+    level = seed_log.level
+    seed_log.setLevel(logging.WARNING)
+    try:
+        return cls(
+            MetaModule, RoboMorphDataModule, run=False, args=args, trainer_defaults=TRAINER_DEFAULTS,
+            save_config_callback=None, seed_everything_default=0,
+            parser_kwargs={"prog": "python -m robomorph.fit", "description": __doc__.split("\n")[0]},
+        )
+    finally:
+        seed_log.setLevel(level)
 
 
 def fit(args: list[str] | dict | None = None, callbacks: list | None = None) -> FitResult:

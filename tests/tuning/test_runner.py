@@ -194,7 +194,8 @@ def test_transfer_regimes_as_a_study(store, tmp_path):
     from robomorph.training.fitting import fit
 
     base = load_space(CI_SPACE).base
-    pre = fit({**base, "data": {**base["data"], "stores": store}, "trainer": {**base["trainer"], "max_steps": 10, "val_check_interval": 5},
+    trainer = {**base["trainer"], "max_steps": 10, "val_check_interval": 5}
+    pre = fit({**base, "data": {**base["data"], "stores": store}, "trainer": trainer,
                "run": "pre", "runs_dir": str(tmp_path / "runs"), "wandb": "disabled"})
     space = parse_space({
         "name": "tr", "objective": {"metric": "fit", "direction": "maximize", "data": store},
