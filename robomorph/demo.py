@@ -21,12 +21,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--minutes", type=float, default=6.0, help="training budget (wall clock)")
     p.add_argument("--runs-dir", default="results/runs")
     p.add_argument("--workers", type=int, default=None)
+    p.add_argument("--identified-physics", action="store_true",
+                   help="also score the identified_physics baseline (a per-window parameter fit: minutes more)")
     return p
 
 
 def run(args: argparse.Namespace) -> int:
     res = demo.run_demo(args.out_dir, args.robots, args.steps, args.train_robots, args.minutes, args.runs_dir,
-                        args.workers)
+                        args.workers, args.identified_physics)
     print(f"\ndatasets: {', '.join(res.stores)}")
     print(f"training run: {res.run_dir} (config.yaml, checkpoints/best.ckpt, logs/metrics.csv, wandb/)")
     print(f"evaluation: {res.eval_dir} (metrics.json, metrics.csv, table.md, plots)")

@@ -267,13 +267,11 @@ class Identifier:
             return np.vstack([cols.T, cfg.prior * np.eye(len(z))])
 
         if len(sp) == 0:
-            return problem.result(np.zeros(0), 0, 0, t0, True)
+            return problem.result(np.zeros(0), 0, 0, t0, True, problem.rms(np.zeros(0)))
         rms_start = problem.rms(z0)
         sol = least_squares(residual, z0, jac=jacobian, bounds=(-1.0, 1.0), method="trf",
                             ftol=cfg.tol, xtol=cfg.tol, gtol=1e-10, max_nfev=cfg.max_iters, x_scale=1.0)
-        out = problem.result(sol.x, int(sol.njev or 0), int(sol.nfev), t0, sol.status > 0)
-        out.rms_start = rms_start
-        return out
+        return problem.result(sol.x, int(sol.njev or 0), int(sol.nfev), t0, sol.status > 0, rms_start)
 
 
 class _Problem:
@@ -350,10 +348,11 @@ class _Problem:
     def rms(self, z: np.ndarray) -> float:
         return float(np.sqrt(np.mean(self.cached(z) ** 2)))
 
-    def result(self, z: np.ndarray, iterations: int, evaluations: int, t0: float, converged: bool) -> Fit:
+    def result(self, z: np.ndarray, iterations: int, evaluations: int, t0: float, converged: bool,
+               rms_start: float) -> Fit:
         rms = self.rms(z)
         sp = self.ident.space
-        return Fit(self.params(z), sp.names, sp.from_unit(z), rms, rms, self._qvel_end[z.tobytes()].copy(),
+        return Fit(self.params(z), sp.names, sp.from_unit(z), rms, rms_start, self._qvel_end[z.tobytes()].copy(),
                    iterations, evaluations, self.rollouts, time.perf_counter() - t0, bool(converged))
 
 
