@@ -110,7 +110,7 @@ class IdentifiedPhysics:
                 "converged": int(sum(x.converged for x in f)),
                 "context_rms_mrad": {"catalogue": 1e3 * float(np.sqrt(np.mean([x.rms_start ** 2 for x in f]))),
                                      "identified": 1e3 * float(np.sqrt(np.mean([x.rms ** 2 for x in f])))},
-                "parameters": list(f[0].names), "threads": len(self.identifier._datas)}
+                "parameters": list(f[0].names), "threads": self.identifier._rollout.nthread}
 
 
 def predict_windows(w, config: IdentifyConfig | None = None, anchors=None) -> tuple[np.ndarray, dict]:

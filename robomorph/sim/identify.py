@@ -38,10 +38,10 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
-from mujoco import rollout
 
 from robomorph.core.errors import RoboMorphError
 from robomorph.sim import panda
+from robomorph.sim.open_loop import ThreadedRollout
 from robomorph.sim.randomize import RandomizationConfig, Randomizer
 
 KINDS = ("mass", "damping", "armature", "frictionloss")
@@ -214,14 +214,11 @@ class Identifier:
             self._catalogue_gravity = NominalGravity(recipe)
         self._models = [copy.deepcopy(self.model) for _ in range(max(1, len(self.space)))]
         nthread = min(self.config.nthread or os.cpu_count() or 1, len(self._models))
-        self._datas = [mujoco.MjData(self.model) for _ in range(nthread)]
-        self._pool = rollout.Rollout(nthread=nthread) if nthread > 1 else None
+        self._rollout = ThreadedRollout(self.model, nthread)
         self._scratch = mujoco.MjData(self.model)
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.close()
-            self._pool = None
+        self._rollout.close()
 
     def __enter__(self) -> "Identifier":
         return self
@@ -323,10 +320,7 @@ class _Problem:
             ctrl = self.torque[None] - g_fixed[None] - np.einsum("tbj,kb->ktj", per_link, np.asarray(masses))
         control = np.repeat(ctrl, ident.substeps, axis=1)
         state = np.empty((k, self.nstep, len(self.x0)))
-        if ident._pool is None:
-            rollout.rollout(models, ident._datas[0], self.x0, control, state=state)
-        else:
-            ident._pool.rollout(models, ident._datas, self.x0, control, state=state)
+        ident._rollout(models, self.x0, control, state=state)
         self.rollouts += k
         nq = panda.N_JOINT
         qsim = state[:, self.rows, 1:1 + nq]  # FULLPHYSICS: time, qpos, qvel, ...

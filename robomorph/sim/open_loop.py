@@ -19,6 +19,31 @@ from mujoco import rollout
 _STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
+class ThreadedRollout:
+    """``mujoco.rollout`` over per-thread datas: one call rolls out a batch of models, on a
+    thread pool when ``nthread > 1``. Shared by generation and identification."""
+
+    def __init__(self, model: mujoco.MjModel, nthread: int):
+        self.datas = [mujoco.MjData(model) for _ in range(nthread)]
+        self._pool = rollout.Rollout(nthread=nthread) if nthread > 1 else None
+
+    def __call__(self, models: list, x0: np.ndarray, control: np.ndarray, **out) -> None:
+        """Rolls ``models`` out from ``x0`` under ``control``, filling ``out`` (state=, sensordata=)."""
+        if self._pool is None:
+            rollout.rollout(models, self.datas[0], x0, control, **out)
+        else:
+            self._pool.rollout(models, self.datas, x0, control, **out)
+
+    @property
+    def nthread(self) -> int:
+        return len(self.datas)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.close()
+            self._pool = None
+
+
 class OpenLoopEngine:
     """Reusable models, datas, thread pool and buffers for batches of open-loop rollouts.
 
@@ -32,18 +57,15 @@ class OpenLoopEngine:
             raise ValueError(f"nthread and substeps must be >= 1, got {nthread}, {substeps}")
         group = group or 2 * nthread
         self.models = [copy.deepcopy(model) for _ in range(group)]
-        self.datas = [mujoco.MjData(model) for _ in range(nthread)]
+        self._rollout = ThreadedRollout(model, nthread)
         self._scratch = mujoco.MjData(model)
         self.substeps = substeps
         self.nthread = nthread
-        self._pool = rollout.Rollout(nthread=nthread) if nthread > 1 else None
         self._state = np.empty(0)
         self._sens = np.empty(0)
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.close()
-            self._pool = None
+        self._rollout.close()
 
     def __enter__(self) -> "OpenLoopEngine":
         return self
@@ -92,8 +114,5 @@ class OpenLoopEngine:
             x0 = np.stack([self.initial_state(m, qpos0[i]) for m, i in zip(models, rows)])
             control = np.repeat(np.asarray(ctrl[rows.start:rows.stop], dtype=np.float64), self.substeps, axis=1)
             out = dict(state=state[: len(rows)], sensordata=sens[rows.start:rows.stop])
-            if self._pool is None:
-                rollout.rollout(models, self.datas[0], x0, control, **out)
-            else:
-                self._pool.rollout(models, self.datas, x0, control, **out)
+            self._rollout(models, x0, control, **out)
         return sens, ranges
