@@ -48,6 +48,11 @@ def _data(out: str, robots: int, held_out: int, steps: int) -> tuple[str, str]:
     return train, test
 
 
+def _given(flags: dict) -> list[str]:
+    """The fit arguments of the flags the user gave; the others keep train_cpu.yaml's values."""
+    return [part for key, value in flags.items() if value is not None for part in (key, str(value))]
+
+
 def _train(inputs: str, train: str, test: str, args) -> tuple[str, int, float]:
     """Trains one formulation; returns (best checkpoint, steps, minutes)."""
     t0 = time.perf_counter()
@@ -55,8 +60,8 @@ def _train(inputs: str, train: str, test: str, args) -> tuple[str, int, float]:
         "--config", TRAIN_CPU, "--data.stores", train, "--data.test_store", test,
         "--data.split", "[0.95, 0.05, 0.0]", "--data.inputs", inputs, "--data.val_subset", str(args.val_subset),
         "--model.decay_steps", str(args.steps), "--model.warmup_steps", str(min(500, args.steps // 10)),
-        "--model.d_model", str(args.d_model), "--model.n_layer", str(args.n_layer), "--model.patch", str(args.patch),
-        "--data.batch_size", str(args.batch),
+        *_given({"--model.d_model": args.d_model, "--model.n_layer": args.n_layer, "--model.patch": args.patch,
+                 "--data.batch_size": args.batch}),
         "--trainer.max_steps", str(args.steps), "--trainer.max_time", f"00:00:{int(args.max_minutes):02d}:00",
         "--trainer.val_check_interval", str(max(2, args.steps // 6)), "--trainer.enable_progress_bar", "false",
         "--data.context_len", str(args.context), "--data.horizon", str(args.horizon),
@@ -96,10 +101,10 @@ def main(argv=None) -> None:
     p.add_argument("--robots", type=int, default=1500, help="training robots")
     p.add_argument("--held-out", type=int, default=128)
     p.add_argument("--val-subset", type=int, default=75, help="validation trajectories (fixed subset)")
-    p.add_argument("--d-model", type=int, default=128, help="the CPU model's width (train_cpu.yaml: 128)")
-    p.add_argument("--n-layer", type=int, default=4, help="encoder and decoder depth (train_cpu.yaml: 4)")
-    p.add_argument("--patch", type=int, default=10, help="steps per token (train_cpu.yaml: 10)")
-    p.add_argument("--batch", type=int, default=32, help="trajectories per batch (train_cpu.yaml: 32)")
+    p.add_argument("--d-model", type=int, default=None, help="the model's width (default: train_cpu.yaml's)")
+    p.add_argument("--n-layer", type=int, default=None, help="encoder and decoder depth (default: train_cpu.yaml's)")
+    p.add_argument("--patch", type=int, default=None, help="steps per token (default: train_cpu.yaml's)")
+    p.add_argument("--batch", type=int, default=None, help="trajectories per batch (default: train_cpu.yaml's)")
     p.add_argument("--context", type=int, default=200)
     p.add_argument("--horizon", type=int, default=800)
     p.add_argument("--trajectory-steps", type=int, default=1000, help="steps per generated trajectory")
