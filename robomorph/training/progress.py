@@ -95,6 +95,10 @@ class ValidationLines(L.Callback):
         tqdm.write(line, file=sys.stderr)  # above the bar, which tqdm then redraws
 
 
+# Steps between two updates of the bar's loss and time.
+POSTFIX_EVERY = 10
+
+
 class StepBar(ProgressBar):
     """A tqdm bar of optimizer steps (not epochs) against ``max_steps``."""
 
@@ -121,6 +125,10 @@ class StepBar(ProgressBar):
         if self.bar is None:
             return
         self.bar.update(trainer.global_step - self.bar.n)
+        # Reading the loss copies it to the host (a device sync on a GPU): only when the bar is
+        # drawn, and every POSTFIX_EVERY steps, not in every training step.
+        if self.bar.disable or self.bar.n % POSTFIX_EVERY:
+            return
         loss = _scalar(trainer.callback_metrics, TRAIN_LOSS)
         post = {"loss": f"{loss:.4g}"} if loss is not None else {}
         if self.budget.cap is not None:

@@ -81,3 +81,35 @@ def test_the_bar_counts_optimizer_steps_and_replaces_lightnings(store, tmp_path)
 
 def test_clock():
     assert (clock(0), clock(65.4), clock(3725), clock(-1)) == ("0:00", "1:05", "1:02:05", "0:00")
+
+
+def test_the_bar_reads_the_loss_only_every_few_steps():
+    """Reading the loss syncs a GPU with the host: not in every training step."""
+    import io
+    from types import SimpleNamespace
+
+    from tqdm import tqdm
+
+    from robomorph.training.progress import POSTFIX_EVERY
+
+    class CountingMetrics(dict):
+        reads = 0
+
+        def get(self, key, default=None):
+            CountingMetrics.reads += 1
+            return super().get(key, default)
+
+    bar = StepBar()
+    bar.budget = SimpleNamespace(cap=None)
+    bar.bar = tqdm(total=100, file=io.StringIO(), disable=False)
+    trainer = SimpleNamespace(global_step=0, callback_metrics=CountingMetrics({"train/loss": 0.5}))
+    for step in range(1, 3 * POSTFIX_EVERY + 1):
+        trainer.global_step = step
+        bar.on_train_batch_end(trainer)
+    assert bar.bar.n == 3 * POSTFIX_EVERY
+    assert CountingMetrics.reads == 3  # once every POSTFIX_EVERY steps
+    bar.bar.disable = True  # not a terminal: nothing is drawn, nothing is read
+    trainer.global_step += POSTFIX_EVERY
+    bar.on_train_batch_end(trainer)
+    assert CountingMetrics.reads == 3
+    bar.close()
