@@ -2,7 +2,7 @@
 
 Runs in one process, on the same randomized models, initial states and torques:
   1. ``robomorph.data.generation.generate`` (draw, randomize, roll out, filter, write Zarr);
-  2. bare ``mujoco.rollout.Rollout`` over exactly the attempts the pipeline simulated;
+  2. bare ``mujoco.rollout`` (threaded, as the pipeline calls it) over exactly the attempts the pipeline simulated;
 then the OSC (closed-loop, worker processes) pipeline, and peak memory.
 
     python benchmarks/generate.py [--robots 256] [--osc-robots 32] [--workers N]
@@ -22,11 +22,10 @@ import time
 
 import numpy as np
 from common import print_provenance
-from mujoco import rollout
 
 from robomorph.data.generation import generate
 from robomorph.sim import episode
-from robomorph.sim.open_loop import OpenLoopEngine
+from robomorph.sim.open_loop import OpenLoopEngine, ThreadedRollout
 from robomorph.sim.randomize import Randomizer
 from robomorph.sim.recipe import load_recipe
 
@@ -39,7 +38,7 @@ def _raw_rollout(recipe, n_attempts: int, workers: int) -> float:
     # The bare rollout gets one model per trajectory of a chunk (its natural use), and
     # only the rollout call is timed: no drawing, randomizing, filtering or writing.
     with OpenLoopEngine(model, workers, recipe.substeps, group=recipe.chunk) as eng:
-        pool = rollout.Rollout(nthread=workers)
+        threaded = ThreadedRollout(model, workers)
         for start in range(0, n_attempts, recipe.chunk):
             draws = [episode.draw(recipe, rnd, i) for i in range(start, min(start + recipe.chunk, n_attempts))]
             models = eng.models[: len(draws)]
@@ -48,9 +47,9 @@ def _raw_rollout(recipe, n_attempts: int, workers: int) -> float:
             x0 = np.stack([eng.initial_state(m, d.qpos0) for m, d in zip(models, draws)])
             ctrl = np.repeat(np.stack([d.ctrl for d in draws]), recipe.substeps, axis=1)
             t0 = time.perf_counter()
-            pool.rollout(models, eng.datas, x0, ctrl)
+            threaded(models, x0, ctrl)
             elapsed += time.perf_counter() - t0
-        pool.close()
+        threaded.close()
     return elapsed
 
 
