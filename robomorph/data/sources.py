@@ -34,6 +34,10 @@ class Source:
         self.u_names, self.y_names, self.dt = ds.input_names(inputs), ds.y_names, ds.dt
         # Recording of each window (ingested logs): splits keep a recording's windows together.
         self.groups = ds.read(RECORDING_ARRAY) if RECORDING_ARRAY in ds.arrays else None
+        # Each robot's physical parameters (simulated stores): the parameter head's targets.
+        self.attrs = dict(ds.attrs)
+        self.params = ds.read("params").astype(np.float64) if "params" in ds.arrays and self.attrs.get(
+            "param_names") else None
         self.u: np.ndarray | None = None
         self.y: np.ndarray | None = None
         self._ds, self._pid = ds, os.getpid()

@@ -35,6 +35,9 @@ class WindowDataset(Dataset):
     def __init__(self, sources: list[Source], pairs: np.ndarray, context_len: int, horizon: int):
         self.sources, self.pairs = sources, pairs
         self.context_len, self.horizon = context_len, horizon
+        # The robots' parameters ride along when every store records them (a batch stacks
+        # the same keys); only the parameter head reads them, never the sequence model.
+        self.with_params = bool(sources) and all(getattr(s, "params", None) is not None for s in sources)
 
     def __len__(self) -> int:
         return len(self.pairs)
@@ -45,8 +48,11 @@ class WindowDataset(Dataset):
         s, i = self.pairs[row]
         u, y = self.sources[s].window(int(i), offset, offset + c + h)
         # Copies: a batch must not keep a view of a whole in-memory store alive.
-        return {k: torch.from_numpy(np.array(v, dtype=np.float32))
-                for k, v in (("u_ctx", u[:c]), ("y_ctx", y[:c]), ("u_query", u[c:]), ("y_query", y[c:]))}
+        out = {k: torch.from_numpy(np.array(v, dtype=np.float32))
+               for k, v in (("u_ctx", u[:c]), ("y_ctx", y[:c]), ("u_query", u[c:]), ("y_query", y[c:]))}
+        if self.with_params:
+            out["params"] = torch.from_numpy(np.array(self.sources[s].params[int(i)], dtype=np.float64))
+        return out
 
 
 class MixtureSampler(Sampler):

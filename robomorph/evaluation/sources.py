@@ -20,11 +20,13 @@ from robomorph.evaluation.windows import EvaluationError, Window
 
 
 def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None,
-            with_std: bool = False):
+            with_std: bool = False, at_rest=None):
     """The model's predictions in batches, with a progress bar on stderr.
 
     ``y_query`` (the true outputs) is read only by a ``paper_window`` model, which needs
     their statistics (the paper's protocol); any other model never receives them.
+    ``at_rest`` (N,) bools, the windows that open their trajectory, goes to a hybrid model
+    (one with a physics backbone), whose simulation then starts at rest.
 
     Returns:
         (N, H, n_y) means, or with ``with_std`` the pair (means, standard deviations).
@@ -38,7 +40,10 @@ def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "mode
     for s in tqdm(range(0, len(u_ctx), batch_size), desc=desc, unit="batch", leave=False,
                   disable=not sys.stderr.isatty() and len(u_ctx) <= batch_size):
         part = slice(s, s + batch_size)
-        out = predictor.simulate(u_ctx[part], y_ctx[part], u_query[part], **_extra(predictor, y_query, part, with_std))
+        kwargs = _extra(predictor, y_query, part, with_std)
+        if at_rest is not None and getattr(predictor, "physics", None):
+            kwargs["at_rest"] = np.asarray(at_rest)[part]
+        out = predictor.simulate(u_ctx[part], y_ctx[part], u_query[part], **kwargs)
         mean = out[0] if with_std else out
         if with_std:
             stds.append(out[1])

@@ -107,6 +107,13 @@ class Predictor:
         max_input_std: ``simulate`` refuses torques further than this many training
             standard deviations from the training mean (default :data:`MAX_INPUT_STDS`;
             None: no check).
+        physics: the physics backbone's record (parameter layout and generator recipe) of a
+            model trained with ``--model.physics amortized``, else None.
+        physics_mode: how such a model predicts: ``fast`` (default: the robot with the
+            parameters read from the context, simulated), ``refined`` (a few Gauss-Newton
+            iterations of identification started from them) or ``none`` (the black-box
+            decoder). :class:`robomorph.model.hybrid.Hybrid` has the details.
+        physics_samples: parameter draws behind the hybrid's standard deviation.
     """
 
     def __init__(self, model: TrainedModel, device: str | torch.device | None = None, data_info: dict | None = None):
@@ -119,6 +126,27 @@ class Predictor:
         self.has_std = bool(getattr(model, "gaussian", False))
         # Checkpoints written before the command formulation were all trained on total torque.
         self.inputs: str = (data_info or {}).get("inputs", "total")
+        self.physics: dict | None = (data_info or {}).get("physics") if model.config.n_params else None
+        self.physics_mode: str = "fast" if self.physics else "none"
+        self.physics_samples: int = 8
+        self._hybrid = None
+        if self.physics:
+            self.has_std = True  # the spread over parameter draws
+
+    def hybrid(self):
+        """The :class:`robomorph.model.hybrid.Hybrid` of this model (built on first use).
+
+        Raises:
+            PredictionError: the model has no physics backbone.
+        """
+        from robomorph.model.hybrid import Hybrid  # noqa: PLC0415  (MuJoCo only when used)
+
+        if not self.physics:
+            raise PredictionError("this model has no physics backbone (it was trained with --model.physics none)")
+        if self._hybrid is None:
+            self._hybrid = Hybrid(self.model, self.physics, self.inputs, samples=self.physics_samples)
+        self._hybrid.samples = self.physics_samples
+        return self._hybrid
 
     def check_inputs(self, inputs: str | None) -> None:
         """Refuses inputs of the other formulation than the one the model was trained on."""
@@ -218,7 +246,7 @@ class Predictor:
 
     @torch.no_grad()
     def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, inputs: str | None = None,
-                 return_std: bool = False):
+                 return_std: bool = False, at_rest=None):
         """Predicts the outputs over the query horizon.
 
         Args:
@@ -232,7 +260,10 @@ class Predictor:
                 given, a mismatch with the training formulation is refused.
             return_std: also return the predicted standard deviation (models trained with
                 ``gaussian: true`` only), recalibrated by horizon when the checkpoint
-                carries a calibration (:attr:`calibration`).
+                carries a calibration (:attr:`calibration`). A hybrid model's standard
+                deviation is the spread over :attr:`physics_samples` parameter draws.
+            at_rest: hybrid models only: bool or (B,) bools, the context opens its trajectory
+                (the robot starts at rest); default False (its first velocity is estimated).
 
         Returns:
             y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``;
@@ -249,7 +280,9 @@ class Predictor:
             CheckpointError: ``return_std`` for a model without a Gaussian head.
         """
         self.check_inputs(inputs)
-        if return_std and not self.has_std:
+        if self.physics and self.physics_mode != "none":
+            return self._simulate_hybrid(u_ctx, y_ctx, u_query, y_query_stats, return_std, at_rest)
+        if return_std and not getattr(self.model, "gaussian", False):
             raise CheckpointError("this model has no Gaussian head, so it predicts no standard deviation; "
                                   "train one with --model.gaussian true --model.loss nll, or drop return_std")
         as_numpy = not isinstance(u_query, torch.Tensor)
@@ -270,4 +303,30 @@ class Predictor:
             out = [t.cpu().numpy().astype(kind) for t in out]
         else:
             out = [t.to(u_query.device, u_query.dtype) for t in out]
+        return tuple(out) if return_std else out[0]
+
+    def _simulate_hybrid(self, u_ctx, y_ctx, u_query, y_query_stats, return_std: bool, at_rest):
+        """:meth:`simulate` of a model with a physics backbone (:attr:`physics_mode`)."""
+        if y_query_stats is not None:
+            raise NormalizationError("a hybrid model uses no query statistics: drop y_query_stats")
+        as_numpy = not isinstance(u_query, torch.Tensor)
+        dtype = getattr(u_query, "dtype", None)
+        tensors, single = _as_batch((u_ctx, y_ctx, u_query), (self.n_u, self.n_y, self.n_u), self.device)
+        self._check_range(tensors[0], tensors[2])
+        try:
+            mean, std = self.hybrid().predict(*tensors, at_rest=at_rest, mode=self.physics_mode,
+                                              return_std=return_std)
+        except RoboMorphError:
+            raise
+        except ValueError as exc:  # the network's shape and length checks: the caller's arrays
+            raise PredictionError(str(exc)) from None
+        out = [t[0] if single else t for t in (mean, std) if t is not None]
+        if not np.all(np.isfinite(out[0])):
+            raise PredictionError("the simulated robot diverged (non-finite outputs): check the torques' units and "
+                                  "scale, or predict with physics_mode 'none'")
+        if as_numpy:
+            kind = dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32
+            out = [t.astype(kind) for t in out]
+        else:
+            out = [torch.as_tensor(t).to(u_query.device, u_query.dtype) for t in out]
         return tuple(out) if return_std else out[0]

@@ -86,6 +86,9 @@ class ModelConfig:
         n_init: Last context steps given to the decoder as initial-condition tokens (0 = off);
             a multiple of ``patch``, at most ``max_context``; contexts must be at least this long.
         gaussian: The head also emits a log-variance per step and channel.
+        n_params: Physical parameters the parameter head predicts from the encoder's memory
+            (0 = no parameter head; the hybrid model's amortized identification,
+            :meth:`MetaModel.forward_params`).
     """
 
     n_u: int = 7
@@ -101,6 +104,7 @@ class ModelConfig:
     patch: int = 10
     n_init: int = 0
     gaussian: bool = False
+    n_params: int = 0
 
     def __post_init__(self) -> None:
         for name in ("n_u", "n_y", "d_model", "n_head", "n_layer", "max_context", "max_horizon", "patch"):
@@ -114,6 +118,8 @@ class ModelConfig:
         for name in ("bias", "gaussian"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"ModelConfig.{name} must be true or false, got {getattr(self, name)!r}")
+        if isinstance(self.n_params, bool) or not isinstance(self.n_params, int) or self.n_params < 0:
+            raise ConfigError(f"ModelConfig.n_params must be a non-negative integer, got {self.n_params!r}")
         if isinstance(self.n_init, bool) or not isinstance(self.n_init, int) or self.n_init < 0:
             raise ConfigError(f"ModelConfig.n_init must be a non-negative integer, got {self.n_init!r}")
         if self.n_init % self.patch or self.n_init > self.max_context:
@@ -303,6 +309,11 @@ class MetaModel(nn.Module):
         self.encoder = Encoder(cfg)
         self.decoder = Decoder(cfg)
         self.head = nn.Linear(cfg.d_model, cfg.patch * cfg.n_y * (2 if cfg.gaussian else 1), bias=cfg.bias)
+        # The parameter head reads the mean of the encoder's memory: the context only, so no
+        # query value can reach the parameters (and their simulation) by construction.
+        self.param_head = nn.Sequential(
+            nn.LayerNorm(cfg.d_model, bias=cfg.bias), nn.Linear(cfg.d_model, cfg.d_model, bias=cfg.bias), nn.GELU(),
+            nn.Linear(cfg.d_model, 2 * cfg.n_params, bias=cfg.bias)) if cfg.n_params else None
         self.apply(_init_weights)
         # GPT-2: residual projections shrink with depth so the stream's variance stays put.
         for stack, n_layers in ((self.encoder, cfg.n_layer), (self.decoder, cfg.decoder_layers)):
@@ -348,6 +359,22 @@ class MetaModel(nn.Module):
             return y, None
         mean, logvar = y.split(cfg.n_y, dim=-1)
         # Bounded so that exp() can neither overflow nor divide by zero in the NLL.
+        return mean, logvar.clamp(LOGVAR_MIN, LOGVAR_MAX)
+
+    def forward_params(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mean and log-variance (B, n_params) of the physical parameters in unit coordinates
+        (-1 and 1 at the randomization bounds), from the normalized context alone.
+
+        Raises:
+            ValueError: the model has no parameter head, or the context has a wrong shape.
+        """
+        cfg = self.cfg
+        if self.param_head is None:
+            raise ValueError("this model has no parameter head (n_params 0): train it with --model.physics amortized")
+        B, Tc, _ = self._check_inputs(u_ctx, y_ctx, u_ctx[:, :1])  # the context's checks (no query here)
+        ctx = torch.cat([u_ctx, y_ctx], dim=-1).reshape(B, Tc // cfg.patch, cfg.patch * (cfg.n_u + cfg.n_y))
+        out = self.param_head(self.encoder(ctx).mean(dim=1))
+        mean, logvar = out.split(cfg.n_params, dim=-1)
         return mean, logvar.clamp(LOGVAR_MIN, LOGVAR_MAX)
 
     def num_params(self, trainable_only: bool = False) -> int:

@@ -7,6 +7,7 @@ arrive in physical units from :class:`robomorph.data.datamodule.RoboMorphDataMod
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import lightning.pytorch as L
@@ -36,11 +37,16 @@ from robomorph.model.checkpoint import (
 )
 from robomorph.model.normalization import Normalizer, query_stats
 from robomorph.model.transformer import MetaModel, ModelConfig
+from robomorph.sim.backbone import BackboneError
 from robomorph.training.data_record import check_channels, data_info
 from robomorph.training.losses import ModelOptionError, check_loss, elementwise_loss, horizon_weights, whole_patches
 from robomorph.training.optim import lr_factor as _lr_factor
 from robomorph.training.optim import optimizers
 from robomorph.training.pretrained import apply_freeze, start_from
+
+# The parameter head's outputs: the Panda's identifiable parameters (robomorph.sim.backbone).
+N_PHYSICAL = 29
+TRAIN_PARAM_RMSE = "train/param_rmse"
 
 # Constructor arguments that the data decide: robomorph fit links them from the datamodule.
 FROM_DATA = ("n_u", "n_y", "context_len")
@@ -90,6 +96,14 @@ class MetaModule(L.LightningModule):
         normalization_from: with ``init_ckpt``, where the normalization statistics come
             from: ``target`` (default), this run's training data; ``source``, the
             checkpoint's (same channels only: with new channels they come from the data).
+        physics: ``none`` (the black-box model) or ``amortized``: a parameter head on the
+            encoder learns each robot's physical parameters from the context (targets: the
+            store's ``params``), and predictions simulate the robot so identified
+            (:mod:`robomorph.sim.backbone`). Needs simulated Panda stores that record ``params``.
+        param_weight: weight of the parameter head's Gaussian NLL in the loss.
+        decoder_loss: also train the black-box decoder (false: the parameter head alone, whose
+            training steps then skip the decoder; the decoder stays untrained).
+        n_params: set from ``physics`` (the Panda's 29 identifiable parameters); not a setting.
     """
 
     def __init__(
@@ -127,13 +141,21 @@ class MetaModule(L.LightningModule):
         freeze: Literal[FREEZE_MODES] = "none",
         reinit_io: bool = False,
         normalization_from: Literal["source", "target"] = "target",
+        physics: Literal["none", "amortized"] = "none",
+        param_weight: float = 1.0,
+        decoder_loss: bool = True,
+        n_params: int | None = None,
     ):
         super().__init__()
+        _check_physics(physics, param_weight, decoder_loss)
         check_loss(loss, gaussian, horizon_weight, horizon_tau)
         _check_training(freeze, normalization_from, lr, min_lr_ratio, warmup_steps, huber_delta)
         check_context(context_len, patch, max_context)
         check_normalization(normalization, recenter)
         self.save_hyperparameters()
+        # The parameter head's width is the Panda's identifiable parameters, whatever the ranges.
+        self.hparams.n_params = N_PHYSICAL if physics == "amortized" else 0
+        self._layout: dict | None = None  # the parameter layout of the training stores (setup)
         self.net: MetaModel | None = None
         self.normalizer: Normalizer | None = None
         # Set by robomorph.fit when it resumes a run: the checkpoint then supplies the
@@ -171,6 +193,9 @@ class MetaModule(L.LightningModule):
         check_channels(dm, self.hparams.n_u, self.hparams.n_y)
         if stage == "fit" or self.data_info is None:
             self.data_info = data_info(dm)
+        if self.hparams.physics != "none":
+            self._layout = physics_layout(dm)
+            self.data_info = {**self.data_info, "physics": {**self._layout, "mode": self.hparams.physics}}
         if stage == "fit" and self.hparams.init_ckpt and not self.resuming and not getattr(self, "_transferred", False):
             start_from(self, self.hparams.init_ckpt)
             self._transferred = True
@@ -215,24 +240,56 @@ class MetaModule(L.LightningModule):
         """The batch's query-output statistics when the normalization uses them (the paper's leak), else None."""
         return query_stats(batch["y_query"]) if self.normalizer.uses_query_stats else None
 
-    def _step(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _step(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
         h, batch = self.hparams, whole_patches(batch, self.hparams.patch)
         qs = self._query_stats(batch)
         uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"], qs)
         target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"], qs)
-        pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate)
-        weights = horizon_weights(target.shape[1], h.horizon_weight, h.horizon_tau, target.device)
-        return (elementwise_loss(h.loss, pred, logvar, target, h.huber_delta) * weights[:, None]).mean(), pred, target
+        loss, pred = torch.zeros((), device=uc.device), None
+        if h.physics == "none" or h.decoder_loss:
+            pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate)
+            weights = horizon_weights(target.shape[1], h.horizon_weight, h.horizon_tau, target.device)
+            loss = (elementwise_loss(h.loss, pred, logvar, target, h.huber_delta) * weights[:, None]).mean()
+        if h.physics != "none":
+            self._param_error = self._param_loss(batch, uc, yc)
+            loss = loss + h.param_weight * self._param_error[0]
+        return loss, pred, target
+
+    def _param_loss(self, batch: dict, uc: torch.Tensor, yc: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The parameter head's Gaussian NLL and RMS error, in unit coordinates (the context only)."""
+        if "params" not in batch or self._layout is None:
+            raise BackboneError("--model.physics amortized needs the robots' parameters in every batch: train on "
+                                "simulated Panda stores that record params, or use --model.physics none")
+        lay = self._layout
+        index = torch.as_tensor(lay["index"], device=uc.device)
+        low = torch.as_tensor(lay["low"], device=uc.device, dtype=torch.float64)
+        high = torch.as_tensor(lay["high"], device=uc.device, dtype=torch.float64)
+        half = (high - low) / 2
+        # A collapsed range is known exactly: its target is the middle (0).
+        target = torch.where(half > 0, (batch["params"][:, index] - (low + high) / 2) / half.clamp_min(1e-12), 0.0)
+        mean, logvar = self.net.forward_params(uc, yc)
+        target = target.to(mean.dtype)
+        nll = 0.5 * (logvar + (target - mean) ** 2 * torch.exp(-logvar) + math.log(2 * math.pi))
+        return nll.mean(), ((target - mean) ** 2).mean().sqrt()
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         loss, _, _ = self._step(batch)
         self.log(TRAIN_LOSS, loss, prog_bar=True, batch_size=len(batch["u_ctx"]))
+        if self.hparams.physics != "none":
+            self.log(TRAIN_PARAM_RMSE, self._param_error[1], batch_size=len(batch["u_ctx"]))
         self.log(LR, self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=len(batch["u_ctx"]))
         return loss
 
     def _eval_step(self, batch: dict, keys: tuple[str, str, str]) -> None:
         batch = whole_patches(batch, self.hparams.patch)
         loss, pred, _ = self._step(batch)
+        n = len(batch["y_query"])
+        if self.hparams.physics != "none":
+            self.log(keys[0].split("/")[0] + "/param_rmse", self._param_error[1], batch_size=n, sync_dist=True,
+                     prog_bar=True)
+        if pred is None:  # the parameter head alone: no sequence prediction to score here
+            self.log(keys[0], loss, batch_size=n, sync_dist=True, prog_bar=keys[0] == VAL_LOSS)
+            return
         y = batch["y_query"].double()
         yhat = self.normalizer.decode(pred, batch["y_ctx"], self._query_stats(batch)).double()
         n = len(y)
@@ -250,6 +307,31 @@ class MetaModule(L.LightningModule):
     # ------------------------------------------------------------------ optimizer
     def configure_optimizers(self):
         return optimizers(self)
+
+
+def _check_physics(physics: str, param_weight: float, decoder_loss: bool) -> None:
+    if physics not in ("none", "amortized"):
+        raise ModelSettingsError(f"--model.physics must be 'none' or 'amortized', got {physics!r}")
+    if not param_weight > 0 or not isinstance(decoder_loss, bool):
+        raise ModelSettingsError("--model.param_weight must be > 0 and --model.decoder_loss true or false")
+
+
+def physics_layout(dm) -> dict:
+    """The parameter layout of the DataModule's stores, which must agree (one line otherwise).
+
+    Raises:
+        BackboneError: a store is not a simulated Panda store with params, or the stores'
+            randomization ranges differ (the unit coordinates would mean different things).
+    """
+    from robomorph.sim.backbone import parameter_layout, same_layout  # noqa: PLC0415
+
+    sources = dm._open()
+    layouts = [parameter_layout(src.attrs) for src in sources]
+    for src, lay in zip(sources[1:], layouts[1:]):
+        if not same_layout(layouts[0], lay):
+            raise BackboneError(f"{src.path} randomizes the parameters over other ranges than {sources[0].path}: "
+                                "train the parameter head on stores of one recipe's ranges")
+    return layouts[0]
 
 
 def _check_training(freeze: str, normalization_from: str, lr: float, min_lr_ratio: float,

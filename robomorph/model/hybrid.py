@@ -1,0 +1,118 @@
+"""The hybrid model's prediction: parameters read from the context, the robot simulated with them.
+
+A model trained with ``--model.physics amortized`` carries a parameter head
+(:meth:`robomorph.model.transformer.MetaModel.forward_params`) and, in its data record, the
+parameter layout and the generator recipe of its training stores. Prediction:
+
+1. the network reads the context (normalized as in training) and gives the mean and
+   log-variance of each identifiable parameter in unit coordinates;
+2. ``fast``: the robot with the mean parameters is simulated over the horizon from the
+   last context sample (:class:`robomorph.sim.backbone.PhysicsBackbone`);
+   ``refined``: a few Gauss-Newton iterations of the identification
+   (:class:`robomorph.sim.identify.Identifier`) start from that estimate and pull toward
+   it, then the fitted robot is simulated;
+3. the standard deviation (when asked for) is the spread of the horizon over ``samples``
+   robots drawn from the head's Gaussian (clipped to the ranges), so it says how much the
+   parameters the context leaves uncertain move the prediction.
+
+Nothing here reads a query output: the parameters come from the context and the simulation
+from the context's last state and the query torques.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from robomorph.core.errors import RoboMorphError
+
+MODES = ("fast", "refined")
+
+
+class HybridError(RoboMorphError, ValueError):
+    """A hybrid prediction that cannot be made; the message says what to do."""
+
+
+class Hybrid:
+    """The physics backbone of one trained model (reusable; :meth:`close` when done).
+
+    Args:
+        model: the :class:`robomorph.model.checkpoint.TrainedModel` (with a parameter head).
+        physics: the ``physics`` entry of the model's data record (layout and recipe).
+        inputs: the formulation the model was trained on.
+        samples: robots drawn from the parameter head for the standard deviation.
+        refine_iters: most cost evaluations of the ``refined`` mode's fit.
+        seed: the seed of the parameter draws (the same windows give the same std).
+    """
+
+    def __init__(self, model, physics: dict, inputs: str, samples: int = 8, refine_iters: int = 4, seed: int = 0):
+        from robomorph.sim.backbone import PhysicsBackbone  # noqa: PLC0415  (MuJoCo only when used)
+
+        if model.config.n_params != len(physics["names"]):
+            raise HybridError(f"the model's parameter head has {model.config.n_params} outputs but its record "
+                              f"names {len(physics['names'])} parameters: the checkpoint is inconsistent")
+        self.model, self.physics, self.inputs = model, physics, inputs
+        self.samples, self.refine_iters, self.seed = int(samples), int(refine_iters), int(seed)
+        self.backbone = PhysicsBackbone(physics, inputs)
+        self._identifier = None
+        self.last_fits: list = []
+
+    def close(self) -> None:
+        self.backbone.close()
+        if self._identifier is not None:
+            self._identifier.close()
+
+    @torch.no_grad()
+    def parameters(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and std (B, n) of the parameters in unit coordinates, from the context alone.
+
+        ``u_query`` only fixes the normalizer's shapes (it is not read by the parameter head)."""
+        uc, yc, _ = self.model.normalizer.encode(u_ctx, y_ctx, u_query, None)
+        mean, logvar = self.model.net.forward_params(uc, yc)
+        return mean.double().cpu().numpy(), torch.exp(0.5 * logvar).double().cpu().numpy()
+
+    def predict(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, at_rest=None,
+                mode: str = "fast", return_std: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+        """(B, H, n_y) mean prediction and, with ``return_std``, the std over parameter draws.
+
+        Args:
+            at_rest: bool or (B,) bools: the context opens its trajectory (the robot starts
+                at rest); default False: the velocity at the first context sample is estimated.
+            mode: ``fast`` or ``refined``.
+        """
+        from robomorph.evaluation.baselines import estimate_velocity  # noqa: PLC0415
+
+        if mode not in MODES:
+            raise HybridError(f"physics mode must be one of {MODES}, got {mode!r}")
+        z, z_std = self.parameters(u_ctx, y_ctx, u_query)
+        uc, yc, uq = (t.double().cpu().numpy() for t in (u_ctx, y_ctx, u_query))
+        q_ctx, quat_last = yc[..., 7:14], yc[:, -1, 3:7]
+        B = len(uc)
+        rest = np.broadcast_to(np.asarray(False if at_rest is None else at_rest, dtype=bool), (B,))
+        qvel_start = -estimate_velocity(q_ctx[:, ::-1], self.backbone.dt)
+        qvel_start[rest] = 0.0
+        # The springs are anchored where the robot started: the first context sample when the context opens it.
+        params = self.backbone.full_params(z, q_ctx[:, 0])
+        if mode == "refined":
+            params = self._refine(params, q_ctx, uc, qvel_start)
+        mean = self.backbone.simulate(params, q_ctx, uc, uq, qvel_start, quat_last)
+        if not return_std:
+            return mean, None
+        rng = np.random.default_rng(self.seed)
+        draws = []
+        for _ in range(self.samples):
+            zk = z + z_std * rng.standard_normal(z.shape)
+            draws.append(self.backbone.simulate(self.backbone.full_params(zk, q_ctx[:, 0]), q_ctx, uc, uq,
+                                                qvel_start, quat_last))
+        draws = np.stack(draws)  # (K, B, H, n_y)
+        std = np.sqrt(np.mean((draws - mean[None]) ** 2, axis=0))
+        return mean, std
+
+    def _refine(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray) -> np.ndarray:
+        from robomorph.sim.identify import IdentifyConfig, Identifier  # noqa: PLC0415
+
+        if self._identifier is None:
+            self._identifier = Identifier(self.backbone.recipe, self.inputs, IdentifyConfig(max_iters=self.refine_iters))
+        self.last_fits = [self._identifier.fit(params[b], q_ctx[b], u_ctx[b], qvel_start[b]) for b in range(len(params))]
+        return np.stack([f.params for f in self.last_fits])

@@ -1,0 +1,235 @@
+"""The physics backbone of the hybrid model: robots given by parameter vectors, simulated over windows.
+
+A meta-model with a parameter head (``--model.physics amortized``) reads a context and
+predicts the physical parameters of the robot that produced it; this module turns those
+parameters into a prediction of the horizon, the way ``identified_physics`` does with a
+fitted vector (:mod:`robomorph.evaluation.identified`), but for a whole batch at once and
+with no optimization:
+
+1. the context is simulated open loop from its first sample with each window's
+   parameters (``mujoco.rollout``; the formulation's feedback evaluated at the recorded
+   states as :mod:`robomorph.sim.identify` does), which gives the joint velocity at the
+   last context sample: in the command formulation that velocity follows the context's
+   dynamics better than a finite-difference estimate (measured for ``identified_physics``);
+2. from the measured joint positions at the last context sample and that velocity, the
+   horizon is simulated under the query torques; the end-effector pose is the catalogue
+   kinematics of the simulated joint angles (link geometry is not randomized).
+
+Step 2 runs in one threaded ``mujoco.rollout`` call where the formulation needs no state
+feedback inside the horizon (the command on an arm that compensates its own gravity through
+the actuators, and torques on an arm without compensation); otherwise (total torques with
+``true_model`` compensation, commands with ``nominal_model``) each window is simulated
+closed loop by :class:`robomorph.evaluation.physics.NominalPhysics` with the same vector.
+
+The parameters a head predicts are those :class:`robomorph.sim.identify.ParameterSpace`
+names for the recipe (a mass per link; damping, armature and friction loss per joint), in
+its unit coordinates (-1 and 1 at the randomization bounds); the rest keep the catalogue's
+values. :func:`parameter_layout` gives the layout a checkpoint records, so a Predictor
+rebuilds the backbone without the store.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from robomorph.core.errors import RoboMorphError
+
+_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+class BackboneError(RoboMorphError, ValueError):
+    """A physics option that cannot work on these data; the message says what to do."""
+
+
+def parameter_layout(attrs: dict) -> dict:
+    """What a parameter head predicts for robots of a store (JSON-able, saved in checkpoints).
+
+    Raises:
+        BackboneError: the store is not a simulated Panda store with its generator config
+            and per-robot parameters (imported real logs have no catalogue model to put
+            parameters into: train the black-box model on them).
+    """
+    from robomorph.core.config import from_dict  # noqa: PLC0415
+    from robomorph.sim.identify import KINDS, ParameterSpace, lean_model  # noqa: PLC0415
+    from robomorph.sim.randomize import Randomizer, param_names  # noqa: PLC0415
+    from robomorph.sim.recipe import Recipe  # noqa: PLC0415
+
+    if attrs.get("domain") != "panda" or not isinstance(attrs.get("config"), dict) \
+            or list(attrs.get("param_names", [])) != param_names():
+        raise BackboneError("--model.physics needs simulated Panda stores that record each robot's parameters "
+                            f"(this store: domain {attrs.get('domain')!r}, "
+                            f"{'with' if attrs.get('param_names') else 'without'} params); "
+                            "train the black-box model on it with --model.physics none")
+    recipe = from_dict(Recipe, attrs["config"], "store config")
+    model = lean_model(recipe.substeps, recipe.dt, recipe.gravity_compensation == "true_model")
+    randomizer = Randomizer(model, recipe.randomization)
+    space = ParameterSpace.of(randomizer, recipe.randomization, KINDS)
+    return {"recipe": dict(attrs["config"]), "names": list(space.names), "index": space.index.tolist(),
+            "low": space.low.tolist(), "high": space.high.tolist()}
+
+
+def same_layout(a: dict, b: dict) -> bool:
+    """Whether two stores' parameter layouts agree (names and bounds)."""
+    return a["names"] == b["names"] and np.allclose(a["low"], b["low"]) and np.allclose(a["high"], b["high"])
+
+
+def to_unit(layout: dict, params: np.ndarray) -> np.ndarray:
+    """(..., P) full parameter vectors -> (..., n) the predicted entries in unit coordinates."""
+    lo, hi = np.asarray(layout["low"]), np.asarray(layout["high"])
+    return (np.asarray(params)[..., layout["index"]] - (lo + hi) / 2) / ((hi - lo) / 2)
+
+
+class PhysicsBackbone:
+    """Simulates windows of robots given as parameter vectors (reusable; :meth:`close` when done).
+
+    Args:
+        layout: :func:`parameter_layout` of the training stores (as recorded in a checkpoint).
+        inputs: ``total`` or ``command``: the formulation of the torques given.
+        nthread: rollout threads (0: one per core).
+    """
+
+    def __init__(self, layout: dict, inputs: str, nthread: int = 0):
+        import os  # noqa: PLC0415
+
+        from robomorph.core.config import from_dict  # noqa: PLC0415
+        from robomorph.sim.identify import IdentifyConfig, Identifier  # noqa: PLC0415
+        from robomorph.sim.recipe import Recipe  # noqa: PLC0415
+
+        self.layout, self.inputs = layout, inputs
+        self.recipe = from_dict(Recipe, layout["recipe"], "model's recipe")
+        nthread = nthread or os.cpu_count() or 1
+        self.ident = Identifier(self.recipe, inputs, IdentifyConfig(nthread=nthread))
+        self.index = np.asarray(layout["index"], dtype=np.int64)
+        self.low, self.high = np.asarray(layout["low"]), np.asarray(layout["high"])
+        if list(self.ident.space.names) != list(layout["names"]):
+            raise BackboneError("the model's parameter layout does not match this version's Panda: re-train it")
+        self.dt, self.substeps = float(self.recipe.dt), int(self.recipe.substeps)
+        # Without state feedback inside the horizon, the horizon is one open-loop rollout.
+        self.open_loop = self.ident._feedback is None
+        self._closed = None  # NominalPhysics for the formulations that need feedback
+        self._site = self.ident.model.site("ee").id
+        self._kin = mujoco.MjData(self.ident.model)
+
+    def close(self) -> None:
+        self.ident.close()
+
+    def __enter__(self) -> "PhysicsBackbone":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def catalogue(self, qinit: np.ndarray) -> np.ndarray:
+        """(P,) the catalogue robot's full vector with its springs anchored at ``qinit``."""
+        from robomorph.evaluation.physics import NominalPhysics  # noqa: PLC0415
+
+        if self._closed is None:
+            from robomorph.sim import panda  # noqa: PLC0415
+
+            attrs = {"domain": "panda", "config": self.layout["recipe"], "u_names": list(panda.U_NAMES),
+                     "y_names": list(panda.Y_NAMES)}
+            self._closed = NominalPhysics(attrs, self.inputs)
+        return self._closed.params(qinit)
+
+    def full_params(self, unit: np.ndarray, qinit: np.ndarray) -> np.ndarray:
+        """(N, n) unit coordinates and (N, 7) spring anchors -> (N, P) full vectors (clipped to the bounds)."""
+        z = np.clip(np.asarray(unit, dtype=np.float64), -1.0, 1.0)
+        out = np.stack([self.catalogue(q) for q in np.asarray(qinit, dtype=np.float64)])
+        out[:, self.index] = (self.low + self.high) / 2 + z * (self.high - self.low) / 2
+        return out
+
+    def simulate(self, params: np.ndarray, q_ctx: np.ndarray, torque_ctx: np.ndarray, torque_query: np.ndarray,
+                 qvel_start: np.ndarray, quat_last: np.ndarray | None = None) -> np.ndarray:
+        """Predicts the horizon of each window with its own parameter vector.
+
+        Args:
+            params: (N, P) full parameter vectors (:meth:`full_params`).
+            q_ctx: (N, Tc, 7) recorded joint positions of the contexts.
+            torque_ctx: (N, Tc, 7) their torques in this formulation.
+            torque_query: (N, H, 7) the query torques (``torque_query[k]`` applied from query step k).
+            qvel_start: (N, 7) joint velocity at each context's first sample.
+            quat_last: (N, 4) the last context quaternion (X Y Z W), whose sign the prediction keeps.
+
+        Returns:
+            (N, H, 14) outputs at query steps 1..H (EE position, EE quaternion X Y Z W, joints).
+        """
+        from robomorph.evaluation.baselines import estimate_velocity  # noqa: PLC0415
+        from robomorph.sim.identify import _Problem  # noqa: PLC0415
+
+        params = np.asarray(params, dtype=np.float64)
+        q_ctx = np.asarray(q_ctx, dtype=np.float64)
+        torque_ctx = np.asarray(torque_ctx, dtype=np.float64)
+        n, H = len(params), np.shape(torque_query)[1]
+        # Frames c-1 .. c+H-2 from the last context sample: the last context torque, then the query's.
+        torque = np.concatenate([torque_ctx[:, -1:], np.asarray(torque_query, dtype=np.float64)[:, :H - 1]
+                                 if H > 1 else torque_ctx[:, :0]], axis=1)
+        if self.inputs == "command":
+            qvel_end = np.empty((n, q_ctx.shape[2]))
+            for b in range(n):
+                problem = _Problem(self.ident, params[b], q_ctx[b], torque_ctx[b], np.asarray(qvel_start[b]))
+                z = problem.ident.space.to_unit(params[b][problem.ident.space.index])
+                problem.joint_error(z[None])
+                qvel_end[b] = problem._qvel_end[z.tobytes()][:q_ctx.shape[2]]
+        else:
+            # Total torques: the context simulation drifts with g(q) in the torque; the
+            # finite-difference estimate is the better start (as identified_physics finds).
+            qvel_end = estimate_velocity(q_ctx, self.dt)
+        if self.open_loop:
+            q = self._rollout(params, q_ctx[:, -1], qvel_end, torque)
+        else:
+            q = np.stack([self._closed_loop(params[b], q_ctx[b, -1], qvel_end[b], torque[b]) for b in range(n)])
+        y = np.stack([self._outputs(qb) for qb in q])  # (N, H + 1, 14), row 0: the last context sample
+        if quat_last is not None:
+            flip = np.einsum("nk,nk->n", y[:, 0, 3:7], np.asarray(quat_last)) < 0
+            y[flip, :, 3:7] *= -1.0
+        return y[:, 1:]
+
+    def _rollout(self, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:
+        """(N, F + 1, 7) joint positions at the frame starts of F open-loop frames (row 0: the start)."""
+        ident, ss, nj = self.ident, self.substeps, qpos0.shape[1]
+        m, d = ident.model, ident._scratch
+        frames = torque.shape[1]
+        out = np.empty((len(params), frames + 1, nj))
+        out[:, 0] = qpos0
+        if frames == 0:
+            return out
+        models = ident._models
+        rows = np.arange(1, frames + 1) * ss - 1  # state after the last physics step of each frame
+        nq0 = 1  # state layout: time, qpos, qvel, ...
+        for s in range(0, len(params), len(models)):
+            group = range(s, min(s + len(models), len(params)))
+            ms = models[:len(group)]
+            x0 = []
+            for model, b in zip(ms, group):
+                ident.randomizer.apply(model, params[b])
+                mujoco.mj_resetData(model, d)
+                d.qpos[:nj], d.qvel[:nj] = qpos0[b], qvel0[b]
+                x = np.empty(mujoco.mj_stateSize(model, _STATE))
+                mujoco.mj_getState(model, d, x, _STATE)
+                x0.append(x)
+            control = np.repeat(torque[group.start:group.stop], ss, axis=1)
+            state = np.empty((len(group), frames * ss, mujoco.mj_stateSize(m, _STATE)))
+            ident._rollout(ms, np.stack(x0), control, state=state)
+            out[group.start:group.stop, 1:] = state[:, rows, nq0:nq0 + nj]
+        return out
+
+    def _closed_loop(self, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:
+        self.catalogue(qpos0)  # builds the closed-loop simulator
+        torque = np.concatenate([torque, torque[-1:]], axis=0)  # rollout returns a row per frame start
+        y = self._closed.rollout(torque, qpos0, qvel0, params)
+        return y[:, 7:14]
+
+    def _outputs(self, q: np.ndarray) -> np.ndarray:
+        """(T, 7) joint positions -> (T, 14) y (catalogue kinematics: link geometry is not randomized)."""
+        from robomorph.sim.filters import continuous_quaternion  # noqa: PLC0415
+
+        m, d, site = self.ident.model, self._kin, self._site
+        pos, quat = np.empty((len(q), 3)), np.empty((len(q), 4))
+        for t, qt in enumerate(q):
+            d.qpos[:len(qt)] = qt
+            mujoco.mj_kinematics(m, d)
+            pos[t] = d.site_xpos[site]
+            mujoco.mju_mat2Quat(quat[t], d.site_xmat[site])
+        quat = continuous_quaternion(quat)
+        return np.concatenate([pos, quat[:, [1, 2, 3, 0]], q], axis=1)

@@ -1,0 +1,151 @@
+"""The hybrid model: a parameter head on the encoder and the robot simulated with its estimate."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from tests.conftest import CKPT_CONTEXT, CKPT_HORIZON, tiny_fit_args
+
+
+@pytest.fixture(scope="module")
+def command_store(simulated_store):
+    return simulated_store(robots=24, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=3)
+
+
+@pytest.fixture(scope="module")
+def hybrid_ckpt(command_store, tmp_path_factory) -> str:
+    from robomorph.training.fitting import fit
+
+    args = tiny_fit_args(command_store, tmp_path_factory.mktemp("runs"), "hybrid", steps=6,
+                         data={"inputs": "command"}, model={"physics": "amortized", "anchor": True})
+    return fit(args).best_ckpt
+
+
+def _windows(store: str, inputs: str = "command", n: int = 3):
+    from robomorph.data.store import open_store
+
+    ds = open_store(store)
+    u, y, p = ds.read_inputs(inputs)[:n], ds.read("y")[:n], ds.read("params")[:n]
+    c = CKPT_CONTEXT
+    return u[:, :c], y[:, :c], u[:, c:], y[:, c:], p.astype(np.float64), dict(ds.attrs)
+
+
+def test_backbone_with_the_true_parameters_reproduces_the_recorded_robot(command_store):
+    """The backbone's rollouts are the generator's physics: with each robot's stored
+    parameters, from rest, the horizon equals the recorded outputs."""
+    from robomorph.sim.backbone import PhysicsBackbone, parameter_layout
+
+    uc, yc, uq, yq, params, attrs = _windows(command_store)
+    with PhysicsBackbone(parameter_layout(attrs), "command", nthread=1) as bb:
+        pred = bb.simulate(params, yc[..., 7:], uc, uq, np.zeros((len(uc), 7)), yc[:, -1, 3:7])
+        assert pred.shape == yq.shape
+        np.testing.assert_allclose(pred, yq, atol=2e-6)  # float32 storage
+        # Another robot (the catalogue's) moves differently, so the comparison can fail.
+        cat = np.stack([bb.catalogue(q) for q in yc[:, 0, 7:]])
+        other = bb.simulate(cat, yc[..., 7:], uc, uq, np.zeros((len(uc), 7)), yc[:, -1, 3:7])
+        assert np.abs(other - yq).max() > 1e-3
+
+
+def test_backbone_threads_do_not_change_the_result(command_store):
+    from robomorph.sim.backbone import PhysicsBackbone, parameter_layout
+
+    uc, yc, uq, _, params, attrs = _windows(command_store)
+    outs = []
+    for nthread in (1, 2):
+        with PhysicsBackbone(parameter_layout(attrs), "command", nthread=nthread) as bb:
+            outs.append(bb.simulate(params, yc[..., 7:], uc, uq, np.zeros((len(uc), 7)), yc[:, -1, 3:7]))
+    np.testing.assert_array_equal(outs[0], outs[1])
+
+
+def test_parameter_head_never_sees_the_query(hybrid_ckpt, command_store):
+    """Poisoned query: the parameters and the prediction up to step k do not move when the
+    query outputs change (never given) or the query torques from step k on change."""
+    from robomorph.model.predictor import Predictor
+
+    p = Predictor.from_checkpoint(hybrid_ckpt)
+    uc, yc, uq, _, _, _ = _windows(command_store)
+    hyb = p.hybrid()
+    t = [torch.as_tensor(a, dtype=torch.float32) for a in (uc, yc, uq)]
+    z1, _ = hyb.parameters(*t)
+    z2, _ = hyb.parameters(t[0], t[1], t[2] * 100 + 7)
+    np.testing.assert_array_equal(z1, z2)
+    k = 20
+    poisoned = uq.copy()
+    poisoned[:, k:] += 5.0
+    a = p.simulate(uc, yc, uq, at_rest=True)
+    b = p.simulate(uc, yc, poisoned, at_rest=True)
+    # y at step j (1-based) depends on the torques of query steps < j - 1 and the last context torque.
+    np.testing.assert_array_equal(a[:, :k + 1], b[:, :k + 1])
+    assert np.abs(a[:, k + 2:] - b[:, k + 2:]).max() > 0
+
+
+def test_hybrid_predictor_equals_the_training_module(hybrid_ckpt, command_store):
+    """Predictor.from_checkpoint and the module it was trained as give the same prediction."""
+    from robomorph.model.hybrid import Hybrid
+    from robomorph.model.predictor import Predictor
+    from robomorph.training.module import MetaModule
+
+    p = Predictor.from_checkpoint(hybrid_ckpt)
+    ckpt = torch.load(hybrid_ckpt, weights_only=False, map_location="cpu")
+    module = MetaModule.load_from_checkpoint(hybrid_ckpt, map_location="cpu").eval()
+    uc, yc, uq, _, _, _ = _windows(command_store)
+    mean, std = p.simulate(uc, yc, uq, at_rest=True, return_std=True)
+    hyb = Hybrid(module.trained_model, ckpt["robomorph_data"]["physics"], "command", samples=p.physics_samples)
+    t = [torch.as_tensor(a, dtype=torch.float32) for a in (uc, yc, uq)]
+    m2, s2 = hyb.predict(*t, at_rest=True, return_std=True)
+    hyb.close()
+    np.testing.assert_allclose(mean, m2.astype(np.float32), rtol=0, atol=0)
+    np.testing.assert_allclose(std, s2.astype(np.float32), rtol=0, atol=0)
+    assert mean.shape == uq.shape[:2] + (14,) and np.all(std >= 0)
+
+
+def test_hybrid_is_deterministic_and_modes_differ(hybrid_ckpt, command_store):
+    from robomorph.model.predictor import Predictor
+
+    uc, yc, uq, _, _, _ = _windows(command_store, n=2)
+    p = Predictor.from_checkpoint(hybrid_ckpt)
+    a = p.simulate(uc, yc, uq, at_rest=True, return_std=True)
+    b = Predictor.from_checkpoint(hybrid_ckpt).simulate(uc, yc, uq, at_rest=True, return_std=True)
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+    p.physics_mode = "none"  # the black-box decoder of the same checkpoint
+    black = p.simulate(uc, yc, uq)
+    assert black.shape == a[0].shape and np.abs(black - a[0]).max() > 0
+    p.physics_mode = "refined"
+    refined = p.simulate(uc, yc, uq, at_rest=True)
+    assert refined.shape == a[0].shape and np.all(np.isfinite(refined))
+    assert p.hybrid().last_fits and all(f.evaluations <= p.hybrid().refine_iters for f in p.hybrid().last_fits)
+
+
+def test_store_without_params_refuses_physics_in_one_line(tmp_path, store_factory, command_store):
+    """Real logs (no catalogue robot, no params) train the black-box model; asking for the
+    physics backbone is refused with one line and exit code 2."""
+    from tests.conftest import linear_system
+
+    u, y = linear_system(16, CKPT_CONTEXT + CKPT_HORIZON, n_u=7, n_y=14)
+    store = store_factory(tmp_path / "log.zarr", u, y)
+    cmd = [sys.executable, "-m", "robomorph.fit", "--data.stores", store, "--data.context_len", str(CKPT_CONTEXT),
+           "--data.horizon", str(CKPT_HORIZON), "--model.physics", "amortized", "--model.patch", "5",
+           "--model.d_model", "16", "--model.n_head", "2", "--model.n_layer", "1", "--trainer.max_steps", "2",
+           "--runs_dir", str(tmp_path / "runs"), "--run", "x", "--wandb", "disabled"]
+    out = subprocess.run(cmd, capture_output=True, text=True)
+    assert out.returncode == 2, out.stderr[-2000:]
+    lines = [x for x in out.stderr.strip().splitlines() if x.strip()]
+    assert len(lines) == 1 and "--model.physics" in lines[0] and "Traceback" not in out.stderr
+
+
+def test_black_box_checkpoints_have_no_parameter_head(tiny_checkpoint):
+    """Old (black-box) checkpoints load as before: no parameter head, the decoder predicts."""
+    from robomorph.model.predictor import Predictor
+
+    p = Predictor.from_checkpoint(tiny_checkpoint)
+    assert p.physics is None and p.physics_mode == "none" and p.model.net.param_head is None
+    ckpt = torch.load(tiny_checkpoint, weights_only=False, map_location="cpu")
+    assert not any("param_head" in k for k in ckpt["state_dict"])
+    with pytest.raises(Exception, match="no physics backbone"):
+        p.hybrid()
