@@ -43,6 +43,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="input formulation of the data (default: the checkpoint's; a different one is refused)")
     p.add_argument("--compare", action="append", default=[], metavar="NAME=CKPT",
                    help="another checkpoint scored beside the baselines (repeatable), e.g. scratch=runs/a/checkpoints/best.ckpt")
+    p.add_argument("--physics", choices=("regression", "learned", "fused", "refined", "none"),
+                   help="how a hybrid model (fit --model.physics amortized) predicts: its robot identified by "
+                        "one linear solve (regression, the default), read by the network (learned), both (fused), "
+                        "fused then a few Gauss-Newton steps (refined), or its black-box decoder (none)")
     p.add_argument("--arx-train-data", help="comma list of stores to fit arx_train on, whole (default: the "
                                             "checkpoint's training split, read back from its stores)")
     return p
@@ -70,7 +74,8 @@ def run(a: argparse.Namespace) -> int:
                              a.sweep_context, a.batch_size, a.device, a.samples, _orders(a.arx_orders), a.seed,
                              a.normalization, horizons_spec=a.horizons, offset=a.offset, inputs=a.inputs,
                              arx_train_data=[s.strip() for s in a.arx_train_data.split(",") if s.strip()]
-                             if a.arx_train_data else None, compare=_compare(a.compare))
+                             if a.arx_train_data else None, compare=_compare(a.compare),
+                             physics=a.physics)
     print(evaluator.summary_text(res, out))
     return 0
 

@@ -36,6 +36,7 @@ from robomorph.evaluation import references, training_data
 from robomorph.evaluation.baselines import BASELINES
 from robomorph.evaluation.horizons import horizon_markdown, parse_horizons
 from robomorph.evaluation.scoring import Scores, score_windows
+from robomorph.evaluation.windows import EvaluationError
 from robomorph.evaluation.sources import check_baselines
 from robomorph.evaluation.tables import cost_note, diverged_note, write_csv, write_horizons_csv, write_table
 
@@ -76,7 +77,8 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
              samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0,
              normalization: str | None = None, horizons_spec: str | None = None,
              offset: str | int | None = "start", inputs: str | None = None,
-             arx_train_data: list[str] | None = None, compare: dict[str, str] | None = None) -> dict:
+             arx_train_data: list[str] | None = None, compare: dict[str, str] | None = None,
+             physics: str | None = None) -> dict:
     """Evaluates a checkpoint on a store and writes every output file into ``out``.
 
     ``arx_train`` is fitted on the checkpoint's training split (read back from its stores),
@@ -101,6 +103,11 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     offset = parse_offset(offset)
     predictor = _checked_predictor(ckpt, device, baselines, inputs, normalization)
+    if physics is not None:
+        if not predictor.physics and physics != "none":
+            raise EvaluationError(f"--physics {physics}: {ckpt} has no physics backbone (trained with --model.physics "
+                                  "none, e.g. on real logs without a catalogue robot); drop --physics")
+        predictor.physics_mode = physics if predictor.physics else "none"
     info = predictor.data_info
     context_len = context_len or (info or {}).get("context_len")
     horizon = horizon or (info or {}).get("horizon")

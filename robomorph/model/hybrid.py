@@ -6,11 +6,17 @@ parameter layout and the generator recipe of its training stores. Prediction:
 
 1. the network reads the context (normalized as in training) and gives the mean and
    log-variance of each identifiable parameter in unit coordinates;
-2. ``fast``: the robot with the mean parameters is simulated over the horizon from the
-   last context sample (:class:`robomorph.sim.backbone.PhysicsBackbone`);
-   ``refined``: a few Gauss-Newton iterations of the identification
-   (:class:`robomorph.sim.identify.Identifier`) start from that estimate and pull toward
-   it, then the fitted robot is simulated;
+2. the parameters are estimated by one of three modes, and the robot with them is
+   simulated over the horizon from the last context sample
+   (:class:`robomorph.sim.backbone.PhysicsBackbone`):
+   ``learned``, the parameter head's mean; ``regression``, one bounded linear
+   least-squares solve of the regressor form of the inverse dynamics
+   (:mod:`robomorph.sim.regressor`, milliseconds) pulled weakly toward the catalogue;
+   ``fused``, the same solve with the parameter head's Gaussian as its prior (the
+   posterior mode: the network says what robots like this one usually are, the context's
+   torques say what this one is); ``refined``, a few Gauss-Newton iterations of the
+   rollout fit (:class:`robomorph.sim.identify.Identifier`) started from the fused
+   estimate and pulled toward it;
 3. the standard deviation (when asked for) is the spread of the horizon over ``samples``
    robots drawn from the head's Gaussian (clipped to the ranges), so it says how much the
    parameters the context leaves uncertain move the prediction.
@@ -26,7 +32,7 @@ import torch
 
 from robomorph.core.errors import RoboMorphError
 
-MODES = ("fast", "refined")
+MODES = ("learned", "regression", "fused", "refined")
 
 
 class HybridError(RoboMorphError, ValueError):
@@ -55,6 +61,7 @@ class Hybrid:
         self.samples, self.refine_iters, self.seed = int(samples), int(refine_iters), int(seed)
         self.backbone = PhysicsBackbone(physics, inputs)
         self._identifier = None
+        self._regressor = None
         self.last_fits: list = []
 
     def close(self) -> None:
@@ -73,13 +80,13 @@ class Hybrid:
         return mean.double().cpu().numpy(), torch.exp(0.5 * logvar).double().cpu().numpy()
 
     def predict(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, at_rest=None,
-                mode: str = "fast", return_std: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+                mode: str = "regression", return_std: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """(B, H, n_y) mean prediction and, with ``return_std``, the std over parameter draws.
 
         Args:
             at_rest: bool or (B,) bools: the context opens its trajectory (the robot starts
                 at rest); default False: the velocity at the first context sample is estimated.
-            mode: ``fast`` or ``refined``.
+            mode: one of :data:`MODES`.
         """
         from robomorph.evaluation.baselines import estimate_velocity  # noqa: PLC0415
 
@@ -94,20 +101,46 @@ class Hybrid:
         qvel_start[rest] = 0.0
         # The springs are anchored where the robot started: the first context sample when the context opens it.
         params = self.backbone.full_params(z, q_ctx[:, 0])
+        if mode in ("regression", "fused", "refined"):
+            prior = (z, z_std) if mode in ("fused", "refined") else None
+            params = self._regress(params, q_ctx, uc, prior)
         if mode == "refined":
             params = self._refine(params, q_ctx, uc, qvel_start)
         mean = self.backbone.simulate(params, q_ctx, uc, uq, qvel_start, quat_last)
         if not return_std:
             return mean, None
         rng = np.random.default_rng(self.seed)
+        # Draws around the estimate used: the head's Gaussian (learned) or the regression's
+        # covariance (regression, refined), in unit coordinates.
+        index, low, high = self.backbone.index, self.backbone.low, self.backbone.high
+        center = (params[:, index] - (low + high) / 2) / ((high - low) / 2)
+        if mode == "learned":
+            chol = z_std[:, :, None] * np.eye(z.shape[1])[None]
+        else:
+            chol = np.stack([np.linalg.cholesky(c + 1e-12 * np.eye(len(c))) for c in self._covs])
         draws = []
         for _ in range(self.samples):
-            zk = z + z_std * rng.standard_normal(z.shape)
-            draws.append(self.backbone.simulate(self.backbone.full_params(zk, q_ctx[:, 0]), q_ctx, uc, uq,
-                                                qvel_start, quat_last))
+            zk = center + np.einsum("bij,bj->bi", chol, rng.standard_normal(center.shape))
+            pk = params.copy()
+            pk[:, index] = (low + high) / 2 + np.clip(zk, -1, 1) * (high - low) / 2
+            draws.append(self.backbone.simulate(pk, q_ctx, uc, uq, qvel_start, quat_last))
         draws = np.stack(draws)  # (K, B, H, n_y)
         std = np.sqrt(np.mean((draws - mean[None]) ** 2, axis=0))
         return mean, std
+
+    def _regress(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, prior=None) -> np.ndarray:
+        """The catalogue robot's identified entries solved for, window by window."""
+        from robomorph.sim.regressor import RegressorIdentifier  # noqa: PLC0415
+
+        if self._regressor is None:
+            ident = self.backbone.ident
+            self._regressor = RegressorIdentifier(self.backbone.recipe, ident.space, ident.randomizer, self.inputs)
+        base = np.stack([self.backbone.catalogue(q[0]) for q in q_ctx])
+        out, self._covs = [], []
+        for b in range(len(params)):
+            out.append(self._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))
+            self._covs.append(self._regressor.last_cov)
+        return np.stack(out)
 
     def _refine(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray) -> np.ndarray:
         from robomorph.sim.identify import IdentifyConfig, Identifier  # noqa: PLC0415

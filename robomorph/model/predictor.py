@@ -109,10 +109,12 @@ class Predictor:
             None: no check).
         physics: the physics backbone's record (parameter layout and generator recipe) of a
             model trained with ``--model.physics amortized``, else None.
-        physics_mode: how such a model predicts: ``fast`` (default: the robot with the
-            parameters read from the context, simulated), ``refined`` (a few Gauss-Newton
-            iterations of identification started from them) or ``none`` (the black-box
-            decoder). :class:`robomorph.model.hybrid.Hybrid` has the details.
+        physics_mode: how such a model predicts: ``regression`` (default: the robot
+            identified by one linear solve of its inverse dynamics over the context, then
+            simulated), ``learned`` (the parameters the network reads from the context),
+            ``refined`` (a few Gauss-Newton iterations of the rollout fit started from the
+            regression) or ``none`` (the black-box decoder).
+            :class:`robomorph.model.hybrid.Hybrid` has the details.
         physics_samples: parameter draws behind the hybrid's standard deviation.
     """
 
@@ -127,7 +129,7 @@ class Predictor:
         # Checkpoints written before the command formulation were all trained on total torque.
         self.inputs: str = (data_info or {}).get("inputs", "total")
         self.physics: dict | None = (data_info or {}).get("physics") if model.config.n_params else None
-        self.physics_mode: str = "fast" if self.physics else "none"
+        self.physics_mode: str = "regression" if self.physics else "none"
         self.physics_samples: int = 8
         self._hybrid = None
         if self.physics:
@@ -307,6 +309,8 @@ class Predictor:
 
     def _simulate_hybrid(self, u_ctx, y_ctx, u_query, y_query_stats, return_std: bool, at_rest):
         """:meth:`simulate` of a model with a physics backbone (:attr:`physics_mode`)."""
+        if return_std and not self.has_std:
+            raise CheckpointError("has_std is off for this predictor: set it back to True for the hybrid's std")
         if y_query_stats is not None:
             raise NormalizationError("a hybrid model uses no query statistics: drop y_query_stats")
         as_numpy = not isinstance(u_query, torch.Tensor)

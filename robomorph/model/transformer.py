@@ -50,6 +50,7 @@ Parameter names (for transfer and freezing): ``encoder.{embed,pos,blocks,ln_f}``
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -60,6 +61,11 @@ from torch import nn
 from robomorph.core.config import ConfigError
 
 __all__ = ["ModelConfig", "MetaModel"]
+
+# Scales of the parameter encoder's first and second differences of the normalized outputs
+# (measured on multi-sine Panda stores: per-step changes at 60 Hz are 1/250 to 1/1000 of a
+# channel's spread, their changes 1/1300 to 1/6000; scaled, both are of order one).
+DIFF_SCALES = (100.0, 1500.0)
 
 # Range of the Gaussian head's log-variance (normalized units): std from 4.5e-5 to 150.
 LOGVAR_MIN, LOGVAR_MAX = -20.0, 10.0
@@ -309,8 +315,10 @@ class MetaModel(nn.Module):
         self.encoder = Encoder(cfg)
         self.decoder = Decoder(cfg)
         self.head = nn.Linear(cfg.d_model, cfg.patch * cfg.n_y * (2 if cfg.gaussian else 1), bias=cfg.bias)
-        # The parameter head reads the mean of the encoder's memory: the context only, so no
-        # query value can reach the parameters (and their simulation) by construction.
+        # The parameter head has its own encoder over the context only, so no query value can
+        # reach the parameters (and their simulation) by construction. Its tokens add each
+        # output's per-step change and change of change (see forward_params).
+        self.param_encoder = Encoder(dataclasses.replace(cfg, n_y=3 * cfg.n_y)) if cfg.n_params else None
         self.param_head = nn.Sequential(
             nn.LayerNorm(cfg.d_model, bias=cfg.bias), nn.Linear(cfg.d_model, cfg.d_model, bias=cfg.bias), nn.GELU(),
             nn.Linear(cfg.d_model, 2 * cfg.n_params, bias=cfg.bias)) if cfg.n_params else None
@@ -372,8 +380,14 @@ class MetaModel(nn.Module):
         if self.param_head is None:
             raise ValueError("this model has no parameter head (n_params 0): train it with --model.physics amortized")
         B, Tc, _ = self._check_inputs(u_ctx, y_ctx, u_ctx[:, :1])  # the context's checks (no query here)
-        ctx = torch.cat([u_ctx, y_ctx], dim=-1).reshape(B, Tc // cfg.patch, cfg.patch * (cfg.n_u + cfg.n_y))
-        out = self.param_head(self.encoder(ctx).mean(dim=1))
+        # Damping, friction and inertia show in velocities and accelerations, which are a
+        # hundredth of a normalized position's spread at 60 Hz: given explicitly (scaled to
+        # about unit size) rather than left for the embedding to difference and amplify.
+        vel = torch.diff(y_ctx, dim=1, prepend=y_ctx[:, :1])
+        acc = torch.diff(vel, dim=1, prepend=vel[:, :1])
+        feats = torch.cat([u_ctx, y_ctx, DIFF_SCALES[0] * vel, DIFF_SCALES[1] * acc], dim=-1)
+        ctx = feats.reshape(B, Tc // cfg.patch, cfg.patch * (cfg.n_u + 3 * cfg.n_y))
+        out = self.param_head(self.param_encoder(ctx).mean(dim=1))
         mean, logvar = out.split(cfg.n_params, dim=-1)
         return mean, logvar.clamp(LOGVAR_MIN, LOGVAR_MAX)
 

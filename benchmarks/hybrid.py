@@ -1,0 +1,107 @@
+"""The hybrid model's modes beside hold, the catalogue robot and identified physics, on the same windows.
+
+Each mode of a checkpoint trained with ``--model.physics amortized`` (``learned``: the
+parameter head's estimate; ``regression``: one linear least-squares solve of the inverse
+dynamics; ``refined``: a few Gauss-Newton iterations from the regression), optionally the
+checkpoint's black-box decoder (``--black-box``) and other checkpoints (``--compare``), and
+the baselines are scored on the same held-out windows with
+:func:`robomorph.evaluation.scoring.score_windows`: from the trajectory start and from random
+offsets (seed 0). Printed and written: joint RMS error [mrad] at steps 1, 15, 60, 300 and 800
+(the first step, 0.25 s, 1 s, 5 s, 13.3 s; step k is k dt after the last context sample),
+R^2 (approach 1, all channels), the joints' ±1σ/±2σ coverage averaged over the horizon, and
+the cost per window (wall clock on this machine, all its cores).
+
+    python benchmarks/hybrid.py --ckpt data/hyb/runs/amort40/checkpoints/best.ckpt \\
+        --test data/demo/ms_heldout.zarr --n 16 --csv results/benchmarks/hybrid.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+from common import print_provenance
+
+from robomorph.core.errors import run_command
+from robomorph.core.results import markdown_table, provenance, write_rows
+from robomorph.evaluation.scoring import MODEL, score_windows
+from robomorph.evaluation.windows import load_window
+from robomorph.model.predictor import Predictor
+
+STEPS = (1, 15, 60, 300, 800)
+
+
+def _row(name: str, offset: str, scores, source: str, seconds: float | None, std: bool) -> dict:
+    h = scores.y.shape[1]
+    row = {"source": name, "windows": offset}
+    for k in STEPS:
+        row[f"step{k}"] = scores.at(source, "joints", k) if k <= h else float("nan")
+    row["r2"] = scores.summary(source)["r2"]
+    if std and source == MODEL:
+        cal = scores.result["horizons"].get("calibration", {}).get("joints", {})
+        row["cover1"] = float(np.mean(cal.get("1sigma", [np.nan])))
+        row["cover2"] = float(np.mean(cal.get("2sigma", [np.nan])))
+    else:
+        row["cover1"] = row["cover2"] = float("nan")
+    row["s_per_window"] = seconds if seconds is not None else float("nan")
+    return row
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--ckpt", required=True, help="a checkpoint trained with --model.physics amortized")
+    p.add_argument("--test", required=True, help="held-out store")
+    p.add_argument("--n", type=int, default=16, help="held-out robots (one window each per offset)")
+    p.add_argument("--modes", default="learned,regression,refined")
+    p.add_argument("--baselines", default="hold,nominal_physics,identified_physics")
+    p.add_argument("--offsets", default="start,random")
+    p.add_argument("--black-box", action="store_true", help="also score the checkpoint's black-box decoder")
+    p.add_argument("--compare", action="append", default=[], metavar="NAME=CKPT",
+                   help="another checkpoint scored on the same windows (e.g. the black-box model)")
+    p.add_argument("--random-horizon", type=int, default=600, help="horizon of the random-offset windows")
+    p.add_argument("--std", action="store_true", help="also score the hybrid's std (parameter draws: slower)")
+    p.add_argument("--csv", default=None)
+    args = p.parse_args(argv)
+    print_provenance()
+    base = Predictor.from_checkpoint(args.ckpt)
+    info = base.data_info
+    rows = []
+    for offset in args.offsets.split(","):
+        horizon = info["horizon"] if offset == "start" else args.random_horizon
+        w = load_window(args.test, info["context_len"], horizon, args.n, info, base.n_u, base.n_y, offset, 0,
+                        base.inputs)
+        baselines = tuple(b for b in args.baselines.split(",") if b)
+        t0 = time.perf_counter()
+        scores = score_windows(None, w, baselines)
+        for b in baselines:
+            if b in scores.preds:
+                note = scores.result["meta"]["baseline_notes"].get(b, {})
+                rows.append(_row(b, offset, scores, b, note.get("seconds_per_window"), False))
+        sources = [(m, args.ckpt, m) for m in args.modes.split(",") if m]
+        if args.black_box:
+            sources.append(("black_box", args.ckpt, "none"))
+        sources += [(spec.partition("=")[0], spec.partition("=")[2], None) for spec in args.compare]
+        for name, ckpt, mode in sources:
+            pred = Predictor.from_checkpoint(ckpt)
+            if mode is not None:
+                pred.physics_mode = mode
+            std = args.std and mode not in (None, "none")
+            if not std and pred.physics:
+                pred.has_std = False  # the mean alone: the cost of a prediction without draws
+            t0 = time.perf_counter()
+            s = score_windows(pred, w, ())
+            rows.append(_row(name, offset, s, MODEL, (time.perf_counter() - t0) / len(w.u), std))
+            print(f"  scored {name} ({offset})", file=sys.stderr, flush=True)
+    headers = ["source", "windows"] + [f"step{k}" for k in STEPS] + ["r2", "cover1", "cover2", "s_per_window"]
+    print(markdown_table(["source", "windows"] + [f"step {k}" for k in STEPS] + ["R²", "±1σ", "±2σ", "s/window"],
+                         [[r[h] for h in headers] for r in rows], floatfmt=".4g"))
+    if args.csv:
+        write_rows(args.csv, rows, provenance())
+        print(f"written: {args.csv}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_command(lambda: main()))

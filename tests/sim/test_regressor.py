@@ -1,0 +1,86 @@
+"""Identification by one linear solve of the inverse dynamics (robomorph.sim.regressor)."""
+
+import numpy as np
+import pytest
+
+from robomorph.core.config import from_dict
+from robomorph.data.store import open_store
+from robomorph.evaluation.physics import NominalPhysics
+from robomorph.sim.identify import KINDS, ParameterSpace, lean_model
+from robomorph.sim.randomize import Randomizer
+from robomorph.sim.recipe import Recipe
+from robomorph.sim.regressor import RegressorIdentifier
+from tests.sim.test_identify import DAMPING_ONLY
+
+CONTEXT = 120
+
+
+@pytest.fixture(scope="module")
+def stores(simulated_store):
+    damping = open_store(simulated_store(robots=3, steps=CONTEXT, seed=3, randomization=DAMPING_ONLY))
+    full = open_store(simulated_store(robots=6, steps=CONTEXT, seed=4))
+    return damping, full
+
+
+def _solver(ds, inputs="command"):
+    recipe = from_dict(Recipe, ds.attrs["config"], "store config")
+    model = lean_model(recipe.substeps, recipe.dt, recipe.gravity_compensation == "true_model")
+    rz = Randomizer(model, recipe.randomization)
+    space = ParameterSpace.of(rz, recipe.randomization, KINDS)
+    return RegressorIdentifier(recipe, space, rz, inputs), space
+
+
+@pytest.mark.parametrize("inputs", ["command", "total"])
+def test_recovers_the_damping_of_robots_that_differ_only_there(stores, inputs):
+    ds = stores[0]
+    reg, space = _solver(ds, inputs)
+    sim = NominalPhysics(ds.attrs, inputs)
+    y, u, params = ds.read("y").astype(np.float64), ds.read_inputs(inputs).astype(np.float64), ds.read("params")
+    for b in range(len(y)):
+        base = sim.params(y[b, 0, 7:])
+        est = reg.fit(base, y[b, :, 7:], u[b])
+        truth = params[b, space.index]
+        catalogue = np.abs(7.5 - truth).mean()
+        assert np.abs(est[space.index] - truth).mean() < 0.1 * catalogue
+        rest = np.setdiff1d(np.arange(len(est)), space.index)
+        np.testing.assert_array_equal(est[rest], base[rest])  # only the identified entries change
+        assert reg.last_cov.shape == (len(space), len(space)) and np.all(np.diag(reg.last_cov) > 0)
+
+
+def test_beats_the_catalogue_on_fully_randomized_robots_and_stays_in_bounds(stores):
+    ds = stores[1]
+    reg, space = _solver(ds)
+    sim = NominalPhysics(ds.attrs, "command")
+    y, u, params = ds.read("y").astype(np.float64), ds.read("u_cmd").astype(np.float64), ds.read("params")
+    z = lambda p: space.to_unit(p[..., space.index])  # noqa: E731
+    est = np.stack([reg.fit(sim.params(y[b, 0, 7:]), y[b, :, 7:], u[b]) for b in range(len(y))])
+    cat = np.stack([sim.params(y[b, 0, 7:]) for b in range(len(y))])
+    assert np.all(np.abs(z(est)) <= 1 + 1e-9)
+    damping = [i for i, n in enumerate(space.names) if n.startswith("damping")]
+    err = np.abs(z(est) - z(params))[:, damping].mean()
+    assert err < 0.5 * np.abs(z(cat) - z(params))[:, damping].mean()
+
+
+def test_a_prior_pulls_the_solve_and_is_deterministic(stores):
+    ds = stores[1]
+    reg, space = _solver(ds)
+    y, u = ds.read("y").astype(np.float64), ds.read("u_cmd").astype(np.float64)
+    base = NominalPhysics(ds.attrs, "command").params(y[0, 0, 7:])
+    a = reg.fit(base, y[0, :, 7:], u[0])
+    b = reg.fit(base, y[0, :, 7:], u[0])
+    np.testing.assert_array_equal(a, b)
+    mu = np.full(len(space), 0.9)
+    dist = lambda p: np.abs(space.to_unit(p[space.index]) - mu).mean()  # noqa: E731
+    tight = reg.fit(base, y[0, :, 7:], u[0], mu, np.full(len(space), 1e-3))
+    loose = reg.fit(base, y[0, :, 7:], u[0], mu, np.full(len(space), 100.0))
+    # A sure prior pulls the estimate to itself; a vague one leaves the data to speak where
+    # they are clear (the damping; a context this short says little of the link masses).
+    assert dist(tight) < 0.5 * dist(a)
+    damping = space.index[[i for i, n in enumerate(space.names) if n.startswith("damping")]]
+    assert np.abs(loose[damping] - a[damping]).max() < 0.1  # N m s/rad, over a range of 5
+
+
+def test_commands_on_an_arm_with_catalogue_compensation_are_refused(simulated_store):
+    ds = open_store(simulated_store(robots=1, steps=30, seed=5, gravity_compensation="nominal_model"))
+    with pytest.raises(ValueError, match="total torques"):
+        _solver(ds, "command")
