@@ -35,12 +35,18 @@ class WindowDataset(Dataset):
     def __init__(self, sources: list[Source], pairs: np.ndarray, context_len: int, horizon: int):
         self.sources, self.pairs = sources, pairs
         self.context_len, self.horizon = context_len, horizon
-        # The robots' parameters ride along when every store records them (a batch stacks
-        # the same keys); only the parameter head reads them, never the sequence model.
-        self.with_params = bool(sources) and all(getattr(s, "params", None) is not None for s in sources)
+        # The robots' parameters ride along when the parameter head asks for them
+        # (:meth:`add_params`); the sequence model never reads them.
+        self.with_params = False
 
     def __len__(self) -> int:
         return len(self.pairs)
+
+    def add_params(self) -> bool:
+        """Adds each robot's parameters (``params``) to the windows, when every store records
+        them (a batch stacks the same keys); returns whether it did."""
+        self.with_params = bool(self.sources) and all(getattr(s, "params", None) is not None for s in self.sources)
+        return self.with_params
 
     def __getitem__(self, key: int | tuple[int, ...]) -> dict[str, torch.Tensor]:
         row, offset, c, h = (key + (self.context_len, self.horizon))[:4] if isinstance(key, tuple) else \

@@ -129,7 +129,9 @@ class Predictor:
         # Checkpoints written before the command formulation were all trained on total torque.
         self.inputs: str = (data_info or {}).get("inputs", "total")
         self.physics: dict | None = (data_info or {}).get("physics") if model.config.n_params else None
-        self.physics_mode: str = "regression" if self.physics else "none"
+        # Total torques pay gravity at the recorded state: the simulation diverges within seconds,
+        # so a total-torque hybrid predicts with its decoder unless asked otherwise.
+        self.physics_mode: str = ("regression" if self.inputs == "command" else "none") if self.physics else "none"
         self.physics_samples: int = 8
         self._hybrid = None
         if self.physics:

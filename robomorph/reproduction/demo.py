@@ -2,11 +2,14 @@
 
 1. Generates a small dataset of every task (multi-sine, chirp, OSC circle and spiral) with
    the recipes in ``datamodules/``, prints each summary and draws its trajectories.
-2. Trains the CPU-sized meta-model briefly on a multi-sine training set.
-3. Recalibrates its predicted standard deviation by horizon on the training run's
-   validation robots (``robomorph.calibrate``), then evaluates it on held-out robots it
-   never saw (context alone), beside the baselines, with the horizon and context sweeps,
-   and prints the per-channel table.
+2. Trains the CPU-sized meta-model briefly on a multi-sine training set, in the command
+   formulation by default: the hybrid model (``physics: auto`` in ``train_cpu.yaml``),
+   whose predictions simulate the robot identified from the context
+   (:mod:`robomorph.model.hybrid`); ``--inputs total`` trains on the paper's total torque.
+3. Recalibrates a black-box model's predicted standard deviation by horizon on the training
+   run's validation robots (``robomorph.calibrate``), then evaluates the model on held-out
+   robots it never saw (context alone), beside the baselines, with the horizon and context
+   sweeps, and prints the per-channel table.
 4. Writes the HTML report of all runs (``results/report.html``) and prints its path.
 5. Ends with the RMS errors by horizon in physical units (joint angles [mrad], end-effector
    position [mm] and orientation [mrad]) of the model, ``hold``, ``nominal_physics`` and
@@ -22,6 +25,7 @@ import time
 from dataclasses import dataclass
 
 from robomorph.core.errors import UsageError
+from robomorph.model.files import CheckpointError
 from robomorph.core.names import TASKS
 from robomorph.core.recipes import locate
 from robomorph.core.rundir import RunDir
@@ -55,15 +59,23 @@ def _generate(task: str, path: str, overrides: dict, workers: int | None) -> str
     return path
 
 
-def train(out_dir: str, robots: int, minutes: float, runs_dir: str) -> tuple[str, str, str]:
+def train(out_dir: str, robots: int, minutes: float, runs_dir: str, inputs: str = "command") -> tuple[str, str, str]:
     """Trains on ``robots`` multi-sine robots; returns (run dir, best checkpoint, held-out store)."""
     from robomorph.training.fitting import fit  # noqa: PLC0415  (torch/lightning only when training)
 
     train = _generate("multisine", os.path.join(out_dir, "ms_train.zarr"), {"robots": robots, "seed": 0}, None)
     test = _generate("multisine", os.path.join(out_dir, "ms_heldout.zarr"), {"robots": 64, "seed": 1}, None)
-    result = fit(["--config", locate("datamodules/train_cpu.yaml"), "--data.stores", train, "--data.test_store", test,
-                  "--data.split", "[0.95, 0.05, 0.0]", "--trainer.max_time", _ddhhmmss(minutes * 60),
-                  "--trainer.val_check_interval", "200", "--run", "demo", "--runs_dir", runs_dir])
+    run = "demo" if inputs == "command" else "demo-total"
+    args = ["--config", locate("datamodules/train_cpu.yaml"), "--data.stores", train, "--data.test_store", test,
+            "--data.split", "[0.95, 0.05, 0.0]", "--trainer.max_time", _ddhhmmss(minutes * 60),
+            "--trainer.val_check_interval", "200", "--data.inputs", inputs, "--run", run, "--runs_dir", runs_dir]
+    try:
+        result = fit(args)
+    except CheckpointError as exc:
+        # A demo run left by an older version (another model) cannot be resumed: keep it aside, start afresh.
+        kept = _set_aside(os.path.join(runs_dir, run))
+        print(f"note: {exc}\nnote: the earlier demo run is kept at {kept}; training a new one")
+        result = fit(args)
     ckpt = result.best_ckpt or result.last_ckpt
     if ckpt is None:  # a budget too short to reach the first validation
         raise UsageError(f"training stopped after {result.global_step} steps without a checkpoint (the first "
@@ -98,10 +110,21 @@ def calibrate_std(ckpt: str) -> bool:
     from robomorph.evaluation.calibrating import calibrate, report_text  # noqa: PLC0415
     from robomorph.model.checkpoint import load_trained  # noqa: PLC0415
 
-    if not load_trained(ckpt)[0].gaussian:
+    model, info = load_trained(ckpt)
+    # A hybrid's std is the spread over parameter draws, not the head's: nothing to recalibrate here.
+    if not model.gaussian or (model.config.n_params and (info or {}).get("physics")):
         return False
     print("\n" + report_text(calibrate(ckpt)))
     return True
+
+
+def _set_aside(path: str) -> str:
+    """Renames a run folder to the first free ``<path>.previous-<k>``; returns the new name."""
+    k = 1
+    while os.path.exists(f"{path}.previous-{k}"):
+        k += 1
+    os.replace(path, f"{path}.previous-{k}")
+    return f"{path}.previous-{k}"
 
 
 def _ddhhmmss(seconds: float) -> str:
@@ -123,10 +146,10 @@ class DemoResult:
 
 def run_demo(out_dir: str = "data/demo", robots: int = 32, steps: int = 1000, train_robots: int = 1024,
              minutes: float = 6.0, runs_dir: str = "results/runs", workers: int | None = None,
-             identified: bool = False) -> DemoResult:
+             identified: bool = False, inputs: str = "command") -> DemoResult:
     """The three steps of the module docstring, in order."""
     paths = make_data(out_dir, robots, steps, workers)
-    run_dir, ckpt, test = train(out_dir, train_robots, minutes, runs_dir)
+    run_dir, ckpt, test = train(out_dir, train_robots, minutes, runs_dir, inputs)
     eval_dir, report, res = evaluate_and_report(ckpt, test, runs_dir, identified)
     return DemoResult(paths, run_dir, eval_dir, report, res)
 

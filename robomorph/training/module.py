@@ -96,10 +96,13 @@ class MetaModule(L.LightningModule):
         normalization_from: with ``init_ckpt``, where the normalization statistics come
             from: ``target`` (default), this run's training data; ``source``, the
             checkpoint's (same channels only: with new channels they come from the data).
-        physics: ``none`` (the black-box model) or ``amortized``: a parameter head on the
-            encoder learns each robot's physical parameters from the context (targets: the
-            store's ``params``), and predictions simulate the robot so identified
-            (:mod:`robomorph.sim.backbone`). Needs simulated Panda stores that record ``params``.
+        physics: ``none`` (the black-box model), ``amortized`` (a parameter head learns each
+            robot's physical parameters from the context, targets the store's ``params``, and
+            the Predictor simulates the robot identified from the context: the hybrid model,
+            :mod:`robomorph.model.hybrid`; needs simulated Panda stores that record
+            ``params``) or ``auto`` (``amortized`` in the command formulation when every
+            training store can have it, else ``none`` with a note: imported real logs have no
+            catalogue robot, and total torques make any simulation diverge within seconds).
         param_weight: weight of the parameter head's Gaussian NLL in the loss.
         decoder_loss: also train the black-box decoder (false: the parameter head alone, whose
             training steps then skip the decoder; the decoder stays untrained).
@@ -141,7 +144,7 @@ class MetaModule(L.LightningModule):
         freeze: Literal[FREEZE_MODES] = "none",
         reinit_io: bool = False,
         normalization_from: Literal["source", "target"] = "target",
-        physics: Literal["none", "amortized"] = "none",
+        physics: Literal["none", "amortized", "auto"] = "none",
         param_weight: float = 1.0,
         decoder_loss: bool = True,
         n_params: int | None = None,
@@ -154,7 +157,8 @@ class MetaModule(L.LightningModule):
         check_normalization(normalization, recenter)
         self.save_hyperparameters()
         # The parameter head's width is the Panda's identifiable parameters, whatever the ranges.
-        self.hparams.n_params = N_PHYSICAL if physics == "amortized" else 0
+        self.hparams.n_params = N_PHYSICAL if physics != "none" else 0
+        self._physics_on = physics == "amortized"  # "auto" is decided by the data in setup
         self._layout: dict | None = None  # the parameter layout of the training stores (setup)
         self.net: MetaModel | None = None
         self.normalizer: Normalizer | None = None
@@ -193,9 +197,27 @@ class MetaModule(L.LightningModule):
         check_channels(dm, self.hparams.n_u, self.hparams.n_y)
         if stage == "fit" or self.data_info is None:
             self.data_info = data_info(dm)
-        if self.hparams.physics != "none":
+        if self.hparams.physics == "auto":
+            from robomorph.sim.backbone import BackboneError as _Refused  # noqa: PLC0415
+
+            try:
+                if getattr(dm, "inputs", "total") != "command":
+                    # Total torques pay gravity at the recorded state: a simulation diverges within
+                    # seconds even with the true parameters (docs: the hybrid model).
+                    raise _Refused("the hybrid predicts in the command formulation (--data.inputs command)")
+                self._layout, self._physics_on = physics_layout(dm), True
+            except _Refused as exc:
+                self._physics_on = False
+                if stage == "fit":
+                    why = str(exc).split(";")[0].replace("--model.physics needs", "the hybrid needs")
+                    print(f"note: --model.physics auto: {why}; training the black-box model alone")
+        elif self.hparams.physics != "none":
             self._layout = physics_layout(dm)
-            self.data_info = {**self.data_info, "physics": {**self._layout, "mode": self.hparams.physics}}
+        if self._physics_on:
+            self.data_info = {**self.data_info, "physics": {**self._layout, "mode": "amortized"}}
+            for name in ("train_set", "val_set", "test_set"):
+                if getattr(dm, name, None) is not None:
+                    getattr(dm, name).add_params()
         if stage == "fit" and self.hparams.init_ckpt and not self.resuming and not getattr(self, "_transferred", False):
             start_from(self, self.hparams.init_ckpt)
             self._transferred = True
@@ -246,11 +268,11 @@ class MetaModule(L.LightningModule):
         uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"], qs)
         target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"], qs)
         loss, pred = torch.zeros((), device=uc.device), None
-        if h.physics == "none" or h.decoder_loss:
+        if not self._physics_on or h.decoder_loss:
             pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate)
             weights = horizon_weights(target.shape[1], h.horizon_weight, h.horizon_tau, target.device)
             loss = (elementwise_loss(h.loss, pred, logvar, target, h.huber_delta) * weights[:, None]).mean()
-        if h.physics != "none":
+        if self._physics_on:
             self._param_error = self._param_loss(batch, uc, yc)
             loss = loss + h.param_weight * self._param_error[0]
         return loss, pred, target
@@ -275,7 +297,7 @@ class MetaModule(L.LightningModule):
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         loss, _, _ = self._step(batch)
         self.log(TRAIN_LOSS, loss, prog_bar=True, batch_size=len(batch["u_ctx"]))
-        if self.hparams.physics != "none":
+        if self._physics_on:
             self.log(TRAIN_PARAM_RMSE, self._param_error[1], batch_size=len(batch["u_ctx"]))
         self.log(LR, self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=len(batch["u_ctx"]))
         return loss
@@ -284,7 +306,7 @@ class MetaModule(L.LightningModule):
         batch = whole_patches(batch, self.hparams.patch)
         loss, pred, _ = self._step(batch)
         n = len(batch["y_query"])
-        if self.hparams.physics != "none":
+        if self._physics_on:
             self.log(keys[0].split("/")[0] + "/param_rmse", self._param_error[1], batch_size=n, sync_dist=True,
                      prog_bar=True)
         if pred is None:  # the parameter head alone: no sequence prediction to score here
@@ -310,8 +332,8 @@ class MetaModule(L.LightningModule):
 
 
 def _check_physics(physics: str, param_weight: float, decoder_loss: bool) -> None:
-    if physics not in ("none", "amortized"):
-        raise ModelSettingsError(f"--model.physics must be 'none' or 'amortized', got {physics!r}")
+    if physics not in ("none", "amortized", "auto"):
+        raise ModelSettingsError(f"--model.physics must be 'none', 'amortized' or 'auto', got {physics!r}")
     if not param_weight > 0 or not isinstance(decoder_loss, bool):
         raise ModelSettingsError("--model.param_weight must be > 0 and --model.decoder_loss true or false")
 

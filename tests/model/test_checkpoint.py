@@ -30,7 +30,7 @@ def test_training_module_takes_its_defaults_from_the_model_config():
 
     params = inspect.signature(MetaModule.__init__).parameters
     for f in dataclasses.fields(ModelConfig):
-        if f.name not in ("n_u", "n_y"):
+        if f.name not in ("n_u", "n_y", "n_params"):  # n_params follows --model.physics
             assert params[f.name].default == f.default, f.name
 
 
