@@ -49,6 +49,35 @@ def _row(name: str, offset: str, scores, source: str, seconds: float | None, std
     return row
 
 
+def latency(args) -> None:
+    """Median wall time of Predictor.simulate per mode: one trajectory, and 256 candidates on one context."""
+    from robomorph.data.store import open_store  # noqa: PLC0415
+
+    pred = Predictor.from_checkpoint(args.ckpt)
+    ds = open_store(args.test)
+    u, y = ds.read_inputs(pred.inputs)[:1].astype(np.float32), ds.read("y")[:1].astype(np.float32)
+    c, h = pred.data_info["context_len"], pred.data_info["horizon"]
+    rng = np.random.default_rng(0)
+    cands = u[0, c:c + 60][None] + rng.normal(0, 0.2, size=(256, 60, u.shape[2])).astype(np.float32)
+    rows = []
+    for mode in [m for m in args.modes.split(",") if m] + ["none"]:
+        pred.physics_mode = mode
+        for what, call in (("one trajectory (200 + 800)", lambda: pred.simulate(u[0, :c], y[0, :c], u[0, c:c + h])),
+                           ("256 candidates x 60 steps, one context",
+                            lambda: pred.simulate(np.repeat(u[:, :c], 256, 0), np.repeat(y[:, :c], 256, 0), cands))):
+            call()  # warm-up (builds the simulators)
+            times = []
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                call()
+                times.append(time.perf_counter() - t0)
+            rows.append({"mode": mode, "call": what, "ms_median": 1e3 * float(np.median(times))})
+    print(markdown_table(["mode", "call", "ms (median)"], [[r["mode"], r["call"], r["ms_median"]] for r in rows]))
+    if args.latency_csv:
+        write_rows(args.latency_csv, rows, provenance())
+        print(f"written: {args.latency_csv}")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--ckpt", required=True, help="a checkpoint trained with --model.physics amortized")
@@ -63,8 +92,15 @@ def main(argv=None) -> int:
     p.add_argument("--random-horizon", type=int, default=600, help="horizon of the random-offset windows")
     p.add_argument("--std", action="store_true", help="also score the hybrid's std (parameter draws: slower)")
     p.add_argument("--csv", default=None)
+    p.add_argument("--latency", action="store_true",
+                   help="also time one prediction (context 200, horizon 800) and a batch of 256 candidate "
+                        "60-step torque sequences on one context, per mode (median of --repeats)")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--latency-csv", default=None)
     args = p.parse_args(argv)
     print_provenance()
+    if args.latency:
+        latency(args)
     base = Predictor.from_checkpoint(args.ckpt)
     info = base.data_info
     rows = []

@@ -92,26 +92,38 @@ class Hybrid:
 
         if mode not in MODES:
             raise HybridError(f"physics mode must be one of {MODES}, got {mode!r}")
-        z, z_std = self.parameters(u_ctx, y_ctx, u_query)
         uc, yc, uq = (t.double().cpu().numpy() for t in (u_ctx, y_ctx, u_query))
         q_ctx, quat_last = yc[..., 7:14], yc[:, -1, 3:7]
         B = len(uc)
         rest = np.broadcast_to(np.asarray(False if at_rest is None else at_rest, dtype=bool), (B,))
         qvel_start = -estimate_velocity(q_ctx[:, ::-1], self.backbone.dt)
         qvel_start[rest] = 0.0
+        # Candidate torque sequences on one context (model-predictive control): the robot is
+        # identified once and only the horizons are simulated per row.
+        shared = B > 1 and bool(np.all(uc == uc[:1]) and np.all(yc == yc[:1]) and np.all(rest == rest[0]))
+        one = slice(0, 1) if shared else slice(None)
+        z, z_std = self.parameters(u_ctx[one], y_ctx[one], u_query[one])
         # The springs are anchored where the robot started: the first context sample when the context opens it.
-        params = self.backbone.full_params(z, q_ctx[:, 0])
+        params = self.backbone.full_params(z, q_ctx[one, 0])
         if mode in ("regression", "fused", "refined"):
             prior = (z, z_std) if mode in ("fused", "refined") else None
-            params = self._regress(params, q_ctx, uc, prior)
+            params = self._regress(params, q_ctx[one], uc[one], prior)
         if mode == "refined":
-            params = self._refine(params, q_ctx, uc, qvel_start)
-        mean = self.backbone.simulate(params, q_ctx, uc, uq, qvel_start, quat_last)
+            params = self._refine(params, q_ctx[one], uc[one], qvel_start[one])
+
+        def horizon(p: np.ndarray) -> np.ndarray:
+            """(B, H, n_y) of the robots ``p`` (one per row, or one for all on a shared context)."""
+            qvel_end = self.backbone.context_velocity(p, q_ctx[one], uc[one], qvel_start[one])
+            if shared:
+                p, qvel_end = np.repeat(p, B, axis=0), np.repeat(qvel_end, B, axis=0)
+            return self.backbone.simulate(p, q_ctx, uc, uq, qvel_start, quat_last, qvel_end)
+
+        mean = horizon(params)
         if not return_std:
             return mean, None
         rng = np.random.default_rng(self.seed)
         # Draws around the estimate used: the head's Gaussian (learned) or the regression's
-        # covariance (regression, refined), in unit coordinates.
+        # covariance (regression, fused, refined), in unit coordinates.
         index, low, high = self.backbone.index, self.backbone.low, self.backbone.high
         center = (params[:, index] - (low + high) / 2) / ((high - low) / 2)
         if mode == "learned":
@@ -123,7 +135,7 @@ class Hybrid:
             zk = center + np.einsum("bij,bj->bi", chol, rng.standard_normal(center.shape))
             pk = params.copy()
             pk[:, index] = (low + high) / 2 + np.clip(zk, -1, 1) * (high - low) / 2
-            draws.append(self.backbone.simulate(pk, q_ctx, uc, uq, qvel_start, quat_last))
+            draws.append(horizon(pk))
         draws = np.stack(draws)  # (K, B, H, n_y)
         std = np.sqrt(np.mean((draws - mean[None]) ** 2, axis=0))
         return mean, std

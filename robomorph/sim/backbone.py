@@ -139,8 +139,31 @@ class PhysicsBackbone:
         out[:, self.index] = (self.low + self.high) / 2 + z * (self.high - self.low) / 2
         return out
 
+    def context_velocity(self, params: np.ndarray, q_ctx: np.ndarray, torque_ctx: np.ndarray,
+                         qvel_start: np.ndarray) -> np.ndarray:
+        """(N, 7) joint velocity at each context's last sample, from which the horizon starts.
+
+        Commands: each robot simulated over its context from the first sample (its velocity
+        ``qvel_start``), which follows the context's dynamics better than a finite difference;
+        total torques: the finite-difference estimate (the context simulation drifts with g(q)
+        in the torque, as ``identified_physics`` found)."""
+        from robomorph.evaluation.baselines import estimate_velocity  # noqa: PLC0415
+        from robomorph.sim.identify import _Problem  # noqa: PLC0415
+
+        if self.inputs != "command":
+            return estimate_velocity(q_ctx, self.dt)
+        out = np.empty((len(params), q_ctx.shape[2]))
+        space = self.ident.space
+        for b in range(len(params)):
+            problem = _Problem(self.ident, params[b], q_ctx[b], torque_ctx[b], np.asarray(qvel_start[b]))
+            z = space.to_unit(params[b][space.index])
+            problem.joint_error(z[None])
+            out[b] = problem._qvel_end[z.tobytes()][:q_ctx.shape[2]]
+        return out
+
     def simulate(self, params: np.ndarray, q_ctx: np.ndarray, torque_ctx: np.ndarray, torque_query: np.ndarray,
-                 qvel_start: np.ndarray, quat_last: np.ndarray | None = None) -> np.ndarray:
+                 qvel_start: np.ndarray, quat_last: np.ndarray | None = None,
+                 qvel_end: np.ndarray | None = None) -> np.ndarray:
         """Predicts the horizon of each window with its own parameter vector.
 
         Args:
@@ -150,6 +173,8 @@ class PhysicsBackbone:
             torque_query: (N, H, 7) the query torques (``torque_query[k]`` applied from query step k).
             qvel_start: (N, 7) joint velocity at each context's first sample.
             quat_last: (N, 4) the last context quaternion (X Y Z W), whose sign the prediction keeps.
+            qvel_end: (N, 7) the velocity at the last context sample, when already known
+                (default: :meth:`context_velocity`).
 
         Returns:
             (N, H, 14) outputs at query steps 1..H (EE position, EE quaternion X Y Z W, joints).
@@ -164,17 +189,8 @@ class PhysicsBackbone:
         # Frames c-1 .. c+H-2 from the last context sample: the last context torque, then the query's.
         torque = np.concatenate([torque_ctx[:, -1:], np.asarray(torque_query, dtype=np.float64)[:, :H - 1]
                                  if H > 1 else torque_ctx[:, :0]], axis=1)
-        if self.inputs == "command":
-            qvel_end = np.empty((n, q_ctx.shape[2]))
-            for b in range(n):
-                problem = _Problem(self.ident, params[b], q_ctx[b], torque_ctx[b], np.asarray(qvel_start[b]))
-                z = problem.ident.space.to_unit(params[b][problem.ident.space.index])
-                problem.joint_error(z[None])
-                qvel_end[b] = problem._qvel_end[z.tobytes()][:q_ctx.shape[2]]
-        else:
-            # Total torques: the context simulation drifts with g(q) in the torque; the
-            # finite-difference estimate is the better start (as identified_physics finds).
-            qvel_end = estimate_velocity(q_ctx, self.dt)
+        if qvel_end is None:
+            qvel_end = self.context_velocity(params, q_ctx, torque_ctx, qvel_start)
         if self.open_loop:
             q = self._rollout(params, q_ctx[:, -1], qvel_end, torque)
         else:

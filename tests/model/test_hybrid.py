@@ -149,3 +149,18 @@ def test_black_box_checkpoints_have_no_parameter_head(tiny_checkpoint):
     assert not any("param_head" in k for k in ckpt["state_dict"])
     with pytest.raises(Exception, match="no physics backbone"):
         p.hybrid()
+
+
+def test_candidates_on_one_context_equal_their_rows_predicted_alone(hybrid_ckpt, command_store):
+    """Model-predictive control asks for many torque sequences on one context: the robot is
+    identified once, and each row equals its own prediction made alone."""
+    from robomorph.model.predictor import Predictor
+
+    uc, yc, uq, _, _, _ = _windows(command_store, n=1)
+    rng = np.random.default_rng(0)
+    cand = uq[0][None] + rng.normal(0, 0.5, size=(5,) + uq.shape[1:]).astype(np.float32)
+    p = Predictor.from_checkpoint(hybrid_ckpt)
+    batch = p.simulate(np.repeat(uc, 5, 0), np.repeat(yc, 5, 0), cand, at_rest=True)
+    alone = np.concatenate([p.simulate(uc, yc, cand[k:k + 1], at_rest=True) for k in range(5)])
+    np.testing.assert_allclose(batch, alone, rtol=0, atol=1e-6)
+    assert np.abs(batch[0] - batch[1]).max() > 0  # other torques, another motion
