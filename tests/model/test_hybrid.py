@@ -164,3 +164,22 @@ def test_candidates_on_one_context_equal_their_rows_predicted_alone(hybrid_ckpt,
     alone = np.concatenate([p.simulate(uc, yc, cand[k:k + 1], at_rest=True) for k in range(5)])
     np.testing.assert_allclose(batch, alone, rtol=0, atol=1e-6)
     assert np.abs(batch[0] - batch[1]).max() > 0  # other torques, another motion
+
+
+def test_evaluate_physics_modes_and_refusal(hybrid_ckpt, tiny_checkpoint, command_store, tmp_path, capsys):
+    """evaluate --physics picks the hybrid's mode; on a black-box checkpoint it is one line, exit 2."""
+    import json
+
+    from robomorph.evaluate import main
+
+    out = tmp_path / "eval"
+    assert main(["--ckpt", hybrid_ckpt, "--data", command_store, "--n", "2", "--baselines", "hold", "--samples", "0",
+                 "--physics", "learned", "--out", str(out)]) == 0
+    res = json.loads((out / "metrics.json").read_text())
+    assert res["horizons"]["steps"][0] == 1 and "model" in res["horizons"]["rms"]
+    assert "calibration" in res["horizons"]  # the hybrid gives a std (parameter draws)
+    capsys.readouterr()
+    assert main(["--ckpt", tiny_checkpoint, "--data", command_store, "--n", "2", "--physics", "regression",
+                 "--inputs", "total", "--out", str(tmp_path / "e2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no physics backbone" in err[0]
