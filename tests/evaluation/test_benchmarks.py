@@ -112,3 +112,23 @@ def test_printing_benchmarks_run_at_a_tiny_setting(script, args, tmp_path):
     assert done.stdout.strip()
     if script != "real_log_fixture.py":  # a data fixture, not a result
         assert done.stdout.startswith("*Produced by")
+
+
+def test_hybrid_benchmark_scores_modes_and_baselines_on_the_same_windows(tmp_path, simulated_store):
+    from robomorph.training.fitting import fit
+    from tests.conftest import tiny_fit_args
+
+    store = simulated_store(robots=8, steps=90, seed=6)
+    args = tiny_fit_args(store, tmp_path / "runs", "hyb", steps=2, data={"inputs": "command"},
+                         model={"physics": "amortized"})
+    ckpt = fit(args).best_ckpt
+    csv, lat = tmp_path / "hybrid.csv", tmp_path / "latency.csv"
+    done = run("hybrid.py", "--ckpt", ckpt, "--test", store, "--n", 2, "--offsets", "start",
+               "--modes", "learned,regression", "--baselines", "hold", "--csv", csv, "--md", tmp_path / "h.md",
+               "--latency", "--repeats", 1, "--latency-csv", lat)
+    assert done.stdout.startswith("*Produced by `benchmarks/hybrid.py")
+    rows = read_rows(str(csv))
+    assert [r["source"] for r in rows] == ["hold", "learned", "regression"]
+    assert all(float(r["step1"]) > 0 for r in rows)
+    assert read_provenance(str(csv))[0]["command"].startswith("benchmarks/hybrid.py")
+    assert {r["mode"] for r in read_rows(str(lat))} == {"learned", "regression", "none"}
