@@ -121,6 +121,9 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     source = {"data": [p for p, _ in sources], "split": split, "n": int(len(w.u)), "context_len": int(context_len),
               "horizon": int(horizon), "offset": offset, "seed": int(seed), "normalization": predictor.normalization,
               "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    if getattr(predictor, "physics", None):
+        # A hybrid's std depends on how it identifies the robot: the calibration is that mode's.
+        source["physics_mode"] = predictor.physics_mode
     cal = fit(before.y, mean, std, method, source=source)
     factors = cal.factors(int(horizon))
     after = score_windows(Predictions(mean, factors[None] * std), w, (), steps)

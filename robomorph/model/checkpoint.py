@@ -134,7 +134,7 @@ class TrainedModel(nn.Module):
     def set_calibration(self, calibration: StdCalibration | None) -> None:
         """Attaches (or with None removes) a std calibration, checked against the model."""
         if calibration is not None:
-            if not self.gaussian:
+            if not self.gaussian and not self.config.n_params:
                 raise CalibrationError("this model has no Gaussian head, so it has no standard deviation to calibrate")
             if calibration.n_y != self.config.n_y:
                 raise CalibrationError(f"the calibration has {calibration.n_y} channels, the model {self.config.n_y}")

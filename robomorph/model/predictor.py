@@ -158,7 +158,13 @@ class Predictor:
 
     @property
     def calibration(self):
-        return self.model.calibration
+        """The stored std calibration that applies to this prediction, or None. A hybrid's was
+        fitted in one physics mode (its std depends on how the robot is identified), and applies
+        in that mode only."""
+        cal = self.model.calibration
+        if cal is not None and self.physics and cal.source.get("physics_mode", "none") != self.physics_mode:
+            return None
+        return cal
 
     @contextlib.contextmanager
     def raw_std(self) -> Iterator["Predictor"]:
@@ -295,7 +301,9 @@ class Predictor:
         self._check_range(tensors[0], tensors[2])
         stats = self._query_stats(y_query_stats, len(tensors[0]))
         try:
-            mean, std = self.model.forward_dist(*tensors, stats)
+            mean, std = self.model.forward_dist_raw(*tensors, stats)
+            if std is not None and self.calibration is not None:
+                std = self.calibration.apply(std)
         except RoboMorphError:
             raise
         except ValueError as exc:  # the network's shape and length checks: the caller's arrays
@@ -326,6 +334,9 @@ class Predictor:
             raise
         except ValueError as exc:  # the network's shape and length checks: the caller's arrays
             raise PredictionError(str(exc)) from None
+        cal = self.calibration
+        if std is not None and cal is not None:
+            std = std * cal.factors(std.shape[-2])[None]
         out = [t[0] if single else t for t in (mean, std) if t is not None]
         if not np.all(np.isfinite(out[0])):
             raise PredictionError("the simulated robot diverged (non-finite outputs): check the torques' units and "

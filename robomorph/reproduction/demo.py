@@ -6,8 +6,8 @@
    formulation by default: the hybrid model (``physics: auto`` in ``train_cpu.yaml``),
    whose predictions simulate the robot identified from the context
    (:mod:`robomorph.model.hybrid`); ``--inputs total`` trains on the paper's total torque.
-3. Recalibrates a black-box model's predicted standard deviation by horizon on the training
-   run's validation robots (``robomorph.calibrate``), then evaluates the model on held-out
+3. Recalibrates the model's predicted standard deviation (a hybrid's: the spread over
+   parameter draws) by horizon on the training run's validation robots (``robomorph.calibrate``), then evaluates the model on held-out
    robots it never saw (context alone), beside the baselines, with the horizon and context
    sweeps, and prints the per-channel table.
 4. Writes the HTML report of all runs (``results/report.html``) and prints its path.
@@ -111,8 +111,7 @@ def calibrate_std(ckpt: str) -> bool:
     from robomorph.model.checkpoint import load_trained  # noqa: PLC0415
 
     model, info = load_trained(ckpt)
-    # A hybrid's std is the spread over parameter draws, not the head's: nothing to recalibrate here.
-    if not model.gaussian or (model.config.n_params and (info or {}).get("physics")):
+    if not model.gaussian and not (model.config.n_params and (info or {}).get("physics")):
         return False
     print("\n" + report_text(calibrate(ckpt)))
     return True
