@@ -11,6 +11,7 @@ import sys
 from robomorph.core.errors import run_command
 from robomorph.core.names import GRAVITY_MODES
 from robomorph.data import generation
+from robomorph.sim import arms
 from robomorph.sim.recipe import load_recipe
 
 
@@ -18,6 +19,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m robomorph.generate", description=generation.__doc__.split("\n")[0])
     p.add_argument("--config", help="recipe: a shipped name (multisine, chirp, circle, spiral, mixture) or a YAML "
                    "path; flags override its fields")
+    p.add_argument("--robot", choices=arms.names(), help="the simulated arm (default: the recipe's, panda)")
     p.add_argument("--task", help="multisine | chirp | circle | spiral")
     p.add_argument("--robots", type=int, help="valid trajectories to keep")
     p.add_argument("--steps", type=int, help="samples per trajectory")
@@ -34,7 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     recipe = load_recipe(args.config, {
-        "task": args.task, "robots": args.robots, "steps": args.steps, "seed": args.seed,
+        "robot": args.robot, "task": args.task, "robots": args.robots, "steps": args.steps, "seed": args.seed,
         "substeps": args.substeps, "gravity_compensation": args.gravity_compensation,
     })
     shard = generation.Shard.parse(args.shard)
@@ -42,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     rate = attrs["kept"] / max(attrs["attempted"], 1)
     rejected = {k: v for k, v in attrs["rejected"].items() if v}
     print(f"{args.out}: {attrs['n']} trajectories x {recipe.steps} steps ({attrs['task']}), "
-          f"kept {attrs['kept']} of {attrs['attempted']} attempts ({rate:.1%}), rejected {rejected}")
+          f"on the {attrs['domain']}, kept {attrs['kept']} of {attrs['attempted']} attempts ({rate:.1%}), rejected {rejected}")
     return 0
 
 

@@ -38,4 +38,7 @@ fi
 # dm-robotics-panda ships the Panda MJCF and meshes (Apache-2.0); its own dependencies
 # (the dm_robotics stack) are not needed to read the assets, so they are skipped.
 "${PIP[@]}" install -q --no-deps "dm-robotics-panda==0.4.8"
+# robosuite (the `arms` extra, MIT) ships the MJCF and meshes of the other arms
+# (robomorph.sim.arms); only its asset files are read, so its dependencies are skipped.
+"${PIP[@]}" install -q --no-deps "robosuite==1.5.2"
 "$VENV/bin/python" -c "import torch, mujoco, dm_control, zarr; print(f'install: torch {torch.__version__}, mujoco {mujoco.__version__}, zarr {zarr.__version__}')"

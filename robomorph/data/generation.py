@@ -1,4 +1,4 @@
-"""``python -m robomorph.generate``: randomized Panda trajectories into a Zarr dataset.
+"""``python -m robomorph.generate``: randomized robot-arm trajectories into a Zarr dataset.
 
 Attempts are numbered; attempt ``i`` is fully determined by (recipe, seed, i). The kept
 trajectories are the first ``robots`` valid attempts in index order, so the arrays are
@@ -23,7 +23,7 @@ from robomorph.core.config import ConfigError
 from robomorph.core.errors import OutputExistsError, RoboMorphError
 from robomorph.core.locks import exclusive_on
 from robomorph.data.store import STATUS_COMPLETE, DatasetWriter, SchemaError, create_store, open_store
-from robomorph.sim import episode, panda
+from robomorph.sim import episode
 from robomorph.sim.filters import REASONS
 from robomorph.sim.open_loop import OpenLoopEngine
 from robomorph.sim.randomize import Randomizer, param_names
@@ -144,17 +144,21 @@ def _open_writer(recipe: Recipe, out: str, shard: Shard, overwrite: bool) -> Dat
             raise FileExistsError(f"{out} is an unfinished store of schema {a.get('schema_version')} (no u_cmd): "
                                   "it cannot be resumed by this version; pass --overwrite to start it again")
         return DatasetWriter.reopen(out)
+    arm = recipe.arm
     attrs = {
-        "dt": recipe.dt, "domain": "panda", "task": recipe.task_label, "task_names": recipe.task_names,
+        "dt": recipe.dt, "domain": arm.name, "task": recipe.task_label, "task_names": recipe.task_names,
         "config": recipe.to_dict(), "seed": recipe.seed, "requested": target,
         "shard": [shard.index, shard.count], "substeps": recipe.substeps,
         "gravity_compensation": recipe.gravity_compensation,
         "u_cmd_compensation": _COMPENSATION[recipe.gravity_compensation],
         "cursor": 0, "attempted": 0, "kept": 0, "rejected": {r: 0 for r in REASONS},
     }
-    return create_store(out, target, recipe.steps, list(panda.U_NAMES), list(panda.Y_NAMES),
-                        param_names(), attrs, extras=_extras(recipe), chunk=recipe.chunk,
-                        overwrite=overwrite, u_cmd_names=list(panda.U_CMD_NAMES))
+    if arm.name != "panda":  # (the Panda's attributes, hence its stores' fingerprints, stay as they were)
+        attrs.update(robot=arm.title, joint_names=list(arm.joint_names),
+                     torque_limits=[float(x) for x in arm.limits])
+    return create_store(out, target, recipe.steps, list(arm.u_names), list(arm.y_names),
+                        param_names(arm.name), attrs, extras=_extras(recipe), chunk=recipe.chunk,
+                        overwrite=overwrite, u_cmd_names=list(arm.u_cmd_names))
 
 
 class _Engines:
@@ -163,7 +167,7 @@ class _Engines:
     def __init__(self, recipe: Recipe, workers: int):
         self.recipe, self.workers = recipe, workers
         self.model = episode.build_model(recipe)
-        self.randomizer = Randomizer(self.model, recipe.randomization)
+        self.randomizer = Randomizer(self.model, recipe.randomization, recipe.robot)
         self._open: OpenLoopEngine | None = None
         self._pool = None
         self._local: episode.ClosedLoopRunner | None = None
@@ -175,7 +179,7 @@ class _Engines:
         draws = [episode.draw(r, self.randomizer, i) for i in indices]
         sens, ranges = self._open.run(lambda model, i: self.randomizer.apply(model, draws[i].params),
                                       np.stack([d.qpos0 for d in draws]), np.stack([d.ctrl for d in draws]))
-        return [episode.finish(r, d, s, jr[: panda.N_JOINT], r.substeps)
+        return [episode.finish(r, d, s, jr[: r.arm.n_joint], r.substeps)
                 for d, s, jr in zip(draws, sens, ranges)]
 
     def closed_loop(self, indices: list[int]) -> list:

@@ -36,7 +36,6 @@ from robomorph.evaluation import references, training_data
 from robomorph.evaluation.baselines import BASELINES
 from robomorph.evaluation.horizons import horizon_markdown, parse_horizons
 from robomorph.evaluation.scoring import Scores, score_windows
-from robomorph.evaluation.windows import EvaluationError
 from robomorph.evaluation.sources import check_baselines
 from robomorph.evaluation.tables import cost_note, diverged_note, write_csv, write_horizons_csv, write_table
 
@@ -102,12 +101,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     """
     check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     offset = parse_offset(offset)
-    predictor = _checked_predictor(ckpt, device, baselines, inputs, normalization)
-    if physics is not None:
-        if not predictor.physics and physics != "none":
-            raise EvaluationError(f"--physics {physics}: {ckpt} has no physics backbone (trained with --model.physics "
-                                  "none, e.g. on real logs without a catalogue robot); drop --physics")
-        predictor.physics_mode = physics if predictor.physics else "none"
+    predictor = _checked_predictor(ckpt, device, baselines, inputs, normalization, physics)
     info = predictor.data_info
     context_len = context_len or (info or {}).get("context_len")
     horizon = horizon or (info or {}).get("horizon")
@@ -135,8 +129,10 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     return result
 
 
-def _checked_predictor(ckpt: str, device: str | None, baselines, inputs: str | None, normalization: str | None):
-    """The checkpoint's Predictor, once the baselines, inputs and normalization asked for fit it."""
+def _checked_predictor(ckpt: str, device: str | None, baselines, inputs: str | None, normalization: str | None,
+                       physics: str | None = None):
+    """The checkpoint's Predictor, once the baselines, inputs and normalization asked for fit it,
+    predicting in the physics mode asked for (a hybrid model's)."""
     from robomorph.model.predictor import Predictor  # noqa: PLC0415  (torch only here)
 
     check_baselines(baselines)
@@ -145,6 +141,11 @@ def _checked_predictor(ckpt: str, device: str | None, baselines, inputs: str | N
     if normalization is not None and normalization != predictor.normalization:
         raise NormalizationError(f"{ckpt} was trained with normalization {predictor.normalization!r}, not "
                                  f"{normalization!r}: the normalization is fixed at training time (data.normalization)")
+    if physics is not None:
+        if not predictor.physics and physics != "none":
+            raise EvaluationError(f"--physics {physics}: {ckpt} has no physics backbone (trained with --model.physics "
+                                  "none, e.g. on real logs without a catalogue robot); drop --physics")
+        predictor.physics_mode = physics if predictor.physics else "none"
     return predictor
 
 

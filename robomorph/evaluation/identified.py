@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from robomorph.evaluation.baselines import estimate_velocity
+from robomorph.core.velocity import estimate_velocity
 from robomorph.evaluation.physics import NominalPhysics
 from robomorph.sim.identify import Fit, IdentifyConfig
 

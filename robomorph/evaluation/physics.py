@@ -1,7 +1,8 @@
-"""The ``nominal_physics`` baseline: the catalogue Panda simulated from the end of the context.
+"""The ``nominal_physics`` baseline: the catalogue arm simulated from the end of the context.
 
 What knowing the robot's catalogue model already gives, without learning anything: the
-un-randomized Panda (nominal masses and centres of mass, damping, stiffness and armature
+un-randomized arm of the store (any arm of :mod:`robomorph.sim.arms`; nominal masses and
+centres of mass, damping, stiffness and armature
 at the middle of the recipe's ranges, nominal friction) starts from the last context
 state and is driven by the recorded torques. The joint velocity at that state is not
 in ``y``; it is estimated from the context positions (a cubic through the last samples),
@@ -29,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.evaluation.baselines import estimate_velocity
+from robomorph.core.velocity import estimate_velocity
 
 
 class NotApplicable(RoboMorphError, ValueError):
@@ -38,23 +39,25 @@ class NotApplicable(RoboMorphError, ValueError):
 
 def check_params(attrs: dict) -> None:
     """Raises :class:`NotApplicable` unless the store records the randomizer's parameters."""
+    from robomorph.sim import arms  # noqa: PLC0415
     from robomorph.sim.randomize import param_names  # noqa: PLC0415
 
-    if list(attrs.get("param_names", [])) != param_names():
+    arm = arms.of_store(attrs)
+    if arm is None or list(attrs.get("param_names", [])) != param_names(arm.name):
         raise NotApplicable("needs the per-robot parameters the generator records (params of this store "
                             "are missing or named differently)")
 
 
 class NominalPhysics:
-    """Callable ``(u_ctx, y_ctx, u_query) -> y_query`` for stores of the simulated Panda.
+    """Callable ``(u_ctx, y_ctx, u_query) -> y_query`` for stores of a simulated arm.
 
     Args:
         attrs: the store's attributes (domain, channel names and generator config).
         inputs: ``total`` (torques given are ``u``) or ``command`` (they are ``u_cmd``).
 
     Raises:
-        NotApplicable: the store is not a simulated Panda store (imported real logs,
-            other domains, another channel layout).
+        NotApplicable: the store is not a simulated store of a registered arm (imported
+            real logs, other domains, another channel layout).
     """
 
     def __init__(self, attrs: dict, inputs: str = "total"):
@@ -62,42 +65,38 @@ class NominalPhysics:
 
         from robomorph.core.config import from_dict  # noqa: PLC0415  (MuJoCo only when used)
         from robomorph.core.inputs import check_inputs  # noqa: PLC0415
-        from robomorph.sim import panda  # noqa: PLC0415
+        from robomorph.sim import arms  # noqa: PLC0415
         from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
         from robomorph.sim.randomize import Randomizer  # noqa: PLC0415
         from robomorph.sim.recipe import Recipe  # noqa: PLC0415
 
-        if attrs.get("domain") != "panda" or not isinstance(attrs.get("config"), dict):
-            raise NotApplicable(f"needs a simulated Panda store with its generator config "
-                                f"(this store's domain is {attrs.get('domain')!r})")
-        if tuple(attrs.get("u_names", ())) != panda.U_NAMES or tuple(attrs.get("y_names", ())) != panda.Y_NAMES:
-            raise NotApplicable("needs the Panda channel layout (u = tau0..tau6, y = EE pose and q0..q6)")
+        arm = arms.of_store(attrs)
+        if arm is None or not isinstance(attrs.get("config"), dict):
+            raise NotApplicable(f"needs a simulated store of one of the arms {arms.names()} with its generator "
+                                f"config (this store's domain is {attrs.get('domain')!r})")
+        if tuple(attrs.get("u_names", ())) != arm.u_names or tuple(attrs.get("y_names", ())) != arm.y_names:
+            n = arm.n_joint
+            raise NotApplicable(f"needs the {arm.name} channel layout (u = tau0..tau{n - 1}, "
+                                f"y = EE pose and q0..q{n - 1})")
         recipe = from_dict(Recipe, attrs["config"], "store config")
+        if recipe.robot != arm.name:
+            raise NotApplicable(f"the store's domain {arm.name!r} and its recipe's robot {recipe.robot!r} differ")
         self.dt, self.substeps = float(recipe.dt), int(recipe.substeps)
         self.inputs = check_inputs(inputs)
         self.gravity_in_actuators = recipe.gravity_compensation == "true_model"
         # nominal_model: the arm's controller adds the catalogue robot's g(q) to the command.
         self._catalogue_gravity = (NominalGravity(recipe) if inputs == "command"
                                    and recipe.gravity_compensation == "nominal_model" else None)
-        self.model = panda.build_model(recipe.substeps, recipe.dt, self.gravity_in_actuators)
+        self.model = arm.build_model(recipe.substeps, recipe.dt, self.gravity_in_actuators)
         self.data = mujoco.MjData(self.model)
-        self._randomizer = Randomizer(self.model, recipe.randomization)
-        self._nominal = self._nominal_params(recipe.randomization)
-        self._nj = panda.N_JOINT
-        self._q = slice(7, 14)
+        self._randomizer = Randomizer(self.model, recipe.randomization, arm.name)
+        self._nj = self.n_joint = arm.n_joint
+        self._q = slice(7, 7 + arm.n_joint)
         self._quat = slice(3, 7)
-
-    def _nominal_params(self, cfg) -> dict[str, np.ndarray]:
-        r, nj = self._randomizer, len(self._randomizer.friction0)
-        mid = {k: np.full(nj, float(np.mean(getattr(cfg, k)))) for k in ("damping", "stiffness", "armature")}
-        return {"mass": r.mass0, "com": r.ipos0, **mid,
-                "frictionloss": r.friction0 * float(np.mean(cfg.frictionloss_scale))}
 
     def params(self, qinit: np.ndarray) -> np.ndarray:
         """The nominal parameter vector (in ``params`` order) with the spring anchored at ``qinit``."""
-        p = self._nominal
-        return np.concatenate([p["mass"], p["com"].ravel(), p["damping"], p["stiffness"], p["armature"],
-                               p["frictionloss"], qinit])
+        return self._randomizer.catalogue(qinit)
 
     def __call__(self, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray,
                  params: np.ndarray | None = None) -> np.ndarray:
@@ -113,8 +112,8 @@ class NominalPhysics:
 
     def rollout(self, torque: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray | None = None,
                 params: np.ndarray | None = None) -> np.ndarray:
-        """Simulates ``torque`` (T, 7), in this baseline's formulation, from joint state
-        ``(qpos0, qvel0)``; returns y (T, 14) at the start of each frame (row 0: the start).
+        """Simulates ``torque`` (T, n), in this baseline's formulation, from joint state
+        ``(qpos0, qvel0)``; returns y (T, 7 + n) at the start of each frame (row 0: the start).
 
         ``params`` are the robot's own parameters (default: the catalogue robot with its
         springs anchored at ``qpos0``).
@@ -140,12 +139,7 @@ class NominalPhysics:
 
     def _controller(self, torque: np.ndarray):
         """``(data, t) -> ctrl`` that applies ``torque`` in this baseline's formulation."""
-        nj, grav = self._nj, self._catalogue_gravity
-        if self.inputs == "command":
-            if grav is None:  # true_model: the actuators add g(q) each substep; none: nothing
-                return lambda data, t: torque[t]
-            return lambda data, t: torque[t] + grav(data.qpos[:nj])
-        if self.gravity_in_actuators:
-            # Total torque: take off the gravcomp the actuators are about to add back.
-            return lambda data, t: torque[t] - data.qfrc_gravcomp[:nj]
-        return lambda data, t: torque[t]
+        from robomorph.sim.closed_loop import formulation_controller  # noqa: PLC0415
+
+        return formulation_controller(torque, self.inputs, self.gravity_in_actuators, self._nj,
+                                      self._catalogue_gravity)

@@ -151,8 +151,7 @@ def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold"
         preds[MODEL] = np.asarray(predictor.mean, dtype=np.float64)[:, :w.horizon]
         std = None if predictor.std is None else np.asarray(predictor.std, dtype=np.float64)[:, :w.horizon]
     elif predictor is not None:
-        # Windows that open their trajectory start at rest (the generator's convention).
-        at_rest = w.starts == 0 if len(w.starts) == len(u_ctx) else None
+        at_rest = w.starts == 0 if len(w.starts) == len(u_ctx) else None  # the generator starts at rest
         if gives_std(predictor, u_ctx, y_ctx, u_q, y_q):
             preds[MODEL], std = predict(predictor, u_ctx, y_ctx, u_q, batch_size, y_query=y_q, with_std=True,
                                         at_rest=at_rest)

@@ -135,11 +135,10 @@ def nominal_params(sim, w: Window) -> np.ndarray | None:
     """Nominal parameters with the joint springs anchored where each robot started (its
     trajectory's first sample), as the generator anchored them; None (the simulator anchors
     at the context's first sample) when every window opens its trajectory, where they agree."""
-    from robomorph.sim import panda  # noqa: PLC0415  (NominalPhysics checked the Panda layout)
-
     if not w.starts.any():
         return None
-    q = w.y_first[:, [w.y_names.index(f"q{i}") for i in range(panda.N_JOINT)]]
+    # NominalPhysics checked the arm's layout (q0..q{n-1} in y).
+    q = w.y_first[:, [w.y_names.index(f"q{i}") for i in range(sim.n_joint)]]
     return np.stack([sim.params(q0.astype(np.float64)) for q0 in q])
 
 

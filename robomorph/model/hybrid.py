@@ -80,15 +80,21 @@ class Hybrid:
         return mean.double().cpu().numpy(), torch.exp(0.5 * logvar).double().cpu().numpy()
 
     def predict(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, at_rest=None,
-                mode: str = "regression", return_std: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+                mode: str = "regression", return_std: bool = False, calibration=None
+                ) -> tuple[np.ndarray, np.ndarray | None]:
         """(B, H, n_y) mean prediction and, with ``return_std``, the std over parameter draws.
 
         Args:
             at_rest: bool or (B,) bools: the context opens its trajectory (the robot starts
                 at rest); default False: the velocity at the first context sample is estimated.
             mode: one of :data:`MODES`.
+            calibration: a :class:`robomorph.model.calibration.StdCalibration` of this
+                mode's std (``robomorph calibrate``), applied to it; None: the raw spread.
+
+        Raises:
+            HybridError: an unknown mode, or a simulated robot that diverged.
         """
-        from robomorph.evaluation.baselines import estimate_velocity  # noqa: PLC0415
+        from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
 
         if mode not in MODES:
             raise HybridError(f"physics mode must be one of {MODES}, got {mode!r}")
@@ -119,8 +125,16 @@ class Hybrid:
             return self.backbone.simulate(p, q_ctx, uc, uq, qvel_start, quat_last, qvel_end)
 
         mean = horizon(params)
+        if not np.all(np.isfinite(mean)):
+            raise HybridError("the simulated robot diverged (non-finite outputs): check the torques' units and "
+                              "scale, or predict with physics_mode 'none'")
         if not return_std:
             return mean, None
+        return mean, self._spread(mode, params, z, z_std, mean, horizon, calibration)
+
+    def _spread(self, mode: str, params: np.ndarray, z: np.ndarray, z_std: np.ndarray, mean: np.ndarray,
+                horizon, calibration) -> np.ndarray:
+        """The std (B, H, n_y): the horizons of robots drawn around the estimate, about ``mean``."""
         rng = np.random.default_rng(self.seed)
         # Draws around the estimate used: the head's Gaussian (learned) or the regression's
         # covariance (regression, fused, refined), in unit coordinates.
@@ -136,9 +150,8 @@ class Hybrid:
             pk = params.copy()
             pk[:, index] = (low + high) / 2 + np.clip(zk, -1, 1) * (high - low) / 2
             draws.append(horizon(pk))
-        draws = np.stack(draws)  # (K, B, H, n_y)
-        std = np.sqrt(np.mean((draws - mean[None]) ** 2, axis=0))
-        return mean, std
+        std = np.sqrt(np.mean((np.stack(draws) - mean[None]) ** 2, axis=0))  # (K, B, H, n_y) -> (B, H, n_y)
+        return std if calibration is None else std * calibration.factors(std.shape[-2])[None]
 
     def _regress(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, prior=None) -> np.ndarray:
         """The catalogue robot's identified entries solved for, window by window."""
@@ -155,7 +168,7 @@ class Hybrid:
         return np.stack(out)
 
     def _refine(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray) -> np.ndarray:
-        from robomorph.sim.identify import IdentifyConfig, Identifier  # noqa: PLC0415
+        from robomorph.sim.identify import Identifier, IdentifyConfig  # noqa: PLC0415
 
         if self._identifier is None:
             self._identifier = Identifier(self.backbone.recipe, self.inputs, IdentifyConfig(max_iters=self.refine_iters))

@@ -109,12 +109,8 @@ class Predictor:
             None: no check).
         physics: the physics backbone's record (parameter layout and generator recipe) of a
             model trained with ``--model.physics amortized``, else None.
-        physics_mode: how such a model predicts: ``regression`` (default: the robot
-            identified by one linear solve of its inverse dynamics over the context, then
-            simulated), ``learned`` (the parameters the network reads from the context),
-            ``refined`` (a few Gauss-Newton iterations of the rollout fit started from the
-            regression) or ``none`` (the black-box decoder).
-            :class:`robomorph.model.hybrid.Hybrid` has the details.
+        physics_mode: how such a model predicts: ``regression``, ``learned``, ``fused``,
+            ``refined`` (:data:`robomorph.model.hybrid.MODES`) or ``none`` (its decoder).
         physics_samples: parameter draws behind the hybrid's standard deviation.
     """
 
@@ -138,11 +134,8 @@ class Predictor:
             self.has_std = True  # the spread over parameter draws
 
     def hybrid(self):
-        """The :class:`robomorph.model.hybrid.Hybrid` of this model (built on first use).
-
-        Raises:
-            PredictionError: the model has no physics backbone.
-        """
+        """The :class:`robomorph.model.hybrid.Hybrid` of this model (built on first use); a
+        :class:`PredictionError` for a model without a physics backbone."""
         from robomorph.model.hybrid import Hybrid  # noqa: PLC0415  (MuJoCo only when used)
 
         if not self.physics:
@@ -227,32 +220,6 @@ class Predictor:
             f"{scale:.3g} training standard deviations, far outside what the model was trained on; check their "
             "units and scale (the checkpoint expects the training data's)")
 
-    def _query_stats(self, y_query_stats, batch: int):
-        """Checks ``y_query_stats`` against the normalization; (mean, std) tensors (B, n_y) or None."""
-        if not self.leaks_query_statistics:
-            if y_query_stats is not None:
-                raise NormalizationError(f"this model was trained with normalization {self.normalization!r}, which "
-                                         "uses no query statistics: drop y_query_stats")
-            return None
-        if y_query_stats is None:
-            raise NormalizationError(
-                "this model was trained with normalization 'paper_window' (the paper's protocol): it rescales each "
-                "window with the mean and std of the outputs it is asked to predict, which a deployed model cannot "
-                "know. Pass y_query_stats=(mean, std) of the query outputs "
-                "(robomorph.core.normalizations.query_output_stats(y_query)) to score it as the paper did, or train "
-                "with data.normalization=train_stats for a model you can deploy")
-        if len(y_query_stats) != 2:
-            raise NormalizationError("y_query_stats must be a pair (mean, std) of the query outputs")
-        out = []
-        for name, v in zip(("mean", "std"), y_query_stats):
-            t = torch.as_tensor(np.asarray(v) if not isinstance(v, torch.Tensor) else v, dtype=torch.float32,
-                                device=self.device)
-            t = t.unsqueeze(0) if t.dim() == 1 else t
-            if t.shape not in ((1, self.n_y), (batch, self.n_y)) or not torch.isfinite(t).all():
-                raise NormalizationError(f"y_query_stats {name} must be finite, ({self.n_y},) or ({batch}, {self.n_y}); "
-                                         f"got {tuple(t.shape)}")
-            out.append(t.expand(batch, self.n_y))
-        return tuple(out)
 
     @torch.no_grad()
     def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, inputs: str | None = None,
@@ -290,60 +257,64 @@ class Predictor:
             CheckpointError: ``return_std`` for a model without a Gaussian head.
         """
         self.check_inputs(inputs)
-        if self.physics and self.physics_mode != "none":
-            return self._simulate_hybrid(u_ctx, y_ctx, u_query, y_query_stats, return_std, at_rest)
-        if return_std and not getattr(self.model, "gaussian", False):
+        hybrid = bool(self.physics) and self.physics_mode != "none"
+        if return_std and not (self.has_std if hybrid else getattr(self.model, "gaussian", False)):
             raise CheckpointError("this model has no Gaussian head, so it predicts no standard deviation; "
                                   "train one with --model.gaussian true --model.loss nll, or drop return_std")
-        as_numpy = not isinstance(u_query, torch.Tensor)
-        dtype = getattr(u_query, "dtype", None)
         tensors, single = _as_batch((u_ctx, y_ctx, u_query), (self.n_u, self.n_y, self.n_u), self.device)
         self._check_range(tensors[0], tensors[2])
-        stats = self._query_stats(y_query_stats, len(tensors[0]))
+        if hybrid and y_query_stats is not None:
+            raise NormalizationError("a hybrid model uses no query statistics: drop y_query_stats")
+        stats = None if hybrid else _query_stats(self, y_query_stats, len(tensors[0]))
         try:
-            mean, std = self.model.forward_dist_raw(*tensors, stats)
-            if std is not None and self.calibration is not None:
-                std = self.calibration.apply(std)
+            if hybrid:
+                mean, std = self.hybrid().predict(*tensors, at_rest=at_rest, mode=self.physics_mode,
+                                                  return_std=return_std, calibration=self.calibration)
+                mean, std = (None if t is None else torch.as_tensor(t) for t in (mean, std))
+            else:
+                mean, std = self.model.forward_dist_raw(*tensors, stats)
+                std = std if std is None or self.calibration is None else self.calibration.apply(std)
         except RoboMorphError:
             raise
         except ValueError as exc:  # the network's shape and length checks: the caller's arrays
             raise PredictionError(str(exc)) from None
         self._check_output(mean, tensors)
-        out = [t[0] if single else t for t in (mean, std) if t is not None]
-        if as_numpy:
-            kind = dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32
-            out = [t.cpu().numpy().astype(kind) for t in out]
-        else:
-            out = [t.to(u_query.device, u_query.dtype) for t in out]
-        return tuple(out) if return_std else out[0]
+        return _outputs(u_query, [t[0] if single else t for t in (mean, std) if t is not None], return_std)
 
-    def _simulate_hybrid(self, u_ctx, y_ctx, u_query, y_query_stats, return_std: bool, at_rest):
-        """:meth:`simulate` of a model with a physics backbone (:attr:`physics_mode`)."""
-        if return_std and not self.has_std:
-            raise CheckpointError("has_std is off for this predictor: set it back to True for the hybrid's std")
+
+def _query_stats(self: "Predictor", y_query_stats, batch: int):
+    """Checks ``y_query_stats`` against the predictor's normalization; (mean, std) tensors (B, n_y) or None."""
+    if not self.leaks_query_statistics:
         if y_query_stats is not None:
-            raise NormalizationError("a hybrid model uses no query statistics: drop y_query_stats")
-        as_numpy = not isinstance(u_query, torch.Tensor)
+            raise NormalizationError(f"this model was trained with normalization {self.normalization!r}, which "
+                                     "uses no query statistics: drop y_query_stats")
+        return None
+    if y_query_stats is None:
+        raise NormalizationError(
+            "this model was trained with normalization 'paper_window' (the paper's protocol): it rescales each "
+            "window with the mean and std of the outputs it is asked to predict, which a deployed model cannot "
+            "know. Pass y_query_stats=(mean, std) of the query outputs "
+            "(robomorph.core.normalizations.query_output_stats(y_query)) to score it as the paper did, or train "
+            "with data.normalization=train_stats for a model you can deploy")
+    if len(y_query_stats) != 2:
+        raise NormalizationError("y_query_stats must be a pair (mean, std) of the query outputs")
+    out = []
+    for name, v in zip(("mean", "std"), y_query_stats):
+        t = torch.as_tensor(np.asarray(v) if not isinstance(v, torch.Tensor) else v, dtype=torch.float32,
+                            device=self.device)
+        t = t.unsqueeze(0) if t.dim() == 1 else t
+        if t.shape not in ((1, self.n_y), (batch, self.n_y)) or not torch.isfinite(t).all():
+            raise NormalizationError(f"y_query_stats {name} must be finite, ({self.n_y},) or ({batch}, {self.n_y}); "
+                                     f"got {tuple(t.shape)}")
+        out.append(t.expand(batch, self.n_y))
+    return tuple(out)
+
+def _outputs(u_query, out: list[torch.Tensor], return_std: bool):
+    """The prediction (and std) as the caller gave ``u_query``: numpy of its float type, or torch on its device."""
+    if isinstance(u_query, torch.Tensor):
+        out = [t.to(u_query.device, u_query.dtype) for t in out]
+    else:
         dtype = getattr(u_query, "dtype", None)
-        tensors, single = _as_batch((u_ctx, y_ctx, u_query), (self.n_u, self.n_y, self.n_u), self.device)
-        self._check_range(tensors[0], tensors[2])
-        try:
-            mean, std = self.hybrid().predict(*tensors, at_rest=at_rest, mode=self.physics_mode,
-                                              return_std=return_std)
-        except RoboMorphError:
-            raise
-        except ValueError as exc:  # the network's shape and length checks: the caller's arrays
-            raise PredictionError(str(exc)) from None
-        cal = self.calibration
-        if std is not None and cal is not None:
-            std = std * cal.factors(std.shape[-2])[None]
-        out = [t[0] if single else t for t in (mean, std) if t is not None]
-        if not np.all(np.isfinite(out[0])):
-            raise PredictionError("the simulated robot diverged (non-finite outputs): check the torques' units and "
-                                  "scale, or predict with physics_mode 'none'")
-        if as_numpy:
-            kind = dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32
-            out = [t.astype(kind) for t in out]
-        else:
-            out = [torch.as_tensor(t).to(u_query.device, u_query.dtype) for t in out]
-        return tuple(out) if return_std else out[0]
+        kind = dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32
+        out = [t.cpu().numpy().astype(kind) for t in out]
+    return tuple(out) if return_std else out[0]

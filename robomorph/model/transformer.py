@@ -52,206 +52,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from robomorph.core.config import ConfigError
+from robomorph.model import parameter_head
+from robomorph.model.architecture import LOGVAR_MAX, LOGVAR_MIN, ModelConfig
+from robomorph.model.blocks import DecoderBlock, EncoderBlock
 
 __all__ = ["ModelConfig", "MetaModel"]
-
-# Scales of the parameter encoder's first and second differences of the normalized outputs
-# (measured on multi-sine Panda stores: per-step changes at 60 Hz are 1/250 to 1/1000 of a
-# channel's spread, their changes 1/1300 to 1/6000; scaled, both are of order one).
-DIFF_SCALES = (100.0, 1500.0)
-
-# Range of the Gaussian head's log-variance (normalized units): std from 4.5e-5 to 150.
-LOGVAR_MIN, LOGVAR_MAX = -20.0, 10.0
-
-
-@dataclass(frozen=True)
-class ModelConfig:
-    """Architecture of the meta-model.
-
-    Attributes:
-        n_u: Input channels per step (joint torques).
-        n_y: Output channels per step (pose and joint positions).
-        d_model: Width of the residual stream.
-        n_head: Attention heads; must divide ``d_model``.
-        n_layer: Encoder blocks.
-        n_layer_dec: Decoder blocks; ``None`` means the same as ``n_layer``.
-        dropout: Dropout on embeddings, attention weights and residual branches.
-        bias: Biases in the linear layers and LayerNorms.
-        max_context: Longest context, in steps, the encoder's positional table covers.
-        max_horizon: Longest query horizon, in steps, the decoder's table covers.
-        patch: Steps per token (1 = one token per step, the paper's model). The default
-            10 is the CPU-sized model's: about 13x faster per training step than 1 on two
-            cores (README, "Training on a CPU"); the training module takes its defaults here.
-        n_init: Last context steps given to the decoder as initial-condition tokens (0 = off);
-            a multiple of ``patch``, at most ``max_context``; contexts must be at least this long.
-        gaussian: The head also emits a log-variance per step and channel.
-        n_params: Physical parameters the parameter head predicts from the encoder's memory
-            (0 = no parameter head; the hybrid model's amortized identification,
-            :meth:`MetaModel.forward_params`).
-    """
-
-    n_u: int = 7
-    n_y: int = 14
-    d_model: int = 128
-    n_head: int = 4
-    n_layer: int = 4
-    n_layer_dec: int | None = None
-    dropout: float = 0.0
-    bias: bool = True
-    max_context: int = 1024
-    max_horizon: int = 1024
-    patch: int = 10
-    n_init: int = 0
-    gaussian: bool = False
-    n_params: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ("n_u", "n_y", "d_model", "n_head", "n_layer", "max_context", "max_horizon", "patch"):
-            _require_positive_int(name, getattr(self, name))
-        if self.n_layer_dec is not None:
-            _require_positive_int("n_layer_dec", self.n_layer_dec)
-        if self.d_model % self.n_head != 0:
-            raise ConfigError(f"ModelConfig.d_model ({self.d_model}) must be divisible by n_head ({self.n_head})")
-        if isinstance(self.dropout, bool) or not isinstance(self.dropout, (int, float)) or not 0 <= self.dropout < 1:
-            raise ConfigError(f"ModelConfig.dropout must be a number in [0, 1), got {self.dropout!r}")
-        for name in ("bias", "gaussian"):
-            if not isinstance(getattr(self, name), bool):
-                raise ConfigError(f"ModelConfig.{name} must be true or false, got {getattr(self, name)!r}")
-        if isinstance(self.n_params, bool) or not isinstance(self.n_params, int) or self.n_params < 0:
-            raise ConfigError(f"ModelConfig.n_params must be a non-negative integer, got {self.n_params!r}")
-        if isinstance(self.n_init, bool) or not isinstance(self.n_init, int) or self.n_init < 0:
-            raise ConfigError(f"ModelConfig.n_init must be a non-negative integer, got {self.n_init!r}")
-        if self.n_init % self.patch or self.n_init > self.max_context:
-            raise ConfigError(f"ModelConfig.n_init ({self.n_init}) must be a multiple of patch ({self.patch}) "
-                              f"and at most max_context ({self.max_context})")
-        for name in ("max_context", "max_horizon"):
-            if getattr(self, name) < self.patch:
-                raise ConfigError(f"ModelConfig.{name} ({getattr(self, name)}) must be at least patch ({self.patch})")
-
-    @property
-    def decoder_layers(self) -> int:
-        """Number of decoder blocks."""
-        return self.n_layer if self.n_layer_dec is None else self.n_layer_dec
-
-    @property
-    def context_tokens(self) -> int:
-        """Rows of the encoder's positional table."""
-        return math.ceil(self.max_context / self.patch)
-
-    @property
-    def horizon_tokens(self) -> int:
-        """Rows of the decoder's positional table."""
-        return math.ceil(self.max_horizon / self.patch)
-
-    @property
-    def init_tokens(self) -> int:
-        """Initial-condition tokens ahead of the query tokens."""
-        return self.n_init // self.patch
-
-
-def _require_positive_int(name: str, value: object) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ConfigError(f"ModelConfig.{name} must be a positive integer, got {value!r}")
-
-
-def _attend(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, n_head: int, dropout: float, causal: bool) -> torch.Tensor:
-    """Multi-head scaled dot-product attention on (B, T, d) projections, returns (B, Tq, d)."""
-    B, Tq, d = q.shape
-    Tk = k.shape[1]
-    hd = d // n_head
-    q = q.view(B, Tq, n_head, hd).transpose(1, 2)  # (B, h, Tq, hd)
-    k = k.view(B, Tk, n_head, hd).transpose(1, 2)  # (B, h, Tk, hd)
-    v = v.view(B, Tk, n_head, hd).transpose(1, 2)  # (B, h, Tk, hd)
-    y = F.scaled_dot_product_attention(q, k, v, dropout_p=dropout, is_causal=causal)  # (B, h, Tq, hd)
-    return y.transpose(1, 2).reshape(B, Tq, d)
-
-
-class SelfAttention(nn.Module):
-    """Multi-head self-attention, causal (decoder) or not (encoder)."""
-
-    def __init__(self, cfg: ModelConfig, causal: bool) -> None:
-        super().__init__()
-        self.c_attn = nn.Linear(cfg.d_model, 3 * cfg.d_model, bias=cfg.bias)
-        self.c_proj = nn.Linear(cfg.d_model, cfg.d_model, bias=cfg.bias)
-        self.resid_drop = nn.Dropout(cfg.dropout)
-        self.n_head, self.dropout, self.causal = cfg.n_head, cfg.dropout, causal
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        q, k, v = self.c_attn(x).chunk(3, dim=-1)  # 3 x (B, T, d)
-        p = self.dropout if self.training else 0.0
-        return self.resid_drop(self.c_proj(_attend(q, k, v, self.n_head, p, self.causal)))
-
-
-class CrossAttention(nn.Module):
-    """Multi-head attention from decoder tokens to the encoder memory (no mask)."""
-
-    def __init__(self, cfg: ModelConfig) -> None:
-        super().__init__()
-        self.c_q = nn.Linear(cfg.d_model, cfg.d_model, bias=cfg.bias)
-        self.c_kv = nn.Linear(cfg.d_model, 2 * cfg.d_model, bias=cfg.bias)
-        self.c_proj = nn.Linear(cfg.d_model, cfg.d_model, bias=cfg.bias)
-        self.resid_drop = nn.Dropout(cfg.dropout)
-        self.n_head, self.dropout = cfg.n_head, cfg.dropout
-
-    def forward(self, x: torch.Tensor, memory: torch.Tensor) -> torch.Tensor:
-        q = self.c_q(x)  # (B, Tq, d)
-        k, v = self.c_kv(memory).chunk(2, dim=-1)  # 2 x (B, Tm, d)
-        p = self.dropout if self.training else 0.0
-        return self.resid_drop(self.c_proj(_attend(q, k, v, self.n_head, p, causal=False)))
-
-
-class MLP(nn.Module):
-    """Position-wise GELU feed-forward layer, 4x wide."""
-
-    def __init__(self, cfg: ModelConfig) -> None:
-        super().__init__()
-        self.c_fc = nn.Linear(cfg.d_model, 4 * cfg.d_model, bias=cfg.bias)
-        self.c_proj = nn.Linear(4 * cfg.d_model, cfg.d_model, bias=cfg.bias)
-        self.drop = nn.Dropout(cfg.dropout)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.drop(self.c_proj(F.gelu(self.c_fc(x))))
-
-
-class EncoderBlock(nn.Module):
-    """Pre-LayerNorm block: non-causal self-attention, then MLP."""
-
-    def __init__(self, cfg: ModelConfig) -> None:
-        super().__init__()
-        self.ln_1 = nn.LayerNorm(cfg.d_model, bias=cfg.bias)
-        self.attn = SelfAttention(cfg, causal=False)
-        self.ln_2 = nn.LayerNorm(cfg.d_model, bias=cfg.bias)
-        self.mlp = MLP(cfg)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = x + self.attn(self.ln_1(x))
-        return x + self.mlp(self.ln_2(x))
-
-
-class DecoderBlock(nn.Module):
-    """Pre-LayerNorm block: causal self-attention, cross-attention to the memory, MLP."""
-
-    def __init__(self, cfg: ModelConfig) -> None:
-        super().__init__()
-        self.ln_1 = nn.LayerNorm(cfg.d_model, bias=cfg.bias)
-        self.attn = SelfAttention(cfg, causal=True)
-        self.ln_2 = nn.LayerNorm(cfg.d_model, bias=cfg.bias)
-        self.cross = CrossAttention(cfg)
-        self.ln_3 = nn.LayerNorm(cfg.d_model, bias=cfg.bias)
-        self.mlp = MLP(cfg)
-
-    def forward(self, x: torch.Tensor, memory: torch.Tensor) -> torch.Tensor:
-        x = x + self.attn(self.ln_1(x))
-        x = x + self.cross(self.ln_2(x), memory)
-        return x + self.mlp(self.ln_3(x))
-
 
 class Encoder(nn.Module):
     """Context tokens (B, Nc, k*(n_u+n_y)) -> memory (B, Nc, d)."""
@@ -315,13 +125,9 @@ class MetaModel(nn.Module):
         self.encoder = Encoder(cfg)
         self.decoder = Decoder(cfg)
         self.head = nn.Linear(cfg.d_model, cfg.patch * cfg.n_y * (2 if cfg.gaussian else 1), bias=cfg.bias)
-        # The parameter head has its own encoder over the context only, so no query value can
-        # reach the parameters (and their simulation) by construction. Its tokens add each
-        # output's per-step change and change of change (see forward_params).
+        # The parameter head (robomorph.model.parameter_head): its own encoder, over the context only.
         self.param_encoder = Encoder(dataclasses.replace(cfg, n_y=3 * cfg.n_y)) if cfg.n_params else None
-        self.param_head = nn.Sequential(
-            nn.LayerNorm(cfg.d_model, bias=cfg.bias), nn.Linear(cfg.d_model, cfg.d_model, bias=cfg.bias), nn.GELU(),
-            nn.Linear(cfg.d_model, 2 * cfg.n_params, bias=cfg.bias)) if cfg.n_params else None
+        self.param_head = parameter_head.mlp(cfg) if cfg.n_params else None
         self.apply(_init_weights)
         # GPT-2: residual projections shrink with depth so the stream's variance stays put.
         for stack, n_layers in ((self.encoder, cfg.n_layer), (self.decoder, cfg.decoder_layers)):
@@ -370,26 +176,10 @@ class MetaModel(nn.Module):
         return mean, logvar.clamp(LOGVAR_MIN, LOGVAR_MAX)
 
     def forward_params(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Mean and log-variance (B, n_params) of the physical parameters in unit coordinates
-        (-1 and 1 at the randomization bounds), from the normalized context alone.
-
-        Raises:
-            ValueError: the model has no parameter head, or the context has a wrong shape.
-        """
-        cfg = self.cfg
-        if self.param_head is None:
-            raise ValueError("this model has no parameter head (n_params 0): train it with --model.physics amortized")
-        B, Tc, _ = self._check_inputs(u_ctx, y_ctx, u_ctx[:, :1])  # the context's checks (no query here)
-        # Damping, friction and inertia show in velocities and accelerations, which are a
-        # hundredth of a normalized position's spread at 60 Hz: given explicitly (scaled to
-        # about unit size) rather than left for the embedding to difference and amplify.
-        vel = torch.diff(y_ctx, dim=1, prepend=y_ctx[:, :1])
-        acc = torch.diff(vel, dim=1, prepend=vel[:, :1])
-        feats = torch.cat([u_ctx, y_ctx, DIFF_SCALES[0] * vel, DIFF_SCALES[1] * acc], dim=-1)
-        ctx = feats.reshape(B, Tc // cfg.patch, cfg.patch * (cfg.n_u + 3 * cfg.n_y))
-        out = self.param_head(self.param_encoder(ctx).mean(dim=1))
-        mean, logvar = out.split(cfg.n_params, dim=-1)
-        return mean, logvar.clamp(LOGVAR_MIN, LOGVAR_MAX)
+        """Mean and log-variance (B, n_params) of the physical parameters in unit coordinates,
+        from the normalized context alone (:func:`robomorph.model.parameter_head.forward`)."""
+        self._check_inputs(u_ctx, y_ctx, u_ctx[:, :1])  # the context's checks (no query here)
+        return parameter_head.forward(self, u_ctx, y_ctx)
 
     def num_params(self, trainable_only: bool = False) -> int:
         """Number of parameters (all of them, or only those with ``requires_grad``)."""

@@ -93,7 +93,7 @@ class PhysicsBackbone:
         import os  # noqa: PLC0415
 
         from robomorph.core.config import from_dict  # noqa: PLC0415
-        from robomorph.sim.identify import IdentifyConfig, Identifier  # noqa: PLC0415
+        from robomorph.sim.identify import Identifier, IdentifyConfig  # noqa: PLC0415
         from robomorph.sim.recipe import Recipe  # noqa: PLC0415
 
         self.layout, self.inputs = layout, inputs
@@ -107,7 +107,7 @@ class PhysicsBackbone:
         self.dt, self.substeps = float(self.recipe.dt), int(self.recipe.substeps)
         # Without state feedback inside the horizon, the horizon is one open-loop rollout.
         self.open_loop = self.ident._feedback is None
-        self._closed = None  # NominalPhysics for the formulations that need feedback
+        self._closed = None  # (full model, data, controller settings) for the formulations that need feedback
         self._site = self.ident.model.site("ee").id
         self._kin = mujoco.MjData(self.ident.model)
 
@@ -122,15 +122,7 @@ class PhysicsBackbone:
 
     def catalogue(self, qinit: np.ndarray) -> np.ndarray:
         """(P,) the catalogue robot's full vector with its springs anchored at ``qinit``."""
-        from robomorph.evaluation.physics import NominalPhysics  # noqa: PLC0415
-
-        if self._closed is None:
-            from robomorph.sim import panda  # noqa: PLC0415
-
-            attrs = {"domain": "panda", "config": self.layout["recipe"], "u_names": list(panda.U_NAMES),
-                     "y_names": list(panda.Y_NAMES)}
-            self._closed = NominalPhysics(attrs, self.inputs)
-        return self._closed.params(qinit)
+        return self.ident.randomizer.catalogue(qinit)
 
     def full_params(self, unit: np.ndarray, qinit: np.ndarray) -> np.ndarray:
         """(N, n) unit coordinates and (N, 7) spring anchors -> (N, P) full vectors (clipped to the bounds)."""
@@ -147,7 +139,7 @@ class PhysicsBackbone:
         ``qvel_start``), which follows the context's dynamics better than a finite difference;
         total torques: the finite-difference estimate (the context simulation drifts with g(q)
         in the torque, as ``identified_physics`` found)."""
-        from robomorph.evaluation.baselines import estimate_velocity  # noqa: PLC0415
+        from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
         from robomorph.sim.identify import _Problem  # noqa: PLC0415
 
         if self.inputs != "command":
@@ -179,8 +171,6 @@ class PhysicsBackbone:
         Returns:
             (N, H, 14) outputs at query steps 1..H (EE position, EE quaternion X Y Z W, joints).
         """
-        from robomorph.evaluation.baselines import estimate_velocity  # noqa: PLC0415
-        from robomorph.sim.identify import _Problem  # noqa: PLC0415
 
         params = np.asarray(params, dtype=np.float64)
         q_ctx = np.asarray(q_ctx, dtype=np.float64)
@@ -231,10 +221,25 @@ class PhysicsBackbone:
         return out
 
     def _closed_loop(self, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:
-        self.catalogue(qpos0)  # builds the closed-loop simulator
-        torque = np.concatenate([torque, torque[-1:]], axis=0)  # rollout returns a row per frame start
-        y = self._closed.rollout(torque, qpos0, qvel0, params)
-        return y[:, 7:14]
+        """(F + 1, 7) joint positions of one robot simulated closed loop (state feedback in the formulation)."""
+        from robomorph.sim import panda  # noqa: PLC0415
+        from robomorph.sim.closed_loop import formulation_controller, simulate_closed_loop  # noqa: PLC0415
+        from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
+        from robomorph.sim.filters import to_outputs  # noqa: PLC0415
+
+        recipe, nj = self.recipe, len(qpos0)
+        in_actuators = recipe.gravity_compensation == "true_model"
+        if self._closed is None:
+            model = panda.build_model(recipe.substeps, recipe.dt, in_actuators)
+            grav = NominalGravity(recipe) if self.inputs == "command" and not in_actuators \
+                and recipe.gravity_compensation == "nominal_model" else None
+            self._closed = (model, mujoco.MjData(model), grav)
+        model, data, grav = self._closed
+        self.ident.randomizer.apply(model, params)
+        torque = np.concatenate([torque, torque[-1:]], axis=0)  # a row per frame start, the start included
+        control = formulation_controller(torque, self.inputs, in_actuators, nj, grav)
+        sens = simulate_closed_loop(model, data, qpos0, len(torque), self.substeps, control, qvel0)
+        return to_outputs(sens)[1][:, 7:7 + nj]
 
     def _outputs(self, q: np.ndarray) -> np.ndarray:
         """(T, 7) joint positions -> (T, 14) y (catalogue kinematics: link geometry is not randomized)."""

@@ -90,3 +90,23 @@ def simulate_closed_loop(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.n
             out[t:] = np.nan
             break
     return out
+
+
+def formulation_controller(torque: np.ndarray, inputs: str, gravity_in_actuators: bool, n_joint: int,
+                           catalogue_gravity: Callable[[np.ndarray], np.ndarray] | None = None) -> Controller:
+    """``(data, t) -> ctrl`` that applies recorded torques ``torque`` (T, n) in a formulation.
+
+    ``command``: the command as recorded; an arm that compensates its own gravity through its
+    actuators (``true_model``) adds g(q) each substep by itself, and ``catalogue_gravity``
+    (``nominal_model``) is added at each frame start. ``total``: the total joint torque; with
+    the gravity compensation in the actuators, the part they are about to add back is taken
+    off at the frame start.
+    """
+    nj = n_joint
+    if inputs == "command":
+        if catalogue_gravity is None:
+            return lambda data, t: torque[t]
+        return lambda data, t: torque[t] + catalogue_gravity(data.qpos[:nj])
+    if gravity_in_actuators:
+        return lambda data, t: torque[t] - data.qfrc_gravcomp[:nj]
+    return lambda data, t: torque[t]

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 
 from robomorph.core.names import OPEN_LOOP_TASKS
-from robomorph.sim import filters, osc, panda
+from robomorph.sim import filters, osc
 from robomorph.sim.closed_loop import simulate_closed_loop
 from robomorph.sim.randomize import Randomizer
 from robomorph.sim.recipe import Recipe
@@ -34,7 +34,7 @@ class Draw:
     task: str
     params: np.ndarray
     qpos0: np.ndarray
-    ctrl: np.ndarray | None  # (T, 7) open-loop torques (None for OSC tasks)
+    ctrl: np.ndarray | None  # (T, n) open-loop torques (None for OSC tasks)
     fm: float
     rng: np.random.Generator  # continues the attempt's stream (OSC paths are drawn from it)
 
@@ -47,9 +47,9 @@ class Outcome:
     task: str
     reason: str | None
     params: np.ndarray
-    u: np.ndarray | None = None  # (T, 7) total joint torque
-    u_cmd: np.ndarray | None = None  # (T, 7) the command, without the gravity compensation
-    y: np.ndarray | None = None  # (T, 14)
+    u: np.ndarray | None = None  # (T, n) total joint torque
+    u_cmd: np.ndarray | None = None  # (T, n) the command, without the gravity compensation
+    y: np.ndarray | None = None  # (T, 7 + n)
     target: np.ndarray | None = None  # (T, 3)
     fm: float = float("nan")
     kp: float = float("nan")
@@ -57,7 +57,7 @@ class Outcome:
 
 def build_model(recipe: Recipe) -> mujoco.MjModel:
     """The nominal model the recipe simulates."""
-    return panda.build_model(recipe.substeps, recipe.dt, recipe.gravity_compensation == "true_model")
+    return recipe.arm.build_model(recipe.substeps, recipe.dt, recipe.gravity_compensation == "true_model")
 
 
 def is_open_loop(recipe: Recipe, task: str) -> bool:
@@ -84,7 +84,9 @@ def draw(recipe: Recipe, randomizer: Randomizer, index: int) -> Draw:
     params = randomizer.sample(rng)
     ctrl, fm = None, float("nan")
     if task in OPEN_LOOP_TASKS:
-        ctrl, fm = SIGNALS[task](rng, recipe.steps, recipe.dt, recipe.signal)
+        # The Panda passes no gain, so its signals are the paper's, bit for bit.
+        gain = None if recipe.robot == "panda" else recipe.arm.joint_gain
+        ctrl, fm = SIGNALS[task](rng, recipe.steps, recipe.dt, recipe.signal, gain)
     return Draw(index, task, params, randomizer.split(params)["qinit"].copy(), ctrl, fm, rng)
 
 
@@ -96,12 +98,13 @@ def finish(recipe: Recipe, d: Draw, sens: np.ndarray, joint_range: np.ndarray, s
     ``added(qpos)`` is the compensation the controller added to the command at each
     frame (``nominal_model``: the catalogue g(q)); it is taken off to give ``u_cmd``.
     """
-    reason = filters.check(sens, joint_range, recipe.filters)
+    arm = recipe.arm
+    reason = filters.check(sens, joint_range, recipe.filters, arm.limits)
     out = Outcome(d.index, d.task, reason, d.params, fm=d.fm, kp=kp)
     if reason is None:
         rows = sens[::stride]
         out.u, out.y = filters.to_outputs(rows)
-        comp = None if added is None else np.stack([added(q) for q in rows[:, panda.SENS_QPOS]])
+        comp = None if added is None else np.stack([added(q) for q in rows[:, arm.layout.qpos]])
         out.u_cmd = filters.to_command(rows, comp)
         out.target = None if target is None else np.asarray(target, dtype=np.float32)
     return out
@@ -111,15 +114,16 @@ class NominalGravity:
     """g(q) of the un-randomized robot, added to a command (``nominal_model`` mode)."""
 
     def __init__(self, recipe: Recipe):
-        self.model = panda.build_model(recipe.substeps, recipe.dt, gravity_compensation=False)
+        self.model = recipe.arm.build_model(recipe.substeps, recipe.dt, gravity_compensation=False)
         self.data = mujoco.MjData(self.model)
+        self.nj = recipe.arm.n_joint
 
     def __call__(self, qpos: np.ndarray) -> np.ndarray:
         self.data.qpos[:] = qpos
         self.data.qvel[:] = 0
         mujoco.mj_forward(self.model, self.data)
         # With zero velocity the bias force is gravity alone.
-        return self.data.qfrc_bias[: panda.N_JOINT].copy()
+        return self.data.qfrc_bias[: self.nj].copy()
 
 
 class ClosedLoopRunner:
@@ -128,7 +132,7 @@ class ClosedLoopRunner:
     def __init__(self, recipe: Recipe):
         self.recipe = recipe
         self.model = build_model(recipe)
-        self.randomizer = Randomizer(self.model, recipe.randomization)
+        self.randomizer = Randomizer(self.model, recipe.randomization, recipe.robot)
         self.data = mujoco.MjData(self.model)
         self.gravity = NominalGravity(recipe) if recipe.gravity_compensation == "nominal_model" else None
 
@@ -136,12 +140,13 @@ class ClosedLoopRunner:
         r, d = self.recipe, draw(self.recipe, self.randomizer, index)
         self.randomizer.apply(self.model, d.params)
         target, kp = None, float("nan")
+        nj, limits = r.arm.n_joint, r.arm.limits
         if d.ctrl is not None:
-            signal, limits = d.ctrl, panda.TORQUE_LIMITS
+            signal = d.ctrl
             grav = self.gravity
 
             def controller(data, t):
-                u = signal[t] + (grav(data.qpos[: panda.N_JOINT]) if grav else 0.0)
+                u = signal[t] + (grav(data.qpos[:nj]) if grav else 0.0)
                 return np.clip(u, -limits, limits)
 
             sens = simulate_closed_loop(self.model, self.data, d.qpos0, r.steps, r.substeps, controller)
@@ -149,8 +154,8 @@ class ClosedLoopRunner:
             path_cfg = r.circle if d.task == "circle" else r.spiral
             sens, target, kp = osc.simulate_osc(
                 self.model, self.data, d.qpos0, d.task, d.rng, r.steps, r.substeps, r.dt, r.osc, path_cfg,
-                extra_torque=self.gravity,
+                extra_torque=self.gravity, torque_limits=limits,
             )
         # The controller added the catalogue g(q) at each frame-start state: recomputing it
         # from the recorded (float64) joints gives the very same values.
-        return finish(r, d, sens, self.model.jnt_range[: panda.N_JOINT], 1, target, kp, added=self.gravity)
+        return finish(r, d, sens, self.model.jnt_range[:nj], 1, target, kp, added=self.gravity)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from robomorph.sim import panda
+from robomorph.sim.arms import SensorLayout
 
 REASONS = ("nan", "contact", "joint_limit", "saturation", "quaternion_jump")
 
@@ -55,40 +56,43 @@ def check(sens: np.ndarray, joint_range: np.ndarray, cfg: FilterConfig,
     """Returns the first reason to reject a trajectory, or ``None`` if it is valid.
 
     Args:
-        sens: (S, nsensordata) Panda sensor data (layout of :mod:`robomorph.sim.panda`).
-        joint_range: (7, 2) joint limits of the simulated model.
+        sens: (S, nsensordata) sensor data of an arm with n joints (layout of
+            :class:`robomorph.sim.arms.SensorLayout`).
+        joint_range: (n, 2) joint limits of the simulated model.
         cfg: thresholds.
-        torque_limits: (7,) actuator limits in N m.
+        torque_limits: (n,) actuator limits in N m (the Panda's by default).
     """
+    lay = SensorLayout(len(joint_range))
     if not np.all(np.isfinite(sens)) or np.abs(sens).max() > cfg.max_abs_state:
         return "nan"
-    if sens[:, panda.SENS_CONTACTS].max() > 0:
+    if sens[:, lay.contacts].max() > 0:
         return "contact"
-    q = sens[:, panda.SENS_QPOS]
+    q = sens[:, lay.qpos]
     lo, hi = joint_range[:, 0] + cfg.joint_margin, joint_range[:, 1] - cfg.joint_margin
     if np.any(q < lo) or np.any(q > hi):
         return "joint_limit"
-    if np.any(np.abs(sens[:, panda.SENS_TAU]) > torque_limits - cfg.torque_margin):
+    if np.any(np.abs(sens[:, lay.tau]) > torque_limits - cfg.torque_margin):
         return "saturation"
-    quat = continuous_quaternion(sens[:, panda.SENS_EE_QUAT])
+    quat = continuous_quaternion(sens[:, lay.ee_quat])
     if len(quat) > 1 and np.abs(np.diff(quat, axis=0)).max() > cfg.quat_jump:
         return "quaternion_jump"
     return None
 
 
 def to_outputs(sens: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Turns Panda sensor data into the dataset's (u, y), with a continuous quaternion.
+    """Turns an arm's sensor data into the dataset's (u, y), with a continuous quaternion.
 
     Args:
-        sens: (..., T, nsensordata).
+        sens: (..., T, nsensordata), 8 + 3 n values for n joints.
 
     Returns:
-        u (..., T, 7) joint torques; y (..., T, 14) EE xyz, EE quaternion XYZW, q0..q6.
+        u (..., T, n) joint torques; y (..., T, 7 + n) EE xyz, EE quaternion XYZW, q0..q{n-1}.
     """
-    quat_wxyz = continuous_quaternion(sens[..., panda.SENS_EE_QUAT])
+    lay = SensorLayout.of_width(sens.shape[-1])
+    quat_wxyz = continuous_quaternion(sens[..., lay.ee_quat])
     quat_xyzw = quat_wxyz[..., [1, 2, 3, 0]]
-    y = np.concatenate([sens[..., panda.SENS_EE_POS], quat_xyzw, sens[..., panda.SENS_QPOS]], axis=-1)
-    return sens[..., panda.SENS_TAU].astype(np.float32), y.astype(np.float32)
+    y = np.concatenate([sens[..., lay.ee_pos], quat_xyzw, sens[..., lay.qpos]], axis=-1)
+    return sens[..., lay.tau].astype(np.float32), y.astype(np.float32)
 
 
 def to_command(sens: np.ndarray, added: np.ndarray | None = None) -> np.ndarray:
@@ -96,11 +100,11 @@ def to_command(sens: np.ndarray, added: np.ndarray | None = None) -> np.ndarray:
 
     Args:
         sens: (..., T, nsensordata).
-        added: (..., T, 7) torque the controller added to the command before the motors
+        added: (..., T, n) torque the controller added to the command before the motors
             (the catalogue robot's g(q) in ``nominal_model`` mode), or None.
 
     Returns:
-        (..., T, 7) float32; with the arm's own gravcomp (or none), ``u = u_cmd + g``.
+        (..., T, n) float32; with the arm's own gravcomp (or none), ``u = u_cmd + g``.
     """
-    cmd = sens[..., panda.SENS_CMD]
+    cmd = sens[..., SensorLayout.of_width(sens.shape[-1]).cmd]
     return (cmd if added is None else cmd - added).astype(np.float32)

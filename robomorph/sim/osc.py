@@ -114,7 +114,8 @@ class OSCController:
 
     def __init__(self, model: mujoco.MjModel, path_pos: np.ndarray, path_vel: np.ndarray,
                  path_acc: np.ndarray, quat_target: np.ndarray, qpos0: np.ndarray, kp: float,
-                 cfg: OSCConfig, extra_torque: Callable[[np.ndarray], np.ndarray] | None = None):
+                 cfg: OSCConfig, extra_torque: Callable[[np.ndarray], np.ndarray] | None = None,
+                 torque_limits: np.ndarray | None = None):
         """Prepares the controller.
 
         Args:
@@ -126,10 +127,12 @@ class OSCController:
             cfg: the other gains.
             extra_torque: optional ``qpos -> (nu,)`` torque added to the command, e.g.
                 gravity compensation from a nominal model when the simulator has none.
+            torque_limits: (nv,) motor limits the command is clipped to (default: the Panda's).
         """
         nv = model.nv
-        if model.nu != nv or nv != len(TORQUE_LIMITS):
-            raise ValueError(f"OSC drives the 7 Panda motors, got nu={model.nu}, nv={nv}")
+        self.limits = TORQUE_LIMITS if torque_limits is None else np.asarray(torque_limits, dtype=np.float64)
+        if model.nu != nv or nv != len(self.limits):
+            raise ValueError(f"OSC drives one motor per joint ({len(self.limits)} limits), got nu={model.nu}, nv={nv}")
         if not path_pos.shape == path_vel.shape == path_acc.shape or path_pos.shape[1:] != (3,):
             raise ValueError("path_pos, path_vel and path_acc must all be (T, 3)")
         self.model, self.site = model, model.site("ee").id
@@ -227,7 +230,7 @@ class OSCController:
         u += self._bias
         if self.extra_torque is not None:
             u += self.extra_torque(data.qpos[: m.nv])
-        np.clip(u, -TORQUE_LIMITS, TORQUE_LIMITS, out=u)
+        np.clip(u, -self.limits, self.limits, out=u)
         return u
 
 
@@ -245,6 +248,7 @@ def simulate_osc(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.ndarray, 
                  rng: np.random.Generator, steps: int, substeps: int, dt: float,
                  osc_cfg: OSCConfig, path_cfg: CircleConfig | SpiralConfig,
                  extra_torque: Callable[[np.ndarray], np.ndarray] | None = None,
+                 torque_limits: np.ndarray | None = None,
                  ) -> tuple[np.ndarray, np.ndarray, float]:
     """Draws a path from the EE start pose and tracks it with OSC at one update per frame.
 
@@ -258,7 +262,7 @@ def simulate_osc(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.ndarray, 
         dt: frame period [s].
         osc_cfg: controller gains.
         path_cfg: the task's path ranges.
-        extra_torque: see :class:`OSCController`.
+        extra_torque, torque_limits: see :class:`OSCController`.
 
     Returns:
         sens (T, nsensordata) sensor data, target (T, 3) desired EE positions, kp used.
@@ -271,5 +275,5 @@ def simulate_osc(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.ndarray, 
     pos0, quat0 = start_pose(model, data, qpos0)
     pos, vel, acc = PATHS[task](rng, pos0, steps, dt, path_cfg)
     kp = osc_cfg.draw_kp(rng)
-    ctrl = OSCController(model, pos, vel, acc, quat0, qpos0, kp, osc_cfg, extra_torque)
+    ctrl = OSCController(model, pos, vel, acc, quat0, qpos0, kp, osc_cfg, extra_torque, torque_limits)
     return simulate_closed_loop(model, data, qpos0, steps, substeps, ctrl), pos, kp

@@ -1,8 +1,13 @@
-"""Domain randomization of the Panda: sample physical parameters, write them into a model.
+"""Domain randomization of an arm: sample physical parameters, write them into a model.
 
 Values are absolute and drawn around nominal values stored once from a freshly compiled
 model, so applying parameters to a model copy many times never compounds. Every sampled
 value has a name and is recorded in the dataset's ``params``.
+
+The ranges are the Panda's. Another arm (:mod:`robomorph.sim.arms`) draws the same way
+around its own masses, centres of mass and friction, with the absolute joint ranges
+(damping, stiffness, armature) scaled per joint by how much larger its joints are than the
+Panda's (:attr:`Arm.joint_gain`), and its initial poses centred on its own home pose.
 """
 
 from __future__ import annotations
@@ -13,7 +18,7 @@ import mujoco
 import numpy as np
 
 from robomorph.core.config import check_range
-from robomorph.sim import panda
+from robomorph.sim import arms, panda
 
 _AXES = ("x", "y", "z")
 
@@ -54,37 +59,57 @@ class RandomizationConfig:
             raise ValueError("randomization.init_q0_fraction must lie within [0, 1]")
 
 
-def param_names() -> list[str]:
-    """Names of the recorded parameters, in the order of :func:`Randomizer.sample`."""
-    bodies = panda.LINK_BODIES
+def param_names(robot: str = arms.DEFAULT_ROBOT) -> list[str]:
+    """Names of the recorded parameters of ``robot``, in the order of :func:`Randomizer.sample`."""
+    arm = arms.get(robot)
+    bodies = arm.link_bodies(None if robot == "panda" else arm.build_model())
+    return _names(bodies, arm.n_joint)
+
+
+def _names(bodies: tuple[str, ...], nj: int) -> list[str]:
     names = [f"mass_{b}" for b in bodies]
     names += [f"com_{b}_{a}" for b in bodies for a in _AXES]
     for prefix in ("damping", "stiffness", "armature", "frictionloss", "qinit"):
-        names += [f"{prefix}_q{j}" for j in range(panda.N_JOINT)]
+        names += [f"{prefix}_q{j}" for j in range(nj)]
     return names
 
 
 class Randomizer:
     """Samples parameter vectors and applies them to copies of one compiled model."""
 
-    def __init__(self, model: mujoco.MjModel, cfg: RandomizationConfig):
+    def __init__(self, model: mujoco.MjModel, cfg: RandomizationConfig, robot: str = arms.DEFAULT_ROBOT):
         self.cfg = cfg
-        self.index = panda.PandaIndex.of(model)
-        ids, nj = self.index.body_ids, panda.N_JOINT
+        self.arm = arms.get(robot)
+        self.nj = nj = self.arm.n_joint
+        bodies = self.arm.link_bodies(model)
+        self.index = panda.PandaIndex(np.array([model.body(b).id for b in bodies]),
+                                      model.jnt_range[:nj].copy(), model.site("ee").id)
+        ids = self.index.body_ids
         self.mass0 = model.body_mass[ids].copy()
         self.inertia0 = model.body_inertia[ids].copy()
         self.ipos0 = model.body_ipos[ids].copy()
         self.friction0 = model.dof_frictionloss[:nj].copy()
-        self.names = param_names()
+        self.gain = self.arm.joint_gain  # ones for the Panda: its draws are unchanged
+        self.names = _names(bodies, nj)
+
+    def catalogue(self, qinit: np.ndarray) -> np.ndarray:
+        """The un-randomized robot's vector (in ``params`` order): nominal masses, centres of
+        mass and friction loss (scaled by the middle of its range), damping, stiffness and
+        armature at the middle of their ranges (scaled per joint as :meth:`sample` scales
+        them), and the springs anchored at ``qinit``."""
+        c = self.cfg
+        mid = [np.full(self.nj, float(np.mean(getattr(c, k)))) * self.gain for k in ("damping", "stiffness", "armature")]
+        return np.concatenate([self.mass0, self.ipos0.ravel(), *mid,
+                               self.friction0 * float(np.mean(c.frictionloss_scale)), np.asarray(qinit, dtype=np.float64)])
 
     def sample(self, rng: np.random.Generator) -> np.ndarray:
         """Draws one parameter vector (float64, named by :func:`param_names`)."""
-        c, nj, nb = self.cfg, panda.N_JOINT, len(self.mass0)
+        c, nj, nb, gain = self.cfg, self.nj, len(self.mass0), self.gain
         scale = rng.uniform(1 - c.mass_pct / 100, 1 + c.mass_pct / 100, nb)
         com = self.ipos0 + rng.uniform(-c.com_offset, c.com_offset, (nb, 3))
-        damping = rng.uniform(*c.damping, nj)
-        stiffness = rng.uniform(*c.stiffness, nj)
-        armature = rng.uniform(*c.armature, nj)
+        damping = rng.uniform(*c.damping, nj) * gain
+        stiffness = rng.uniform(*c.stiffness, nj) * gain
+        armature = rng.uniform(*c.armature, nj) * gain
         friction = self.friction0 * rng.uniform(*c.frictionloss_scale, nj)
         qinit = self._initial_joints(rng)
         return np.concatenate(
@@ -93,14 +118,25 @@ class Randomizer:
 
     def _initial_joints(self, rng: np.random.Generator) -> np.ndarray:
         c, (lo, hi) = self.cfg, self.index.joint_range.T
-        q = (lo + hi) / 2 + rng.uniform(-c.init_spread, c.init_spread, panda.N_JOINT)
+        home = self.arm.home
+        # robosuite's home poses sit close to some limits: the centre is moved
+        # arms.HOME_MARGIN inside, so the spread stays clear of the joint-limit filter.
+        centre = arms.centre_pose(self.arm, self.index.joint_range)
+        q = centre + rng.uniform(-c.init_spread, c.init_spread, self.nj)
         sign = rng.choice([-1.0, 1.0])
-        q[0] = rng.uniform(*c.init_q0_fraction) * sign * rng.uniform(lo[0], hi[0])
-        return q
+        if home is None:  # the Panda's (paper's) draw
+            q[0] = rng.uniform(*c.init_q0_fraction) * sign * rng.uniform(lo[0], hi[0])
+            return q
+        # The base joint turns the whole arm about the vertical (the floor looks the same
+        # from any angle): half its range (at most a quarter turn) leaves room to move.
+        lo0, hi0 = max(lo[0], -np.pi) / 2, min(hi[0], np.pi) / 2
+        q[0] = centre[0] + rng.uniform(*c.init_q0_fraction) * sign * rng.uniform(lo0, hi0)
+        margin = 0.1  # rad inside the limits, away from the joint-limit filter
+        return np.clip(q, lo + margin, hi - margin)
 
     def split(self, params: np.ndarray) -> dict[str, np.ndarray]:
         """Views of a parameter vector by kind."""
-        nb, nj = len(self.mass0), panda.N_JOINT
+        nb, nj = len(self.mass0), self.nj
         out, i = {}, 0
         for key, size in (("mass", nb), ("com", 3 * nb), ("damping", nj), ("stiffness", nj),
                           ("armature", nj), ("frictionloss", nj), ("qinit", nj)):
@@ -111,7 +147,7 @@ class Randomizer:
 
     def apply(self, model: mujoco.MjModel, params: np.ndarray) -> None:
         """Writes absolute values into ``model`` (any copy of the nominal model)."""
-        p, ids, nj = self.split(params), self.index.body_ids, panda.N_JOINT
+        p, ids, nj = self.split(params), self.index.body_ids, self.nj
         model.body_mass[ids] = p["mass"]
         model.body_inertia[ids] = self.inertia0 * (p["mass"] / self.mass0)[:, None]
         model.body_ipos[ids] = p["com"]

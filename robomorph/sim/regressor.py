@@ -78,7 +78,7 @@ class RegressorIdentifier:
                 then the posterior mode, the data weighted by their residual variance.
                 Default: the weak pull toward ``base`` (``prior``).
         """
-        nj, dt = self._nj, self.dt
+        dt = self.dt
         q = np.asarray(q, dtype=np.float64)
         torque = np.asarray(torque, dtype=np.float64)
         v = (q[2:] - q[:-2]) / (2 * dt)
@@ -89,23 +89,7 @@ class RegressorIdentifier:
         params = base.copy()
         index = self.space.index
         tau0 = self._inverse(params, qs, v, a)
-        cols = np.zeros((len(qs), nj, len(index)))
-        h = self.model.opt.timestep
-        for c, k in enumerate(index):
-            name = self.randomizer.names[k]
-            if name.startswith("damping_q"):
-                # Damping is linear and joint-local: D v plus, from the implicit integration
-                # of the discrete step, h D a (equal to the difference below to 1e-3).
-                j = int(name.rsplit("_q", 1)[1])
-                cols[:, j, c] = v[:, j] + h * a[:, j]
-                continue
-            # Each other column is a difference of MuJoCo's own inverse dynamics: exact for
-            # the masses and armature (linear), a linearization for the friction loss (a
-            # soft constraint: Coulomb when saturated, viscous near rest).
-            step = 0.01 * max(abs(params[k]), 1e-3)
-            bumped = params.copy()
-            bumped[k] += step
-            cols[:, :, c] = (self._inverse(bumped, qs, v, a) - tau0) / step
+        cols = self._columns(params, qs, v, a, tau0)
         resid = (tau - tau0).ravel() / self.sigma
         A = cols.reshape(-1, len(index)) / self.sigma
         half = (self.space.high - self.space.low) / 2
@@ -134,6 +118,29 @@ class RegressorIdentifier:
             params[index] = mid + _bounded_lstsq(hess, A_z.T @ b_z / s2 + w ** 2 * mu) * half
             self.last_cov = np.linalg.inv(hess)
         return params
+
+    def _columns(self, params: np.ndarray, qs: np.ndarray, v: np.ndarray, a: np.ndarray,
+                 tau0: np.ndarray) -> np.ndarray:
+        """(T, 7, n) the regressor: each identified parameter's torque per unit, at every state."""
+        index = self.space.index
+        cols = np.zeros((len(qs), self._nj, len(index)))
+        h = self.model.opt.timestep
+        for c, k in enumerate(index):
+            name = self.randomizer.names[k]
+            if name.startswith("damping_q"):
+                # Damping is linear and joint-local: D v plus, from the implicit integration
+                # of the discrete step, h D a (equal to the difference below to 1e-3).
+                j = int(name.rsplit("_q", 1)[1])
+                cols[:, j, c] = v[:, j] + h * a[:, j]
+                continue
+            # Each other column is a difference of MuJoCo's own inverse dynamics: exact for
+            # the masses and armature (linear), a linearization for the friction loss (a
+            # soft constraint: Coulomb when saturated, viscous near rest).
+            step = 0.01 * max(abs(params[k]), 1e-3)
+            bumped = params.copy()
+            bumped[k] += step
+            cols[:, :, c] = (self._inverse(bumped, qs, v, a) - tau0) / step
+        return cols
 
     def _inverse(self, params: np.ndarray, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """(T, 7) joint torques of the robot ``params`` at each state (gravity as the model has it)."""

@@ -7,46 +7,32 @@ arrive in physical units from :class:`robomorph.data.datamodule.RoboMorphDataMod
 
 from __future__ import annotations
 
-import math
 from typing import Literal
 
 import lightning.pytorch as L
 import torch
 
-from robomorph.core import metrics
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.names import (
     FREEZE_MODES,
     LOSSES,
-    LR,
     NORMALIZATIONS,
-    TEST_FIT,
-    TEST_LOSS,
-    TEST_R2,
-    TRAIN_LOSS,
-    VAL_FIT,
-    VAL_LOSS,
-    VAL_R2,
 )
 from robomorph.core.normalizations import check_normalization
 from robomorph.model.checkpoint import (
     DATA_INFO_KEY,
     TrainedModel,
     model_config,
-    predict_normalized_dist,
 )
-from robomorph.model.normalization import Normalizer, query_stats
+from robomorph.model.normalization import Normalizer
 from robomorph.model.transformer import MetaModel, ModelConfig
-from robomorph.sim.backbone import BackboneError
 from robomorph.training.data_record import check_channels, data_info
-from robomorph.training.losses import ModelOptionError, check_loss, elementwise_loss, horizon_weights, whole_patches
+from robomorph.training.losses import ModelOptionError, check_loss
 from robomorph.training.optim import lr_factor as _lr_factor
 from robomorph.training.optim import optimizers
+from robomorph.training.physics import N_PHYSICAL, check_physics, resolve_physics
 from robomorph.training.pretrained import apply_freeze, start_from
-
-# The parameter head's outputs: the Panda's identifiable parameters (robomorph.sim.backbone).
-N_PHYSICAL = 29
-TRAIN_PARAM_RMSE = "train/param_rmse"
+from robomorph.training.steps import Steps
 
 # Constructor arguments that the data decide: robomorph fit links them from the datamodule.
 FROM_DATA = ("n_u", "n_y", "context_len")
@@ -58,7 +44,7 @@ class ModelSettingsError(ModelOptionError):
     """Model or optimizer settings that cannot work; the message names the ``--model.`` flag."""
 
 
-class MetaModule(L.LightningModule):
+class MetaModule(Steps, L.LightningModule):
     """Trains a :class:`MetaModel` to predict y over the horizon from a context of (u, y).
 
     Args:
@@ -150,7 +136,7 @@ class MetaModule(L.LightningModule):
         n_params: int | None = None,
     ):
         super().__init__()
-        _check_physics(physics, param_weight, decoder_loss)
+        check_physics(physics, param_weight, decoder_loss)
         check_loss(loss, gaussian, horizon_weight, horizon_tau)
         _check_training(freeze, normalization_from, lr, min_lr_ratio, warmup_steps, huber_delta)
         check_context(context_len, patch, max_context)
@@ -158,8 +144,7 @@ class MetaModule(L.LightningModule):
         self.save_hyperparameters()
         # The parameter head's width is the Panda's identifiable parameters, whatever the ranges.
         self.hparams.n_params = N_PHYSICAL if physics != "none" else 0
-        self._physics_on = physics == "amortized"  # "auto" is decided by the data in setup
-        self._layout: dict | None = None  # the parameter layout of the training stores (setup)
+        self._physics_on, self._layout = physics == "amortized", None  # set by setup from the data
         self.net: MetaModel | None = None
         self.normalizer: Normalizer | None = None
         # Set by robomorph.fit when it resumes a run: the checkpoint then supplies the
@@ -197,27 +182,9 @@ class MetaModule(L.LightningModule):
         check_channels(dm, self.hparams.n_u, self.hparams.n_y)
         if stage == "fit" or self.data_info is None:
             self.data_info = data_info(dm)
-        if self.hparams.physics == "auto":
-            from robomorph.sim.backbone import BackboneError as _Refused  # noqa: PLC0415
-
-            try:
-                if getattr(dm, "inputs", "total") != "command":
-                    # Total torques pay gravity at the recorded state: a simulation diverges within
-                    # seconds even with the true parameters (docs: the hybrid model).
-                    raise _Refused("the hybrid predicts in the command formulation (--data.inputs command)")
-                self._layout, self._physics_on = physics_layout(dm), True
-            except _Refused as exc:
-                self._physics_on = False
-                if stage == "fit":
-                    why = str(exc).split(";")[0].replace("--model.physics needs", "the hybrid needs")
-                    print(f"note: --model.physics auto: {why}; training the black-box model alone")
-        elif self.hparams.physics != "none":
-            self._layout = physics_layout(dm)
+        self._physics_on, self._layout = resolve_physics(self.hparams.physics, dm, stage)
         if self._physics_on:
             self.data_info = {**self.data_info, "physics": {**self._layout, "mode": "amortized"}}
-            for name in ("train_set", "val_set", "test_set"):
-                if getattr(dm, name, None) is not None:
-                    getattr(dm, name).add_params()
         if stage == "fit" and self.hparams.init_ckpt and not self.resuming and not getattr(self, "_transferred", False):
             start_from(self, self.hparams.init_ckpt)
             self._transferred = True
@@ -258,102 +225,9 @@ class MetaModule(L.LightningModule):
         """Mean and standard deviation (None without a Gaussian head), both in physical units."""
         return self.trained_model.forward_dist_raw(u_ctx, y_ctx, u_query, y_query_stats)
 
-    def _query_stats(self, batch: dict):
-        """The batch's query-output statistics when the normalization uses them (the paper's leak), else None."""
-        return query_stats(batch["y_query"]) if self.normalizer.uses_query_stats else None
-
-    def _step(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
-        h, batch = self.hparams, whole_patches(batch, self.hparams.patch)
-        qs = self._query_stats(batch)
-        uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"], qs)
-        target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"], qs)
-        loss, pred = torch.zeros((), device=uc.device), None
-        if not self._physics_on or h.decoder_loss:
-            pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate)
-            weights = horizon_weights(target.shape[1], h.horizon_weight, h.horizon_tau, target.device)
-            loss = (elementwise_loss(h.loss, pred, logvar, target, h.huber_delta) * weights[:, None]).mean()
-        if self._physics_on:
-            self._param_error = self._param_loss(batch, uc, yc)
-            loss = loss + h.param_weight * self._param_error[0]
-        return loss, pred, target
-
-    def _param_loss(self, batch: dict, uc: torch.Tensor, yc: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The parameter head's Gaussian NLL and RMS error, in unit coordinates (the context only)."""
-        if "params" not in batch or self._layout is None:
-            raise BackboneError("--model.physics amortized needs the robots' parameters in every batch: train on "
-                                "simulated Panda stores that record params, or use --model.physics none")
-        lay = self._layout
-        index = torch.as_tensor(lay["index"], device=uc.device)
-        low = torch.as_tensor(lay["low"], device=uc.device, dtype=torch.float64)
-        high = torch.as_tensor(lay["high"], device=uc.device, dtype=torch.float64)
-        half = (high - low) / 2
-        # A collapsed range is known exactly: its target is the middle (0).
-        target = torch.where(half > 0, (batch["params"][:, index] - (low + high) / 2) / half.clamp_min(1e-12), 0.0)
-        mean, logvar = self.net.forward_params(uc, yc)
-        target = target.to(mean.dtype)
-        nll = 0.5 * (logvar + (target - mean) ** 2 * torch.exp(-logvar) + math.log(2 * math.pi))
-        return nll.mean(), ((target - mean) ** 2).mean().sqrt()
-
-    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
-        loss, _, _ = self._step(batch)
-        self.log(TRAIN_LOSS, loss, prog_bar=True, batch_size=len(batch["u_ctx"]))
-        if self._physics_on:
-            self.log(TRAIN_PARAM_RMSE, self._param_error[1], batch_size=len(batch["u_ctx"]))
-        self.log(LR, self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=len(batch["u_ctx"]))
-        return loss
-
-    def _eval_step(self, batch: dict, keys: tuple[str, str, str]) -> None:
-        batch = whole_patches(batch, self.hparams.patch)
-        loss, pred, _ = self._step(batch)
-        n = len(batch["y_query"])
-        if self._physics_on:
-            self.log(keys[0].split("/")[0] + "/param_rmse", self._param_error[1], batch_size=n, sync_dist=True,
-                     prog_bar=True)
-        if pred is None:  # the parameter head alone: no sequence prediction to score here
-            self.log(keys[0], loss, batch_size=n, sync_dist=True, prog_bar=keys[0] == VAL_LOSS)
-            return
-        y = batch["y_query"].double()
-        yhat = self.normalizer.decode(pred, batch["y_ctx"], self._query_stats(batch)).double()
-        n = len(y)
-        self.log(keys[0], loss, batch_size=n, sync_dist=True, prog_bar=keys[0] == VAL_LOSS)
-        # approach 1: per trajectory and channel over time, mean over channels, then over trajectories
-        self.log(keys[1], metrics.r2(y, yhat).mean(-1).mean(), batch_size=n, sync_dist=True, prog_bar=True)
-        self.log(keys[2], metrics.fit_index(y, yhat).mean(-1).mean(), batch_size=n, sync_dist=True)
-
-    def validation_step(self, batch: dict, batch_idx: int) -> None:
-        self._eval_step(batch, (VAL_LOSS, VAL_R2, VAL_FIT))
-
-    def test_step(self, batch: dict, batch_idx: int) -> None:
-        self._eval_step(batch, (TEST_LOSS, TEST_R2, TEST_FIT))
-
     # ------------------------------------------------------------------ optimizer
     def configure_optimizers(self):
         return optimizers(self)
-
-
-def _check_physics(physics: str, param_weight: float, decoder_loss: bool) -> None:
-    if physics not in ("none", "amortized", "auto"):
-        raise ModelSettingsError(f"--model.physics must be 'none', 'amortized' or 'auto', got {physics!r}")
-    if not param_weight > 0 or not isinstance(decoder_loss, bool):
-        raise ModelSettingsError("--model.param_weight must be > 0 and --model.decoder_loss true or false")
-
-
-def physics_layout(dm) -> dict:
-    """The parameter layout of the DataModule's stores, which must agree (one line otherwise).
-
-    Raises:
-        BackboneError: a store is not a simulated Panda store with params, or the stores'
-            randomization ranges differ (the unit coordinates would mean different things).
-    """
-    from robomorph.sim.backbone import parameter_layout, same_layout  # noqa: PLC0415
-
-    sources = dm._open()
-    layouts = [parameter_layout(src.attrs) for src in sources]
-    for src, lay in zip(sources[1:], layouts[1:]):
-        if not same_layout(layouts[0], lay):
-            raise BackboneError(f"{src.path} randomizes the parameters over other ranges than {sources[0].path}: "
-                                "train the parameter head on stores of one recipe's ranges")
-    return layouts[0]
 
 
 def _check_training(freeze: str, normalization_from: str, lr: float, min_lr_ratio: float,

@@ -16,7 +16,7 @@ from robomorph.training.module import check_context
 
 # Hyper-parameters that fix the network's tensors: a resume must agree on all of them.
 ARCHITECTURE = ("n_u", "n_y", "d_model", "n_head", "n_layer", "n_layer_dec", "bias", "patch",
-                "max_context", "max_horizon")
+                "max_context", "max_horizon", "n_params")
 
 
 class FitError(RoboMorphError, ValueError):
@@ -59,8 +59,10 @@ def check_resume(module, dm, ckpt_path: str) -> int:
         fix = ("Remove that file to start the run afresh, or pass --ckpt_path with another checkpoint "
                "(e.g. the run's checkpoints/best.ckpt)") if os.path.isfile(ckpt_path) else "Check --ckpt_path"
         raise CheckpointError(f"cannot resume: {exc}. {fix}") from exc
-    saved = ckpt["hyper_parameters"]
-    ours = {**{k: module.hparams.get(k) for k in ARCHITECTURE}, "n_u": dm.n_u, "n_y": dm.n_y}
+    # Checkpoints from before the parameter head have no n_params: none (0).
+    saved = {**ckpt["hyper_parameters"], "n_params": ckpt["hyper_parameters"].get("n_params") or 0}
+    ours = {**{k: module.hparams.get(k) for k in ARCHITECTURE}, "n_u": dm.n_u, "n_y": dm.n_y,
+            "n_params": module.hparams.get("n_params") or 0}
     differ = {k: (saved.get(k), ours[k]) for k in ARCHITECTURE if saved.get(k) != ours[k]}
     if differ:
         shown = ", ".join(f"{k} {a} -> {b}" for k, (a, b) in differ.items())

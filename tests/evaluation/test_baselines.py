@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from robomorph.evaluation.baselines import ARX, TrainedARX, estimate_velocity, hold
+from robomorph.core.velocity import estimate_velocity
+from robomorph.evaluation.baselines import ARX, TrainedARX, hold
 
 
 def test_hold_is_exact_on_a_constant_trajectory():

@@ -1,0 +1,73 @@
+"""What a training, validation or test step of the meta-model computes and logs.
+
+A mixin of :class:`robomorph.training.module.MetaModule` (which holds the network, its
+normalizer and its hyper-parameters): the loss on normalized outputs, weighted over the
+horizon, plus the parameter head's loss for a hybrid model (:mod:`robomorph.training.physics`),
+and the metrics logged at validation and test.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from robomorph.core import metrics
+from robomorph.core.names import LR, TEST_FIT, TEST_LOSS, TEST_R2, TRAIN_LOSS, VAL_FIT, VAL_LOSS, VAL_R2
+from robomorph.model.checkpoint import predict_normalized_dist
+from robomorph.model.normalization import query_stats
+from robomorph.training.losses import elementwise_loss, horizon_weights, whole_patches
+from robomorph.training.physics import TRAIN_PARAM_RMSE, param_loss
+
+
+class Steps:
+    """The steps of :class:`robomorph.training.module.MetaModule` (see the module docstring)."""
+
+    def _query_stats(self, batch: dict):
+        """The batch's query-output statistics when the normalization uses them (the paper's leak), else None."""
+        return query_stats(batch["y_query"]) if self.normalizer.uses_query_stats else None
+
+    def _step(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        h, batch = self.hparams, whole_patches(batch, self.hparams.patch)
+        qs = self._query_stats(batch)
+        uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"], qs)
+        target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"], qs)
+        loss, pred = torch.zeros((), device=uc.device), None
+        if not self._physics_on or h.decoder_loss:
+            pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate)
+            weights = horizon_weights(target.shape[1], h.horizon_weight, h.horizon_tau, target.device)
+            loss = (elementwise_loss(h.loss, pred, logvar, target, h.huber_delta) * weights[:, None]).mean()
+        if self._physics_on:
+            self._param_error = param_loss(self.net, self._layout, batch, uc, yc)
+            loss = loss + h.param_weight * self._param_error[0]
+        return loss, pred, target
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        loss, _, _ = self._step(batch)
+        self.log(TRAIN_LOSS, loss, prog_bar=True, batch_size=len(batch["u_ctx"]))
+        if self._physics_on:
+            self.log(TRAIN_PARAM_RMSE, self._param_error[1], batch_size=len(batch["u_ctx"]))
+        self.log(LR, self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=len(batch["u_ctx"]))
+        return loss
+
+    def _eval_step(self, batch: dict, keys: tuple[str, str, str]) -> None:
+        batch = whole_patches(batch, self.hparams.patch)
+        loss, pred, _ = self._step(batch)
+        n = len(batch["y_query"])
+        if self._physics_on:
+            self.log(keys[0].split("/")[0] + "/param_rmse", self._param_error[1], batch_size=n, sync_dist=True,
+                     prog_bar=True)
+        if pred is None:  # the parameter head alone: no sequence prediction to score here
+            self.log(keys[0], loss, batch_size=n, sync_dist=True, prog_bar=keys[0] == VAL_LOSS)
+            return
+        y = batch["y_query"].double()
+        yhat = self.normalizer.decode(pred, batch["y_ctx"], self._query_stats(batch)).double()
+        n = len(y)
+        self.log(keys[0], loss, batch_size=n, sync_dist=True, prog_bar=keys[0] == VAL_LOSS)
+        # approach 1: per trajectory and channel over time, mean over channels, then over trajectories
+        self.log(keys[1], metrics.r2(y, yhat).mean(-1).mean(), batch_size=n, sync_dist=True, prog_bar=True)
+        self.log(keys[2], metrics.fit_index(y, yhat).mean(-1).mean(), batch_size=n, sync_dist=True)
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        self._eval_step(batch, (VAL_LOSS, VAL_R2, VAL_FIT))
+
+    def test_step(self, batch: dict, batch_idx: int) -> None:
+        self._eval_step(batch, (TEST_LOSS, TEST_R2, TEST_FIT))
