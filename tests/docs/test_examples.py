@@ -130,8 +130,8 @@ def test_every_command_line_of_the_examples_parses(helps):
 
 def test_a_wrong_option_in_an_example_is_caught(helps):
     """Negative control of the check above: a misspelled option fails it, for argparse and for fit."""
-    with pytest.raises(AssertionError, match="unrecognized arguments: --robot"):
-        _check_call(["generate", "--robot", "3", "--out", "x.zarr"], helps)  # an abbreviation is refused too
+    with pytest.raises(AssertionError, match="unrecognized arguments: --rob"):
+        _check_call(["generate", "--rob", "3", "--out", "x.zarr"], helps)  # an abbreviation is refused too
     with pytest.raises(AssertionError, match="argument --gravity-compensation: invalid choice"):
         _check_call(["generate", "--gravity-compensation", "true", "--out", "x.zarr"], helps)
     with pytest.raises(AssertionError, match="no option --data.store"):
@@ -181,12 +181,12 @@ def test_readme_is_the_front_door():
             assert (ROOT / target).exists(), target
 
 
-def test_readme_headline_numbers_are_those_of_its_results_file():
-    text = README.read_text()
+@pytest.mark.parametrize("section", ["## Headline result", "## The hybrid model"])
+def test_readme_headline_numbers_are_those_of_its_results_file(section):
+    text = README.read_text().split(section, 1)[1].split("\n## ", 1)[0]
     source = re.search(r"From `(results/[^`]+\.md)`", text).group(1)
     cells = set(re.findall(r"\|\s*([^|\n]*?)\s*(?=\|)", (ROOT / source).read_text()))
-    table = text.split("## Headline result", 1)[1].split("\n## ", 1)[0]
-    numbers = re.findall(r"\|\s*(-?\d+(?:\.\d+)?)\s*(?=\|)", table)
+    numbers = re.findall(r"\|\s*(-?\d+(?:\.\d+)?)\s*(?=\|)", text)
     assert len(numbers) >= 20
     missing = [n for n in numbers if n not in cells]
     assert not missing, f"README numbers not in {source}: {missing}"
