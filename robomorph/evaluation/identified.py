@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from robomorph.core.velocity import estimate_velocity
-from robomorph.evaluation.physics import NominalPhysics
+from robomorph.evaluation.physics import NominalPhysics, NotApplicable
 from robomorph.sim.identify import Fit, IdentifyConfig
 
 NAME = "identified_physics"
@@ -50,6 +50,10 @@ class IdentifiedPhysics:
         from robomorph.sim.recipe import Recipe  # noqa: PLC0415
 
         self.physics = NominalPhysics(attrs, inputs)  # refuses stores it cannot simulate
+        if attrs.get("domain") != "panda":
+            # The fit's lean model, bounds and gravity terms are the Panda's.
+            raise NotApplicable(f"fits the Panda's parameters only (this store's arm is {attrs.get('domain')!r}); "
+                                "nominal_physics and true_physics cover the other arms")
         self.identifier = Identifier(from_dict(Recipe, attrs["config"], "store config"), inputs, config)
         self._fitted_velocity = inputs == "command"
         self.fits: list[Fit] = []

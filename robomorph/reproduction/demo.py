@@ -7,9 +7,10 @@
    whose predictions simulate the robot identified from the context
    (:mod:`robomorph.model.hybrid`); ``--inputs total`` trains on the paper's total torque.
 3. Recalibrates the model's predicted standard deviation (a hybrid's: the spread over
-   parameter draws) by horizon on the training run's validation robots (``robomorph.calibrate``), then evaluates the model on held-out
-   robots it never saw (context alone), beside the baselines, with the horizon and context
-   sweeps, and prints the per-channel table.
+   parameter draws) by horizon on the training run's validation robots
+   (``robomorph.calibrate``), then evaluates the model on held-out robots it never saw
+   (context alone), beside the baselines, with the horizon and context sweeps, and prints
+   the per-channel table.
 4. Writes the HTML report of all runs (``results/report.html``) and prints its path.
 5. Ends with the RMS errors by horizon in physical units (joint angles [mrad], end-effector
    position [mm] and orientation [mrad]) of the model, ``hold``, ``nominal_physics`` and
@@ -25,12 +26,12 @@ import time
 from dataclasses import dataclass
 
 from robomorph.core.errors import UsageError
-from robomorph.model.files import CheckpointError
 from robomorph.core.names import TASKS
 from robomorph.core.recipes import locate
 from robomorph.core.rundir import RunDir
 from robomorph.data.store import open_store
 from robomorph.data.summary import plot, summarize
+from robomorph.model.files import CheckpointError
 from robomorph.reproduction.skip import ensure_store
 from robomorph.sim.recipe import load_recipe
 

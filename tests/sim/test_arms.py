@@ -217,3 +217,19 @@ def test_mixture_recipe_over_arms_loads():
 
     for robot in ROBOSUITE_ARMS:
         assert load_recipe("arms", {"robot": robot}).robot == robot
+
+
+@needs_robosuite
+def test_physics_fits_of_the_panda_refuse_other_arms_in_one_line(tmp_path):
+    """identified_physics and the hybrid's backbone fit the Panda's parameters: another arm's
+    store is refused with one line (skipped when scored), not a shape error."""
+    from robomorph.evaluation.identified import IdentifiedPhysics
+    from robomorph.evaluation.physics import NotApplicable
+    from robomorph.sim.backbone import BackboneError, parameter_layout
+
+    ds = _generate(tmp_path, "ur5e", "multisine", robots=1, steps=30)
+    with pytest.raises(NotApplicable, match="Panda's parameters only") as info:
+        IdentifiedPhysics(ds.attrs, "command")
+    assert "\n" not in str(info.value)
+    with pytest.raises(BackboneError, match="simulated Panda stores"):
+        parameter_layout(ds.attrs)
