@@ -17,8 +17,11 @@ COMMANDS = {
     "report": "the static HTML dashboard",
     "sweep": "Optuna studies over fit()",
     "reproduce": "the paper's tables and figures",
+    "control": "model-predictive control of unseen robots, beside the catalogue OSC and physics",
     "demo": "generate, train, evaluate and report on a small default",
 }
+# Commands whose door sits inside their room (the room's package is the command's name).
+DOORS = {"control": "robomorph.control.cli"}
 
 
 def _usage() -> str:
@@ -35,7 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"error: unknown command {name!r}: choose one of {', '.join(COMMANDS)}", file=sys.stderr)
         return 2
-    door = importlib.import_module(f"robomorph.{name}")
+    door = importlib.import_module(DOORS.get(name, f"robomorph.{name}"))
     sys.argv = [f"robomorph {name}", *rest]
     code = door.main(rest)
     return int(code or 0)

@@ -35,6 +35,7 @@ BAD_INPUT = [
     ("reproduce", ["table1", "--steps-factor", "0", "--work", "{tmp}/work", "--out", "{tmp}/out"],
      "steps_factor must be > 0"),
     ("demo", ["--robots", "0", "--out-dir", "{tmp}/demo", "--runs-dir", "{tmp}/runs"], "robots must be >= 1"),
+    ("control", ["--robots", "0", "--out", "{tmp}/control"], "--robots must be >= 1"),
 ]
 
 

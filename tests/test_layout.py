@@ -16,7 +16,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "robomorph"
 # Rank of each room: a module imports its own room and rooms of lower rank only.
 RANKS = {"core": 0, "sim": 1, "data": 2, "model": 3, "training": 4, "evaluation": 5,
-         "reporting": 6, "tuning": 6, "reproduction": 7}
+         "reporting": 6, "tuning": 6, "control": 6, "reproduction": 7}
 TOP = 8  # doors (robomorph/<command>.py), predictor.py, cli.py, __init__.py, __main__.py
 MAX_FILE_LINES, MAX_FUNCTION_LINES, MAX_CLASS_LINES = 400, 60, 200
 TORCH_LIBS = ("torch", "lightning")

@@ -108,14 +108,7 @@ class Hybrid:
         # identified once and only the horizons are simulated per row.
         shared = B > 1 and bool(np.all(uc == uc[:1]) and np.all(yc == yc[:1]) and np.all(rest == rest[0]))
         one = slice(0, 1) if shared else slice(None)
-        z, z_std = self.parameters(u_ctx[one], y_ctx[one], u_query[one])
-        # The springs are anchored where the robot started: the first context sample when the context opens it.
-        params = self.backbone.full_params(z, q_ctx[one, 0])
-        if mode in ("regression", "fused", "refined"):
-            prior = (z, z_std) if mode in ("fused", "refined") else None
-            params = self._regress(params, q_ctx[one], uc[one], prior)
-        if mode == "refined":
-            params = self._refine(params, q_ctx[one], uc[one], qvel_start[one])
+        params, z, z_std = self._identify(u_ctx[one], y_ctx[one], mode, q_ctx[one, 0], qvel_start[one])
 
         def horizon(p: np.ndarray) -> np.ndarray:
             """(B, H, n_y) of the robots ``p`` (one per row, or one for all on a shared context)."""
@@ -131,6 +124,38 @@ class Hybrid:
         if not return_std:
             return mean, None
         return mean, self._spread(mode, params, z, z_std, mean, horizon, calibration)
+
+    @torch.no_grad()
+    def identify(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, mode: str = "regression",
+                 anchor: np.ndarray | None = None, at_rest: bool = False) -> np.ndarray:
+        """(B, P) the robots' full parameter vectors read from their contexts in ``mode``.
+
+        What a model-predictive controller simulates its candidates with (the parameters
+        change slowly, the candidates at every plan). ``anchor``: (B, 7) where each robot
+        started (its springs' rest pose); default: the first context sample.
+        """
+        from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
+
+        if mode not in MODES:
+            raise HybridError(f"physics mode must be one of {MODES}, got {mode!r}")
+        q_ctx = y_ctx.double().cpu().numpy()[..., 7:14]
+        qvel_start = np.zeros_like(q_ctx[:, 0]) if at_rest else -estimate_velocity(q_ctx[:, ::-1], self.backbone.dt)
+        return self._identify(u_ctx, y_ctx, mode, q_ctx[:, 0] if anchor is None else anchor, qvel_start)[0]
+
+    def _identify(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, mode: str, anchor: np.ndarray,
+                  qvel_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Full parameter vectors (B, P), and the head's mean and std in unit coordinates."""
+        uc = u_ctx.double().cpu().numpy()
+        q_ctx = y_ctx.double().cpu().numpy()[..., 7:14]
+        z, z_std = self.parameters(u_ctx, y_ctx, u_ctx[:, :1])
+        # The springs are anchored where the robot started: the first context sample when the context opens it.
+        params = self.backbone.full_params(z, anchor)
+        if mode in ("regression", "fused", "refined"):
+            prior = (z, z_std) if mode in ("fused", "refined") else None
+            params = self._regress(params, q_ctx, uc, prior, anchor)
+        if mode == "refined":
+            params = self._refine(params, q_ctx, uc, qvel_start)
+        return params, z, z_std
 
     def _spread(self, mode: str, params: np.ndarray, z: np.ndarray, z_std: np.ndarray, mean: np.ndarray,
                 horizon, calibration) -> np.ndarray:
@@ -153,14 +178,16 @@ class Hybrid:
         std = np.sqrt(np.mean((np.stack(draws) - mean[None]) ** 2, axis=0))  # (K, B, H, n_y) -> (B, H, n_y)
         return std if calibration is None else std * calibration.factors(std.shape[-2])[None]
 
-    def _regress(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, prior=None) -> np.ndarray:
-        """The catalogue robot's identified entries solved for, window by window."""
+    def _regress(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, prior=None,
+                 anchor: np.ndarray | None = None) -> np.ndarray:
+        """The catalogue robot's identified entries solved for, window by window (springs
+        anchored at ``anchor``, default the first context sample)."""
         from robomorph.sim.regressor import RegressorIdentifier  # noqa: PLC0415
 
         if self._regressor is None:
             ident = self.backbone.ident
             self._regressor = RegressorIdentifier(self.backbone.recipe, ident.space, ident.randomizer, self.inputs)
-        base = np.stack([self.backbone.catalogue(q[0]) for q in q_ctx])
+        base = np.stack([self.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
         out, self._covs = [], []
         for b in range(len(params)):
             out.append(self._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))

@@ -1,0 +1,5 @@
+import sys
+
+from robomorph.control.cli import main
+
+sys.exit(main())
