@@ -73,11 +73,11 @@ def _capture_help(call) -> str:
 
 def command_helps() -> list[tuple[str, str, str]]:
     """``(command line, one-line summary, --help text)`` for every command and subcommand."""
-    from robomorph.cli import COMMANDS
+    from robomorph.cli import COMMANDS, DOORS
 
     found = []
     for name, what in COMMANDS.items():
-        door = importlib.import_module(f"robomorph.{name}")
+        door = importlib.import_module(DOORS.get(name, f"robomorph.{name}"))
         if hasattr(door, "build_parser"):
             found.append((f"robomorph {name}", what, _capture_help(lambda d=door: d.build_parser().print_help())))
         else:

@@ -3,7 +3,8 @@
 Figures per controller, over the tracking phase of its episodes (warm-up excluded):
 
 - ``ee_rms_mm`` and ``ee_max_mm``: EE distance to the reference, RMS over the frames of the
-  episodes that did not fail (pooled), and the largest;
+  episodes that did not fail (pooled), and the largest; ``ee_rms_mm_median_robot``: the median
+  over those episodes of each one's RMS (one hard robot weighs less);
 - ``torque_rms_nm``: RMS of the commands over joints and frames;
 - ``saturation_events``: frames with a command at a torque limit;
 - ``failed_episodes`` and ``failures``: episodes ended by a contact, a joint limit or a
@@ -36,6 +37,7 @@ def summarize(results: list, controllers: list[str]) -> dict:
         out[name] = {
             "ee_rms_mm": float(np.sqrt(np.mean(err ** 2))) if err.size else None,
             "ee_max_mm": float(err.max()) if err.size else None,
+            "ee_rms_mm_median_robot": float(np.median([np.sqrt(np.mean(r.error_mm ** 2)) for r in ok])) if ok else None,
             "ee_rms_mm_per_robot": {str(r.robot): float(np.sqrt(np.mean(r.error_mm ** 2))) for r in ok},
             "torque_rms_nm": float(np.sqrt(np.mean(torque ** 2))) if torque.size else None,
             "saturation_events": int(sum(r.saturated for r in eps)),

@@ -305,8 +305,11 @@ def run_view(run: RunData, index: int) -> dict:
             "config_text": run.config_text, "evals": [eval_view(ev) for ev in run.evals]}
 
 
-def render(runs: list[RunData], title: str, runs_dir: str) -> str:
-    """The whole page for ``runs`` (templates/report.html.j2)."""
+def render(runs: list[RunData], title: str, runs_dir: str, control: str | None = None) -> str:
+    """The whole page for ``runs`` (templates/report.html.j2), with the closed-loop control
+    section of the ``control`` folder when it holds a ``metrics.json``."""
+    from robomorph.reporting.control_view import control_view  # noqa: PLC0415
+
     curves = plot_curves(runs)
     return rh.render("report.html.j2", title=title, runs_dir=str(runs_dir),
                      stamp=datetime.now().strftime("%Y-%m-%d %H:%M"),
@@ -314,16 +317,18 @@ def render(runs: list[RunData], title: str, runs_dir: str) -> str:
                      legend=rh.legend(), overview=overview(runs), curves=rh.png_uri(curves) if curves else None,
                      curves_caption="train/loss, val/loss (log scale where every value is positive, linear "
                                     "otherwise) and val/r2 against step",
-                     runs=[run_view(run, i) for i, run in enumerate(runs)])
+                     runs=[run_view(run, i) for i, run in enumerate(runs)], control=control_view(control))
 
 
-def build_report(runs_dir: str, out: str, title: str = "RoboMorph training report") -> str:
+def build_report(runs_dir: str, out: str, title: str = "RoboMorph training report", control: str | None = None) -> str:
     """Writes the report of every run under ``runs_dir`` to ``out``.
 
     Args:
         runs_dir: the folder holding one sub-folder per run.
         out: the HTML file to write (its folder is created).
         title: the page title.
+        control: a ``robomorph control`` output folder to show (None or a folder without
+            ``metrics.json``: no control section).
 
     Returns:
         The path written.
@@ -338,7 +343,7 @@ def build_report(runs_dir: str, out: str, title: str = "RoboMorph training repor
     for run in runs:
         for w in run.all_warnings:
             print(f"report: warning: {run.name}: {w}", file=sys.stderr)
-    write_text(out, render(runs, title, str(runs_dir)))
+    write_text(out, render(runs, title, str(runs_dir), control))
     return str(out)
 
 

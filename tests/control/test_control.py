@@ -171,12 +171,18 @@ def _control(*args: str) -> subprocess.CompletedProcess:
                           timeout=600)
 
 
-def test_control_command_writes_metrics_table_and_plots(hybrid_ckpt, tmp_path):
-    out = tmp_path / "ctl"
+@pytest.fixture(scope="module")
+def control_out(hybrid_ckpt, tmp_path_factory):
+    out = tmp_path_factory.mktemp("control") / "ctl"
     res = _control("--ckpt", hybrid_ckpt, "--robots", "1", "--warmup", "0.5", "--duration", "0.3",
                    "--context", str(CKPT_CONTEXT), "--samples", "32", "--horizon", "10", "--workers", "2",
                    "--controllers", "osc,mpc:model,mpc:nominal_physics,mpc:true_physics", "--out", str(out))
     assert res.returncode == 0, res.stderr[-2000:]
+    return out
+
+
+def test_control_command_writes_metrics_table_and_plots(control_out):
+    out = control_out
     metrics = json.loads((out / "metrics.json").read_text())
     for name in ("osc", "mpc:model", "mpc:nominal_physics", "mpc:true_physics"):
         assert metrics[name]["episodes"] == 1 and np.isfinite(metrics[name]["ee_rms_mm"])
@@ -184,6 +190,19 @@ def test_control_command_writes_metrics_table_and_plots(hybrid_ckpt, tmp_path):
     assert metrics["mpc:model"]["replan_ms_median"] > 0 and metrics["osc"]["replan_ms_median"] is None
     assert "commit" in metrics["_provenance"] and "EE RMS [mm]" in (out / "table.md").read_text()
     assert (out / "errors.png").stat().st_size > 0 and (out / "paths.png").stat().st_size > 0
+
+
+def test_the_dashboard_shows_the_control_section(control_out, tiny_checkpoint, tmp_path):
+    from pathlib import Path
+
+    from robomorph.reporting.dashboard import build_report
+
+    runs_dir = Path(tiny_checkpoint).parents[2]  # <runs>/<run>/checkpoints/best.ckpt
+    page = Path(build_report(str(runs_dir), str(tmp_path / "r.html"), control=str(control_out))).read_text()
+    assert "Closed-loop control" in page and "mpc:true_physics (ceiling" in page and "mpc:nominal_physics" in page
+    assert page.count("data:image/png;base64") >= 2
+    plain = Path(build_report(str(runs_dir), str(tmp_path / "r2.html"), control=str(tmp_path))).read_text()
+    assert "Closed-loop control" not in plain  # a folder without metrics.json adds nothing
 
 
 def test_bad_options_get_one_line_and_exit_code_2(hybrid_ckpt, tiny_checkpoint, tmp_path):
