@@ -82,7 +82,8 @@ def main() -> None:
                          "failed_episodes": m["failed_episodes"], "episodes": m["episodes"],
                          "replan_ms_median": m["replan_ms_median"], "replan_ms_p95": m["replan_ms_p95"]})
         with open(os.path.join(out, "table.md")) as f:
-            table = f.read().split("\n", 2)[2]  # without the provenance line
+            # Without the provenance line and the page title: this page has its own.
+            table = "\n".join(line for line in f.read().split("\n", 2)[2].splitlines() if not line.startswith("# "))
         checks = markdown_table(["goal", "measured", "met"], [(g, v, "yes" if ok else "**no**") for g, v, ok in goals(metrics)])
         sections.append(f"## {task}\n\n{table.strip()}\n\nGoals (issue 22):\n\n{checks}\n")
     write_rows(args.out + ".csv", rows, prov)

@@ -80,3 +80,46 @@ def draw_reference(task: str, rng: np.random.Generator, start_pos: np.ndarray, s
         for out, part in zip((pos, vel, acc), tail):
             out[warmup:] = part
     return Reference(pos, vel, acc, np.asarray(start_quat, dtype=np.float64).copy(), int(warmup))
+
+
+def reachable(model, ref: Reference, q0, joint_margin: float = 0.15, tol: float = 1e-3,
+              min_singular: float = 0.05, every: int = 5) -> bool:
+    """Whether the arm can follow ``ref`` kinematically, well inside its joint limits.
+
+    Follows the reference (every ``every`` frames, holding ``ref.quat``) from ``q0`` by damped
+    least squares on the catalogue kinematics (link geometry is not randomized, so they are
+    every robot's), and asks at each point for a residual below ``tol`` [m], every joint
+    ``joint_margin`` [rad] inside its limits, and the smallest singular value of the position
+    Jacobian above ``min_singular`` [m/rad] (away from the stretched-out singularity). A
+    reference that fails would measure the arm's workspace, not the controller: an episode
+    redraws it, as the generator redraws a rejected trajectory.
+    """
+    import mujoco  # noqa: PLC0415
+
+    data = mujoco.MjData(model)
+    nj = len(q0)
+    lo, hi = model.jnt_range[:nj, 0] + joint_margin, model.jnt_range[:nj, 1] - joint_margin
+    site = model.site("ee").id
+    jac = np.zeros((6, model.nv))
+    err, quat, conj, qerr = np.zeros(6), np.zeros(4), np.zeros(4), np.zeros(4)
+    q = np.array(q0, dtype=np.float64)
+    for f in range(0, ref.steps, every):
+        for _ in range(20):
+            data.qpos[:nj] = q
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_comPos(model, data)
+            err[:3] = ref.pos[f] - data.site_xpos[site]
+            mujoco.mju_mat2Quat(quat, data.site_xmat[site])
+            mujoco.mju_negQuat(conj, quat)
+            mujoco.mju_mulQuat(qerr, ref.quat, conj)
+            mujoco.mju_quat2Vel(err[3:], qerr, 1.0)
+            mujoco.mj_jacSite(model, data, jac[:3], jac[3:], site)
+            if np.linalg.norm(err[:3]) < tol / 4 and np.linalg.norm(err[3:]) < 1e-3:
+                break
+            j = jac[:, :nj]
+            q += j.T @ np.linalg.solve(j @ j.T + 1e-4 * np.eye(6), err)
+        if np.linalg.norm(err[:3]) > tol or np.any(q < lo) or np.any(q > hi):
+            return False
+        if np.linalg.svd(jac[:3, :nj], compute_uv=False)[-1] < min_singular:
+            return False
+    return True

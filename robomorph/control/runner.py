@@ -92,23 +92,33 @@ class ControlConfig:
         return dataclasses.replace(RandomizationConfig(), **UNCERTAINTY[self.uncertainty])
 
 
-def draw_episode(cfg: ControlConfig, robot: int):
-    """The robot's parameter vector and its reference (from ``(seed, robot)`` alone)."""
+def draw_episode(cfg: ControlConfig, robot: int, max_draws: int = 50):
+    """The robot's parameter vector and its reference (from ``(seed, robot)`` alone).
+
+    Draws again (a new robot and reference from the next stream of ``(seed, robot)``) while the
+    reference is out of the arm's comfortable reach (:func:`robomorph.control.references.reachable`):
+    the same for every controller, decided by kinematics alone.
+    """
     import mujoco  # noqa: PLC0415
 
-    from robomorph.control.references import draw_reference  # noqa: PLC0415
+    from robomorph.control.references import draw_reference, reachable  # noqa: PLC0415
     from robomorph.sim import panda  # noqa: PLC0415
-    from robomorph.sim.episode import attempt_rng  # noqa: PLC0415
     from robomorph.sim.osc import start_pose  # noqa: PLC0415
     from robomorph.sim.randomize import Randomizer  # noqa: PLC0415
 
-    rng = attempt_rng(cfg.seed, robot)
     model = panda.build_model(cfg.substeps, cfg.dt, True)
     randomizer = Randomizer(model, cfg.randomization())
-    params = randomizer.sample(rng)
-    randomizer.apply(model, params)
-    pos, quat = start_pose(model, mujoco.MjData(model), randomizer.split(params)["qinit"])
-    return params, draw_reference(cfg.task, rng, pos, quat, cfg.warmup_frames, cfg.steps, cfg.dt)
+    nominal = model.body_mass.copy()
+    for draw in range(max_draws):
+        rng = np.random.default_rng(np.random.SeedSequence(cfg.seed, spawn_key=(robot, 0, draw)))
+        params = randomizer.sample(rng)
+        qinit = randomizer.split(params)["qinit"]
+        model.body_mass[:] = nominal  # kinematics do not depend on the draw's physics
+        pos, quat = start_pose(model, mujoco.MjData(model), qinit)
+        ref = draw_reference(cfg.task, rng, pos, quat, cfg.warmup_frames, cfg.steps, cfg.dt)
+        if reachable(model, ref, qinit):
+            return params, ref
+    raise ControlError(f"no reachable {cfg.task} reference in {max_draws} draws for robot {robot}")
 
 
 def make_planner(cfg: ControlConfig, controller: str, params: np.ndarray, predictor=None):

@@ -27,6 +27,8 @@ from robomorph.core.inputs import check_inputs
 from robomorph.core.names import INPUTS, NORMALIZATIONS
 from robomorph.core.normalizations import check_normalization
 
+from robomorph.data.channel_sets import ColumnAccumulator, channel_set, layouts, pads_any
+
 # DataError re-exported: callers catch it from here.
 from robomorph.data.sources import DataError, Source, check_lengths, compatible, scan  # noqa: F401
 from robomorph.data.splits import check_held_out, split_store
@@ -42,7 +44,8 @@ class RoboMorphDataModule(L.LightningDataModule):
     """Trajectory splits, context/query windows and a weighted mixture of stores.
 
     Args:
-        stores: training store paths (one path or a list); all must share u_names, y_names and dt.
+        stores: training store paths (one path or a list); all share dt, and u_names and y_names or a
+            subset of the widest store's (arms with fewer joints, padded: :mod:`robomorph.data.channel_sets`).
         weights: sampling probability of each store in the training stream (normalized);
             default proportional to each store's number of training trajectories.
         val_store: a separate store used whole as the validation split (e.g. another
@@ -74,6 +77,8 @@ class RoboMorphDataModule(L.LightningDataModule):
             (array ``u_cmd``; stores of schema 2 on). The checkpoint records the choice.
         train_samples_per_epoch: windows per training epoch; default the number of training
             trajectories.
+        channels: ``{"u": [...], "y": [...]}``, the run's channel set; default the widest training
+            store's. Give a multi-arm model's set to fine-tune it on one arm with fewer joints.
     """
 
     def __init__(self, stores: list[str] | str = "data/demo/multisine.zarr", weights: list[float] | None = None,
@@ -84,7 +89,7 @@ class RoboMorphDataModule(L.LightningDataModule):
                  num_workers: int = 0, in_memory: bool | None = None, recenter: bool = False,
                  val_subset: int = 256, train_samples_per_epoch: int | None = None,
                  normalization: Literal[NORMALIZATIONS] = "train_stats",
-                 inputs: Literal[INPUTS] = "total"):
+                 inputs: Literal[INPUTS] = "total", channels: dict[str, list[str]] | None = None):
         super().__init__()
         self.save_hyperparameters(ignore=["context_len"])  # the module logs the resolved length (one key, one value)
         self.stores = [stores] if isinstance(stores, str) else list(stores)
@@ -95,7 +100,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.split, self.seed, self.batch_size, self.num_workers = tuple(split), seed, batch_size, num_workers
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
         self.train_samples_per_epoch, self.context_min, self.horizon_min = train_samples_per_epoch, context_min, horizon_min
-        self.inputs, self.normalization = inputs, normalization
+        self.inputs, self.normalization, self.channels = inputs, normalization, channels
         _check_arguments(self)
         self._ready = False
         self._sources: list[Source] | None = None
@@ -118,8 +123,8 @@ class RoboMorphDataModule(L.LightningDataModule):
         if self.loaded:
             for src in sources:
                 src.load()
-        self._make_splits(sources)
-        self._compute_stats(sources)
+        _make_splits(self, sources)
+        _compute_stats(self, sources)
         self._build_datasets(sources)
         self.sources, self._ready = sources, True
 
@@ -130,16 +135,30 @@ class RoboMorphDataModule(L.LightningDataModule):
         if self._sources is None:
             # Held-out stores follow the training stores: [train..., val_store?, test_store?].
             paths = self.stores + [p for p in (self.val_store, self.test_store) if p is not None]
-            self._sources = compatible([Source(p, self.inputs) for p in paths])
+            sources = [Source(p, self.inputs) for p in paths]
+            self._names = channel_set(sources, len(self.stores), self.channels)
+            self._sources = sources
         return self._sources
 
     @property
     def u_names(self) -> list[str]:
-        return self._open()[0].u_names
+        self._open()
+        return list(self._names[0])
 
     @property
     def y_names(self) -> list[str]:
-        return self._open()[0].y_names
+        self._open()
+        return list(self._names[1])
+
+    @property
+    def channel_mask(self) -> bool:
+        """True when a store lacks some of the run's channels (an arm with fewer joints): robomorph fit links it."""
+        return pads_any(self._open())
+
+    @property
+    def layouts(self) -> list[dict[str, list[str]]]:
+        """The training stores' distinct channel layouts (the checkpoint records them for the Predictor)."""
+        return layouts(self._open()[:len(self.stores)])
 
     @property
     def dt(self) -> float:
@@ -163,30 +182,6 @@ class RoboMorphDataModule(L.LightningDataModule):
         if n < 1:
             raise DataError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
         return n
-
-    def _make_splits(self, sources: list[Source]) -> None:
-        # A store that records recording_index (ingest) is split by recording.
-        self.splits = [split_store(src.n, self.split, self.seed, k, src.groups, src.path, self.val_store,
-                                   self.test_store) for k, src in enumerate(sources[:len(self.stores)])]
-        empty = np.zeros(0, dtype=np.int64)
-        for role, path in (("val", self.val_store), ("test", self.test_store)):
-            if path is not None:
-                whole = np.arange(sources[len(self.splits)].n)
-                self.splits.append({"train": empty, "val": empty, "test": empty, role: whole})
-        counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
-        w = np.asarray(self.weights if self.weights is not None else counts, dtype=float)
-        for k, ck in enumerate(counts):
-            if ck == 0:
-                raise DataError(f"{self.stores[k]} has no training trajectories (n={sources[k].n}, split "
-                                f"{self.split}): add trajectories or change split")
-        self.probs = w / w.sum()
-
-    def _compute_stats(self, sources: list[Source]) -> None:
-        acc = StatsAccumulator(self.n_u, self.n_y)
-        for k, src in enumerate(sources):
-            stop = src.steps if self.window == "random" else self.context_len + self.horizon
-            scan(src, self.splits[k]["train"], stop, acc if k < len(self.stores) else None)
-        self.stats: Stats = acc.finalize()
 
     def _build_datasets(self, sources: list[Source]) -> None:
         train = pairs([s["train"] for s in self.splits])
@@ -234,7 +229,7 @@ class RoboMorphDataModule(L.LightningDataModule):
             "context_min": self.context_min, "horizon_min": self.horizon_min,
             "n_u": self.n_u, "n_y": self.n_y, "dt": self.dt, "in_memory": bool(self.loaded),
             "seed": self.seed, "split": list(self.split), "normalization": self.normalization,
-            "inputs": self.inputs,
+            "inputs": self.inputs, "channel_mask": self.channel_mask,
         }
 
 
@@ -297,3 +292,31 @@ def _check_context_min(dm: RoboMorphDataModule) -> None:
     if dm.context_min is not None and dm.context_min > dm.context_len:
         raise DataError(f"context_min {dm.context_min} exceeds the context of {dm.context_len} steps"
                         + (f" that context_frac {dm.context_frac} gives" if dm.context_frac else ""))
+
+
+def _make_splits(self: RoboMorphDataModule, sources: list[Source]) -> None:
+    """Each store's trajectory split and the training stream's store probabilities."""
+    # A store that records recording_index (ingest) is split by recording.
+    self.splits = [split_store(src.n, self.split, self.seed, k, src.groups, src.path, self.val_store,
+                               self.test_store) for k, src in enumerate(sources[:len(self.stores)])]
+    empty = np.zeros(0, dtype=np.int64)
+    for role, path in (("val", self.val_store), ("test", self.test_store)):
+        if path is not None:
+            whole = np.arange(sources[len(self.splits)].n)
+            self.splits.append({"train": empty, "val": empty, "test": empty, role: whole})
+    counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
+    w = np.asarray(self.weights if self.weights is not None else counts, dtype=float)
+    for k, ck in enumerate(counts):
+        if ck == 0:
+            raise DataError(f"{self.stores[k]} has no training trajectories (n={sources[k].n}, split "
+                            f"{self.split}): add trajectories or change split")
+    self.probs = w / w.sum()
+
+
+def _compute_stats(self: RoboMorphDataModule, sources: list[Source]) -> None:
+    """Training statistics per channel role: each channel's from the training stores that have it."""
+    acc = StatsAccumulator(self.n_u, self.n_y)
+    for k, src in enumerate(sources):
+        stop = src.steps if self.window == "random" else self.context_len + self.horizon
+        scan(src, self.splits[k]["train"], stop, ColumnAccumulator(acc, src.layout) if k < len(self.stores) else None)
+    self.stats: Stats = acc.finalize()

@@ -7,6 +7,7 @@ import os
 
 import numpy as np
 
+from robomorph.core.channels import pad_columns
 from robomorph.core.errors import RoboMorphError
 from robomorph.data.splits import RECORDING_ARRAY
 from robomorph.data.statistics import StatsAccumulator
@@ -42,6 +43,9 @@ class Source:
         self.y: np.ndarray | None = None
         self._ds, self._pid = ds, os.getpid()
         self._cache: tuple[int, np.ndarray | None, np.ndarray | None] = (-1, None, None)
+        # (u columns, y columns, n_u, n_y) of this store's channels in the run's channel set,
+        # when it has fewer (an arm with fewer joints): windows are padded to the set's width.
+        self.layout: tuple[list[int], list[int], int, int] | None = None
 
     @property
     def nbytes(self) -> int:
@@ -74,7 +78,11 @@ class Source:
     def window(self, i: int, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
         """Steps ``[start, stop)`` of trajectory ``i``: ``(u (L, n_u), y (L, n_y))``."""
         c0, u, y = self.block(i // self.chunk)
-        return u[i - c0, start:stop], y[i - c0, start:stop]
+        u, y = u[i - c0, start:stop], y[i - c0, start:stop]
+        if self.layout is None:
+            return u, y
+        u_cols, y_cols, n_u, n_y = self.layout
+        return pad_columns(u, u_cols, n_u), pad_columns(y, y_cols, n_y)
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()

@@ -26,29 +26,33 @@ class _Moments:
     """Streaming per-channel count, mean and sum of squared deviations (Chan et al.).
 
     Each block is reduced in float64 and merged exactly, so reading a store chunk by chunk
-    gives the same result as one pass over the whole array (up to rounding).
+    gives the same result as one pass over the whole array (up to rounding). Counts are per
+    channel: a block may cover some channels only (a store of an arm with fewer joints).
     """
 
     def __init__(self, width: int):
-        self.count = 0
+        self.count = np.zeros(width, dtype=np.int64)
         self.mean = np.zeros(width)
         self.m2 = np.zeros(width)
 
-    def update(self, x: np.ndarray) -> None:
-        x = np.asarray(x, dtype=np.float64).reshape(-1, self.mean.shape[0])
+    def update(self, x: np.ndarray, cols: list[int] | None = None) -> None:
+        sel = slice(None) if cols is None else np.asarray(cols, dtype=np.int64)
+        width = self.mean.shape[0] if cols is None else len(cols)
+        x = np.asarray(x, dtype=np.float64).reshape(-1, width)
         k = x.shape[0]
         if k == 0:
             return
         mean_b = x.mean(axis=0)
         m2_b = ((x - mean_b) ** 2).sum(axis=0)
-        total = self.count + k
-        delta = mean_b - self.mean
-        self.mean = self.mean + delta * (k / total)
-        self.m2 = self.m2 + m2_b + delta**2 * (self.count * k / total)
-        self.count = total
+        count = self.count[sel]
+        total = count + k
+        delta = mean_b - self.mean[sel]
+        self.mean[sel] = self.mean[sel] + delta * (k / total)
+        self.m2[sel] = self.m2[sel] + m2_b + delta**2 * (count * k / total)
+        self.count[sel] = total
 
     def std(self, eps: float) -> np.ndarray:
-        return np.maximum(np.sqrt(self.m2 / max(self.count, 1)), eps)
+        return np.maximum(np.sqrt(self.m2 / np.maximum(self.count, 1)), eps)
 
 
 class StatsAccumulator:
@@ -68,23 +72,35 @@ class StatsAccumulator:
 
     @property
     def count(self) -> int:
-        """Number of time steps (samples per channel) seen so far."""
-        return self._u.count
+        """Number of time steps seen so far (of the channel seen most)."""
+        return int(self._u.count.max(initial=0))
 
-    def update(self, u: np.ndarray, y: np.ndarray) -> None:
-        """Adds a block of trajectories ``u (k, T, n_u)`` and ``y (k, T, n_y)``."""
+    def update(self, u: np.ndarray, y: np.ndarray, u_cols: list[int] | None = None,
+               y_cols: list[int] | None = None) -> None:
+        """Adds a block of trajectories ``u (k, T, n_u)`` and ``y (k, T, n_y)``.
+
+        ``u_cols`` / ``y_cols``: the channels (columns of this accumulator) that the block's
+        columns are, for a store that has some of the channels only (per channel role: each
+        channel's statistics come from the stores that have it); default all, in order.
+        """
         if u.shape[:-1] != y.shape[:-1]:
             raise ValueError(f"u {u.shape} and y {y.shape} must share their leading (N, T) axes")
         for start in range(0, max(len(u), 1), _BLOCK_ROWS):
-            self._u.update(u[start:start + _BLOCK_ROWS])
-            self._y.update(y[start:start + _BLOCK_ROWS])
+            self._u.update(u[start:start + _BLOCK_ROWS], u_cols)
+            self._y.update(y[start:start + _BLOCK_ROWS], y_cols)
 
     def finalize(self, eps: float = 1e-6) -> "Stats":
-        """Returns the statistics; std is floored at ``eps`` so a flat channel stays finite."""
+        """Returns the statistics; std is floored at ``eps`` so a flat channel stays finite.
+
+        A channel no block covered (a channel set wider than the data, e.g. a multi-arm model
+        fine-tuned on an arm with fewer joints, for which the channel is always absent) gets
+        mean 0 and std 1: it is never read on this data.
+        """
         if self.count == 0:
             raise ValueError("no samples were given: cannot compute normalization statistics")
-        return Stats(u_mean=self._u.mean.copy(), u_std=self._u.std(eps),
-                     y_mean=self._y.mean.copy(), y_std=self._y.std(eps))
+        u_std, y_std = self._u.std(eps), self._y.std(eps)
+        u_std[self._u.count == 0], y_std[self._y.count == 0] = 1.0, 1.0
+        return Stats(u_mean=self._u.mean.copy(), u_std=u_std, y_mean=self._y.mean.copy(), y_std=y_std)
 
 
 @dataclass

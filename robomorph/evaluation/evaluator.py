@@ -109,6 +109,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
         raise EvaluationError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
     w = load_window(data, int(context_len), int(horizon), n, info, predictor.n_u, predictor.n_y, offset, seed,
                     predictor.inputs)
+    predictor.channels = (w.u_names, w.y_names)  # an arm with fewer joints than a multi-arm model: padded
     steps = parse_horizons(horizons_spec, w.horizon, w.dt)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
     contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")

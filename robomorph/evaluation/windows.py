@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from robomorph.core.channels import columns
 from robomorph.core.errors import RoboMorphError
 
 
@@ -122,7 +123,9 @@ def load_window(data: str, context_len: int, horizon: int, n: int | None, info: 
     u_names = ds.input_names(inputs)
     if info is not None:
         for what, ours, theirs in (("u_names", u_names, info["u_names"]), ("y_names", ds.y_names, info["y_names"])):
-            if list(ours) != list(theirs):
+            if info.get("channel_mask"):  # a model of several arms: the store's channels by name, padded
+                columns(ours, theirs, what, data)
+            elif list(ours) != list(theirs):
                 raise WindowError(f"{data} has {what} {list(ours)} but the checkpoint was trained on {list(theirs)}")
         # A model learns the dynamics per step: at another sample time it predicts another robot.
         if info.get("dt") and abs(ds.dt - float(info["dt"])) > 1e-6 * float(info["dt"]):

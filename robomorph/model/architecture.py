@@ -40,6 +40,10 @@ class ModelConfig:
         n_params: Physical parameters the parameter head predicts from the encoder's memory
             (0 = no parameter head; the hybrid model's amortized identification,
             :meth:`MetaModel.forward_params`).
+        channel_mask: Inputs may lack channels (an arm with fewer joints than the model's
+            channel set): NaN marks an absent channel; it enters as 0 and a learned
+            embedding of which channels are absent is added to every token. False: the
+            original model (its checkpoints load unchanged).
     """
 
     n_u: int = 7
@@ -56,6 +60,7 @@ class ModelConfig:
     n_init: int = 0
     gaussian: bool = False
     n_params: int = 0
+    channel_mask: bool = False
 
     def __post_init__(self) -> None:
         for name in ("n_u", "n_y", "d_model", "n_head", "n_layer", "max_context", "max_horizon", "patch"):
@@ -66,11 +71,14 @@ class ModelConfig:
             raise ConfigError(f"ModelConfig.d_model ({self.d_model}) must be divisible by n_head ({self.n_head})")
         if isinstance(self.dropout, bool) or not isinstance(self.dropout, (int, float)) or not 0 <= self.dropout < 1:
             raise ConfigError(f"ModelConfig.dropout must be a number in [0, 1), got {self.dropout!r}")
-        for name in ("bias", "gaussian"):
+        for name in ("bias", "gaussian", "channel_mask"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"ModelConfig.{name} must be true or false, got {getattr(self, name)!r}")
         if isinstance(self.n_params, bool) or not isinstance(self.n_params, int) or self.n_params < 0:
             raise ConfigError(f"ModelConfig.n_params must be a non-negative integer, got {self.n_params!r}")
+        if self.channel_mask and self.n_params:
+            raise ConfigError("ModelConfig.channel_mask (stores of several arms) and a parameter head (n_params, "
+                              "the Panda's physics) do not go together: train the hybrid on Panda stores")
         if isinstance(self.n_init, bool) or not isinstance(self.n_init, int) or self.n_init < 0:
             raise ConfigError(f"ModelConfig.n_init must be a non-negative integer, got {self.n_init!r}")
         if self.n_init % self.patch or self.n_init > self.max_context:

@@ -27,6 +27,7 @@ import torch
 from robomorph.core.errors import DeviceError, RoboMorphError
 from robomorph.core.inputs import check_model_inputs
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
+from robomorph.model.channels import arm_columns, pad, select
 from robomorph.model.checkpoint import CheckpointError, TrainedModel, load_trained
 
 
@@ -112,6 +113,8 @@ class Predictor:
         physics_mode: how such a model predicts: ``regression``, ``learned``, ``fused``,
             ``refined`` (:data:`robomorph.model.hybrid.MODES`) or ``none`` (its decoder).
         physics_samples: parameter draws behind the hybrid's standard deviation.
+        channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside,
+            its outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
     """
 
     def __init__(self, model: TrainedModel, device: str | torch.device | None = None, data_info: dict | None = None):
@@ -129,6 +132,7 @@ class Predictor:
         # so a total-torque hybrid predicts with its decoder unless asked otherwise.
         self.physics_mode: str = ("regression" if self.inputs == "command" else "none") if self.physics else "none"
         self.physics_samples: int = 8
+        self.channels: tuple[list[str], list[str]] | None = None
         self._hybrid = None
         if self.physics:
             self.has_std = True  # the spread over parameter draws
@@ -198,7 +202,7 @@ class Predictor:
             return  # empty arrays: the network's own checks name them
         stats = self.model.normalizer
         z = torch.cat([((u - stats.u_mean) / stats.u_std).abs().amax(dim=(0, 1)) for u in (u_ctx, u_query)])
-        z = z.view(2, -1).amax(0)  # (n_u,) the furthest sample of each channel
+        z = torch.nan_to_num(z.view(2, -1), nan=0.0).amax(0)  # (n_u,) the furthest sample (absent channels: NaN)
         worst = int(torch.argmax(z))
         if float(z[worst]) > self.max_input_std:
             names = (self.data_info or {}).get("u_names") or [f"u{i}" for i in range(self.n_u)]
@@ -214,7 +218,7 @@ class Predictor:
             return
         rows = torch.nonzero(bad).flatten().tolist()
         stats = self.model.normalizer
-        scale = max(float((inputs[0].abs() / stats.u_std).max()), float((inputs[2].abs() / stats.u_std).max()))
+        scale = max(float((inputs[k].abs() / stats.u_std).nan_to_num(nan=0.0).max()) for k in (0, 2))
         raise PredictionError(
             f"the model's predictions are non-finite (NaN or inf) for batch rows {rows[:10]}: the inputs reach "
             f"{scale:.3g} training standard deviations, far outside what the model was trained on; check their "
@@ -261,7 +265,7 @@ class Predictor:
         if return_std and not (self.has_std if hybrid else getattr(self.model, "gaussian", False)):
             raise CheckpointError("this model has no Gaussian head, so it predicts no standard deviation; "
                                   "train one with --model.gaussian true --model.loss nll, or drop return_std")
-        tensors, single = _as_batch((u_ctx, y_ctx, u_query), (self.n_u, self.n_y, self.n_u), self.device)
+        tensors, single, cols = _arm_batch(self, (u_ctx, y_ctx, u_query))
         self._check_range(tensors[0], tensors[2])
         if hybrid and y_query_stats is not None:
             raise NormalizationError("a hybrid model uses no query statistics: drop y_query_stats")
@@ -278,8 +282,18 @@ class Predictor:
             raise
         except ValueError as exc:  # the network's shape and length checks: the caller's arrays
             raise PredictionError(str(exc)) from None
+        mean, std = select(mean, cols), select(std, cols)
         self._check_output(mean, tensors)
         return _outputs(u_query, [t[0] if single else t for t in (mean, std) if t is not None], return_std)
+
+
+def _arm_batch(self: "Predictor", arrays) -> tuple[list[torch.Tensor], bool, tuple | None]:
+    """:func:`_as_batch` of an arm's arrays, padded to the model's channels when it has fewer
+    (a model of several arms), and their columns there (None: the model's own channels)."""
+    cols = arm_columns(self.model.config.channel_mask, self.data_info, arrays, (self.n_u, self.n_y), self.channels)
+    widths = (self.n_u, self.n_y) if cols is None else (len(cols[0]), len(cols[1]))
+    tensors, single = _as_batch(arrays, (*widths, widths[0]), self.device)
+    return (tensors if cols is None else pad(tensors, cols, self.n_u, self.n_y)), single, cols
 
 
 def _query_stats(self: "Predictor", y_query_stats, batch: int):

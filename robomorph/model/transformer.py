@@ -44,8 +44,16 @@ channel (:meth:`MetaModel.forward_dist`); ``forward`` returns the mean. With
 ``gaussian=False`` and ``n_init=0`` the parameters and outputs are those of the original
 model, so its checkpoints load unchanged.
 
-Parameter names (for transfer and freezing): ``encoder.{embed,pos,blocks,ln_f}``,
-``decoder.{embed,pos,init_embed,init_pos,blocks,ln_f}``, ``head``.
+Absent channels (``channel_mask=True``, stores of arms with different joint counts): NaN in
+an input channel marks it absent for that trajectory (the DataModule and the Predictor pad
+an arm's arrays to the model's channel set with NaN). The channel enters as 0 (its training
+mean, in normalized units) and ``absent``, a learned ``Linear(n_u + n_y -> d)`` of the
+0/1 absent-channel vector, is added to every encoder, initial-condition and query token, so
+the network knows a 0 that is missing from a 0 that was measured. The head still emits every
+output channel; the loss and the metrics skip the absent ones.
+
+Parameter names (for transfer and freezing): ``encoder.{embed,pos,absent,blocks,ln_f}``,
+``decoder.{embed,pos,absent,init_embed,init_pos,blocks,ln_f}``, ``head``.
 """
 
 from __future__ import annotations
@@ -70,13 +78,18 @@ class Encoder(nn.Module):
         super().__init__()
         self.embed = nn.Linear(cfg.patch * (cfg.n_u + cfg.n_y), cfg.d_model, bias=cfg.bias)
         self.pos = nn.Embedding(cfg.context_tokens, cfg.d_model)
+        if cfg.channel_mask:
+            self.absent = nn.Linear(cfg.n_u + cfg.n_y, cfg.d_model, bias=False)
         self.drop = nn.Dropout(cfg.dropout)
         self.blocks = nn.ModuleList(EncoderBlock(cfg) for _ in range(cfg.n_layer))
         self.ln_f = nn.LayerNorm(cfg.d_model, bias=cfg.bias)
 
-    def forward(self, tokens: torch.Tensor) -> torch.Tensor:
+    def forward(self, tokens: torch.Tensor, absent: torch.Tensor | None = None) -> torch.Tensor:
         pos = torch.arange(tokens.shape[1], device=tokens.device)
-        x = self.drop(self.embed(tokens) + self.pos(pos))  # (B, Nc, d)
+        x = self.embed(tokens) + self.pos(pos)  # (B, Nc, d)
+        if absent is not None:
+            x = x + self.absent(absent).unsqueeze(1)  # (B, 1, d): the same for every token
+        x = self.drop(x)
         for block in self.blocks:
             x = block(x)
         return self.ln_f(x)
@@ -90,6 +103,8 @@ class Decoder(nn.Module):
         super().__init__()
         self.embed = nn.Linear(cfg.patch * cfg.n_u, cfg.d_model, bias=cfg.bias)
         self.pos = nn.Embedding(cfg.horizon_tokens, cfg.d_model)
+        if cfg.channel_mask:
+            self.absent = nn.Linear(cfg.n_u + cfg.n_y, cfg.d_model, bias=False)
         if cfg.n_init:
             self.init_embed = nn.Linear(cfg.patch * (cfg.n_u + cfg.n_y), cfg.d_model, bias=cfg.bias)
             self.init_pos = nn.Embedding(cfg.init_tokens, cfg.d_model)
@@ -97,7 +112,8 @@ class Decoder(nn.Module):
         self.blocks = nn.ModuleList(DecoderBlock(cfg) for _ in range(cfg.decoder_layers))
         self.ln_f = nn.LayerNorm(cfg.d_model, bias=cfg.bias)
 
-    def forward(self, tokens: torch.Tensor, memory: torch.Tensor, init: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, tokens: torch.Tensor, memory: torch.Tensor, init: torch.Tensor | None = None,
+                absent: torch.Tensor | None = None) -> torch.Tensor:
         pos = torch.arange(tokens.shape[1], device=tokens.device)
         x = self.embed(tokens) + self.pos(pos)  # (B, Nq, d)
         n_init = 0
@@ -106,6 +122,8 @@ class Decoder(nn.Module):
             ipos = torch.arange(n_init, device=init.device)
             # Ahead of the query: the causal mask lets every query token attend to them.
             x = torch.cat([self.init_embed(init) + self.init_pos(ipos), x], dim=1)  # (B, Ni+Nq, d)
+        if absent is not None:
+            x = x + self.absent(absent).unsqueeze(1)  # (B, 1, d)
         x = self.drop(x)
         for block in self.blocks:
             x = block(x, memory)
@@ -158,6 +176,9 @@ class MetaModel(nn.Module):
         cfg = self.cfg
         B, Tc, Th = self._check_inputs(u_ctx, y_ctx, u_query)
         k = cfg.patch
+        absent = None
+        if cfg.channel_mask:
+            u_ctx, y_ctx, u_query, absent = absent_channels(u_ctx, y_ctx, u_query)
         ctx = torch.cat([u_ctx, y_ctx], dim=-1)  # (B, Tc, n_u + n_y)
         ctx = ctx.reshape(B, Tc // k, k * (cfg.n_u + cfg.n_y))  # (B, Nc, k*(n_u+n_y))
         init = ctx[:, Tc // k - cfg.init_tokens:] if cfg.n_init else None  # (B, Ni, k*(n_u+n_y))
@@ -165,8 +186,8 @@ class MetaModel(nn.Module):
         if pad:
             u_query = F.pad(u_query, (0, 0, 0, pad))  # zeros after the last step
         query = u_query.reshape(B, (Th + pad) // k, k * cfg.n_u)  # (B, Nq, k*n_u)
-        memory = self.encoder(ctx)  # (B, Nc, d)
-        h = self.decoder(query, memory, init)  # (B, Nq, d)
+        memory = self.encoder(ctx, absent)  # (B, Nc, d)
+        h = self.decoder(query, memory, init, absent)  # (B, Nq, d)
         m = 2 if cfg.gaussian else 1
         y = self.head(h).reshape(B, Th + pad, m * cfg.n_y)[:, :Th]  # (B, Th, m*n_y)
         if not cfg.gaussian:
@@ -215,6 +236,18 @@ class MetaModel(nn.Module):
             raise ValueError(f"context length Tc = {Tc} is not a multiple of patch = {cfg.patch}; drop the oldest "
                              f"{Tc % cfg.patch} steps (u_ctx[:, {Tc % cfg.patch}:]) or choose a multiple of patch")
         return B, Tc, Th
+
+
+def absent_channels(u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The inputs with NaN (absent channels) as 0, and the absent mask (B, n_u + n_y) of 0/1.
+
+    A channel is absent for a trajectory when its context holds NaN (padding fills a whole
+    channel, so one NaN marks it); the query inputs follow the context's channels.
+    """
+    absent = torch.cat([torch.isnan(u_ctx).any(dim=1), torch.isnan(y_ctx).any(dim=1)], dim=-1)  # (B, n_u+n_y)
+    clean = [torch.nan_to_num(x, nan=0.0) for x in (u_ctx, y_ctx, u_query)]
+    return clean[0], clean[1], clean[2], absent.to(u_ctx.dtype)
 
 
 def _init_weights(module: nn.Module) -> None:

@@ -19,10 +19,12 @@ def data_info(dm) -> dict:
     return {"u_names": list(dm.u_names), "y_names": list(dm.y_names), "dt": float(dm.dt),
             "context_len": int(dm.context_len), "horizon": int(dm.horizon),
             "stores": [str(s) for s in dm.stores], "inputs": str(getattr(dm, "inputs", "total")),
-            "store_fingerprints": {str(s): fingerprint(str(s)) for s in dm.stores}}
+            "store_fingerprints": {str(s): fingerprint(str(s)) for s in dm.stores},
+            # Stores of several arms: each training layout, so a Predictor maps an arm's arrays.
+            **({"channel_mask": True, "layouts": dm.layouts} if getattr(dm, "channel_mask", False) else {})}
 
 
-def check_channels(dm, n_u: int | None, n_y: int | None) -> None:
+def check_channels(dm, n_u: int | None, n_y: int | None, channel_mask: bool = False) -> None:
     """Refuses to train or test a model on a DataModule whose channel counts differ from its own.
 
     Raises:
@@ -35,3 +37,6 @@ def check_channels(dm, n_u: int | None, n_y: int | None) -> None:
         raise CheckpointError(
             f"the data has n_u={dm.n_u}, n_y={dm.n_y} but the model was built for n_u={n_u}, n_y={n_y}"
         )
+    if getattr(dm, "channel_mask", False) and not channel_mask:
+        raise CheckpointError("the data's stores lack some of its channels (arms with fewer joints), but the model "
+                              "was built without channel_mask: build it with channel_mask=True (robomorph fit links it)")

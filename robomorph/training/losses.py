@@ -44,6 +44,23 @@ def elementwise_loss(kind: str, pred: torch.Tensor, logvar: torch.Tensor | None,
     return F.huber_loss(pred, target, delta=huber_delta, reduction="none")
 
 
+def masked_loss(kind: str, pred: torch.Tensor, logvar: torch.Tensor | None, target: torch.Tensor,
+                weights: torch.Tensor, huber_delta: float = 1.0) -> torch.Tensor:
+    """The horizon-weighted loss averaged over the present outputs only: a NaN target marks a
+    channel the trajectory's arm lacks (padding), which neither adds to the loss nor to its
+    count, so absent channels (and what the network predicts for them) change nothing.
+
+    Absent entries are zeroed before the loss, not after: a NaN there would turn the
+    gradient of the whole batch into NaN even when multiplied by 0.
+    """
+    present = ~torch.isnan(target)  # (B, Th, n_y)
+    zero = torch.zeros((), dtype=pred.dtype, device=pred.device)
+    pred, target = torch.where(present, pred, zero), torch.where(present, target, zero)
+    logvar = None if logvar is None else torch.where(present, logvar, zero)
+    elem = elementwise_loss(kind, pred, logvar, target, huber_delta) * weights[:, None] * present
+    return elem.sum() / present.sum().clamp_min(1)
+
+
 def whole_patches(batch: dict, patch: int) -> dict:
     """The batch with the oldest context steps cut to a multiple of ``patch`` (random context
     lengths need not be multiples of it)."""

@@ -35,7 +35,7 @@ from robomorph.training.pretrained import apply_freeze, start_from
 from robomorph.training.steps import Steps
 
 # Constructor arguments that the data decide: robomorph fit links them from the datamodule.
-FROM_DATA = ("n_u", "n_y", "context_len")
+FROM_DATA = ("n_u", "n_y", "context_len", "channel_mask")
 # Checkpoint entry holding the trainer's max_steps, so a resume can say how the schedule changes.
 SCHEDULE_KEY = "robomorph_schedule"
 
@@ -93,6 +93,9 @@ class MetaModule(Steps, L.LightningModule):
         decoder_loss: also train the black-box decoder (false: the parameter head alone, whose
             training steps then skip the decoder; the decoder stays untrained).
         n_params: set from ``physics`` (the Panda's 29 identifiable parameters); not a setting.
+        channel_mask: some training stores lack some of the run's channels (arms with fewer
+            joints): the network reads which are absent and the loss skips them
+            (:class:`robomorph.model.architecture.ModelConfig`); linked from the datamodule.
     """
 
     def __init__(
@@ -134,6 +137,7 @@ class MetaModule(Steps, L.LightningModule):
         param_weight: float = 1.0,
         decoder_loss: bool = True,
         n_params: int | None = None,
+        channel_mask: bool = False,
     ):
         super().__init__()
         check_physics(physics, param_weight, decoder_loss)
@@ -142,8 +146,7 @@ class MetaModule(Steps, L.LightningModule):
         check_context(context_len, patch, max_context)
         check_normalization(normalization, recenter)
         self.save_hyperparameters()
-        # The parameter head's width is the Panda's identifiable parameters, whatever the ranges.
-        self.hparams.n_params = N_PHYSICAL if physics != "none" else 0
+        self.hparams.n_params = _n_params(physics, channel_mask)
         self._physics_on, self._layout = physics == "amortized", None  # set by setup from the data
         self.net: MetaModel | None = None
         self.normalizer: Normalizer | None = None
@@ -179,10 +182,11 @@ class MetaModule(Steps, L.LightningModule):
         dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
         if dm is None:
             return
-        check_channels(dm, self.hparams.n_u, self.hparams.n_y)
+        check_channels(dm, self.hparams.n_u, self.hparams.n_y, self.hparams.get("channel_mask", False))
         if stage == "fit" or self.data_info is None:
             self.data_info = data_info(dm)
-        self._physics_on, self._layout = resolve_physics(self.hparams.physics, dm, stage)
+        self._physics_on, self._layout = resolve_physics(self.hparams.physics if self.hparams.n_params else "none",
+                                                         dm, stage)
         if self._physics_on:
             self.data_info = {**self.data_info, "physics": {**self._layout, "mode": "amortized"}}
         if stage == "fit" and self.hparams.init_ckpt and not self.resuming and not getattr(self, "_transferred", False):
@@ -228,6 +232,12 @@ class MetaModule(Steps, L.LightningModule):
     # ------------------------------------------------------------------ optimizer
     def configure_optimizers(self):
         return optimizers(self)
+
+
+def _n_params(physics: str, channel_mask: bool) -> int:
+    """The parameter head's width: the Panda's identifiable parameters, whatever the ranges; none
+    for ``auto`` over stores of several arms (the head is the Panda's: the black-box model then)."""
+    return N_PHYSICAL if physics == "amortized" or (physics == "auto" and not channel_mask) else 0
 
 
 def _check_training(freeze: str, normalization_from: str, lr: float, min_lr_ratio: float,

@@ -14,7 +14,7 @@ from robomorph.core import metrics
 from robomorph.core.names import LR, TEST_FIT, TEST_LOSS, TEST_R2, TRAIN_LOSS, VAL_FIT, VAL_LOSS, VAL_R2
 from robomorph.model.checkpoint import predict_normalized_dist
 from robomorph.model.normalization import query_stats
-from robomorph.training.losses import elementwise_loss, horizon_weights, whole_patches
+from robomorph.training.losses import elementwise_loss, horizon_weights, masked_loss, whole_patches
 from robomorph.training.physics import TRAIN_PARAM_RMSE, param_loss
 
 
@@ -34,7 +34,10 @@ class Steps:
         if not self._physics_on or h.decoder_loss:
             pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate)
             weights = horizon_weights(target.shape[1], h.horizon_weight, h.horizon_tau, target.device)
-            loss = (elementwise_loss(h.loss, pred, logvar, target, h.huber_delta) * weights[:, None]).mean()
+            if self.net.cfg.channel_mask:  # stores of several arms: absent outputs are NaN, skipped
+                loss = masked_loss(h.loss, pred, logvar, target, weights, h.huber_delta)
+            else:
+                loss = (elementwise_loss(h.loss, pred, logvar, target, h.huber_delta) * weights[:, None]).mean()
         if self._physics_on:
             self._param_error = param_loss(self.net, self._layout, batch, uc, yc)
             loss = loss + h.param_weight * self._param_error[0]
@@ -62,9 +65,11 @@ class Steps:
         yhat = self.normalizer.decode(pred, batch["y_ctx"], self._query_stats(batch)).double()
         n = len(y)
         self.log(keys[0], loss, batch_size=n, sync_dist=True, prog_bar=keys[0] == VAL_LOSS)
-        # approach 1: per trajectory and channel over time, mean over channels, then over trajectories
-        self.log(keys[1], metrics.r2(y, yhat).mean(-1).mean(), batch_size=n, sync_dist=True, prog_bar=True)
-        self.log(keys[2], metrics.fit_index(y, yhat).mean(-1).mean(), batch_size=n, sync_dist=True)
+        # approach 1: per trajectory and channel over time, mean over channels, then over trajectories;
+        # channels a trajectory's arm lacks (NaN) are left out of its mean
+        over_channels = torch.nanmean if self.net.cfg.channel_mask else torch.mean
+        self.log(keys[1], over_channels(metrics.r2(y, yhat), -1).mean(), batch_size=n, sync_dist=True, prog_bar=True)
+        self.log(keys[2], over_channels(metrics.fit_index(y, yhat), -1).mean(), batch_size=n, sync_dist=True)
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
         self._eval_step(batch, (VAL_LOSS, VAL_R2, VAL_FIT))

@@ -101,6 +101,22 @@ def test_reach_moves_then_holds_and_circles_follow_the_generator():
         draw_reference("circle", np.random.default_rng(0), start, np.array([1.0, 0, 0, 0]), 300, 300, 1 / 60)
 
 
+def test_references_out_of_reach_are_told_apart():
+    import mujoco
+
+    from robomorph.control.references import Reference, reachable
+    from robomorph.sim import panda
+    from robomorph.sim.osc import start_pose
+
+    model = panda.build_model()
+    pos, quat = start_pose(model, mujoco.MjData(model), panda.HOME_QPOS)
+    t = np.arange(120)[:, None] / 120
+    near = Reference(pos + 0.05 * t * [0, 1, 0], np.zeros((120, 3)), np.zeros((120, 3)), quat, 10)
+    far = Reference(pos + 1.0 * t * [1, 0, 0], np.zeros((120, 3)), np.zeros((120, 3)), quat, 10)  # a metre away
+    assert reachable(model, near, panda.HOME_QPOS)
+    assert not reachable(model, far, panda.HOME_QPOS)
+
+
 def test_true_physics_mpc_tracks_within_millimetres_and_a_wrong_model_does_worse():
     episode, params = _nominal_episode()
     true = dyn.TruePlanner("true", RandomizationConfig(), 1 / 60, 2, hidden=params)
