@@ -107,6 +107,11 @@ def plot_paths(path: str, results: list, robot: int) -> str:
         ax.plot(*ref.T, color="k", lw=2.0, alpha=0.4, label="reference")
     for r in eps:
         ax.plot(*r.ee[r.warmup:r.frames].T, color=_COLORS.get(r.controller), lw=1.0, label=r.controller)
+    if eps:  # one scale on every axis: a millimetre looks the same along x as along z
+        pts = np.concatenate([eps[0].ref[eps[0].warmup:]] + [r.ee[r.warmup:r.frames] for r in eps])
+        mid, half = (pts.max(0) + pts.min(0)) / 2, float((pts.max(0) - pts.min(0)).max()) / 2 + 1e-3
+        for setter, centre in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), mid):
+            setter(centre - half, centre + half)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_zlabel("z [m]")
