@@ -186,7 +186,7 @@ class MetaModel(nn.Module):
         if pad:
             u_query = F.pad(u_query, (0, 0, 0, pad))  # zeros after the last step
         query = u_query.reshape(B, (Th + pad) // k, k * cfg.n_u)  # (B, Nq, k*n_u)
-        memory = self.encoder(ctx, absent)  # (B, Nc, d)
+        memory = self._encode(ctx, absent)  # (B, Nc, d)
         h = self.decoder(query, memory, init, absent)  # (B, Nq, d)
         m = 2 if cfg.gaussian else 1
         y = self.head(h).reshape(B, Th + pad, m * cfg.n_y)[:, :Th]  # (B, Th, m*n_y)
@@ -195,6 +195,15 @@ class MetaModel(nn.Module):
         mean, logvar = y.split(cfg.n_y, dim=-1)
         # Bounded so that exp() can neither overflow nor divide by zero in the NLL.
         return mean, logvar.clamp(LOGVAR_MIN, LOGVAR_MAX)
+
+    def _encode(self, ctx: torch.Tensor, absent: torch.Tensor | None) -> torch.Tensor:
+        """The encoder's memory; candidates on one context (model-predictive control: every row
+        the same context) are encoded once in inference, which gives the same memory."""
+        B = ctx.shape[0]
+        if B > 1 and not self.training and torch.equal(ctx, ctx[:1].expand_as(ctx)) and (
+                absent is None or torch.equal(absent, absent[:1].expand_as(absent))):
+            return self.encoder(ctx[:1], None if absent is None else absent[:1]).expand(B, -1, -1)
+        return self.encoder(ctx, absent)
 
     def forward_params(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean and log-variance (B, n_params) of the physical parameters in unit coordinates,
