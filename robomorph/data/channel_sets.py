@@ -75,6 +75,23 @@ class ColumnAccumulator:
             self.acc.update(u, y, self.layout[0], self.layout[1])
 
 
+def last_joint(u_names: list[str], y_names: list[str]) -> tuple[list[int], list[int]]:
+    """The columns ``([u column], [y column])`` of the highest joint the channel set names
+    (``tau{k}`` or ``cmd{k}``, and ``q{k}``): what ``joint_dropout`` hides.
+
+    Raises:
+        DataError: the set has no joint named by role in both u and y (imported logs with
+            other names: rename the channels at ingest, or train without joint_dropout).
+    """
+    joints = {int(n[3:]): i for i, n in enumerate(u_names)
+              if n[:3] in ("tau", "cmd") and n[3:].isdigit() and f"q{n[3:]}" in y_names}
+    if not joints:
+        raise DataError(f"joint_dropout needs joints named by role (tau<k> or cmd<k> in u, q<k> in y); these "
+                        f"stores have u {list(u_names)}, y {list(y_names)}: train without joint_dropout")
+    k = max(joints)
+    return [joints[k]], [list(y_names).index(f"q{k}")]
+
+
 def pads_any(sources: list[Source]) -> bool:
     """True when a store leaves some of the run's channels absent (a reordering pads nothing)."""
     return any(s.layout is not None and (len(s.layout[0]) < s.layout[2] or len(s.layout[1]) < s.layout[3])

@@ -27,7 +27,7 @@ from robomorph.core.inputs import check_inputs
 from robomorph.core.names import INPUTS, NORMALIZATIONS
 from robomorph.core.normalizations import check_normalization
 
-from robomorph.data.channel_sets import ColumnAccumulator, channel_set, layouts, pads_any
+from robomorph.data.channel_sets import ColumnAccumulator, channel_set, last_joint, layouts, pads_any
 
 # DataError re-exported: callers catch it from here.
 from robomorph.data.sources import DataError, Source, check_lengths, compatible, scan  # noqa: F401
@@ -78,7 +78,12 @@ class RoboMorphDataModule(L.LightningDataModule):
         train_samples_per_epoch: windows per training epoch; default the number of training
             trajectories.
         channels: ``{"u": [...], "y": [...]}``, the run's channel set; default the widest training
-            store's. Give a multi-arm model's set to fine-tune it on one arm with fewer joints.
+            store's. Give a multi-arm model's set to fine-tune it on one arm (the channel mask is
+            then on, as in the model's architecture).
+        joint_dropout: probability that a training window hides the last joint of the channel
+            set (its ``tau`` and ``q`` channels, as NaN): the model then learns to read an arm
+            with one joint fewer (a 6-joint arm with a model of 7-joint arms: zero-shot to a
+            UR5e). Validation and test windows hide nothing. Turns the channel mask on.
     """
 
     def __init__(self, stores: list[str] | str = "data/demo/multisine.zarr", weights: list[float] | None = None,
@@ -89,7 +94,8 @@ class RoboMorphDataModule(L.LightningDataModule):
                  num_workers: int = 0, in_memory: bool | None = None, recenter: bool = False,
                  val_subset: int = 256, train_samples_per_epoch: int | None = None,
                  normalization: Literal[NORMALIZATIONS] = "train_stats",
-                 inputs: Literal[INPUTS] = "total", channels: dict[str, list[str]] | None = None):
+                 inputs: Literal[INPUTS] = "total", channels: dict[str, list[str]] | None = None,
+                 joint_dropout: float = 0.0):
         super().__init__()
         self.save_hyperparameters(ignore=["context_len"])  # the module logs the resolved length (one key, one value)
         self.stores = [stores] if isinstance(stores, str) else list(stores)
@@ -101,6 +107,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.in_memory, self.recenter, self.val_subset = in_memory, recenter, val_subset
         self.train_samples_per_epoch, self.context_min, self.horizon_min = train_samples_per_epoch, context_min, horizon_min
         self.inputs, self.normalization, self.channels = inputs, normalization, channels
+        self.joint_dropout = joint_dropout
         _check_arguments(self)
         self._ready = False
         self._sources: list[Source] | None = None
@@ -152,13 +159,22 @@ class RoboMorphDataModule(L.LightningDataModule):
 
     @property
     def channel_mask(self) -> bool:
-        """True when a store lacks some of the run's channels (an arm with fewer joints): robomorph fit links it."""
-        return pads_any(self._open())
+        """True when a store lacks some of the run's channels (an arm with fewer joints),
+        ``joint_dropout`` hides some, or ``channels`` names the set (a multi-arm model's, to
+        fine-tune it: its architecture reads the mask): robomorph fit links it."""
+        return pads_any(self._open()) or self.joint_dropout > 0 or self.channels is not None
 
     @property
     def layouts(self) -> list[dict[str, list[str]]]:
-        """The training stores' distinct channel layouts (the checkpoint records them for the Predictor)."""
-        return layouts(self._open()[:len(self.stores)])
+        """The training stores' distinct channel layouts (the checkpoint records them for the
+        Predictor), and under ``joint_dropout`` the set without its last joint."""
+        out = layouts(self._open()[:len(self.stores)])
+        if self.joint_dropout > 0:
+            (u_col,), (y_col,) = last_joint(self.u_names, self.y_names)
+            fewer = {"u_names": [n for i, n in enumerate(self.u_names) if i != u_col],
+                     "y_names": [n for i, n in enumerate(self.y_names) if i != y_col]}
+            out += [fewer] if fewer not in out else []
+        return out
 
     @property
     def dt(self) -> float:
@@ -193,6 +209,8 @@ class RoboMorphDataModule(L.LightningDataModule):
         test = pairs([s["test"] for s in self.splits])
         ctx, h = self.context_len, self.horizon
         self.train_set, self.val_set, self.test_set = (WindowDataset(sources, p, ctx, h) for p in (train, val, test))
+        if self.joint_dropout > 0:
+            self.train_set.hidden_cols = last_joint(self.u_names, self.y_names)
         self.train_sampler = _train_sampler(self, sources, len(train))
 
     def _loader(self, split: str) -> DataLoader:
@@ -271,6 +289,9 @@ def _check_arguments(dm: RoboMorphDataModule) -> None:
             dm._context_len_arg is not None and dm.context_min > dm._context_len_arg)):
         raise DataError(f"context_min must be in [1, context_len={dm._context_len_arg}], got {dm.context_min}")
     check_normalization(dm.normalization, dm.recenter)
+    jd = dm.joint_dropout
+    if isinstance(jd, bool) or not isinstance(jd, (int, float)) or not 0 <= jd < 1:
+        raise DataError(f"joint_dropout must be a probability in [0, 1), got {jd!r}")
     if dm.train_samples_per_epoch is not None and dm.train_samples_per_epoch < 1:
         raise DataError(f"train_samples_per_epoch must be >= 1, got {dm.train_samples_per_epoch}")
 
@@ -284,7 +305,7 @@ def _train_sampler(dm: RoboMorphDataModule, sources: list[Source], n_train: int)
         steps=np.array([src.steps for src in sources[:len(dm.stores)]]),
         n_samples=dm.train_samples_per_epoch or n_train, seed=dm.seed,
         random_window=dm.window == "random", batch_size=dm.batch_size,
-        lengths=(dm.context_min or ctx, ctx, dm.horizon_min or h, h))
+        lengths=(dm.context_min or ctx, ctx, dm.horizon_min or h, h), hide_prob=dm.joint_dropout)
 
 
 def _check_context_min(dm: RoboMorphDataModule) -> None:

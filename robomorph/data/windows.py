@@ -29,8 +29,11 @@ def pairs(per_store: list[np.ndarray]) -> np.ndarray:
 
 
 class WindowDataset(Dataset):
-    """Windows of fixed trajectories; a key is a row of ``pairs``, ``(row, offset)`` or
-    ``(row, offset, context_len, horizon)`` (horizon-aware training draws the lengths)."""
+    """Windows of fixed trajectories; a key is a row of ``pairs``, ``(row, offset)``,
+    ``(row, offset, context_len, horizon)`` (horizon-aware training draws the lengths) or
+    ``(row, offset, context_len, horizon, hide)``: ``hide`` true blanks the columns
+    ``hidden_cols`` (``(u columns, y columns)``, set by the DataModule under joint dropout)
+    with NaN, the mark of an absent channel."""
 
     def __init__(self, sources: list[Source], pairs: np.ndarray, context_len: int, horizon: int):
         self.sources, self.pairs = sources, pairs
@@ -38,6 +41,7 @@ class WindowDataset(Dataset):
         # The robots' parameters ride along when the parameter head asks for them
         # (:meth:`add_params`); the sequence model never reads them.
         self.with_params = False
+        self.hidden_cols: tuple[list[int], list[int]] | None = None
 
     def __len__(self) -> int:
         return len(self.pairs)
@@ -49,10 +53,13 @@ class WindowDataset(Dataset):
         return self.with_params
 
     def __getitem__(self, key: int | tuple[int, ...]) -> dict[str, torch.Tensor]:
-        row, offset, c, h = (key + (self.context_len, self.horizon))[:4] if isinstance(key, tuple) else \
-            (key, 0, self.context_len, self.horizon)
+        key = tuple(key) if isinstance(key, tuple) else (key,)
+        row, offset, c, h, hide = key + (None, 0, self.context_len, self.horizon, False)[len(key):]
         s, i = self.pairs[row]
         u, y = self.sources[s].window(int(i), offset, offset + c + h)
+        if hide and self.hidden_cols is not None:
+            u, y = np.array(u, dtype=np.float32), np.array(y, dtype=np.float32)
+            u[:, self.hidden_cols[0]], y[:, self.hidden_cols[1]] = np.nan, np.nan
         # Copies: a batch must not keep a view of a whole in-memory store alive.
         out = {k: torch.from_numpy(np.array(v, dtype=np.float32))
                for k, v in (("u_ctx", u[:c]), ("y_ctx", y[:c]), ("u_query", u[c:]), ("y_query", y[c:]))}
@@ -67,6 +74,9 @@ class MixtureSampler(Sampler):
     ``batch_size`` consecutive keys, i.e. per batch, so a batch stacks), offset uniformly
     over the valid range for those lengths (``random`` windows) or 0.
 
+    With ``hide_prob`` > 0 each key gets a fifth entry, drawn last: whether the window hides
+    the DataModule's ``joint_dropout`` columns (probability ``hide_prob``).
+
     Each pass uses a torch Generator seeded from ``(seed, epoch)``. Lightning calls
     :meth:`set_epoch` before each epoch; without it the epoch advances by one per pass.
     Fixed lengths draw nothing for them, so the stream equals that of fixed-length windows.
@@ -74,11 +84,11 @@ class MixtureSampler(Sampler):
 
     def __init__(self, base: np.ndarray, counts: np.ndarray, probs: np.ndarray, steps: np.ndarray,
                  n_samples: int, seed: int, random_window: bool,
-                 lengths: tuple[int, int, int, int], batch_size: int):
+                 lengths: tuple[int, int, int, int], batch_size: int, hide_prob: float = 0.0):
         self.base, self.counts = torch.as_tensor(base), torch.as_tensor(counts)
         self.probs, self.steps = torch.as_tensor(probs, dtype=torch.float64), torch.as_tensor(steps)
         self.n_samples, self.seed, self.random_window = n_samples, seed, random_window
-        self.lengths, self.batch_size = lengths, batch_size
+        self.lengths, self.batch_size, self.hide_prob = lengths, batch_size, float(hide_prob)
         self.epoch = 0
 
     def set_epoch(self, epoch: int) -> None:
@@ -100,7 +110,10 @@ class MixtureSampler(Sampler):
         if self.random_window:
             span = self.steps[store] - c - h + 1
             offset = torch.minimum((torch.rand(self.n_samples, generator=g, dtype=torch.float64) * span).long(), span - 1)
-        return iter(zip(row.tolist(), offset.tolist(), c.tolist(), h.tolist()))
+        keys = (row.tolist(), offset.tolist(), c.tolist(), h.tolist())
+        if self.hide_prob > 0:  # drawn after the rest, so the windows themselves do not change
+            keys += ((torch.rand(self.n_samples, generator=g, dtype=torch.float64) < self.hide_prob).tolist(),)
+        return iter(zip(*keys))
 
     def _draw_lengths(self, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """Context lengths and horizons (n_samples,), constant within each batch."""

@@ -73,6 +73,9 @@ def load_pretrained(module: torch.nn.Module, path: str) -> bool:
                               "use the same d_model, n_head, layers and patch")
     missing, unexpected = module.load_state_dict(state, strict=False)
     allowed_missing = [k for k in missing if (not from_source and _is_stats(k)) or (not same_io and _is_io(k))]
+    if unexpected and all(".absent." in k for k in unexpected) and not set(missing) - set(allowed_missing) - {"stats_ready"}:
+        raise CheckpointError(f"{path} is a model of several arms (it reads absent channels): give its channel "
+                              "set (the u_names and y_names it was trained on) with --data.channels to fine-tune it")
     if set(missing) - set(allowed_missing) - {"stats_ready"} or unexpected:
         raise CheckpointError(
             f"{path} does not match this architecture (missing {sorted(set(missing) - set(allowed_missing))[:5]}, "

@@ -175,3 +175,52 @@ def test_the_many_arm_model_fine_tunes_on_one_arm_with_its_channel_set(stores, t
     assert (pred.n_u, pred.n_y, pred.model.config.channel_mask) == (7, 14, True)
     u, y = open_store(stores["ur5e"]).read("u")[:2], open_store(stores["ur5e"]).read("y")[:2]
     assert pred.simulate(u[:, :CTX], y[:, :CTX], u[:, CTX:]).shape == (2, H, 13)
+
+
+def test_joint_dropout_hides_the_last_joint_of_some_training_windows_only(stores):
+    plain = RoboMorphDataModule(stores=stores["panda"], context_len=CTX, horizon=H, batch_size=4)
+    plain.setup("fit")
+    dm = RoboMorphDataModule(stores=stores["panda"], context_len=CTX, horizon=H, batch_size=4, joint_dropout=0.5)
+    dm.setup("fit")
+    assert dm.channel_mask and not plain.channel_mask
+    assert {"u_names": PANDA_U[:6], "y_names": PANDA_Y[:13]} in dm.layouts and len(dm.layouts) == 2
+    keys, plain_keys = list(dm.train_sampler), list(plain.train_sampler)
+    assert [k[:4] for k in keys] == plain_keys  # the same windows: the flag is drawn after the rest
+    assert {k[4] for k in keys} == {True, False}
+    again = RoboMorphDataModule(stores=stores["panda"], context_len=CTX, horizon=H, batch_size=4, joint_dropout=0.5)
+    again.setup("fit")
+    assert list(again.train_sampler) == keys  # seeded
+    for key, plain_key in zip(keys, plain_keys):
+        w, p = dm.train_set[key], plain.train_set[plain_key]
+        hidden = torch.isnan(w["u_ctx"][:, 6]).all() and torch.isnan(w["y_query"][:, 13]).all()
+        assert bool(hidden) == key[4]
+        assert torch.equal(w["u_query"][:, :6], p["u_query"][:, :6]) and torch.equal(w["y_ctx"][:, :13], p["y_ctx"][:, :13])
+    assert not any(torch.isnan(dm.val_set[i]["y_query"]).any() for i in range(len(dm.val_set)))
+    with pytest.raises(DataError, match="joint_dropout must be a probability"):
+        RoboMorphDataModule(stores=stores["panda"], joint_dropout=1.0)
+
+
+def test_a_model_of_seven_joint_arms_with_joint_dropout_reads_a_six_joint_arm(stores, tmp_path):
+    from robomorph.training.fitting import fit
+
+    args = tiny_fit_args(stores["panda"], tmp_path, "jd", steps=3,
+                         data={"context_len": CTX, "horizon": H, "joint_dropout": 0.3})
+    pred = Predictor.from_checkpoint(fit(args).best_ckpt, device="cpu")
+    assert pred.model.config.channel_mask
+    u, y = open_store(stores["ur5e"]).read("u")[:3], open_store(stores["ur5e"]).read("y")[:3]
+    out = pred.simulate(u[:, :CTX], y[:, :CTX], u[:, CTX:])
+    assert out.shape == (3, H, 13) and np.isfinite(out).all()
+
+
+def test_fine_tuning_the_many_arm_model_on_a_seven_joint_arm_needs_its_channel_set(stores, trained, tmp_path):
+    from robomorph.model.files import CheckpointError
+    from robomorph.training.fitting import fit
+
+    base = {"context_len": CTX, "horizon": H}
+    with pytest.raises(CheckpointError, match="model of several arms.*--data.channels"):
+        fit(tiny_fit_args(stores["panda"], tmp_path, "ft-bare", steps=2, data=base,
+                          model={"init_ckpt": trained.best_ckpt}))
+    args = tiny_fit_args(stores["panda"], tmp_path, "ft-set", steps=2, model={"init_ckpt": trained.best_ckpt},
+                         data={**base, "channels": {"u": PANDA_U, "y": PANDA_Y}})
+    pred = Predictor.from_checkpoint(fit(args).best_ckpt, device="cpu")
+    assert pred.model.config.channel_mask and (pred.n_u, pred.n_y) == (7, 14)
