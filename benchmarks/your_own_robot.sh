@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# The README's "Your own robot" walk-through end to end on the real-log fixture; prints the
-# ingest report, each fit's final line and the evaluation table of the fine-tuned model
-# beside hold, ARX (per context and fitted on the training store) and the scratch model.
+# The docs' "Your own robot" walk-through end to end on the real-log fixture; prints the
+# ingest report, each fit's final line and the evaluation table of the model of several
+# arms fine-tuned on the logs, beside hold, ARX (per context and fitted on the training
+# store) and the scratch model.
 #
 #   bash benchmarks/your_own_robot.sh [OUT (default data/own_robot)] [MAX_STEPS (default 1500)]
 #
@@ -17,7 +18,8 @@ mkdir -p "$OUT"
 $PY benchmarks/real_log_fixture.py --out "$OUT/logs"
 
 # 2. Ingest with units: recordings 0-2 train (overlapping windows), 3 validates, 4 tests.
-COLS=(--u-cols tau1,tau2,tau3,tau4,tau5,tau6 --y-cols q1,q2,q3,q4,q5,q6 --time-col t
+#    --layout joints names the channels by role (tau0.., q0..), as every simulated arm's.
+COLS=(--u-cols tau1,tau2,tau3,tau4,tau5,tau6 --y-cols q1,q2,q3,q4,q5,q6 --time-col t --layout joints
       --u-units "N m,N m,N m,N m,N m,N m" --y-units rad,rad,rad,rad,rad,rad --steps 100)
 $PY -m robomorph.ingest "$OUT"/logs/rec{0,1,2}.csv "${COLS[@]}" --stride 10 --out "$OUT/train.zarr"
 $PY -m robomorph.ingest "$OUT/logs/rec3.csv" "${COLS[@]}" --stride 50 --out "$OUT/val.zarr"
@@ -34,12 +36,20 @@ HELD_OUT=(--data.val_store "$OUT/val.zarr" --data.test_store "$OUT/test.zarr")
 $PY -m robomorph.fit --data.stores "$OUT/train.zarr" "${HELD_OUT[@]}" "${NET[@]}" \
     --trainer.max_steps "$STEPS" --run scratch
 
-# 5. A simulated-Panda model (7 torques -> 14 outputs), then fine-tuned on the arm's 6 -> 6.
-$PY -m robomorph.generate --task multisine --robots 256 --steps 100 --seed 1 --quiet --out "$OUT/panda.zarr"
-$PY -m robomorph.fit --data.stores "$OUT/panda.zarr" "${NET[@]}" --trainer.max_steps "$STEPS" --run panda
+# 5. A model of several simulated arms (7- and 6-joint: 7 torques -> EE pose and 7 joint angles,
+#    joint dropout), then fine-tuned on the logs in its own channel set: the arm's 6 joints map
+#    onto its tau0..5 and q0..5 by name, the rest is absent, nothing is re-initialized.
+ARMS=()
+for ROBOT in panda ur5e iiwa; do
+    $PY -m robomorph.generate --robot $ROBOT --task multisine --robots 128 --steps 100 --seed 1 --quiet \
+        --out "$OUT/$ROBOT.zarr"
+    ARMS+=("$OUT/$ROBOT.zarr")
+done
+STORES=$(IFS=,; echo "[${ARMS[*]}]")
+$PY -m robomorph.fit --data.stores "$STORES" --data.joint_dropout 0.2 "${NET[@]}" --trainer.max_steps "$STEPS" \
+    --run arms
 $PY -m robomorph.fit --data.stores "$OUT/train.zarr" "${HELD_OUT[@]}" "${NET[@]}" \
-    --trainer.max_steps "$STEPS" --model.init_ckpt "$OUT/runs/panda/checkpoints/best.ckpt" \
-    --model.reinit_io true --run tuned
+    --trainer.max_steps "$STEPS" --model.init_ckpt "$OUT/runs/arms/checkpoints/best.ckpt" --run tuned
 
 # 6. The test recording: the fine-tuned model beside hold, both ARX models and the scratch model.
 $PY -m robomorph.evaluate --ckpt "$OUT/runs/tuned/checkpoints/best.ckpt" --data "$OUT/test.zarr" \

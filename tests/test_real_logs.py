@@ -2,9 +2,9 @@
 
 Logs like a real arm's (benchmarks/real_log_fixture.py: 6 torques in, 6 joint angles out,
 10 Hz, measurement noise, recordings of unequal length) -> ingest with units -> train from
-scratch with a validation store -> fine-tune a simulated-Panda checkpoint on the new
-channels -> evaluate against hold, ARX (per context and fitted on the training data) and
-the scratch model.
+scratch with a validation store -> fine-tune a model of several simulated arms (its channel
+set, the logs' joints mapped by role) -> evaluate against hold, ARX (per context and fitted
+on the training data) and the scratch model.
 """
 
 import importlib.util
@@ -19,6 +19,7 @@ from robomorph.data.store import open_store
 from robomorph.evaluate import main as evaluate_main
 from robomorph.fit import main as fit_main
 from robomorph.ingest import main as ingest_main
+from robomorph.model.predictor import Predictor
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit
 
@@ -64,7 +65,8 @@ def _fit_args(store, runs, run, steps, **extra):
 def test_your_own_robot_workflow(tmp_path, capsys):
     logs = _fixture_module().write_logs(str(tmp_path / "logs"), lengths=(420, 310, 260, 200, 180), seed=0)
     units = ["--u-units", ",".join(["N m"] * 6), "--y-units", ",".join(["rad"] * 6)]
-    cols = ["--u-cols", "tau1,tau2,tau3,tau4,tau5,tau6", "--y-cols", "q1,q2,q3,q4,q5,q6", "--time-col", "t"]
+    cols = ["--u-cols", "tau1,tau2,tau3,tau4,tau5,tau6", "--y-cols", "q1,q2,q3,q4,q5,q6", "--time-col", "t",
+            "--layout", "joints"]
     stores = {}
     for name, files, stride in (("train", logs[:3], 20), ("val", logs[3:4], 60), ("test", logs[4:], 60)):
         stores[name] = str(tmp_path / f"{name}.zarr")
@@ -82,16 +84,22 @@ def test_your_own_robot_workflow(tmp_path, capsys):
     final = capsys.readouterr().out.strip().splitlines()[-1]
     assert "step 20, validation at step 20: val/fit=" in final
 
-    panda = str(tmp_path / "panda.zarr")
-    generate(load_recipe(None, {"task": "multisine", "robots": 12, "steps": 60, "seed": 1}), panda,
-             workers=1, progress=False)
-    sim = fit({"data": {"stores": panda, "context_len": 20, "horizon": 40, "batch_size": 8},
+    # A model of two simulated arms (7 and 6 joints), fine-tuned in its own channel set: the
+    # logs' joints (named by role at ingest) map onto its q0..q5, nothing is re-initialized.
+    arms = []
+    for robot in ("panda", "ur5e"):
+        arms.append(str(tmp_path / f"{robot}.zarr"))
+        generate(load_recipe(None, {"task": "multisine", "robot": robot, "robots": 8, "steps": 60, "seed": 1}),
+                 arms[-1], workers=1, progress=False)
+    sim = fit({"data": {"stores": arms, "context_len": 20, "horizon": 40, "batch_size": 8, "joint_dropout": 0.2},
                "model": {"d_model": 16, "n_head": 2, "n_layer": 1, "max_context": 64, "max_horizon": 64},
                "trainer": {"max_steps": 4, "accelerator": "cpu", "enable_progress_bar": False,
                            "enable_model_summary": False},
-               "run": "panda", "runs_dir": str(runs), "wandb": "disabled"})
+               "run": "arms", "runs_dir": str(runs), "wandb": "disabled"})
     assert fit_main(_fit_args(stores["train"], runs, "tuned", 20, **held_out, **{
-        "model.init_ckpt": sim.best_ckpt, "model.reinit_io": "true"})) == 0
+        "model.init_ckpt": sim.best_ckpt})) == 0
+    tuned_model = Predictor.from_checkpoint(str(runs / "tuned" / "checkpoints" / "best.ckpt"), device="cpu")
+    assert tuned_model.model.config.channel_mask and tuned_model.data_info["y_names"][-1] == "q6"
     capsys.readouterr()
 
     scratch = str(runs / "scratch" / "checkpoints" / "best.ckpt")
@@ -106,7 +114,8 @@ def test_your_own_robot_workflow(tmp_path, capsys):
     assert set(res["baselines"]) == {"hold", "arx", "arx_train", "scratch"}
     # arx_train saw exactly the training store (val and test came from their own stores)
     assert res["meta"]["baseline_notes"]["arx_train"]["trajectories"] == train.n
-    assert res["meta"]["n"] == 3 and res["meta"]["u_names"] == [f"tau{i}" for i in range(1, 7)]
+    assert res["meta"]["n"] == 3 and res["meta"]["u_names"] == [f"tau{i}" for i in range(6)]
+    assert list(res["approach2"]["channels"]) == [f"q{i}" for i in range(6)]  # the arm's own outputs
 
 
 # ---------------------------------------------------------------- resampling, the Panda layout, splits
@@ -180,6 +189,25 @@ def test_panda_layout_needs_seven_joints(tmp_path, capsys):
                         "--out", str(tmp_path / "o.zarr")])
     err = capsys.readouterr().err
     assert code == 2 and "--layout panda needs 7 --u-cols" in err and "Traceback" not in err
+
+
+def test_joints_layout_names_any_arms_channels_by_role(tmp_path, capsys):
+    t = np.arange(80) * 0.1
+    cols = {**{f"effort{j}": np.sin(t + j) for j in range(6)}, **{f"angle{j}": np.cos(t + j) for j in range(6)}}
+    log = _write_csv(tmp_path / "arm.csv", cols)
+    common = [log, "--dt", "0.1", "--steps", "40", "--layout", "joints"]
+    out = str(tmp_path / "arm.zarr")
+    assert ingest_main([*common, "--u-cols", ",".join(f"effort{j}" for j in range(6)),
+                        "--y-cols", ",".join(f"angle{j}" for j in range(6)), "--out", out]) == 0
+    ds = open_store(out)
+    assert ds.u_names == [f"tau{j}" for j in range(6)] and ds.y_names == [f"q{j}" for j in range(6)]
+    np.testing.assert_allclose(ds.read("y")[0, :, 2], np.cos(t[:40] + 2), atol=1e-6)  # the angles, in order
+    capsys.readouterr()
+    code = ingest_main([*common, "--u-cols", "effort0,effort1", "--y-cols", "angle0,angle1,angle2",
+                        "--out", str(tmp_path / "bad.zarr")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--layout joints needs one --u-cols column per joint angle" in err
+    assert len(err.strip().splitlines()) == 1 and not os.path.exists(tmp_path / "bad.zarr")
 
 
 def _recording_store(store_factory, path, recordings: int, windows: int = 6, seed: int = 0) -> str:

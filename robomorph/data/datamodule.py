@@ -234,21 +234,7 @@ class RoboMorphDataModule(L.LightningDataModule):
     def describe(self) -> dict:
         """A JSON-able summary for logging: stores, split sizes, window lengths."""
         self.setup()
-        per_store = {src.path: {"n": src.n, "steps": src.steps, **{k: len(v) for k, v in sp.items()}}
-                     for src, sp in zip(self.sources, self.splits)}
-        return {
-            "stores": list(self.stores), "val_store": self.val_store, "test_store": self.test_store,
-            "per_store": per_store,
-            "split_by": ["recording" if src.groups is not None else "trajectory" for src in self.sources],
-            "weights": [float(p) for p in self.probs],
-            "train": len(self.train_set), "val": self.n_val_total, "val_used": len(self.val_set),
-            "test": len(self.test_set), "train_samples_per_epoch": len(self.train_sampler),
-            "context_len": self.context_len, "horizon": self.horizon, "window": self.window,
-            "context_min": self.context_min, "horizon_min": self.horizon_min,
-            "n_u": self.n_u, "n_y": self.n_y, "dt": self.dt, "in_memory": bool(self.loaded),
-            "seed": self.seed, "split": list(self.split), "normalization": self.normalization,
-            "inputs": self.inputs, "channel_mask": self.channel_mask,
-        }
+        return _summary(self)
 
 
 def _check_arguments(dm: RoboMorphDataModule) -> None:
@@ -341,3 +327,22 @@ def _compute_stats(self: RoboMorphDataModule, sources: list[Source]) -> None:
         stop = src.steps if self.window == "random" else self.context_len + self.horizon
         scan(src, self.splits[k]["train"], stop, ColumnAccumulator(acc, src.layout) if k < len(self.stores) else None)
     self.stats: Stats = acc.finalize()
+
+
+def _summary(dm: RoboMorphDataModule) -> dict:
+    """The set-up data module's summary (:meth:`RoboMorphDataModule.describe`)."""
+    per_store = {src.path: {"n": src.n, "steps": src.steps, **{k: len(v) for k, v in sp.items()}}
+                 for src, sp in zip(dm.sources, dm.splits)}
+    return {
+        "stores": list(dm.stores), "val_store": dm.val_store, "test_store": dm.test_store,
+        "per_store": per_store,
+        "split_by": ["recording" if src.groups is not None else "trajectory" for src in dm.sources],
+        "weights": [float(p) for p in dm.probs],
+        "train": len(dm.train_set), "val": dm.n_val_total, "val_used": len(dm.val_set),
+        "test": len(dm.test_set), "train_samples_per_epoch": len(dm.train_sampler),
+        "context_len": dm.context_len, "horizon": dm.horizon, "window": dm.window,
+        "context_min": dm.context_min, "horizon_min": dm.horizon_min,
+        "n_u": dm.n_u, "n_y": dm.n_y, "dt": dm.dt, "in_memory": bool(dm.loaded),
+        "seed": dm.seed, "split": list(dm.split), "normalization": dm.normalization,
+        "inputs": dm.inputs, "channel_mask": dm.channel_mask,
+    }

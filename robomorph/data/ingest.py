@@ -223,7 +223,8 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
             before cutting windows (``steps`` and ``stride`` count samples at this rate); the
             store's dt is ``1 / resample_hz`` and ``attrs['original_dt']`` the logs'.
         layout: ``"panda"``: the columns are the Panda's 7 torques and 7 joint angles; the
-            store gets the simulator's channel names and EE pose (see :mod:`robomorph.data.real_logs`).
+            store gets the simulator's channel names and EE pose (see :mod:`robomorph.data.real_logs`);
+            ``"joints"``: any arm's joint torques and angles, in joint order, named by role.
 
     Returns:
         The finished dataset, opened for reading.

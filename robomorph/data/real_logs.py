@@ -11,6 +11,10 @@
   with the simulator's channel names and ``y`` (EE x y z, EE quaternion X Y Z W, q0..q6),
   the pose computed from the joint angles with the catalogue model's kinematics
   (:func:`robomorph.sim.kinematics.ee_pose`), so a model trained in simulation reads it.
+* ``--layout joints``: a log of any arm's joint torques and joint angles, in joint order, is
+  stored with the channels named by role (``tau0..``, ``cmd0..``, ``q0..``), as the
+  simulator names every arm's, so a model of several arms maps them onto its own channels
+  (its end-effector pose channels stay absent: an unknown arm's kinematics is not assumed).
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import numpy as np
 
 from robomorph.core.errors import RoboMorphError
 
-LAYOUTS = ("panda",)
+LAYOUTS = ("panda", "joints")
 # Largest relative difference between the asked rate ratio and the integer ratio used.
 _RATIO_TOL = 1e-3
 
@@ -64,11 +68,18 @@ def resample(x: np.ndarray, dt: float, hz: float) -> np.ndarray:
 
 
 def check_layout(layout: str | None, u_cols: list[str], y_cols: list[str], u_cmd_cols: list[str] | None) -> None:
-    """Refuses a layout the columns do not fit (the Panda: 7 torques, 7 joint angles)."""
+    """Refuses a layout the columns do not fit (the Panda: 7 torques, 7 joint angles; joints:
+    one torque per joint angle)."""
     if layout is None:
         return
     if layout not in LAYOUTS:
         raise RealLogError(f"unknown --layout {layout!r}; choose one of {', '.join(LAYOUTS)}")
+    if layout == "joints":
+        for flag, cols in (("--u-cols", u_cols), ("--u-cmd-cols", u_cmd_cols)):
+            if cols is not None and len(cols) != len(y_cols):
+                raise RealLogError(f"--layout joints needs one {flag} column per joint angle in --y-cols (joint "
+                                   f"order), got {len(cols)} and {len(y_cols)}")
+        return
     from robomorph.sim import panda  # noqa: PLC0415
 
     for flag, cols in (("--u-cols", u_cols), ("--y-cols", y_cols), ("--u-cmd-cols", u_cmd_cols)):
@@ -79,7 +90,7 @@ def check_layout(layout: str | None, u_cols: list[str], y_cols: list[str], u_cmd
 
 def apply_layout(layout: str | None, y: np.ndarray) -> np.ndarray:
     """``y`` in the layout's channels: for the Panda, (L, 7) joint angles -> (L, 14) pose + angles."""
-    if layout is None:
+    if layout in (None, "joints"):
         return y
     from robomorph.sim.kinematics import ee_pose  # noqa: PLC0415  (MuJoCo only for this layout)
 
@@ -91,6 +102,10 @@ def layout_names(layout: str | None, u_cols: list[str], y_cols: list[str], u_cmd
     """``(u names, y names, u_cmd names, y units)`` of the store: the columns' own names, or the layout's."""
     if layout is None:
         return list(u_cols), list(y_cols), None if u_cmd_cols is None else list(u_cmd_cols), y_units
+    if layout == "joints":
+        n = len(y_cols)
+        return ([f"tau{k}" for k in range(n)], [f"q{k}" for k in range(n)],
+                None if u_cmd_cols is None else [f"cmd{k}" for k in range(n)], y_units)
     from robomorph.sim import panda  # noqa: PLC0415
 
     units = ["m"] * 3 + [""] * 4 + list(y_units or ["rad"] * panda.N_JOINT)

@@ -39,6 +39,7 @@ from robomorph.training import preflight
 from robomorph.training.callbacks import BestAndLast, FinalValidation, SaveOnSigterm
 from robomorph.training.checkpoints import AtomicCheckpointIO, ResumableCSVLogger, prune_log
 from robomorph.training.module import FROM_DATA, SCHEDULE_KEY, MetaModule, schedule_change
+from robomorph.training.pretrained import inherited_channels
 from robomorph.training.progress import progress_callbacks, quiet_lightning
 
 _RUN_ENV = "ROBOMORPH_RUN_NAME"  # shared with DDP worker processes, which re-run this script
@@ -98,6 +99,14 @@ class RoboMorphCLI(LightningCLI):
         # datamodule (its stores' metadata) and passed to the model's constructor.
         for name in FROM_DATA:
             parser.link_arguments(f"data.{name}", f"model.{name}", apply_on="instantiate")
+
+    def before_instantiate_classes(self) -> None:
+        # Fine-tuning a model of several arms: the run keeps its channel set (and so its
+        # architecture) when the stores fit in it; see pretrained.inherited_channels.
+        data, model = self.config.data, self.config.model
+        if data.channels is None and data.stores:
+            stores = [data.stores] if isinstance(data.stores, str) else list(data.stores)
+            data.channels = inherited_channels(model.init_ckpt, model.reinit_io, stores, data.inputs)
 
     def run_dir(self) -> RunDir:
         cfg = self.config

@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 
 from robomorph.model.checkpoint import CheckpointError
-from robomorph.model.files import read_model
+from robomorph.model.files import DATA_INFO_KEY, read_model
 
 # Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.
 IO_LAYERS = ("encoder.embed", "decoder.embed", "decoder.init_embed", "head")
@@ -23,6 +23,37 @@ def apply_freeze(net: torch.nn.Module, mode: str) -> None:
             p.requires_grad = not name.startswith("enc")
         elif mode == "all_but_head":
             p.requires_grad = name.startswith("head")
+
+
+def inherited_channels(init_ckpt: str | None, reinit_io: bool, stores: list[str], inputs: str
+                       ) -> dict[str, list[str]] | None:
+    """The channel set to fine-tune ``init_ckpt`` with, when it is a model of several arms.
+
+    A multi-arm model (``channel_mask``) carries the union of its arms' channels; a run that
+    starts from it on stores whose channels are all among them (an arm with fewer joints, or
+    one of its arms) trains in that set, so nothing is re-initialized. ``None`` otherwise:
+    no checkpoint, ``reinit_io`` (new channels asked for), a single-arm model, or stores
+    with channels the model does not carry (the usual messages then say what to do).
+    """
+    from robomorph.data.sources import Source  # noqa: PLC0415
+
+    if not init_ckpt or reinit_io:
+        return None
+    try:
+        info = read_model(init_ckpt).get(DATA_INFO_KEY) or {}
+    except CheckpointError:
+        return None  # start_from reports an unreadable checkpoint in its own words
+    if not info.get("channel_mask"):
+        return None
+    u_set, y_set = list(info["u_names"]), list(info["y_names"])
+    for path in stores:
+        try:
+            src = Source(path, inputs)
+        except Exception:  # noqa: BLE001  (a missing or foreign store: the pre-flight checks say so)
+            return None
+        if not (set(src.u_names) <= set(u_set) and set(src.y_names) <= set(y_set)):
+            return None
+    return {"u": u_set, "y": y_set}
 
 
 def start_from(module: torch.nn.Module, path: str) -> None:

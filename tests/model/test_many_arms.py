@@ -212,15 +212,20 @@ def test_a_model_of_seven_joint_arms_with_joint_dropout_reads_a_six_joint_arm(st
     assert out.shape == (3, H, 13) and np.isfinite(out).all()
 
 
-def test_fine_tuning_the_many_arm_model_on_a_seven_joint_arm_needs_its_channel_set(stores, trained, tmp_path):
-    from robomorph.model.files import CheckpointError
+def test_fine_tuning_the_many_arm_model_keeps_its_channel_set(stores, trained, tmp_path):
     from robomorph.training.fitting import fit
+    from robomorph.training.pretrained import inherited_channels
 
-    base = {"context_len": CTX, "horizon": H}
-    with pytest.raises(CheckpointError, match="model of several arms.*--data.channels"):
-        fit(tiny_fit_args(stores["panda"], tmp_path, "ft-bare", steps=2, data=base,
-                          model={"init_ckpt": trained.best_ckpt}))
-    args = tiny_fit_args(stores["panda"], tmp_path, "ft-set", steps=2, model={"init_ckpt": trained.best_ckpt},
-                         data={**base, "channels": {"u": PANDA_U, "y": PANDA_Y}})
+    full = {"u": PANDA_U, "y": PANDA_Y}
+    assert inherited_channels(trained.best_ckpt, False, [stores["panda"]], "total") == full
+    assert inherited_channels(trained.best_ckpt, False, [stores["ur5e"]], "total") == full
+    assert inherited_channels(trained.best_ckpt, True, [stores["panda"]], "total") is None  # new channels asked for
+    # a 7-joint arm (no padding of its own) fine-tunes in the model's set: nothing re-initialized
+    args = tiny_fit_args(stores["panda"], tmp_path, "ft-7", steps=2, model={"init_ckpt": trained.best_ckpt},
+                         data={"context_len": CTX, "horizon": H})
     pred = Predictor.from_checkpoint(fit(args).best_ckpt, device="cpu")
     assert pred.model.config.channel_mask and (pred.n_u, pred.n_y) == (7, 14)
+    assert pred.data_info["u_names"] == PANDA_U
+    # a single-arm model passes nothing on
+    single = tiny_fit_args(stores["panda"], tmp_path, "single", steps=2, data={"context_len": CTX, "horizon": H})
+    assert inherited_channels(fit(single).best_ckpt, False, [stores["ur5e"]], "total") is None
