@@ -24,14 +24,14 @@ import time
 import numpy as np
 
 from robomorph.core.velocity import estimate_velocity
-from robomorph.evaluation.physics import NominalPhysics, NotApplicable
+from robomorph.evaluation.physics import NominalPhysics
 from robomorph.sim.identify import Fit, IdentifyConfig
 
 NAME = "identified_physics"
 
 
 class IdentifiedPhysics:
-    """Callable ``(u_ctx, y_ctx, u_query) -> y_query`` for stores of the simulated Panda.
+    """Callable ``(u_ctx, y_ctx, u_query) -> y_query`` for stores of a simulated arm (any of :mod:`robomorph.sim.arms`).
 
     Args:
         attrs: the store's attributes (domain, channel names and generator config).
@@ -39,9 +39,9 @@ class IdentifiedPhysics:
         config: how the parameters are fitted (:class:`robomorph.sim.identify.IdentifyConfig`).
 
     Raises:
-        NotApplicable: the store is not a simulated Panda store with its generator config
-            (imported real logs, other domains, another channel layout): there are no
-            catalogue values or ranges to fit within.
+        NotApplicable: the store is not a simulated arm's store with its generator config
+            (imported real logs, another channel layout): there are no catalogue values or
+            ranges to fit within.
     """
 
     def __init__(self, attrs: dict, inputs: str = "total", config: IdentifyConfig | None = None):
@@ -49,11 +49,7 @@ class IdentifiedPhysics:
         from robomorph.sim.identify import Identifier  # noqa: PLC0415  (MuJoCo only when used)
         from robomorph.sim.recipe import Recipe  # noqa: PLC0415
 
-        self.physics = NominalPhysics(attrs, inputs)  # refuses stores it cannot simulate
-        if attrs.get("domain") != "panda":
-            # The fit's lean model, bounds and gravity terms are the Panda's.
-            raise NotApplicable(f"fits the Panda's parameters only (this store's arm is {attrs.get('domain')!r}); "
-                                "nominal_physics and true_physics cover the other arms")
+        self.physics = NominalPhysics(attrs, inputs)  # refuses stores it cannot simulate (any registered arm)
         self.identifier = Identifier(from_dict(Recipe, attrs["config"], "store config"), inputs, config)
         self._fitted_velocity = inputs == "command"
         self.fits: list[Fit] = []
@@ -127,7 +123,7 @@ def predict_windows(w, config: IdentifyConfig | None = None, anchors=None) -> tu
     :func:`robomorph.evaluation.sources.nominal_params`).
 
     Raises:
-        NotApplicable: the store is not a simulated Panda store with its generator config.
+        NotApplicable: the store is not a simulated arm's store with its generator config.
     """
     from tqdm.auto import tqdm  # noqa: PLC0415
 

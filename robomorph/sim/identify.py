@@ -27,6 +27,9 @@ compensates with its own model (``true_model``) and for ``none`` nothing is adde
 rollout is exact; for ``nominal_model`` commands the catalogue's g(q) is added; for total
 torques with ``true_model`` the fitted robot's own g(q) is taken off (g is linear in the link
 masses, so it is assembled from per-link terms computed once per context).
+
+Every arm of :mod:`robomorph.sim.arms` (the recipe's ``robot``): its own links, joints and
+catalogue values, the same kinds of parameters.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ import mujoco
 import numpy as np
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.sim import panda
+from robomorph.sim import arms, panda
 from robomorph.sim.open_loop import ThreadedRollout
 from robomorph.sim.randomize import RandomizationConfig, Randomizer
 
@@ -104,11 +107,11 @@ class ParameterSpace:
 
     @classmethod
     def of(cls, randomizer: Randomizer, cfg: RandomizationConfig, kinds=KINDS) -> "ParameterSpace":
-        nj = panda.N_JOINT
+        gain = randomizer.gain  # per joint, as the randomizer scales its draws (ones for the Panda)
         where = randomizer.split(np.arange(len(randomizer.names), dtype=np.float64))
         spans = {"mass": (randomizer.mass0 * (1 - cfg.mass_pct / 100), randomizer.mass0 * (1 + cfg.mass_pct / 100)),
-                 "damping": (np.full(nj, cfg.damping[0]), np.full(nj, cfg.damping[1])),
-                 "armature": (np.full(nj, cfg.armature[0]), np.full(nj, cfg.armature[1])),
+                 "damping": (cfg.damping[0] * gain, cfg.damping[1] * gain),
+                 "armature": (cfg.armature[0] * gain, cfg.armature[1] * gain),
                  "frictionloss": (randomizer.friction0 * cfg.frictionloss_scale[0],
                                   randomizer.friction0 * cfg.frictionloss_scale[1])}
         index, low, high = [], [], []
@@ -164,15 +167,19 @@ class Fit:
     converged: bool
 
 
-def lean_model(substeps: int, dt: float, gravity_compensation: bool) -> mujoco.MjModel:
-    """The Panda for fits to contact-free motion: the same bodies, inertias, joints and
-    actuators (the inertias are explicit, not derived from the meshes), without the mesh
-    geoms, the sensors or contacts. A motion without contacts is the same to the bit, at a
-    hundredth of the memory (a full copy holds ~28 MB of meshes) and about 40 % less time
-    per step. The stores' robots never touch anything (the generator's filters reject any
-    contact), so a fit must not be steered by contacts of a candidate robot either."""
-    xml, assets = panda._compiled_xml(float(dt) / substeps, bool(gravity_compensation))
-    spec = mujoco.MjSpec.from_string(xml, assets=assets)
+def lean_model(substeps: int, dt: float, gravity_compensation: bool, robot: str = arms.DEFAULT_ROBOT) -> mujoco.MjModel:
+    """An arm (:mod:`robomorph.sim.arms`) for fits to contact-free motion: the same bodies,
+    inertias, joints and actuators (the inertias are explicit, not derived from the meshes),
+    without the mesh geoms, the sensors or contacts. A motion without contacts is the same to
+    the bit, at a hundredth of the memory (a full Panda holds ~28 MB of meshes) and about 40 %
+    less time per step. The stores' robots never touch anything (the generator's filters
+    reject any contact), so a fit must not be steered by contacts of a candidate robot either."""
+    timestep = float(dt) / substeps
+    if robot == "panda":
+        xml, assets = panda._compiled_xml(timestep, bool(gravity_compensation))
+        spec = mujoco.MjSpec.from_string(xml, assets=assets)
+    else:
+        spec = arms._build_spec(arms.get(robot), timestep, bool(gravity_compensation))
     for kind in ("geoms", "meshes", "sensors"):
         for element in list(getattr(spec, kind)):
             if kind != "geoms" or element.type == mujoco.mjtGeom.mjGEOM_MESH:
@@ -197,8 +204,8 @@ class Identifier:
         self.substeps = int(recipe.substeps)
         self.inputs = inputs
         in_actuators = recipe.gravity_compensation == "true_model"
-        self.model = lean_model(recipe.substeps, recipe.dt, in_actuators)
-        self.randomizer = Randomizer(self.model, recipe.randomization)
+        self.model = lean_model(recipe.substeps, recipe.dt, in_actuators, recipe.robot)
+        self.randomizer = Randomizer(self.model, recipe.randomization, recipe.robot)
         self.space = ParameterSpace.of(self.randomizer, recipe.randomization, self.config.kinds)
         # What the formulation adds to the torque at each frame start (see the module docstring).
         if inputs == "command" and recipe.gravity_compensation == "nominal_model":
@@ -241,8 +248,9 @@ class Identifier:
         t0 = time.perf_counter()
         base = np.asarray(base, dtype=np.float64)
         q, torque = np.asarray(q, dtype=np.float64), np.asarray(torque, dtype=np.float64)
-        if q.ndim != 2 or q.shape != torque.shape or len(q) < 3 or q.shape[1] != panda.N_JOINT:
-            raise IdentificationError(f"identify needs (T >= 3, 7) joint positions and torques of the same shape, "
+        nj = self.randomizer.nj
+        if q.ndim != 2 or q.shape != torque.shape or len(q) < 3 or q.shape[1] != nj:
+            raise IdentificationError(f"identify needs (T >= 3, {nj}) joint positions and torques of the same shape, "
                                       f"got {q.shape} and {torque.shape}")
         sp, cfg = self.space, self.config
         problem = _Problem(self, base, q, torque, np.asarray(qvel0, dtype=np.float64))
@@ -280,8 +288,9 @@ class _Problem:
         m, ss = ident.model, ident.substeps
         d = ident._scratch
         mujoco.mj_resetData(m, d)
-        d.qpos[:panda.N_JOINT] = q[0]
-        d.qvel[:panda.N_JOINT] = qvel0
+        nj = ident.randomizer.nj
+        d.qpos[:nj] = q[0]
+        d.qvel[:nj] = qvel0
         self.x0 = np.empty(mujoco.mj_stateSize(m, _STATE))
         mujoco.mj_getState(m, d, self.x0, _STATE)
         self.torque = torque[:self.frames]
@@ -292,7 +301,7 @@ class _Problem:
             # The centres of mass are not fitted: those of ``base`` are the fitted robot's.
             gm = ident._models[0]
             ident.randomizer.apply(gm, base)
-            self._gravity = _gravity_terms(gm, d, q[:self.frames])
+            self._gravity = _gravity_terms(gm, d, q[:self.frames], ident.randomizer.index.body_ids)
         # state[k] is the state after physics step k: row t is the end of step t*ss - 1.
         self.rows = np.arange(1, self.frames + 1) * ss - 1
         self.nstep = self.frames * ss
@@ -322,7 +331,7 @@ class _Problem:
         state = np.empty((k, self.nstep, len(self.x0)))
         ident._rollout(models, self.x0, control, state=state)
         self.rollouts += k
-        nq = panda.N_JOINT
+        nq = ident.randomizer.nj
         qsim = state[:, self.rows, 1:1 + nq]  # FULLPHYSICS: time, qpos, qvel, ...
         # A diverged rollout (MuJoCo resets bad states) still gives finite but wrong rows.
         err = np.nan_to_num(qsim - self.q[None, 1:], nan=10.0, posinf=10.0, neginf=-10.0).reshape(k, -1)
@@ -350,7 +359,8 @@ class _Problem:
                    iterations, evaluations, self.rollouts, time.perf_counter() - t0, bool(converged))
 
 
-def _gravity_terms(model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _gravity_terms(model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray,
+                   links: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The actuators' gravity compensation at each recorded state, split by link mass.
 
     g(q) = sum_b m_b G_b(q) with G_b(q) = -J_b(q)^T gravity, J_b the Jacobian of body b's
@@ -360,8 +370,8 @@ def _gravity_terms(model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray) ->
         ``(g_fixed (T, 7), per_link (T, n_links, 7))``: the part of the bodies not
         randomized, and each randomized link's per-kilogram term.
     """
-    nj = panda.N_JOINT
-    links = panda.PandaIndex.of(model).body_ids
+    nj = q.shape[1]
+    links = [int(b) for b in links]  # the randomized links' body ids
     others = [b for b in range(1, model.nbody) if b not in set(links) and model.body_mass[b] > 0]
     jac = np.empty((3, model.nv))
     g_fixed = np.zeros((len(q), nj))

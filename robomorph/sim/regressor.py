@@ -57,7 +57,7 @@ class RegressorIdentifier:
         # Commands: no gravity (the arm compensates its own; none: there is none to see).
         # Total torques hold g(q), which is linear in the link masses as well. The inverse is
         # that of the discrete step (implicit damping adds h D to the inertia).
-        self.model = lean_model(recipe.substeps, recipe.dt, False)
+        self.model = lean_model(recipe.substeps, recipe.dt, False, recipe.robot)
         if inputs == "command":
             self.model.opt.gravity[:] = 0.0
         self.model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_INVDISCRETE

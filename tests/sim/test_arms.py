@@ -220,16 +220,68 @@ def test_mixture_recipe_over_arms_loads():
 
 
 @needs_robosuite
-def test_physics_fits_of_the_panda_refuse_other_arms_in_one_line(tmp_path):
-    """identified_physics and the hybrid's backbone fit the Panda's parameters: another arm's
-    store is refused with one line (skipped when scored), not a shape error."""
+@pytest.mark.parametrize("name", ["ur5e", "kinova3"])
+def test_identified_physics_recovers_another_arms_damping_and_beats_its_catalogue(simulated_store, name):
+    """identified_physics fits any registered arm: robots of the arm that differ from its
+    catalogue only in their damping (ranges scaled per joint as the randomizer scales them) get
+    their damping back, and the fitted robot predicts the horizon better than the catalogue."""
+    from robomorph.data.store import open_store
     from robomorph.evaluation.identified import IdentifiedPhysics
-    from robomorph.evaluation.physics import NotApplicable
+    from robomorph.evaluation.physics import NominalPhysics
+
+    only_damping = {"mass_pct": 0.0, "com_offset": 0.0, "damping": [5.0, 10.0], "stiffness": [0.03, 0.03],
+                    "armature": [0.1, 0.1], "frictionloss_scale": [1.0, 1.0]}
+    ds = open_store(simulated_store(robots=2, steps=120, seed=3, robot=name, randomization=only_damping))
+    nj, c = arms.get(name).n_joint, 60
+    y, u, params = ds.read("y").astype(np.float64), ds.read("u_cmd").astype(np.float64), ds.read("params")
+    with IdentifiedPhysics(ds.attrs, "command") as ident:
+        pred = ident(u[:, :c], y[:, :c], u[:, c:], at_rest=np.ones(2, dtype=bool))
+        space = ident.identifier.space
+        assert space.names == tuple(f"damping_q{j}" for j in range(nj))  # nothing else can differ
+        catalogue_values = ident.physics.params(y[0, 0, 7:])[space.index]
+        for b, fit in enumerate(ident.fits):
+            truth = params[b, space.index]
+            assert np.all((truth >= space.low) & (truth <= space.high))  # the bounds hold the arm's draws
+            assert np.abs(fit.values - truth).mean() < 0.1 * np.abs(catalogue_values - truth).mean()
+    nominal = NominalPhysics(ds.attrs, "command")(u[:, :c], y[:, :c], u[:, c:])
+    assert pred.shape == nominal.shape == (2, 60, 7 + nj)
+    err_fit = np.sqrt(np.mean((pred[..., 7:] - y[:, c:, 7:]) ** 2))
+    err_cat = np.sqrt(np.mean((nominal[..., 7:] - y[:, c:, 7:]) ** 2))
+    assert err_fit < 0.2 * err_cat
+
+
+@needs_robosuite
+def test_the_hybrid_backbone_refuses_other_arms_in_one_line(tmp_path):
+    """The hybrid's parameter head is the Panda's: another arm's store is refused with one line."""
     from robomorph.sim.backbone import BackboneError, parameter_layout
 
     ds = _generate(tmp_path, "ur5e", "multisine", robots=1, steps=30)
-    with pytest.raises(NotApplicable, match="Panda's parameters only") as info:
-        IdentifiedPhysics(ds.attrs, "command")
-    assert "\n" not in str(info.value)
-    with pytest.raises(BackboneError, match="simulated Panda stores"):
+    with pytest.raises(BackboneError, match="simulated Panda stores") as info:
         parameter_layout(ds.attrs)
+    assert "\n" not in str(info.value)
+
+
+@needs_robosuite
+@pytest.mark.parametrize("name", ROBOSUITE_ARMS)
+def test_the_lean_model_of_every_arm_has_its_dynamics(name):
+    """The fits' lean model (no meshes, sensors or contacts) keeps the arm's inertias, joints and
+    motors, so a contact-free motion is the same in both (to rounding)."""
+    from robomorph.sim.identify import lean_model
+
+    full = arms.get(name).build_model(8, 1 / 60, True)
+    lean = lean_model(8, 1 / 60, True, name)
+    assert lean.nmesh == 0 and lean.nsensor == 0 and lean.nu == full.nu == arms.get(name).n_joint
+    moving = full.body_weldid != 0  # a base welded to the world may lose its mesh-derived mass: it never moves
+    for field in ("body_mass", "body_inertia", "body_ipos"):
+        np.testing.assert_array_equal(getattr(lean, field)[moving], getattr(full, field)[moving])
+    for field in ("dof_damping", "dof_armature", "dof_frictionloss", "jnt_range", "actuator_ctrlrange"):
+        np.testing.assert_array_equal(getattr(lean, field), getattr(full, field))
+    qpos = []
+    for model in (full, lean):
+        model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT  # the lean model has none
+        data = mujoco.MjData(model)
+        data.qpos[:] = arms.centre_pose(arms.get(name), model.jnt_range)
+        data.ctrl[:] = 0.05 * arms.get(name).limits
+        mujoco.mj_step(model, data, nstep=80)
+        qpos.append(data.qpos.copy())
+    np.testing.assert_allclose(qpos[1], qpos[0], rtol=0, atol=1e-12)  # the base's mass only reorders sums

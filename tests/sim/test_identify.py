@@ -142,17 +142,26 @@ def test_the_lean_model_moves_as_the_full_one(damping_store):
     np.testing.assert_allclose(qpos[0], q[0], atol=1e-6)  # and both are the stored robot
 
 
-def test_gravity_is_linear_in_the_link_masses():
-    """The total-torque formulation takes each fitted robot's own g(q) off the torque."""
-    model = lean_model(8, 1 / 60, True)
+@pytest.mark.parametrize("robot", ["panda", "kinova3", "ur5e"])
+def test_gravity_is_linear_in_the_link_masses(robot):
+    """The total-torque formulation takes each fitted robot's own g(q) off the torque (any arm)."""
+    from robomorph.sim import arms
+
+    if robot != "panda":
+        try:
+            arms.robosuite_xml(arms.get(robot).folder)
+        except arms.AssetsMissingError:
+            pytest.skip("robosuite (the `arms` extra) is not installed")
+    model = lean_model(8, 1 / 60, True, robot)
     data = mujoco.MjData(model)
-    r = Randomizer(model, RandomizationConfig())
+    r = Randomizer(model, RandomizationConfig(), robot)
     params = r.sample(np.random.default_rng(0))
     r.apply(model, params)
-    q = panda.HOME_QPOS + np.random.default_rng(1).uniform(-0.3, 0.3, (3, 7))
-    g_fixed, per_link = _gravity_terms(model, data, q)
+    nj = r.nj
+    q = r.split(params)["qinit"] + np.random.default_rng(1).uniform(-0.3, 0.3, (3, nj))
+    g_fixed, per_link = _gravity_terms(model, data, q, r.index.body_ids)
     for t in range(3):
-        data.qpos[:7] = q[t]
+        data.qpos[:nj] = q[t]
         mujoco.mj_forward(model, data)
-        np.testing.assert_allclose(g_fixed[t] + r.split(params)["mass"] @ per_link[t], data.qfrc_gravcomp[:7],
+        np.testing.assert_allclose(g_fixed[t] + r.split(params)["mass"] @ per_link[t], data.qfrc_gravcomp[:nj],
                                    atol=1e-10)
