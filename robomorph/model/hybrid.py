@@ -147,7 +147,11 @@ class Hybrid:
         """Full parameter vectors (B, P), and the head's mean and std in unit coordinates."""
         uc = u_ctx.double().cpu().numpy()
         q_ctx = y_ctx.double().cpu().numpy()[..., 7:14]
-        z, z_std = self.parameters(u_ctx, y_ctx, u_ctx[:, :1])
+        if mode == "regression":
+            # The solve reads the context alone: the parameter head is not needed (nor run).
+            z = z_std = np.zeros((len(uc), len(self.backbone.index)))
+        else:
+            z, z_std = self.parameters(u_ctx, y_ctx, u_ctx[:, :1])
         # The springs are anchored where the robot started: the first context sample when the context opens it.
         params = self.backbone.full_params(z, anchor)
         if mode in ("regression", "fused", "refined"):

@@ -84,3 +84,30 @@ def test_commands_on_an_arm_with_catalogue_compensation_are_refused(simulated_st
     ds = open_store(simulated_store(robots=1, steps=30, seed=5, gravity_compensation="nominal_model"))
     with pytest.raises(ValueError, match="total torques"):
         _solver(ds, "command")
+
+
+def test_the_shortcut_columns_match_mujocos_inverse_dynamics(stores):
+    """The regressor without a pass per parameter: the friction losses, bumped together (each
+    acts on its own joint only), equal one pass per parameter exactly; the analytic damping and
+    armature columns leave out how the friction constraint's softness depends on the inertia,
+    and the solve with them stays where the solve with every column exact lands."""
+    ds = stores[1]
+    reg, space = _solver(ds)
+    exact = RegressorIdentifier(from_dict(Recipe, ds.attrs["config"], "store config"), space, reg.randomizer,
+                                "command", exact_columns=True)
+    y, u = ds.read("y").astype(np.float64), ds.read("u_cmd").astype(np.float64)
+    q = y[0, :, 7:]
+    v, a = (q[2:] - q[:-2]) / (2 * reg.dt), (q[2:] - 2 * q[1:-1] + q[:-2]) / reg.dt ** 2
+    params = NominalPhysics(ds.attrs, "command").params(q[0])
+    tau0 = reg._inverse(params, q[1:-1], v, a)
+    fast, slow = (r._columns(params, q[1:-1], v, a, tau0) for r in (reg, exact))
+    kinds = [reg.randomizer.names[k].split("_", 1)[0] for k in space.index]
+    for c, kind in enumerate(kinds):
+        if kind in ("frictionloss", "mass"):
+            np.testing.assert_allclose(fast[:, :, c], slow[:, :, c], rtol=0, atol=1e-9 * np.abs(slow[:, :, c]).max())
+    assert kinds.count("frictionloss") == 7 and kinds.count("mass") == 8
+    for b in range(len(y)):
+        base = NominalPhysics(ds.attrs, "command").params(y[b, 0, 7:])
+        z_fast, z_slow = (space.to_unit(r.fit(base, y[b, :, 7:], u[b])[space.index]) for r in (reg, exact))
+        assert np.abs(z_fast - z_slow).max() < 0.15  # of the half-range
+        assert np.sqrt(np.mean((z_fast - z_slow) ** 2)) < 0.03
