@@ -13,6 +13,9 @@ STEPS=${2:-1500}
 PY=${PYTHON:-.venv/bin/python}
 rm -rf "$OUT"
 mkdir -p "$OUT"
+# What made this output: the command, commit, date and machine (its log is a result file).
+$PY -c 'import sys; from robomorph.core.results import provenance, provenance_markdown as p
+print(p(provenance(sys.argv[1:])))' bash benchmarks/your_own_robot.sh "$@"
 
 # 1. Logs like a real arm's: 6 torques in, 6 joint angles out, 10 Hz, noise, unequal lengths.
 $PY benchmarks/real_log_fixture.py --out "$OUT/logs"

@@ -79,7 +79,12 @@ def provenance(command: Sequence[str] | str | None = None) -> dict:
     """``{"command", "commit", "date", "machine"}`` of this process (``command``: default ``sys.argv``)."""
     if command is None:
         command = [os.path.relpath(sys.argv[0]) if sys.argv and sys.argv[0] else "python", *sys.argv[1:]]
-    cmd = command if isinstance(command, str) else shlex.join(str(c) for c in command)
+    # The program may be a two-word name ("robomorph evaluate"): printed as is, the arguments quoted.
+    if isinstance(command, str):
+        cmd = command
+    else:
+        words = [str(c) for c in command]
+        cmd = " ".join(words[:1] + [shlex.join(words[1:])] * (len(words) > 1))
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
     return {"command": cmd, "commit": git_commit(), "date": date, "machine": machine()}
 

@@ -30,6 +30,7 @@ import os
 
 from robomorph.core.atomic import write_json
 from robomorph.core.normalizations import NormalizationError
+from robomorph.core.results import provenance
 from robomorph.core.rundir import RunDir
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation import references, training_data
@@ -123,6 +124,8 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     result["meta"] = {"ckpt": ckpt, "data": data, **result["meta"], "offset": offset, "seed": seed,
                       **in_sample(info, data)}
     result["meta"]["baseline_notes"].update({name: {"ckpt": path} for name, path in (compare or {}).items()})
+    # A result folder says what made it (command, commit, date, machine), as every result file does.
+    result["provenance"] = provenance()
     result["sweeps"] = _sweeps(predictor, w, horizons, contexts, _baseline_preds(scores), batch_size, out)
     eval_plots.write_all(out, w.split()[1], scores.y, scores.preds, w.y_names, w.dt, samples, seed,
                          std=scores.std, steps=result["horizons"]["steps"], y_units=w.attrs.get("y_units"))

@@ -7,7 +7,7 @@ import os
 
 from robomorph.core.atomic import atomic_open, write_text
 from robomorph.core.normalizations import leaks_query_statistics, normalization_label
-from robomorph.core.results import markdown_table
+from robomorph.core.results import markdown_table, provenance_markdown
 from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
 from robomorph.evaluation.horizons import horizon_markdown
 
@@ -78,7 +78,8 @@ def table_markdown(result: dict) -> str:
     rows.append(["**mean**", f"{m['r2']['mean']:.3f} ± {m['r2']['std']:.3f}",
                  f"{_fit(m['fit']['mean'])} ± {m['fit']['std']:.1f}", f"{a2['mean']['r2']:.3f}", _fit(a2["mean"]["fit"]),
                  *(_fit(b["approach1"]["mean"]["fit"]["mean"]) for b in base.values())])
-    lines = [f"Model `{os.path.basename(meta['ckpt'])}` on `{meta['data']}`: {meta['n']} trajectories, "
+    lines = [*([provenance_markdown(result["provenance"]), ""] if "provenance" in result else []),
+             f"Model `{os.path.basename(meta['ckpt'])}` on `{meta['data']}`: {meta['n']} trajectories, "
              f"context {meta['context_len']}, horizon {meta['horizon']} steps. (1): approach 1, mean ± std over "
              "trajectories; (2): approach 2, trajectories concatenated.", "",
              normalization_markdown(meta.get("normalization")), "",

@@ -64,6 +64,8 @@ def test_provenance_names_command_commit_date_and_machine():
     p = provenance(["python", "benchmarks/x.py", "--name", "a b"])
     assert p["command"] == "python benchmarks/x.py --name 'a b'"
     assert p["commit"] and p["machine"] and p["date"].endswith("UTC")
+    # A two-word program name (the robomorph dispatcher's) is printed as the user typed it.
+    assert provenance(["robomorph evaluate", "--data", "d.zarr"])["command"] == "robomorph evaluate --data d.zarr"
 
 
 def test_a_markdown_result_opens_with_its_provenance(tmp_path):

@@ -61,6 +61,9 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
     table = open(os.path.join(out, "table.md")).read()
     first_cells = [line.strip("|").split("|")[0].strip() for line in table.splitlines() if line.startswith("|")]
     assert set(names) <= set(first_cells) and "colour convention" in table
+    # The folder says what made it: the command, commit, date and machine, in the JSON and atop the table.
+    assert set(disk["provenance"]) == {"command", "commit", "date", "machine"}
+    assert table.startswith("*Produced by `") and disk["provenance"]["commit"] in table.splitlines()[0]
 
 
 def test_hold_baseline_scores_match_a_direct_computation(setup, tmp_path):
