@@ -181,7 +181,7 @@ def test_readme_is_the_front_door():
             assert (ROOT / target).exists(), target
 
 
-@pytest.mark.parametrize("section", ["## Headline result", "## The hybrid model", "## Model-predictive control"])
+@pytest.mark.parametrize("section", ["## Headline result", "## Model-predictive control"])
 def test_readme_headline_numbers_are_those_of_its_results_file(section):
     text = README.read_text().split(section, 1)[1].split("\n## ", 1)[0]
     source = re.search(r"From `(results/[^`]+\.md)`", text).group(1)

@@ -76,7 +76,7 @@ def test_result_pages_show_the_committed_files(site):
     first_row = next(line for line in (ROOT / "results/benchmarks/eval1000/table.md").read_text().splitlines()
                      if line.startswith("| joints"))
     assert first_row.split("|")[3].strip() in html
-    assert 'id="formulations"' in html and "joint_rms_mrad_60" in html
+    assert 'id="formulations"' in html and "joint_rms_mrad_step60" in html
     assert (site / "raw/results/benchmarks/eval1000/error_growth.png").is_file()
     assert "last commit" in html
     paper = (site / "results" / "paper.html").read_text()
