@@ -18,6 +18,7 @@ already imported.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import datetime
 import io
@@ -83,8 +84,8 @@ def provenance(command: Sequence[str] | str | None = None) -> dict:
     if isinstance(command, str):
         cmd = command
     else:
-        words = [str(c) for c in command]
-        cmd = " ".join(words[:1] + [shlex.join(words[1:])] * (len(words) > 1))
+        program, *args = [str(c) for c in command] or [""]
+        cmd = f"{program} {shlex.join(args)}".rstrip()
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
     return {"command": cmd, "commit": git_commit(), "date": date, "machine": machine()}
 
@@ -207,28 +208,40 @@ class ResultsCsv:
         """
         if not rows:
             return
-        columns = list(rows[0])
-        if odd := [list(r) for r in rows if list(r) != columns]:
-            raise ResultsError(f"rows for {self.path} differ in their columns: {columns} and {odd[0]}")
         header = _header(self.path)
-        if header is not None and header != columns:
-            extra, missing = [c for c in columns if c not in header], [c for c in header if c not in columns]
-            raise ResultsError(f"{self.path} has other columns than the rows to append (new: {extra or 'none'}; "
-                               f"missing: {missing or 'none'}; or another order): write to another file or move "
-                               "the old one away")
-        buf = io.StringIO()
-        if not self.stamped:
-            buf.writelines(f"{COMMENT}{line}\n" for line in provenance_lines(self.prov))
-        writer = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
-        if header is None:
-            writer.writeheader()
-        writer.writerows(rows)
+        text = _csv_text(self.path, rows, None if self.stamped else self.prov, header)
         os.makedirs(os.path.dirname(self.path) or ".", exist_ok=True)
         with open(self.path, "a", newline="") as f:
-            f.write(buf.getvalue())
+            f.write(text)
         self.stamped = True
 
 
+def _csv_text(path: str, rows: Sequence[dict], prov: dict | None, header: list[str] | None) -> str:
+    """``rows`` as CSV text: the provenance block (when ``prov``), the header (when the file has
+    none yet), the rows; rows of differing columns, or columns other than ``header``, are refused."""
+    columns = list(rows[0])
+    if odd := [list(r) for r in rows if list(r) != columns]:
+        raise ResultsError(f"rows for {path} differ in their columns: {columns} and {odd[0]}")
+    if header is not None and header != columns:
+        extra, missing = [c for c in columns if c not in header], [c for c in header if c not in columns]
+        raise ResultsError(f"{path} has other columns than the rows to append (new: {extra or 'none'}; "
+                           f"missing: {missing or 'none'}; or another order): write to another file or move "
+                           "the old one away")
+    buf = io.StringIO()
+    if prov is not None:
+        buf.writelines(f"{COMMENT}{line}\n" for line in provenance_lines(prov))
+    writer = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
+    if header is None:
+        writer.writeheader()
+    writer.writerows(rows)
+    return buf.getvalue()
+
+
 def write_rows(path: str, rows: Sequence[dict], prov: dict | None = None) -> None:
-    """Writes ``rows`` as a new CSV with its provenance (replacing any file there)."""
-    ResultsCsv(path, overwrite=True, prov=prov).extend(rows)
+    """Writes ``rows`` as a new CSV with its provenance, atomically (replacing any file there;
+    no rows: no file)."""
+    if not rows:
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(path)
+        return
+    write_text(path, _csv_text(path, rows, prov or provenance(), None))

@@ -155,7 +155,7 @@ def _checked_predictor(ckpt: str, device: str | None, baselines, inputs: str | N
 
 def _write_files(out: str, result: dict) -> None:
     write_csv(os.path.join(out, "metrics.csv"), result)
-    write_horizons_csv(os.path.join(out, "horizons.csv"), result["horizons"])
+    write_horizons_csv(os.path.join(out, "horizons.csv"), result["horizons"], result.get("provenance"))
     write_table(os.path.join(out, "table.md"), result)
     write_json(os.path.join(out, "metrics.json"), result)
 

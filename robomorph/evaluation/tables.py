@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import csv
 import os
 
-from robomorph.core.atomic import atomic_open, write_text
+from robomorph.core.atomic import write_text
 from robomorph.core.normalizations import leaks_query_statistics, normalization_label
-from robomorph.core.results import markdown_table, provenance_markdown
+from robomorph.core.results import markdown_table, provenance_markdown, write_rows
 from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
 from robomorph.evaluation.horizons import horizon_markdown
 
@@ -39,10 +38,7 @@ def csv_rows(result: dict) -> list[dict]:
 
 
 def write_csv(path: str, result: dict) -> None:
-    with atomic_open(path) as f:
-        w = csv.DictWriter(f, fieldnames=["source", "approach", "channel", "metric", "value", "std", "normalization"])
-        w.writeheader()
-        w.writerows(csv_rows(result))
+    write_rows(path, csv_rows(result), result.get("provenance"))
 
 
 def _fit(v: float) -> str:
@@ -121,8 +117,5 @@ def horizon_rows(h: dict) -> list[dict]:
     return rows
 
 
-def write_horizons_csv(path: str, h: dict) -> None:
-    with atomic_open(path) as f:
-        w = csv.DictWriter(f, fieldnames=["source", "quantity", "unit", "step", "seconds", "metric", "value"])
-        w.writeheader()
-        w.writerows(horizon_rows(h))
+def write_horizons_csv(path: str, h: dict, prov: dict | None = None) -> None:
+    write_rows(path, horizon_rows(h), prov)

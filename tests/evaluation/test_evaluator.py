@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from robomorph.core.metrics import METRICS
+from robomorph.core.results import read_provenance, read_rows
 from robomorph.data.store import create_store
 from robomorph.evaluate import main
 from robomorph.evaluation.evaluator import evaluate, parse_range
@@ -55,7 +56,7 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
     # The full-horizon sweep point is the main evaluation.
     assert disk["sweeps"]["horizon"][-1]["model"]["r2"] == pytest.approx(disk["approach1"]["mean"]["r2"]["mean"])
     with open(os.path.join(out, "metrics.csv")) as f:
-        rows = f.read().splitlines()
+        rows = [line for line in f.read().splitlines() if not line.startswith("#")]
     # per source: approach 1 (14 channels + mean) and 2 (same), 4 metrics each
     assert len(rows) == 1 + 5 * 2 * 15 * 4
     table = open(os.path.join(out, "table.md")).read()
@@ -64,6 +65,8 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
     # The folder says what made it: the command, commit, date and machine, in the JSON and atop the table.
     assert set(disk["provenance"]) == {"command", "commit", "date", "machine"}
     assert table.startswith("*Produced by `") and disk["provenance"]["commit"] in table.splitlines()[0]
+    for csv_file in ("metrics.csv", "horizons.csv"):
+        assert read_provenance(os.path.join(out, csv_file)) == [disk["provenance"]]
 
 
 def test_hold_baseline_scores_match_a_direct_computation(setup, tmp_path):
@@ -261,7 +264,7 @@ def test_evaluate_reports_errors_by_horizon_from_random_offsets(setup, tmp_path)
     first = np.stack([y[i, s + 20, 7:] for i, s in enumerate(starts)])
     assert h["rms"]["hold"]["joints"][0] == pytest.approx(np.sqrt(((first - last) ** 2).mean()) * 1e3)
     assert json.load(open(os.path.join(out, "metrics.json")))["horizons"] == h
-    rows = open(os.path.join(out, "horizons.csv")).read().splitlines()
+    rows = [line for line in open(os.path.join(out, "horizons.csv")).read().splitlines() if not line.startswith("#")]
     assert rows[0] == "source,quantity,unit,step,seconds,metric,value" and len(rows) == 1 + 2 * 3 * 3
     assert "RMS error by horizon" in open(os.path.join(out, "table.md")).read()
     with pytest.raises(ValueError, match="outside the evaluated horizon"):
@@ -350,7 +353,7 @@ def test_paper_window_evaluation_says_it_leaks_everywhere(setup, paper_window_ck
     assert np.isfinite(res["approach1"]["mean"]["r2"]["mean"]) and len(disk["sweeps"]["horizon"]) == 2
     table = open(os.path.join(out, "table.md")).read()
     assert "**⚠ Normalization paper_window (the paper's protocol)" in table.split("| channel")[0]
-    assert {r.split(",")[-1] for r in open(os.path.join(out, "metrics.csv")).read().splitlines()[1:]} == {"paper_window"}
+    assert {r["normalization"] for r in read_rows(os.path.join(out, "metrics.csv"))} == {"paper_window"}
     clean = evaluate(ckpt, test, str(tmp_path / "ts"), baselines=("hold",), samples=0)
     assert clean["leaks_query_statistics"] is False and clean["meta"]["normalization"] == "train_stats"
     assert "Normalization train_stats" in open(tmp_path / "ts" / "table.md").read()

@@ -1,9 +1,8 @@
 """metrics.csv rows and the markdown table of an evaluation result."""
 
-import csv
-
 import numpy as np
 
+from robomorph.core.results import read_rows
 from robomorph.evaluation import metrics
 from robomorph.evaluation.tables import csv_rows, table_markdown, write_csv, write_table
 
@@ -29,8 +28,7 @@ def test_one_csv_row_per_source_approach_channel_and_metric(tmp_path):
     row = next(r for r in rows if (r["source"], r["approach"], r["channel"], r["metric"]) == ("model", 1, "a", "fit"))
     assert row["value"] == result["approach1"]["channels"]["a"]["fit"]["mean"]
     write_csv(str(tmp_path / "m.csv"), result)
-    with open(tmp_path / "m.csv", newline="") as f:
-        assert len(list(csv.DictReader(f))) == len(rows)
+    assert len(read_rows(str(tmp_path / "m.csv"))) == len(rows)
 
 
 def test_the_table_has_a_row_per_channel_the_mean_and_the_skipped_baselines(tmp_path):
