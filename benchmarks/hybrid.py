@@ -1,8 +1,8 @@
 """The hybrid model's modes beside hold, the catalogue robot and identified physics, on the same windows.
 
 Each mode of a checkpoint trained with ``--model.physics amortized`` (``learned``: the
-parameter head's estimate; ``regression``: one linear least-squares solve of the inverse
-dynamics; ``refined``: a few Gauss-Newton iterations from the regression), optionally the
+parameter head's estimate; ``regression``: linear least-squares solves of the inverse
+dynamics, ``regression@1`` a single one; ``refined``: a few Gauss-Newton iterations from the regression), optionally the
 checkpoint's black-box decoder (``--black-box``) and other checkpoints (``--compare``), and
 the baselines are scored on the same held-out windows with
 :func:`robomorph.evaluation.scoring.score_windows`: from the trajectory start and from random
@@ -83,7 +83,9 @@ def main(argv=None) -> int:
     p.add_argument("--ckpt", required=True, help="a checkpoint trained with --model.physics amortized")
     p.add_argument("--test", required=True, help="held-out store")
     p.add_argument("--n", type=int, default=16, help="held-out robots (one window each per offset)")
-    p.add_argument("--modes", default="learned,regression,refined")
+    p.add_argument("--modes", default="learned,regression,refined",
+                   help="comma-separated physics modes; MODE@K solves the regression K times (default 3), "
+                        "each linearized where the last landed")
     p.add_argument("--baselines", default="hold,nominal_physics,identified_physics")
     p.add_argument("--offsets", default="start,random")
     p.add_argument("--black-box", action="store_true", help="also score the checkpoint's black-box decoder")
@@ -116,14 +118,17 @@ def main(argv=None) -> int:
             if b in scores.preds:
                 note = scores.result["meta"]["baseline_notes"].get(b, {})
                 rows.append(_row(b, offset, scores, b, note.get("seconds_per_window"), False))
-        sources = [(m, args.ckpt, m) for m in args.modes.split(",") if m]
+        sources = [(m, args.ckpt, m) for m in args.modes.split(",") if m]  # "mode@k": k regression solves
         if args.black_box:
             sources.append(("black_box", args.ckpt, "none"))
         sources += [(spec.partition("=")[0], spec.partition("=")[2], None) for spec in args.compare]
         for name, ckpt, mode in sources:
             pred = Predictor.from_checkpoint(ckpt)
             if mode is not None:
+                mode, _, solves = mode.partition("@")
                 pred.physics_mode = mode
+                if solves:
+                    pred.hybrid().iterations = int(solves)
             std = args.std and mode not in (None, "none")
             if not std and pred.physics:
                 pred.has_std = False  # the mean alone: the cost of a prediction without draws

@@ -20,7 +20,8 @@ def build_parser() -> argparse.ArgumentParser:
                                   "from its stores)")
     p.add_argument("--out", help="write the calibrated checkpoint here (default: the checkpoint, in place)")
     p.add_argument("--method", choices=METHODS, default="nll",
-                   help="nll: the scale minimising the Gaussian NLL (default); quantile: exactly 68.3 %% inside ±1σ")
+                   help="nll: the scale minimising the Gaussian NLL (default); quantile: exactly 68.3 %% inside ±1σ; "
+                        "coverage: ±1σ and ±2σ together nearest to 68.3 %% and 95.4 %% (errors with heavy tails)")
     p.add_argument("--n", type=int, help="use at most N windows")
     p.add_argument("--context-len", type=int, help="context steps (default: the checkpoint's)")
     p.add_argument("--horizon", type=int, help="predicted steps (default: the checkpoint's)")
@@ -30,6 +31,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
     p.add_argument("--remove", action="store_true", help="drop a stored calibration instead")
+    p.add_argument("--blend", action="store_true",
+                   help="fit the per-step weights of the model's physics prediction against its decoder's instead "
+                        "(physics early, decoder late: the total-torque formulation's default once fitted)")
     return p
 
 
@@ -38,6 +42,11 @@ def run(a: argparse.Namespace) -> int:
         had = calibrating.remove(a.ckpt, a.out)
         print(f"{'removed the std calibration from' if had else 'no std calibration in'} {a.ckpt}"
               + (f" (written: {a.out})" if a.out else ""))
+        return 0
+    if a.blend:
+        report = calibrating.blend(a.ckpt, a.data, a.out, a.n, a.context_len, a.horizon, a.offset, a.seed,
+                                   min(a.batch_size, 16), a.device, a.horizons)
+        print(calibrating.blend_text(report))
         return 0
     report = calibrating.calibrate(a.ckpt, a.data, a.out, a.n, a.context_len, a.horizon, a.offset, a.seed, a.method,
                                    a.batch_size, a.device, a.horizons)

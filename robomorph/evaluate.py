@@ -43,10 +43,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="input formulation of the data (default: the checkpoint's; a different one is refused)")
     p.add_argument("--compare", action="append", default=[], metavar="NAME=CKPT",
                    help="another checkpoint scored beside the baselines (repeatable), e.g. scratch=runs/a/checkpoints/best.ckpt")
-    p.add_argument("--physics", choices=("regression", "learned", "fused", "refined", "none"),
-                   help="how a hybrid model (fit --model.physics amortized) predicts: its robot identified by "
-                        "one linear solve (regression, the default), read by the network (learned), both (fused), "
-                        "fused then a few Gauss-Newton steps (refined), or its black-box decoder (none)")
+    p.add_argument("--physics", choices=("regression", "learned", "fused", "refined", "blend", "none"),
+                   help="how a model with a physics backbone predicts: its robot identified by linear solves "
+                        "(regression, the default for commands), read by the network (learned), both (fused), "
+                        "fused then a few Gauss-Newton steps (refined), the regression's simulation and the decoder "
+                        "weighted by step (blend: fitted by calibrate --blend, the default for total torques "
+                        "once fitted), or its black-box decoder (none)")
     p.add_argument("--arx-train-data", help="comma list of stores to fit arx_train on, whole (default: the "
                                             "checkpoint's training split, read back from its stores)")
     return p

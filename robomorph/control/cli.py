@@ -52,8 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--context", type=int, default=d.context, help="context frames of the in-context model")
     p.add_argument("--reidentify", type=int, default=d.reidentify,
                    help="frames between a hybrid model's identifications from the rolling context (0: once)")
-    p.add_argument("--physics-mode", help="a hybrid model's physics mode (regression, fused, refined, learned, or "
-                                          "none for its black-box decoder; default: the model's)")
+    p.add_argument("--physics-mode", help="a hybrid model's physics mode (regression, fused, refined, learned, blend, "
+                                          "or none for its black-box decoder; default: the model's)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="episodes run in parallel")
     return p
 

@@ -3,6 +3,7 @@
     python -m robomorph.calibrate --ckpt runs/ms/checkpoints/best.ckpt          # the fit's validation split
     python -m robomorph.calibrate --ckpt runs/ms/checkpoints/best.ckpt --data data/ms_val.zarr
     python -m robomorph.calibrate --ckpt runs/ms/checkpoints/best.ckpt --remove
+    python -m robomorph.calibrate --ckpt runs/ms/checkpoints/best.ckpt --blend    # physics early, decoder late
 
 Predicts the validation windows of the checkpoint (the robots its DataModule held out for
 validation, read back from its stores; or a held-out store given with ``--data``) with the
@@ -12,6 +13,11 @@ place or into ``--out``). From then on ``Predictor.simulate(..., return_std=True
 ``evaluate`` and the dashboard use the recalibrated spread; the mean prediction does not
 change. A training store given whole as ``--data`` is refused: the model has seen those
 robots, and its errors there are smaller than on robots it has not seen.
+
+``--blend`` fits, on the same windows, the per-step weights of the model's physics prediction
+against its decoder's (:mod:`robomorph.model.blending`) and stores them (with the physics
+backbone's record, for a model trained without one): a total-torque model then predicts
+with the blend by default. Calibrate its std afterwards with a plain run.
 """
 
 from __future__ import annotations
@@ -30,11 +36,11 @@ from robomorph.evaluation.windows import EvaluationError, Window, check_counts, 
 from robomorph.model.calibration import CALIBRATION_KEY, CalibrationError, fit
 
 
-def _predictor(ckpt: str, device: str | None):
+def _predictor(ckpt: str, device: str | None, need_std: bool = True):
     from robomorph.model.predictor import Predictor  # noqa: PLC0415  (torch only here)
 
     predictor = Predictor.from_checkpoint(ckpt, device=device)
-    if not predictor.has_std:
+    if need_std and not predictor.has_std:
         raise CalibrationError(f"{ckpt} has no Gaussian head, so it predicts no standard deviation to calibrate; "
                                "train one with --model.gaussian true --model.loss nll")
     return predictor
@@ -138,6 +144,99 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     ckpt_dict[CALIBRATION_KEY] = cal.to_dict()
     _write(ckpt_dict, out or ckpt)
     return report
+
+
+def blend(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,
+          context_len: int | None = None, horizon: int | None = None, offset: str | int = "start", seed: int = 0,
+          batch_size: int = 16, device: str | None = None, horizons_spec: str | None = None) -> dict:
+    """Fits the physics/decoder blend (:mod:`robomorph.model.blending`) and writes the checkpoint
+    with it to ``out`` (default: in place); arguments as :func:`calibrate`.
+
+    Returns:
+        A report: where it was fitted, the weights and the joints' RMS error of the physics,
+        the decoder and the blend on the fitting windows at the reported steps.
+    """
+    from robomorph.evaluation.sources import predict  # noqa: PLC0415
+    from robomorph.model.blending import BLEND_KEY, HorizonBlend, fit_blend  # noqa: PLC0415
+    from robomorph.model.files import read_model  # noqa: PLC0415
+
+    check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
+    offset = parse_offset(offset)
+    predictor = _predictor(ckpt, device, need_std=False)
+    if predictor.leaks_query_statistics:
+        raise CalibrationError(f"{ckpt} rescales each window with its query outputs (paper_window): a blend needs a "
+                               "model that can be deployed; train with data.normalization=train_stats")
+    ckpt_dict = read_model(ckpt)
+    sources, split = _sources(ckpt_dict, data)
+    layout = _blend_layout(predictor, sources[0][0])
+    info = predictor.data_info or {}
+    context_len, horizon = context_len or info.get("context_len"), horizon or info.get("horizon")
+    if context_len is None or horizon is None:
+        raise EvaluationError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
+    check_patch(predictor.patch, [int(context_len)])
+    w = _windows(predictor, sources, n, int(context_len), int(horizon), offset, seed)
+    if len(w.u) < 2:
+        raise CalibrationError(f"only {len(w.u)} window to fit a blend on: pass --data with a store of more robots")
+    u_ctx, y_ctx, u_q, y_q = w.split()
+    rest = w.starts == 0 if len(w.starts) == len(w.u) else None
+    predictor.physics_mode = "none"
+    decoder = predict(predictor, u_ctx, y_ctx, u_q, batch_size, "decoder", at_rest=rest)
+    # The physics alone: a blend that weights it fully (the decoder where a simulation diverged).
+    predictor.model.blend = HorizonBlend((1,), (tuple([1.0] * predictor.n_y),), physics=layout)
+    predictor.physics, predictor.physics_mode, predictor.has_std = layout, "blend", False
+    physics = predict(predictor, u_ctx, y_ctx, u_q, batch_size, "physics", at_rest=rest)
+    source = {"data": [p for p, _ in sources], "split": split, "n": int(len(w.u)), "context_len": int(context_len),
+              "horizon": int(horizon), "offset": offset, "seed": int(seed), "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    fitted = fit_blend(y_q, physics, decoder, source=source,
+                       layout=None if (info.get("physics") and predictor.model.config.n_params) else layout)
+    steps = parse_horizons(horizons_spec, int(horizon), w.dt)
+    mixed = fitted.combine(physics, decoder)[0]
+    joints = [i for i, name in enumerate(w.y_names) if name.startswith("q")]
+    rms = {k: [float(1e3 * np.sqrt(np.mean((v[:, s - 1, joints] - y_q[:, s - 1, joints]) ** 2))) for s in steps]
+           for k, v in (("physics", physics), ("decoder", decoder), ("blend", mixed))}
+    fitted.source["joint_rms_mrad"] = {"steps": steps, **rms}
+    fitted.source["gated_windows"] = int(fitted.gated(physics, decoder)[:, -1].sum())
+    ckpt_dict[BLEND_KEY] = fitted.to_dict()
+    _write(ckpt_dict, out or ckpt)
+    weights = fitted.weights(int(horizon))
+    return {"ckpt": ckpt, "out": out or ckpt, "blend": fitted.to_dict(), "steps": steps,
+            "seconds": [s * w.dt for s in steps], "weight": [float(np.mean(weights[s - 1, joints])) for s in steps],
+            "rms": rms}
+
+
+def _blend_layout(predictor, store: str) -> dict:
+    """The model's physics backbone, or for a model trained without one its store's (simulated
+    Panda stores that record each robot's parameters)."""
+    from robomorph.data.store import open_store  # noqa: PLC0415
+    from robomorph.sim.backbone import BackboneError, parameter_layout  # noqa: PLC0415
+
+    if predictor.physics:
+        return predictor.physics
+    try:
+        return parameter_layout(dict(open_store(store).attrs))
+    except BackboneError:
+        raise CalibrationError(f"--blend needs a physics backbone, and {store} is not a simulated Panda store that "
+                               "records each robot's parameters (real logs have no catalogue robot to simulate): "
+                               "keep the decoder alone") from None
+
+
+def blend_text(report: dict) -> str:
+    """The terminal summary of :func:`blend`."""
+    from robomorph.core.results import markdown_table  # noqa: PLC0415
+
+    src, r = report["blend"]["source"], report["rms"]
+    rows = [[s, f"{t:.3g}", f"{report['weight'][i]:.2f}", f"{r['physics'][i]:.4g}", f"{r['decoder'][i]:.4g}",
+             f"{r['blend'][i]:.4g}"] for i, (s, t) in enumerate(zip(report["steps"], report["seconds"]))]
+    return "\n".join([
+        f"physics/decoder blend fitted on {src['n']} windows of {', '.join(src['data'])} "
+        f"({'validation split' if src['split'] == 'val' else 'whole store'}), context {src['context_len']}, "
+        f"horizon {src['horizon']}; gate {report['blend']['gate']:g} x the decoder's RMS error "
+        f"({src['gated_windows']} of {src['n']} windows left to the decoder before the end)",
+        markdown_table(["step", "seconds", "physics weight (joints)", "physics [mrad]", "decoder [mrad]",
+                        "blend [mrad]"], rows),
+        "(joint RMS error on the fitting windows themselves; score it on a test store with robomorph evaluate; "
+        "calibrate the blend's std with a plain robomorph calibrate)",
+        f"written: {report['out']}"])
 
 
 def remove(ckpt: str, out: str | None = None) -> bool:

@@ -16,6 +16,7 @@ import dataclasses
 import torch
 from torch import nn
 
+from robomorph.model.blending import BLEND_KEY, BlendError, HorizonBlend
 from robomorph.model.calibration import CALIBRATION_KEY, CalibrationError, StdCalibration
 
 # The reader of model files; these names are imported from here by the rest of the package.
@@ -100,6 +101,8 @@ class TrainedModel(nn.Module):
         gaussian: the network has a Gaussian head (:meth:`forward_dist` gives a std).
         calibration: the per-horizon scale of that std fitted after training
             (``python -m robomorph.calibrate``), or None: applied by :meth:`forward_dist`.
+        blend: the per-horizon weights of its physics prediction against its decoder's
+            (``robomorph calibrate --blend``, :mod:`robomorph.model.blending`), or None.
     """
 
     def __init__(self, config: ModelConfig, recenter: bool = False, anchor: bool = False,
@@ -109,6 +112,7 @@ class TrainedModel(nn.Module):
         self.gaussian = bool(config.gaussian)
         self.net = MetaModel(config)
         self.calibration: StdCalibration | None = None
+        self.blend = None
         self.normalizer = Normalizer(n_u=config.n_u, n_y=config.n_y, recenter=recenter, normalization=normalization)
 
     def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
@@ -174,4 +178,12 @@ def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
             model.set_calibration(StdCalibration.from_dict(ckpt[CALIBRATION_KEY]))
         except CalibrationError as exc:
             raise CheckpointError(f"{path}: {exc}") from exc
+    if ckpt.get(BLEND_KEY) is not None:
+        try:
+            model.blend = HorizonBlend.from_dict(ckpt[BLEND_KEY])
+        except BlendError as exc:
+            raise CheckpointError(f"{path}: {exc}") from exc
+        if model.blend.n_y != model.config.n_y:
+            raise CheckpointError(f"{path}: its physics blend has {model.blend.n_y} channels, the model "
+                                  f"{model.config.n_y}: fit it again with robomorph calibrate --blend")
     return model.eval(), ckpt.get(DATA_INFO_KEY)

@@ -32,7 +32,9 @@ import torch
 
 from robomorph.core.errors import RoboMorphError
 
-MODES = ("learned", "regression", "fused", "refined")
+MODES = ("learned", "regression", "fused", "refined", "blend")
+# The modes that read the parameter head (a model trained with --model.physics amortized).
+HEAD_MODES = ("learned", "fused", "refined")
 
 
 class HybridError(RoboMorphError, ValueError):
@@ -48,17 +50,21 @@ class Hybrid:
         inputs: the formulation the model was trained on.
         samples: robots drawn from the parameter head for the standard deviation.
         refine_iters: most cost evaluations of the ``refined`` mode's fit.
+        iterations: solves of the regression, each linearized where the previous one landed
+            (:class:`robomorph.sim.regressor.RegressorIdentifier`); 1: at the catalogue robot.
         seed: the seed of the parameter draws (the same windows give the same std).
     """
 
-    def __init__(self, model, physics: dict, inputs: str, samples: int = 8, refine_iters: int = 4, seed: int = 0):
+    def __init__(self, model, physics: dict, inputs: str, samples: int = 8, refine_iters: int = 4, seed: int = 0,
+                 iterations: int = 3):
         from robomorph.sim.backbone import PhysicsBackbone  # noqa: PLC0415  (MuJoCo only when used)
 
-        if model.config.n_params != len(physics["names"]):
+        if model.config.n_params and model.config.n_params != len(physics["names"]):
             raise HybridError(f"the model's parameter head has {model.config.n_params} outputs but its record "
                               f"names {len(physics['names'])} parameters: the checkpoint is inconsistent")
         self.model, self.physics, self.inputs = model, physics, inputs
         self.samples, self.refine_iters, self.seed = int(samples), int(refine_iters), int(seed)
+        self.iterations = int(iterations)
         self.backbone = PhysicsBackbone(physics, inputs)
         self._identifier = None
         self._regressor = None
@@ -96,8 +102,7 @@ class Hybrid:
         """
         from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
 
-        if mode not in MODES:
-            raise HybridError(f"physics mode must be one of {MODES}, got {mode!r}")
+        self._check_mode(mode)
         uc, yc, uq = (t.double().cpu().numpy() for t in (u_ctx, y_ctx, u_query))
         q_ctx, quat_last = yc[..., 7:14], yc[:, -1, 3:7]
         B = len(uc)
@@ -118,12 +123,39 @@ class Hybrid:
             return self.backbone.simulate(p, q_ctx, uc, uq, qvel_start, quat_last, qvel_end)
 
         mean = horizon(params)
+        if mode == "blend":
+            return self._blend(u_ctx, y_ctx, u_query, mean, params, z, z_std, horizon, return_std, calibration)
         if not np.all(np.isfinite(mean)):
             raise HybridError("the simulated robot diverged (non-finite outputs): check the torques' units and "
                               "scale, or predict with physics_mode 'none'")
         if not return_std:
             return mean, None
         return mean, self._spread(mode, params, z, z_std, mean, horizon, calibration)
+
+    def _check_mode(self, mode: str) -> None:
+        if mode not in MODES:
+            raise HybridError(f"physics mode must be one of {MODES}, got {mode!r}")
+        if mode in HEAD_MODES and not self.model.config.n_params:
+            raise HybridError(f"physics mode {mode!r} reads a parameter head, which this model has not (it was "
+                              "trained with --model.physics none): use 'regression' or 'blend'")
+        if mode == "blend" and getattr(self.model, "blend", None) is None:
+            raise HybridError("physics mode 'blend' needs the blend's weights, which this model has not: fit them "
+                              "with robomorph calibrate --blend")
+
+    @torch.no_grad()
+    def _blend(self, u_ctx, y_ctx, u_query, physics, params, z, z_std, horizon, return_std, calibration):
+        """The physics prediction and the decoder's, weighted by step and channel (and their stds)."""
+        mean, std = self.model.forward_dist_raw(u_ctx, y_ctx, u_query)
+        decoder = mean.double().cpu().numpy()
+        if not return_std:
+            return self.model.blend.combine(physics, decoder)[0], None
+        if std is None:
+            raise HybridError("the blend's standard deviation needs the decoder's, and this model has no Gaussian "
+                              "head: drop return_std")
+        with np.errstate(invalid="ignore", over="ignore"):
+            spread = self._spread("regression", params, z, z_std, physics, horizon, None)
+        out, out_std = self.model.blend.combine(physics, decoder, spread, std.double().cpu().numpy())
+        return out, out_std if calibration is None else out_std * calibration.factors(out_std.shape[-2])[None]
 
     @torch.no_grad()
     def identify(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, mode: str = "regression",
@@ -136,8 +168,7 @@ class Hybrid:
         """
         from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
 
-        if mode not in MODES:
-            raise HybridError(f"physics mode must be one of {MODES}, got {mode!r}")
+        self._check_mode(mode)
         q_ctx = y_ctx.double().cpu().numpy()[..., 7:14]
         qvel_start = np.zeros_like(q_ctx[:, 0]) if at_rest else -estimate_velocity(q_ctx[:, ::-1], self.backbone.dt)
         return self._identify(u_ctx, y_ctx, mode, q_ctx[:, 0] if anchor is None else anchor, qvel_start)[0]
@@ -147,14 +178,14 @@ class Hybrid:
         """Full parameter vectors (B, P), and the head's mean and std in unit coordinates."""
         uc = u_ctx.double().cpu().numpy()
         q_ctx = y_ctx.double().cpu().numpy()[..., 7:14]
-        if mode == "regression":
+        if mode not in HEAD_MODES:
             # The solve reads the context alone: the parameter head is not needed (nor run).
             z = z_std = np.zeros((len(uc), len(self.backbone.index)))
         else:
             z, z_std = self.parameters(u_ctx, y_ctx, u_ctx[:, :1])
         # The springs are anchored where the robot started: the first context sample when the context opens it.
         params = self.backbone.full_params(z, anchor)
-        if mode in ("regression", "fused", "refined"):
+        if mode != "learned":
             prior = (z, z_std) if mode in ("fused", "refined") else None
             params = self._regress(params, q_ctx, uc, prior, anchor)
         if mode == "refined":
@@ -190,7 +221,9 @@ class Hybrid:
 
         if self._regressor is None:
             ident = self.backbone.ident
-            self._regressor = RegressorIdentifier(self.backbone.recipe, ident.space, ident.randomizer, self.inputs)
+            self._regressor = RegressorIdentifier(self.backbone.recipe, ident.space, ident.randomizer, self.inputs,
+                                                  iterations=self.iterations)
+        self._regressor.iterations = self.iterations
         base = np.stack([self.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
         out, self._covs = [], []
         for b in range(len(params)):

@@ -109,9 +109,12 @@ class Predictor:
             standard deviations from the training mean (default :data:`MAX_INPUT_STDS`;
             None: no check).
         physics: the physics backbone's record (parameter layout and generator recipe) of a
-            model trained with ``--model.physics amortized``, else None.
+            model trained with ``--model.physics amortized`` or given a blend by
+            ``robomorph calibrate --blend``, else None.
         physics_mode: how such a model predicts: ``regression``, ``learned``, ``fused``,
-            ``refined`` (:data:`robomorph.model.hybrid.MODES`) or ``none`` (its decoder).
+            ``refined``, ``blend`` (:data:`robomorph.model.hybrid.MODES`) or ``none`` (its
+            decoder). Default: ``regression`` for commands; for total torques ``blend`` when
+            the model has one, else ``none``.
         physics_samples: parameter draws behind the hybrid's standard deviation.
         channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside,
             its outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
@@ -127,10 +130,7 @@ class Predictor:
         self.has_std = bool(getattr(model, "gaussian", False))
         # Checkpoints written before the command formulation were all trained on total torque.
         self.inputs: str = (data_info or {}).get("inputs", "total")
-        self.physics: dict | None = (data_info or {}).get("physics") if model.config.n_params else None
-        # Total torques pay gravity at the recorded state: the simulation diverges within seconds,
-        # so a total-torque hybrid predicts with its decoder unless asked otherwise.
-        self.physics_mode: str = ("regression" if self.inputs == "command" else "none") if self.physics else "none"
+        self.physics, self.physics_mode = _backbone(model, data_info, self.inputs)
         self.physics_samples: int = 8
         self.channels: tuple[list[str], list[str]] | None = None
         self._hybrid = None
@@ -285,6 +285,19 @@ class Predictor:
         mean, std = select(mean, cols), select(std, cols)
         self._check_output(mean, tensors)
         return _outputs(u_query, [t[0] if single else t for t in (mean, std) if t is not None], return_std)
+
+
+def _backbone(model: TrainedModel, data_info: dict | None, inputs: str) -> tuple[dict | None, str]:
+    """The physics backbone's record of a model and its default physics mode."""
+    blend = getattr(model, "blend", None)
+    # The backbone of a model trained with a parameter head, or of one whose blend brought it.
+    physics = ((data_info or {}).get("physics") if model.config.n_params else None) \
+        or (blend.physics if blend is not None else None)
+    if not physics:
+        return None, "none"
+    # Total torques pay gravity at the recorded state: the simulation diverges within seconds,
+    # so a total-torque model predicts with its decoder, or with the fitted blend of the two.
+    return physics, "regression" if inputs == "command" else ("blend" if blend else "none")
 
 
 def _arm_batch(self: "Predictor", arrays) -> tuple[list[torch.Tensor], bool, tuple | None]:

@@ -107,11 +107,15 @@ def evaluate_and_report(ckpt: str, test: str, runs_dir: str, identified: bool = 
 
 def calibrate_std(ckpt: str) -> bool:
     """Recalibrates a Gaussian head's std by horizon on the fit's validation robots (in place);
-    False for a model without one."""
-    from robomorph.evaluation.calibrating import calibrate, report_text  # noqa: PLC0415
+    False for a model without one. A total-torque model first gets its physics/decoder blend."""
+    from robomorph.evaluation.calibrating import blend, blend_text, calibrate, report_text  # noqa: PLC0415
     from robomorph.model.checkpoint import load_trained  # noqa: PLC0415
 
     model, info = load_trained(ckpt)
+    if (info or {}).get("inputs") == "total" and model.blend is None:
+        # Total torques: the identified robot's simulation for the first second, the decoder after
+        # (robomorph calibrate --blend); the std below is then the blend's.
+        print("\n" + blend_text(blend(ckpt, n=64)))
     if not model.gaussian and not (model.config.n_params and (info or {}).get("physics")):
         return False
     print("\n" + report_text(calibrate(ckpt)))

@@ -52,7 +52,7 @@ class RegressorIdentifier:
     """
 
     def __init__(self, recipe, space, randomizer, inputs: str = "command", prior: float = 0.03, sigma: float = 0.05,
-                 exact_columns: bool = False):
+                 exact_columns: bool = False, iterations: int = 3):
         from robomorph.sim.identify import lean_model  # noqa: PLC0415
 
         if inputs == "command" and recipe.gravity_compensation == "nominal_model":
@@ -72,6 +72,9 @@ class RegressorIdentifier:
         self.last_cov: np.ndarray | None = None  # of the last fit, in unit coordinates
         self._nj = len(randomizer.friction0)
         self.exact_columns = bool(exact_columns)
+        if int(iterations) < 1:
+            raise ValueError(f"the regressor needs iterations >= 1, got {iterations}")
+        self.iterations = int(iterations)
 
     def fit(self, base: np.ndarray, q: np.ndarray, torque: np.ndarray, prior_mean: np.ndarray | None = None,
             prior_std: np.ndarray | None = None) -> np.ndarray:
@@ -96,28 +99,28 @@ class RegressorIdentifier:
         base = np.asarray(base, dtype=np.float64)
         params = base.copy()
         index = self.space.index
-        tau0 = self._inverse(params, qs, v, a)
-        cols = self._columns(params, qs, v, a, tau0)
-        resid = (tau - tau0).ravel() / self.sigma
-        A = cols.reshape(-1, len(index)) / self.sigma
         half = (self.space.high - self.space.low) / 2
         mid = (self.space.high + self.space.low) / 2
-        # Unknowns in unit coordinates z: theta = mid + z * half; deviation = theta - base.
+        # Unknowns in unit coordinates z: theta = mid + z * half. The prior pulls toward base.
         z_base = (base[index] - mid) / half
-        A_z = A * half[None, :]
-        n = len(resid)
-        # The tall products in einsum's own loops, not BLAS: a multi-threaded BLAS spends far
-        # longer waking its threads than these (thousands x 29) products take (measured: 99 of
-        # 117 ms of a fit on two busy cores), and the scorer runs fits beside other work.
-        b_z = resid + np.einsum("ij,j->i", A_z, z_base)
-        gram = np.einsum("ti,tj->ij", A_z, A_z)
-        atb = np.einsum("ti,t->i", A_z, b_z)
-        # The data's mean square plus the prior's pull (prior per unit of z).
-        x = _bounded_lstsq(gram / n + self.prior ** 2 * np.eye(len(index)), atb / n + self.prior ** 2 * z_base)
-        params[index] = mid + x * half
+        z_lin = z_base
+        cols = None
+        for it in range(self.iterations):
+            # The torque linearized at the current estimate: exact in the masses, damping and
+            # armature; the friction loss is piecewise linear (Coulomb where its constraint
+            # saturates, no dependence where it does not), so its column is re-taken where the
+            # estimate is and the solve repeated. One pass for the torque and one for the
+            # friction columns per extra iteration.
+            tau0 = self._inverse(params, qs, v, a)
+            cols = self._columns(params, qs, v, a, tau0, None if it == 0 else cols)
+            A_z = cols.reshape(-1, len(index)) * (half / self.sigma)[None, :]
+            x, b_z, gram, atb = self._solve(A_z, (tau - tau0).ravel() / self.sigma, z_lin, z_base)
+            params[index] = mid + x * half
+            z_lin = x
+        n = len(b_z)
         # The estimate's covariance in unit coordinates (Gauss-Markov, the residual's variance):
         # what the draws behind the hybrid's standard deviation sample from.
-        err = np.einsum("ij,j->i", A_z, x - z_base) - resid
+        err = np.einsum("ij,j->i", A_z, x) - b_z
         s2 = float(np.einsum("i,i->", err, err)) / max(1, n - len(index))
         hess = gram + n * self.prior ** 2 * np.eye(len(index))
         self.last_cov = s2 * np.linalg.inv(hess)
@@ -131,16 +134,35 @@ class RegressorIdentifier:
             self.last_cov = np.linalg.inv(hess)
         return params
 
+    def _solve(self, A_z: np.ndarray, resid: np.ndarray, z_lin: np.ndarray, z_base: np.ndarray):
+        """One solve of the torque linearized at ``z_lin``, pulled toward ``z_base``: the
+        estimate, the right-hand side and the normal equations (``A_z' A_z``, ``A_z' b_z``)."""
+        n = len(resid)
+        # The tall products in einsum's own loops, not BLAS: a multi-threaded BLAS spends far
+        # longer waking its threads than these (thousands x 29) products take (measured: 99 of
+        # 117 ms of a fit on two busy cores), and the scorer runs fits beside other work.
+        b_z = resid + np.einsum("ij,j->i", A_z, z_lin)
+        gram = np.einsum("ti,tj->ij", A_z, A_z)
+        atb = np.einsum("ti,t->i", A_z, b_z)
+        # The data's mean square plus the prior's pull (prior per unit of z).
+        eye = np.eye(len(z_base))
+        return _bounded_lstsq(gram / n + self.prior ** 2 * eye, atb / n + self.prior ** 2 * z_base), b_z, gram, atb
+
     def _columns(self, params: np.ndarray, qs: np.ndarray, v: np.ndarray, a: np.ndarray,
-                 tau0: np.ndarray) -> np.ndarray:
-        """(T, nj, n) the regressor: each identified parameter's torque per unit, at every state."""
+                 tau0: np.ndarray, previous: np.ndarray | None = None) -> np.ndarray:
+        """(T, nj, n) the regressor: each identified parameter's torque per unit, at every state.
+
+        ``previous``: the columns at an earlier estimate, of which only the friction losses'
+        are taken again (the others do not depend on where they are taken, to first order)."""
         index = self.space.index
-        cols = np.zeros((len(qs), self._nj, len(index)))
+        cols = np.zeros((len(qs), self._nj, len(index))) if previous is None else previous.copy()
         h = self.model.opt.timestep
         friction = []  # (column, parameter, joint) of the friction losses, bumped together below
         for c, k in enumerate(index):
             kind, _, joint = self.randomizer.names[k].rpartition("_q")
             j = int(joint) if joint.isdigit() else -1
+            if previous is not None and kind != "frictionloss":
+                continue
             if self.exact_columns and j >= 0:
                 kind = "bump"
             if kind == "damping":

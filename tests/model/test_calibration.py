@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from robomorph.model.calibration import ONE_SIGMA, CalibrationError, StdCalibration, _bands, fit, knot_steps
+from robomorph.model.calibration import (ONE_SIGMA, TWO_SIGMA, CalibrationError, StdCalibration, fit, knot_steps,
+                                        step_bands)
 from robomorph.model.checkpoint import TrainedModel
 from robomorph.model.transformer import ModelConfig
 
@@ -22,7 +23,7 @@ def test_knots_are_log_spaced_distinct_steps_from_one_to_the_horizon():
 
 def test_the_bands_tile_every_step_once():
     k = knot_steps(800)
-    bands = _bands(k, 800)
+    bands = step_bands(k, 800)
     assert sorted(np.concatenate(bands).tolist()) == list(range(800))
     assert all(k[i] - 1 in b for i, b in enumerate(bands))  # each knot lies in its own band
 
@@ -53,9 +54,30 @@ def test_quantile_scales_put_68_percent_inside_one_sigma_in_every_band():
     y, mean, std, _ = _synthetic(seed=1)
     cal = fit(y, mean, std, "quantile")
     z = np.abs(y - mean) / std
-    for i, band in enumerate(_bands(np.asarray(cal.knots), 100)):
+    for i, band in enumerate(step_bands(np.asarray(cal.knots), 100)):
         inside = (z[:, band] <= np.asarray(cal.scale[i])).reshape(-1, 3).mean(0)
         np.testing.assert_allclose(inside, ONE_SIGMA, atol=0.01)
+
+
+def test_coverage_scales_meet_both_levels_on_heavy_tailed_errors_where_one_level_methods_miss_one():
+    rng = np.random.default_rng(3)
+    shape = (400, 50, 2)
+    y = rng.standard_t(5, size=shape)  # heavy tails: no single scale makes them Gaussian
+    mean, std = np.zeros(shape), np.full(shape, 0.5)
+
+    def coverage(cal):
+        z = np.abs(y) / (std * cal.factors(shape[1])[None])
+        return np.mean(z <= 1), np.mean(z <= 2)
+
+    one, two = coverage(fit(y, mean, std, "coverage"))
+    assert abs(one - ONE_SIGMA) < 0.05 and abs(two - TWO_SIGMA) < 0.03
+    nll_one, _ = coverage(fit(y, mean, std, "nll"))
+    _, q_two = coverage(fit(y, mean, std, "quantile"))
+    assert nll_one - ONE_SIGMA > 0.05 and TWO_SIGMA - q_two > 0.02  # each one-level method strays further
+    gauss = rng.normal(0, 2.0, size=shape)  # Gaussian errors: every method finds the true scale (4x the std)
+    for method in ("nll", "quantile", "coverage"):
+        scale = np.asarray(fit(gauss, mean, std, method).scale)
+        assert abs(np.median(scale) - 4.0) < 0.2 and np.allclose(scale, 4.0, rtol=0.2)  # few samples at step 1
 
 
 def test_factors_equal_the_scales_at_knots_interpolate_log_log_and_hold_outside():
