@@ -171,10 +171,13 @@ def test_a_head_less_model_refuses_the_head_modes_in_one_line(blended, total_sto
     pred = Predictor.from_checkpoint(blended[0])
     ds = open_store(total_store)
     u, y = ds.read("u")[:1], ds.read("y")[:1]
-    for mode in ("learned", "fused", "refined"):
+    for mode in ("learned", "fused"):
         pred.physics_mode = mode
         with pytest.raises(HybridError, match="parameter head"):
             pred.simulate(u[:, :CKPT_CONTEXT], y[:, :CKPT_CONTEXT], u[:, CKPT_CONTEXT:])
+    pred.physics_mode = "refined"  # starts from the regression: no head needed
+    out = pred.simulate(u[:, :CKPT_CONTEXT], y[:, :CKPT_CONTEXT], u[:, CKPT_CONTEXT:], at_rest=True)
+    assert out.shape == (1, CKPT_HORIZON, 14) and np.all(np.isfinite(out))
 
 
 def test_blend_without_weights_and_on_stores_without_parameters_is_refused(tiny_checkpoint, blended, total_store,
