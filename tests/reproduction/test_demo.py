@@ -18,3 +18,17 @@ def test_demo_ends_with_the_horizon_table_of_model_hold_and_nominal_physics():
     rows = [r for r in cells if r[0].startswith("joints")]
     assert [r[1] for r in rows] == ["model", "hold", "nominal_physics"]
     assert rows[1][2:] == ["2", "2"]  # hold is off by 2 mrad on every joint here
+
+
+def test_the_demo_gives_a_total_torque_model_its_blend_before_calibrating(tiny_checkpoint, tmp_path):
+    import shutil
+
+    from robomorph.model.checkpoint import load_trained
+    from robomorph.reproduction.demo import calibrate_std
+
+    ckpt = str(tmp_path / "best.ckpt")
+    shutil.copy(tiny_checkpoint, ckpt)
+    assert load_trained(ckpt)[0].blend is None
+    assert calibrate_std(ckpt) is False  # no Gaussian head to calibrate, but the blend is fitted
+    model, info = load_trained(ckpt)
+    assert info["inputs"] == "total" and model.blend is not None and model.blend.physics is not None
