@@ -38,8 +38,8 @@ HEAD_MODES = ("learned", "fused")
 # What ``refined`` fits over rollouts: the parameters the regression leaves least certain. Early
 # steps follow the armature (the finite-difference accelerations the regression reads blur
 # it), late ones the friction losses (piecewise linear, little seen in many contexts).
-# Measured on 16 held-out robots: below identified_physics at every reported step, at a fifth
-# of its cost; fitting all 29 parameters again from the regression's estimate was no better.
+# Measured on 16 held-out robots: below identified_physics at every reported step from the
+# trajectory start, at a sixth of its cost; refitting all 29 parameters was no better.
 REFINE_KINDS = ("armature", "frictionloss")
 
 
