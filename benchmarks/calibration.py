@@ -32,7 +32,7 @@ from robomorph.core.results import markdown_table, write_rows
 from robomorph.evaluation.calibrating import calibrate
 from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.windows import load_window
-from robomorph.model.calibration import StdCalibration
+from robomorph.model.calibration import METHODS, StdCalibration
 from robomorph.model.files import read_model
 from robomorph.model.predictor import Predictor
 
@@ -77,7 +77,7 @@ def main(argv=None) -> None:
             pred = Predictor.from_checkpoint(ckpt, device="cpu")
             step = int(read_model(ckpt).get("global_step", 0))
             cals = {"none": None}
-            for method in ("nll", "quantile"):
+            for method in METHODS:
                 report = calibrate(ckpt, out=os.path.join(tmp, f"{name}-{method}.ckpt"), method=method)
                 cals[method] = StdCalibration.from_dict(report["calibration"])
                 print(f"{name}: {method} fitted on {report['calibration']['source']['n']} validation windows",

@@ -89,7 +89,7 @@ def _windows(predictor, sources, n, context_len, horizon, offset, seed) -> Windo
 
 def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,
               context_len: int | None = None, horizon: int | None = None, offset: str | int = "start",
-              seed: int = 0, method: str = "nll", batch_size: int = 64, device: str | None = None,
+              seed: int = 0, method: str = "coverage", batch_size: int = 64, device: str | None = None,
               horizons_spec: str | None = None) -> dict:
     """Fits the calibration and writes the checkpoint with it to ``out`` (default: in place).
 
@@ -98,7 +98,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
         n: at most this many windows.
         context_len, horizon: the window (default: the checkpoint's training window).
         offset, seed: where each window starts (``start``, ``random`` or a step), as in evaluate.
-        method: ``nll`` or ``quantile`` (:mod:`robomorph.model.calibration`).
+        method: ``coverage`` (default), ``nll`` or ``quantile`` (:mod:`robomorph.model.calibration`).
         horizons_spec: the steps the report shows (evaluate's ``--horizons``).
 
     Returns:
