@@ -30,7 +30,7 @@ import numpy as np
 
 from robomorph.core.atomic import check_replaceable
 from robomorph.evaluation import training_data
-from robomorph.evaluation.horizons import parse_horizons
+from robomorph.evaluation.horizons import error_curve, groups_for, parse_horizons
 from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.windows import EvaluationError, Window, check_counts, check_patch, load_window, parse_offset
 from robomorph.model.calibration import CALIBRATION_KEY, CalibrationError, fit
@@ -87,6 +87,23 @@ def _windows(predictor, sources, n, context_len, horizon, offset, seed) -> Windo
     return replace(parts[-1], **joined)
 
 
+def _fitting_windows(ckpt: str, predictor, sources, split: str, n, context_len, horizon, offset, seed: int,
+                     what: str) -> tuple[Window, dict]:
+    """The windows a calibration or a blend is fitted on (the checkpoint's training window by
+    default), and the provenance they are stored with; ``what`` names a window in the refusal."""
+    info = predictor.data_info or {}
+    context_len, horizon = context_len or info.get("context_len"), horizon or info.get("horizon")
+    if context_len is None or horizon is None:
+        raise EvaluationError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
+    check_patch(predictor.patch, [int(context_len)])
+    w = _windows(predictor, sources, n, int(context_len), int(horizon), offset, seed)
+    if len(w.u) < 2:
+        raise CalibrationError(f"only {len(w.u)} {what}: pass --data with a store of more robots")
+    source = {"data": [p for p, _ in sources], "split": split, "n": int(len(w.u)), "context_len": int(context_len),
+              "horizon": int(horizon), "offset": offset, "seed": int(seed), "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    return w, source
+
+
 def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,
               context_len: int | None = None, horizon: int | None = None, offset: str | int = "start",
               seed: int = 0, method: str = "coverage", batch_size: int = 64, device: str | None = None,
@@ -112,26 +129,19 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     predictor = _predictor(ckpt, device)
     ckpt_dict = read_model(ckpt)
     sources, split = _sources(ckpt_dict, data)
-    info = predictor.data_info or {}
-    context_len, horizon = context_len or info.get("context_len"), horizon or info.get("horizon")
-    if context_len is None or horizon is None:
-        raise EvaluationError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
-    check_patch(predictor.patch, [int(context_len)])
-    w = _windows(predictor, sources, n, int(context_len), int(horizon), offset, seed)
-    if len(w.u) < 2:
-        raise CalibrationError(f"only {len(w.u)} calibration window: pass --data with a store of more robots")
-    steps = parse_horizons(horizons_spec, int(horizon), w.dt)
+    w, source = _fitting_windows(ckpt, predictor, sources, split, n, context_len, horizon, offset, seed,
+                                 "calibration window")
+    horizon = source["horizon"]
+    steps = parse_horizons(horizons_spec, horizon, w.dt)
     with predictor.raw_std():
         before = score_windows(predictor, w, (), steps, batch_size=batch_size)
     mean, std = before.preds["model"], before.std
-    source = {"data": [p for p, _ in sources], "split": split, "n": int(len(w.u)), "context_len": int(context_len),
-              "horizon": int(horizon), "offset": offset, "seed": int(seed), "normalization": predictor.normalization,
-              "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    source["normalization"] = predictor.normalization
     if getattr(predictor, "physics", None):
         # A hybrid's std depends on how it identifies the robot: the calibration is that mode's.
         source["physics_mode"] = predictor.physics_mode
     cal = fit(before.y, mean, std, method, source=source)
-    factors = cal.factors(int(horizon))
+    factors = cal.factors(horizon)
     after = score_windows(Predictions(mean, factors[None] * std), w, (), steps)
     report = {"ckpt": ckpt, "out": out or ckpt, "calibration": cal.to_dict(), "steps": steps,
               "seconds": [s * w.dt for s in steps],
@@ -169,14 +179,8 @@ def blend(ckpt: str, data: str | None = None, out: str | None = None, n: int | N
     ckpt_dict = read_model(ckpt)
     sources, split = _sources(ckpt_dict, data)
     layout = _blend_layout(predictor, sources[0][0])
-    info = predictor.data_info or {}
-    context_len, horizon = context_len or info.get("context_len"), horizon or info.get("horizon")
-    if context_len is None or horizon is None:
-        raise EvaluationError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
-    check_patch(predictor.patch, [int(context_len)])
-    w = _windows(predictor, sources, n, int(context_len), int(horizon), offset, seed)
-    if len(w.u) < 2:
-        raise CalibrationError(f"only {len(w.u)} window to fit a blend on: pass --data with a store of more robots")
+    w, source = _fitting_windows(ckpt, predictor, sources, split, n, context_len, horizon, offset, seed,
+                                 "window to fit a blend on")
     u_ctx, y_ctx, u_q, y_q = w.split()
     rest = w.starts == 0 if len(w.starts) == len(w.u) else None
     predictor.physics_mode = "none"
@@ -185,22 +189,20 @@ def blend(ckpt: str, data: str | None = None, out: str | None = None, n: int | N
     predictor.model.blend = HorizonBlend((1,), (tuple([1.0] * predictor.n_y),), physics=layout)
     predictor.physics, predictor.physics_mode, predictor.has_std = layout, "blend", False
     physics = predict(predictor, u_ctx, y_ctx, u_q, batch_size, "physics", at_rest=rest)
-    source = {"data": [p for p, _ in sources], "split": split, "n": int(len(w.u)), "context_len": int(context_len),
-              "horizon": int(horizon), "offset": offset, "seed": int(seed), "date": time.strftime("%Y-%m-%d %H:%M:%S")}
-    fitted = fit_blend(y_q, physics, decoder, source=source,
-                       layout=None if (info.get("physics") and predictor.model.config.n_params) else layout)
-    steps = parse_horizons(horizons_spec, int(horizon), w.dt)
+    own = (predictor.data_info or {}).get("physics") and predictor.model.config.n_params  # its record has it
+    fitted = fit_blend(y_q, physics, decoder, source=source, layout=None if own else layout)
+    steps = parse_horizons(horizons_spec, source["horizon"], w.dt)
     mixed = fitted.combine(physics, decoder)[0]
-    joints = [i for i, name in enumerate(w.y_names) if name.startswith("q")]
-    rms = {k: [float(1e3 * np.sqrt(np.mean((v[:, s - 1, joints] - y_q[:, s - 1, joints]) ** 2))) for s in steps]
+    joints = next(g for g in groups_for(w.y_names) if g.name == "joints")
+    rms = {k: [float(error_curve(y_q, v, joints)[s - 1]) for s in steps]
            for k, v in (("physics", physics), ("decoder", decoder), ("blend", mixed))}
     fitted.source["joint_rms_mrad"] = {"steps": steps, **rms}
     fitted.source["gated_windows"] = int(fitted.gated(physics, decoder)[:, -1].sum())
     ckpt_dict[BLEND_KEY] = fitted.to_dict()
     _write(ckpt_dict, out or ckpt)
-    weights = fitted.weights(int(horizon))
+    weights = fitted.weights(source["horizon"])[:, list(joints.channels)]
     return {"ckpt": ckpt, "out": out or ckpt, "blend": fitted.to_dict(), "steps": steps,
-            "seconds": [s * w.dt for s in steps], "weight": [float(np.mean(weights[s - 1, joints])) for s in steps],
+            "seconds": [s * w.dt for s in steps], "weight": [float(np.mean(weights[s - 1])) for s in steps],
             "rms": rms}
 
 

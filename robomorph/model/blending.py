@@ -40,7 +40,7 @@ import numpy as np
 
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.metrics import r2
-from robomorph.model.calibration import knot_steps, step_bands
+from robomorph.model.calibration import check_knot_table, interp_log_step, knot_steps, step_bands
 
 # Checkpoint entry holding the blend (a dict of plain lists and strings).
 BLEND_KEY = "robomorph_physics_blend"
@@ -77,11 +77,8 @@ class HorizonBlend:
     gate: float = float("inf")
 
     def __post_init__(self) -> None:
-        knots, weight = np.asarray(self.knots), np.asarray(self.weight, dtype=np.float64)
-        if knots.ndim != 1 or len(knots) == 0 or (knots < 1).any() or (np.diff(knots) <= 0).any():
-            raise BlendError(f"blend knots must be increasing steps >= 1, got {list(self.knots)}")
-        if weight.ndim != 2 or weight.shape[0] != len(knots):
-            raise BlendError(f"blend weights must be (knots={len(knots)}, n_y), got shape {weight.shape}")
+        weight = np.asarray(self.weight, dtype=np.float64)
+        check_knot_table(self.knots, weight, "blend", "weights", BlendError)
         if not (np.isfinite(weight).all() and (weight >= 0).all() and (weight <= 1).all()):
             raise BlendError("blend weights must lie in [0, 1]")
         if not self.gate > 0:
@@ -97,15 +94,15 @@ class HorizonBlend:
 
     def weights(self, horizon: int) -> np.ndarray:
         """(horizon, n_y) physics weights at query steps 1..horizon (linear in log step, flat outside)."""
-        return _interp(self.knots, np.asarray(self.weight, dtype=np.float64), horizon)
+        return interp_log_step(self.knots, np.asarray(self.weight, dtype=np.float64), horizon)
 
     def gated(self, physics: np.ndarray, decoder: np.ndarray) -> np.ndarray:
         """(B, H) bools: the steps of each window from which its physics is dropped."""
         with np.errstate(invalid="ignore", over="ignore"):
             off = ~np.isfinite(physics)
             if self.decoder_rms is not None and np.isfinite(self.gate):
-                rms = np.exp(_interp(self.knots, np.log(np.maximum(np.asarray(self.decoder_rms), 1e-12)),
-                                     physics.shape[-2]))
+                log_rms = np.log(np.maximum(np.asarray(self.decoder_rms), 1e-12))
+                rms = np.exp(interp_log_step(self.knots, log_rms, physics.shape[-2]))
                 off |= ~(np.abs(physics - decoder) <= self.gate * rms[None])
         return np.maximum.accumulate(off.any(axis=-1), axis=-1)  # a simulation that left does not come back
 
@@ -187,9 +184,3 @@ def fit_blend(y: np.ndarray, physics: np.ndarray, decoder: np.ndarray, knots: np
             best = (score, blend)
     return best[1]
 
-
-def _interp(knots, values: np.ndarray, horizon: int) -> np.ndarray:
-    """(horizon, n_y) of (K, n_y) ``values`` at ``knots``, linear in log step, flat outside."""
-    log_k = np.log(np.asarray(knots, dtype=np.float64))
-    log_h = np.log(np.arange(1, horizon + 1, dtype=np.float64))
-    return np.stack([np.interp(log_h, log_k, values[:, c]) for c in range(values.shape[1])], axis=1)

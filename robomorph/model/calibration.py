@@ -91,11 +91,8 @@ class StdCalibration:
     source: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        knots, scale = np.asarray(self.knots), np.asarray(self.scale, dtype=np.float64)
-        if knots.ndim != 1 or len(knots) == 0 or (knots < 1).any() or (np.diff(knots) <= 0).any():
-            raise CalibrationError(f"calibration knots must be increasing steps >= 1, got {list(self.knots)}")
-        if scale.ndim != 2 or scale.shape[0] != len(knots):
-            raise CalibrationError(f"calibration scale must be (knots={len(knots)}, n_y), got shape {scale.shape}")
+        scale = np.asarray(self.scale, dtype=np.float64)
+        check_knot_table(self.knots, scale, "calibration", "scale", CalibrationError)
         if not (np.isfinite(scale).all() and (scale > 0).all()):
             raise CalibrationError("calibration scales must be finite and positive")
         if self.method not in METHODS:
@@ -107,10 +104,7 @@ class StdCalibration:
 
     def factors(self, horizon: int) -> np.ndarray:
         """(horizon, n_y) multipliers for query steps 1..horizon (log-log interpolation, flat outside)."""
-        log_k = np.log(np.asarray(self.knots, dtype=np.float64))
-        log_s = np.log(np.asarray(self.scale, dtype=np.float64))
-        log_h = np.log(np.arange(1, horizon + 1, dtype=np.float64))
-        return np.exp(np.stack([np.interp(log_h, log_k, log_s[:, c]) for c in range(self.n_y)], axis=1))
+        return np.exp(interp_log_step(self.knots, np.log(np.asarray(self.scale, dtype=np.float64)), horizon))
 
     def apply(self, std: torch.Tensor) -> torch.Tensor:
         """``std`` (B, H, n_y) times the factors of steps 1..H."""
@@ -133,6 +127,24 @@ class StdCalibration:
                 raise
             raise CalibrationError(f"unreadable std calibration ({type(exc).__name__}: {exc}): fit it again "
                                    "with python -m robomorph.calibrate") from exc
+
+
+def check_knot_table(knots, values: np.ndarray, what: str, name: str, error: type[Exception]) -> None:
+    """Refuses (with ``error``) knots that are not increasing steps >= 1, or ``values`` that are
+    not (knots, n_y): the checks of every per-step table stored at knots."""
+    k = np.asarray(knots)
+    if k.ndim != 1 or len(k) == 0 or (k < 1).any() or (np.diff(k) <= 0).any():
+        raise error(f"{what} knots must be increasing steps >= 1, got {list(knots)}")
+    if values.ndim != 2 or values.shape[0] != len(k):
+        raise error(f"{what} {name} must be (knots={len(k)}, n_y), got shape {values.shape}")
+
+
+def interp_log_step(knots, values: np.ndarray, horizon: int) -> np.ndarray:
+    """(horizon, n_y) of (K, n_y) ``values`` at ``knots`` for steps 1..horizon: linear in log
+    step between knots, held flat outside them."""
+    log_k = np.log(np.asarray(knots, dtype=np.float64))
+    log_h = np.log(np.arange(1, horizon + 1, dtype=np.float64))
+    return np.stack([np.interp(log_h, log_k, values[:, c]) for c in range(values.shape[1])], axis=1)
 
 
 def step_bands(knots: np.ndarray, horizon: int) -> list[np.ndarray]:
