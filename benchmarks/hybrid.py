@@ -2,7 +2,7 @@
 
 Each mode of a checkpoint trained with ``--model.physics amortized`` (``learned``: the
 parameter head's estimate; ``regression``: linear least-squares solves of the inverse
-dynamics, ``regression@1`` a single one; ``refined``: a few Gauss-Newton iterations from the regression), optionally the
+dynamics, ``regression@1`` a single one, ``regression~1`` without the friction mixture; ``refined``: a few Gauss-Newton iterations from the regression), optionally the
 checkpoint's black-box decoder (``--black-box``) and other checkpoints (``--compare``), and
 the baselines are scored on the same held-out windows with
 :func:`robomorph.evaluation.scoring.score_windows`: from the trajectory start and from random
@@ -85,7 +85,8 @@ def main(argv=None) -> int:
     p.add_argument("--n", type=int, default=16, help="held-out robots (one window each per offset)")
     p.add_argument("--modes", default="learned,regression,refined",
                    help="comma-separated physics modes; MODE@K solves the regression K times (default 3), "
-                        "each linearized where the last landed")
+                        "each linearized where the last landed; MODE~M predicts with M robots of the friction "
+                        "mixture over the joints that held still (default 9; ~1: the estimate alone)")
     p.add_argument("--baselines", default="hold,nominal_physics,identified_physics")
     p.add_argument("--offsets", default="start,random")
     p.add_argument("--black-box", action="store_true", help="also score the checkpoint's black-box decoder")
@@ -125,10 +126,13 @@ def main(argv=None) -> int:
         for name, ckpt, mode in sources:
             pred = Predictor.from_checkpoint(ckpt)
             if mode is not None:
+                mode, _, members = mode.partition("~")
                 mode, _, solves = mode.partition("@")
                 pred.physics_mode = mode
                 if solves:
                     pred.hybrid().iterations = int(solves)
+                if members:
+                    pred.physics_members = int(members)
             std = args.std and mode not in (None, "none")
             if not std and pred.physics:
                 pred.has_std = False  # the mean alone: the cost of a prediction without draws

@@ -41,6 +41,9 @@ HEAD_MODES = ("learned", "fused")
 # Measured on 16 held-out robots: below identified_physics at every reported step from the
 # trajectory start, at a sixth of its cost; refitting all 29 parameters was no better.
 REFINE_KINDS = ("armature", "frictionloss")
+# The modes whose estimate comes from the regression, and so knows which joints held still in the
+# context: their prediction is the friction mixture of :mod:`robomorph.sim.stiction` (command formulation).
+MIXED_MODES = ("regression", "fused", "refined")
 
 
 class HybridError(RoboMorphError, ValueError):
@@ -59,11 +62,13 @@ class Hybrid:
             Jacobian of rollouts).
         iterations: solves of the regression, each linearized where the previous one landed
             (:class:`robomorph.sim.regressor.RegressorIdentifier`); 1: at the catalogue robot.
+        members: robots of the friction mixture over the joints that held still in the context
+            (:mod:`robomorph.sim.stiction`; command formulation); 1: the estimate alone.
         seed: the seed of the parameter draws (the same windows give the same std).
     """
 
     def __init__(self, model, physics: dict, inputs: str, samples: int = 8, refine_iters: int = 3, seed: int = 0,
-                 iterations: int = 3):
+                 iterations: int = 3, members: int = 9):
         from robomorph.sim.backbone import PhysicsBackbone  # noqa: PLC0415  (MuJoCo only when used)
 
         if model.config.n_params and model.config.n_params != len(physics["names"]):
@@ -71,10 +76,14 @@ class Hybrid:
                               f"names {len(physics['names'])} parameters: the checkpoint is inconsistent")
         self.model, self.physics, self.inputs = model, physics, inputs
         self.samples, self.refine_iters, self.seed = int(samples), int(refine_iters), int(seed)
-        self.iterations = int(iterations)
+        self.iterations, self.members = int(iterations), int(members)
+        if self.members < 1:
+            raise HybridError(f"the friction mixture needs members >= 1, got {members}")
         self.backbone = PhysicsBackbone(physics, inputs)
         self._identifier = None
         self._regressor = None
+        self._stiction = None
+        self._held: np.ndarray | None = None  # (B, nj) of the last regression: joints that held still
         self.last_fits: list = []
 
     def close(self) -> None:
@@ -108,8 +117,9 @@ class Hybrid:
             HybridError: an unknown mode, or a simulated robot that diverged.
         """
         from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
+        from robomorph.sim.stiction import mixed_horizon  # noqa: PLC0415
 
-        self._check_mode(mode)
+        check_mode(self.model, mode)
         uc, yc, uq = (t.double().cpu().numpy() for t in (u_ctx, y_ctx, u_query))
         q_ctx, quat_last = yc[..., 7:14], yc[:, -1, 3:7]
         B = len(uc)
@@ -121,6 +131,12 @@ class Hybrid:
         shared = B > 1 and bool(np.all(uc == uc[:1]) and np.all(yc == yc[:1]) and np.all(rest == rest[0]))
         one = slice(0, 1) if shared else slice(None)
         params, z, z_std = self._identify(u_ctx[one], y_ctx[one], mode, q_ctx[one, 0], qvel_start[one])
+        mixture = self._mixture(mode, params, q_ctx[one], uc[one], qvel_start[one])
+        if mixture is not None:
+            # The std's parameter draws go around each window's most likely member.
+            params = np.stack([m[int(np.argmax(w))] for m, w, _ in mixture])
+            if shared:
+                mixture = mixture * B  # the one context's members, for every candidate row
 
         def horizon(p: np.ndarray) -> np.ndarray:
             """(B, H, n_y) of the robots ``p`` (one per row, or one for all on a shared context)."""
@@ -129,40 +145,35 @@ class Hybrid:
                 p, qvel_end = np.repeat(p, B, axis=0), np.repeat(qvel_end, B, axis=0)
             return self.backbone.simulate(p, q_ctx, uc, uq, qvel_start, quat_last, qvel_end)
 
-        mean = horizon(params)
+        if mixture is not None:
+            mean, mix_var = mixed_horizon(self.backbone, mixture, q_ctx, uc, uq, qvel_start, quat_last)
+        else:
+            mean, mix_var = horizon(params), None
         if mode == "blend":
-            return self._blend(u_ctx, y_ctx, u_query, mean, params, z, z_std, horizon, return_std, calibration)
+            spread = (lambda: self._spread("regression", params, z, z_std, mean, horizon, None)) if return_std else None
+            return _blend(self.model, u_ctx, y_ctx, u_query, mean, spread, calibration)
         if not np.all(np.isfinite(mean)):
             raise HybridError("the simulated robot diverged (non-finite outputs): check the torques' units and "
                               "scale, or predict with physics_mode 'none'")
-        if not return_std:
-            return mean, None
-        return mean, self._spread(mode, params, z, z_std, mean, horizon, calibration)
+        if not return_std or mix_var is None:
+            return mean, self._spread(mode, params, z, z_std, mean, horizon, calibration) if return_std else None
+        # The parameters' uncertainty about the most likely member, and the friction's between members.
+        std = np.sqrt(self._spread(mode, params, z, z_std, horizon(params), horizon, None) ** 2 + mix_var)
+        return mean, std if calibration is None else std * calibration.factors(std.shape[-2])[None]
 
-    def _check_mode(self, mode: str) -> None:
-        if mode not in MODES:
-            raise HybridError(f"physics mode must be one of {MODES}, got {mode!r}")
-        if mode in HEAD_MODES and not self.model.config.n_params:
-            raise HybridError(f"physics mode {mode!r} reads a parameter head, which this model has not (it was "
-                              "trained with --model.physics none): use 'regression' or 'blend'")
-        if mode == "blend" and getattr(self.model, "blend", None) is None:
-            raise HybridError("physics mode 'blend' needs the blend's weights, which this model has not: fit them "
-                              "with robomorph calibrate --blend")
+    def _mixture(self, mode: str, params: np.ndarray, q_ctx: np.ndarray, uc: np.ndarray,
+                 qvel_start: np.ndarray) -> list | None:
+        """Per window, the friction mixture's ``(members, weights, qvel_end)``; None where it does
+        not apply (total torques, modes without the regression, ``members`` 1, no joint held)."""
+        from robomorph.sim.stiction import FrictionMixture  # noqa: PLC0415
 
-    @torch.no_grad()
-    def _blend(self, u_ctx, y_ctx, u_query, physics, params, z, z_std, horizon, return_std, calibration):
-        """The physics prediction and the decoder's, weighted by step and channel (and their stds)."""
-        mean, std = self.model.forward_dist_raw(u_ctx, y_ctx, u_query)
-        decoder = mean.double().cpu().numpy()
-        if not return_std:
-            return self.model.blend.combine(physics, decoder)[0], None
-        if std is None:
-            raise HybridError("the blend's standard deviation needs the decoder's, and this model has no Gaussian "
-                              "head: drop return_std")
-        with np.errstate(invalid="ignore", over="ignore"):
-            spread = self._spread("regression", params, z, z_std, physics, horizon, None)
-        out, out_std = self.model.blend.combine(physics, decoder, spread, std.double().cpu().numpy())
-        return out, out_std if calibration is None else out_std * calibration.factors(out_std.shape[-2])[None]
+        if self.members < 2 or self.inputs != "command" or mode not in MIXED_MODES or self._held is None \
+                or not self._held.any():
+            return None
+        if self._stiction is None or self._stiction.members != self.members:
+            self._stiction = FrictionMixture(self.backbone.ident, self.members)
+        return [self._stiction.weigh(params[b], self._held[b], q_ctx[b], uc[b], qvel_start[b])
+                for b in range(len(params))]
 
     @torch.no_grad()
     def identify(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, mode: str = "regression",
@@ -170,15 +181,19 @@ class Hybrid:
         """(B, P) the robots' full parameter vectors read from their contexts in ``mode``.
 
         What a model-predictive controller simulates its candidates with (the parameters
-        change slowly, the candidates at every plan). ``anchor``: (B, 7) where each robot
+        change slowly, the candidates at every plan). Where joints held still in the context, the
+        friction mixture's weighted mean (:mod:`robomorph.sim.stiction`). ``anchor``: (B, 7) where each robot
         started (its springs' rest pose); default: the first context sample.
         """
         from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
 
-        self._check_mode(mode)
+        check_mode(self.model, mode)
         q_ctx = y_ctx.double().cpu().numpy()[..., 7:14]
         qvel_start = np.zeros_like(q_ctx[:, 0]) if at_rest else -estimate_velocity(q_ctx[:, ::-1], self.backbone.dt)
-        return self._identify(u_ctx, y_ctx, mode, q_ctx[:, 0] if anchor is None else anchor, qvel_start)[0]
+        params = self._identify(u_ctx, y_ctx, mode, q_ctx[:, 0] if anchor is None else anchor, qvel_start)[0]
+        mixture = self._mixture(mode, params, q_ctx, u_ctx.double().cpu().numpy(), qvel_start)
+        # One robot per context: the friction mixture's weighted mean (what the candidates are simulated with).
+        return params if mixture is None else np.stack([w @ m for m, w, _ in mixture])
 
     def _identify(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, mode: str, anchor: np.ndarray,
                   qvel_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -192,6 +207,7 @@ class Hybrid:
             z, z_std = self.parameters(u_ctx, y_ctx, u_ctx[:, :1])
         # The springs are anchored where the robot started: the first context sample when the context opens it.
         params = self.backbone.full_params(z, anchor)
+        self._held = None
         if mode != "learned":
             prior = (z, z_std) if mode == "fused" else None
             params = self._regress(params, q_ctx, uc, prior, anchor)
@@ -202,22 +218,8 @@ class Hybrid:
     def _spread(self, mode: str, params: np.ndarray, z: np.ndarray, z_std: np.ndarray, mean: np.ndarray,
                 horizon, calibration) -> np.ndarray:
         """The std (B, H, n_y): the horizons of robots drawn around the estimate, about ``mean``."""
-        rng = np.random.default_rng(self.seed)
-        # Draws around the estimate used: the head's Gaussian (learned) or the regression's
-        # covariance (regression, fused, refined), in unit coordinates.
-        index, low, high = self.backbone.index, self.backbone.low, self.backbone.high
-        center = (params[:, index] - (low + high) / 2) / ((high - low) / 2)
-        if mode == "learned":
-            chol = z_std[:, :, None] * np.eye(z.shape[1])[None]
-        else:
-            chol = np.stack([np.linalg.cholesky(c + 1e-12 * np.eye(len(c))) for c in self._covs])
-        draws = []
-        for _ in range(self.samples):
-            zk = center + np.einsum("bij,bj->bi", chol, rng.standard_normal(center.shape))
-            pk = params.copy()
-            pk[:, index] = (low + high) / 2 + np.clip(zk, -1, 1) * (high - low) / 2
-            draws.append(horizon(pk))
-        std = np.sqrt(np.mean((np.stack(draws) - mean[None]) ** 2, axis=0))  # (K, B, H, n_y) -> (B, H, n_y)
+        covs = None if mode == "learned" else self._covs
+        std = _draw_spread(self.backbone, params, z_std, covs, mean, horizon, self.samples, self.seed)
         return std if calibration is None else std * calibration.factors(std.shape[-2])[None]
 
     def _regress(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, prior=None,
@@ -232,10 +234,12 @@ class Hybrid:
                                                   iterations=self.iterations)
         self._regressor.iterations = self.iterations
         base = np.stack([self.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
-        out, self._covs = [], []
+        out, self._covs, held = [], [], []
         for b in range(len(params)):
             out.append(self._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))
             self._covs.append(self._regressor.last_cov)
+            held.append(self._regressor.last_held)
+        self._held = np.stack(held)
         return np.stack(out)
 
     def _refine(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray) -> np.ndarray:
@@ -246,3 +250,52 @@ class Hybrid:
             self._identifier = Identifier(self.backbone.recipe, self.inputs, config)
         self.last_fits = [self._identifier.fit(params[b], q_ctx[b], u_ctx[b], qvel_start[b]) for b in range(len(params))]
         return np.stack([f.params for f in self.last_fits])
+
+
+def _draw_spread(backbone, params: np.ndarray, z_std: np.ndarray, covs, mean: np.ndarray, horizon, samples: int,
+                 seed: int) -> np.ndarray:
+    """(B, H, n_y) RMS of ``samples`` horizons about ``mean``, of robots drawn around ``params``: from
+    the head's Gaussian (``covs`` None: std ``z_std``) or the regression's covariances, in unit coordinates."""
+    rng = np.random.default_rng(seed)
+    index, low, high = backbone.index, backbone.low, backbone.high
+    center = (params[:, index] - (low + high) / 2) / ((high - low) / 2)
+    if covs is None:
+        chol = z_std[:, :, None] * np.eye(center.shape[1])[None]
+    else:
+        chol = np.stack([np.linalg.cholesky(c + 1e-12 * np.eye(len(c))) for c in covs])
+    draws = []
+    for _ in range(samples):
+        zk = center + np.einsum("bij,bj->bi", chol, rng.standard_normal(center.shape))
+        pk = params.copy()
+        pk[:, index] = (low + high) / 2 + np.clip(zk, -1, 1) * (high - low) / 2
+        draws.append(horizon(pk))
+    return np.sqrt(np.mean((np.stack(draws) - mean[None]) ** 2, axis=0))  # (K, B, H, n_y) -> (B, H, n_y)
+
+
+def check_mode(model, mode: str) -> None:
+    """Refuses a physics mode that ``model`` (a :class:`robomorph.model.checkpoint.TrainedModel`) cannot run."""
+    if mode not in MODES:
+        raise HybridError(f"physics mode must be one of {MODES}, got {mode!r}")
+    if mode in HEAD_MODES and not model.config.n_params:
+        raise HybridError(f"physics mode {mode!r} reads a parameter head, which this model has not (it was "
+                          "trained with --model.physics none): use 'regression' or 'blend'")
+    if mode == "blend" and getattr(model, "blend", None) is None:
+        raise HybridError("physics mode 'blend' needs the blend's weights, which this model has not: fit them "
+                          "with robomorph calibrate --blend")
+
+
+@torch.no_grad()
+def _blend(model, u_ctx, y_ctx, u_query, physics: np.ndarray, spread, calibration):
+    """The physics prediction and the decoder's, weighted by step and channel; with ``spread`` (a
+    callable giving the physics' std), their std too."""
+    mean, std = model.forward_dist_raw(u_ctx, y_ctx, u_query)
+    decoder = mean.double().cpu().numpy()
+    if spread is None:
+        return model.blend.combine(physics, decoder)[0], None
+    if std is None:
+        raise HybridError("the blend's standard deviation needs the decoder's, and this model has no Gaussian "
+                          "head: drop return_std")
+    with np.errstate(invalid="ignore", over="ignore"):
+        physics_std = spread()
+    out, out_std = model.blend.combine(physics, decoder, physics_std, std.double().cpu().numpy())
+    return out, out_std if calibration is None else out_std * calibration.factors(out_std.shape[-2])[None]

@@ -116,6 +116,9 @@ class Predictor:
             decoder). Default: ``regression`` for commands; for total torques ``blend`` when
             the model has one, else ``none``.
         physics_samples: parameter draws behind the hybrid's standard deviation.
+        physics_members: robots of the friction mixture over the joints that held still in the
+            context (:mod:`robomorph.sim.stiction`; ``regression``, ``fused`` and ``refined`` in the
+            command formulation); 1: the estimate alone (cheaper, less accurate).
         channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside,
             its outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
     """
@@ -132,6 +135,7 @@ class Predictor:
         self.inputs: str = (data_info or {}).get("inputs", "total")
         self.physics, self.physics_mode = _backbone(model, data_info, self.inputs)
         self.physics_samples: int = 8
+        self.physics_members: int = 9
         self.channels: tuple[list[str], list[str]] | None = None
         self._hybrid = None
         if self.physics:
@@ -145,8 +149,9 @@ class Predictor:
         if not self.physics:
             raise PredictionError("this model has no physics backbone (it was trained with --model.physics none)")
         if self._hybrid is None:
-            self._hybrid = Hybrid(self.model, self.physics, self.inputs, samples=self.physics_samples)
-        self._hybrid.samples = self.physics_samples
+            self._hybrid = Hybrid(self.model, self.physics, self.inputs, samples=self.physics_samples,
+                                  members=self.physics_members)
+        self._hybrid.samples, self._hybrid.members = self.physics_samples, self.physics_members
         return self._hybrid
 
     def check_inputs(self, inputs: str | None) -> None:

@@ -335,11 +335,12 @@ class _Problem:
         qsim = state[:, self.rows, 1:1 + nq]  # FULLPHYSICS: time, qpos, qvel, ...
         # A diverged rollout (MuJoCo resets bad states) still gives finite but wrong rows.
         err = np.nan_to_num(qsim - self.q[None, 1:], nan=10.0, posinf=10.0, neginf=-10.0).reshape(k, -1)
+        nv0 = 1 + self.ident.model.nq
+        self.last_qvel_end = state[:, -1, nv0:nv0 + nq].copy()  # (k, nj): where each rollout ends
         if k == 1:
             key = zs[0].tobytes()
             self._cache = {key: err[0]}
-            nv0 = 1 + self.ident.model.nq
-            self._qvel_end = {key: state[0, -1, nv0:nv0 + nq].copy()}
+            self._qvel_end = {key: self.last_qvel_end[0].copy()}
         return err
 
     def cached(self, z: np.ndarray) -> np.ndarray:

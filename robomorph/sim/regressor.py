@@ -70,6 +70,9 @@ class RegressorIdentifier:
         self.model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_INVDISCRETE
         self.data = mujoco.MjData(self.model)
         self.last_cov: np.ndarray | None = None  # of the last fit, in unit coordinates
+        # (nj,) of the last fit: joints whose friction loss never saturated over the context at
+        # the estimate (their friction column is zero: the context bounds it, does not identify it).
+        self.last_held: np.ndarray | None = None
         self._nj = len(randomizer.friction0)
         self.exact_columns = bool(exact_columns)
         if int(iterations) < 1:
@@ -117,6 +120,7 @@ class RegressorIdentifier:
             x, b_z, gram, atb = self._solve(A_z, (tau - tau0).ravel() / self.sigma, z_lin, z_base)
             params[index] = mid + x * half
             z_lin = x
+        self.last_held = self._held(cols)
         n = len(b_z)
         # The estimate's covariance in unit coordinates (Gauss-Markov, the residual's variance):
         # what the draws behind the hybrid's standard deviation sample from.
@@ -133,6 +137,17 @@ class RegressorIdentifier:
             params[index] = mid + _bounded_lstsq(hess, atb / s2 + w ** 2 * mu) * half
             self.last_cov = np.linalg.inv(hess)
         return params
+
+    def _held(self, cols: np.ndarray) -> np.ndarray:
+        """(nj,) whether each joint's friction loss never saturated: its column (the Coulomb force's
+        sign per unit of friction loss where the constraint saturates, zero where it holds the
+        joint) stays below half a unit at every state of the context."""
+        held = np.zeros(self._nj, dtype=bool)
+        for c, k in enumerate(self.space.index):
+            kind, _, joint = self.randomizer.names[k].rpartition("_q")
+            if kind == "frictionloss" and joint.isdigit():
+                held[int(joint)] = bool(np.max(np.abs(cols[:, int(joint), c])) < 0.5)
+        return held
 
     def _solve(self, A_z: np.ndarray, resid: np.ndarray, z_lin: np.ndarray, z_base: np.ndarray):
         """One solve of the torque linearized at ``z_lin``, pulled toward ``z_base``: the

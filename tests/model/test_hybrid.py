@@ -183,3 +183,41 @@ def test_evaluate_physics_modes_and_refusal(hybrid_ckpt, tiny_checkpoint, comman
                  "--inputs", "total", "--out", str(tmp_path / "e2")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no physics backbone" in err[0]
+
+
+def test_held_joints_predict_the_weighted_mean_of_the_friction_mixture(hybrid_ckpt, command_store):
+    """Where a joint held still in the context, the regression's prediction is the weighted
+    mean of the friction mixture's members, each simulated from where it leaves the context;
+    the std holds their spread; one member gives the estimate alone."""
+    from robomorph.model.predictor import Predictor
+    from robomorph.sim.stiction import FrictionMixture
+
+    uc, yc, uq, _, _, _ = _windows(command_store, n=4)
+    p = Predictor.from_checkpoint(hybrid_ckpt)
+    p.physics_mode = "regression"
+    mean = p.simulate(uc, yc, uq, at_rest=True)
+    hyb = p.hybrid()
+    _, std = hyb.predict(*(torch.as_tensor(a) for a in (uc, yc, uq)), at_rest=True, return_std=True)  # uncalibrated
+    held = hyb._held.copy()
+    assert held.any()  # the short contexts of this store hold the wrist: the mixture is exercised
+    params = hyb.identify(*(torch.as_tensor(a) for a in (uc, yc)), "regression", at_rest=True)
+    mix = FrictionMixture(hyb.backbone.ident, hyb.members)
+    bb, q = hyb.backbone, yc[..., 7:].astype(np.float64)
+    for b in range(len(uc)):
+        est = hyb._regressor.fit(bb.catalogue(q[b, 0]), q[b], uc[b].astype(np.float64))
+        members, w, qvel_end = mix.weigh(est, held[b], q[b], uc[b], np.zeros(7))
+        np.testing.assert_allclose(params[b], w @ members)  # what a controller simulates with
+        k = len(w)
+        ys = bb.simulate(members, np.repeat(q[b:b + 1], k, 0), np.repeat(uc[b:b + 1], k, 0), np.repeat(uq[b:b + 1], k, 0),
+                         np.zeros((k, 7)), np.repeat(yc[b:b + 1, -1, 3:7], k, 0), qvel_end)
+        expect = np.einsum("k,khc->hc", w, ys)
+        np.testing.assert_allclose(mean[b], expect, atol=2e-6)  # float32 output
+        spread = np.sqrt(np.einsum("k,khc->hc", w, (ys - expect) ** 2))
+        assert np.all(std[b] >= spread - 1e-9)
+        if held[b].any():
+            assert spread.max() > 0
+    p.physics_members = 1
+    alone = p.simulate(uc, yc, uq, at_rest=True)
+    rows = held.any(axis=1)
+    np.testing.assert_array_equal(alone[~rows], mean[~rows])
+    assert np.abs(alone[rows] - mean[rows]).max() > 0
