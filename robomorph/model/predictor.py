@@ -116,9 +116,8 @@ class Predictor:
             decoder). Default: ``regression`` for commands; for total torques ``blend`` when
             the model has one, else ``none``.
         physics_samples: parameter draws behind the hybrid's standard deviation.
-        physics_members: robots of the friction mixture over the joints that held still in the
-            context (:mod:`robomorph.sim.stiction`; ``regression``, ``fused`` and ``refined`` in the
-            command formulation); 1: the estimate alone (cheaper, less accurate).
+        physics_members: robots of the friction mixture over the joints that held still in the context
+            (:mod:`robomorph.sim.stiction`; command formulation); 1: the estimate alone (cheaper).
         channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside,
             its outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
     """
