@@ -60,8 +60,12 @@ def latency(args) -> None:
     rng = np.random.default_rng(0)
     cands = u[0, c:c + 60][None] + rng.normal(0, 0.2, size=(256, 60, u.shape[2])).astype(np.float32)
     rows = []
-    for mode in [m for m in args.modes.split(",") if m] + ["none"]:
-        pred.physics_mode = mode
+    for spec in [m for m in args.modes.split(",") if m] + ["none"]:
+        mode, _, members = spec.partition("~")
+        mode, _, solves = mode.partition("@")
+        pred.physics_mode, pred.physics_members = mode, int(members or 9)
+        if pred.physics:
+            pred.hybrid().iterations = int(solves or 3)
         for what, call in (("one trajectory (200 + 800)", lambda: pred.simulate(u[0, :c], y[0, :c], u[0, c:c + h])),
                            ("256 candidates x 60 steps, one context",
                             lambda: pred.simulate(np.repeat(u[:, :c], 256, 0), np.repeat(y[:, :c], 256, 0), cands))):
@@ -71,7 +75,7 @@ def latency(args) -> None:
                 t0 = time.perf_counter()
                 call()
                 times.append(time.perf_counter() - t0)
-            rows.append({"mode": mode, "call": what, "ms_median": 1e3 * float(np.median(times))})
+            rows.append({"mode": spec, "call": what, "ms_median": 1e3 * float(np.median(times))})
     print(markdown_table(["mode", "call", "ms (median)"], [[r["mode"], r["call"], r["ms_median"]] for r in rows]))
     if args.latency_csv:
         write_rows(args.latency_csv, rows, provenance())
