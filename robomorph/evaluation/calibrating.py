@@ -32,7 +32,8 @@ from robomorph.core.atomic import check_replaceable
 from robomorph.evaluation import training_data
 from robomorph.evaluation.horizons import error_curve, groups_for, parse_horizons
 from robomorph.evaluation.scoring import Predictions, score_windows
-from robomorph.evaluation.windows import EvaluationError, Window, check_counts, check_patch, load_window, parse_offset
+from robomorph.evaluation.windows import (EvaluationError, Window, check_counts, check_patch, load_window, parse_offset,
+                                          start_joints)
 from robomorph.model.calibration import CALIBRATION_KEY, CalibrationError, fit
 
 
@@ -184,11 +185,12 @@ def blend(ckpt: str, data: str | None = None, out: str | None = None, n: int | N
     u_ctx, y_ctx, u_q, y_q = w.split()
     rest = w.starts == 0 if len(w.starts) == len(w.u) else None
     predictor.physics_mode = "none"
+    anchor = start_joints(w)  # where each robot started, as the scoring path gives it
     decoder = predict(predictor, u_ctx, y_ctx, u_q, batch_size, "decoder", at_rest=rest)
     # The physics alone: a blend that weights it fully (the decoder where a simulation diverged).
     predictor.model.blend = HorizonBlend((1,), (tuple([1.0] * predictor.n_y),), physics=layout)
     predictor.physics, predictor.physics_mode, predictor.has_std = layout, "blend", False
-    physics = predict(predictor, u_ctx, y_ctx, u_q, batch_size, "physics", at_rest=rest)
+    physics = predict(predictor, u_ctx, y_ctx, u_q, batch_size, "physics", at_rest=rest, anchor=anchor)
     own = (predictor.data_info or {}).get("physics") and predictor.model.config.n_params  # its record has it
     fitted = fit_blend(y_q, physics, decoder, source=source, layout=None if own else layout)
     steps = parse_horizons(horizons_spec, source["horizon"], w.dt)

@@ -38,7 +38,7 @@ from robomorph.evaluation.horizons import (
     parse_horizons,
 )
 from robomorph.evaluation.sources import gives_std, predict, run_baselines
-from robomorph.evaluation.windows import Window
+from robomorph.evaluation.windows import Window, start_joints
 
 MODEL = "model"
 
@@ -124,9 +124,8 @@ def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold"
     """Scores a predictor and baselines on the same windows.
 
     Args:
-        predictor: anything with ``simulate(u_ctx, y_ctx, u_query)`` (a :class:`Predictor`,
-            the model being trained, a stand-in), :class:`Predictions` already made, or None
-            to score the baselines alone.
+        predictor: anything with ``simulate(u_ctx, y_ctx, u_query)`` (a :class:`Predictor`, the model being
+            trained, a stand-in), :class:`Predictions` already made, or None to score the baselines alone.
             When it gives a standard deviation, its calibration is scored too.
         windows: the context and query windows (:func:`robomorph.evaluation.windows.load_window`).
         baselines: names of :data:`robomorph.evaluation.baselines.BASELINES` (and
@@ -152,11 +151,12 @@ def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold"
         std = None if predictor.std is None else np.asarray(predictor.std, dtype=np.float64)[:, :w.horizon]
     elif predictor is not None:
         at_rest = w.starts == 0 if len(w.starts) == len(u_ctx) else None  # the generator starts at rest
+        # anchor: where each robot started, as the physics baselines are given it (sources.nominal_params)
+        kwargs = {"y_query": y_q, "at_rest": at_rest, "anchor": start_joints(w)}
         if gives_std(predictor, u_ctx, y_ctx, u_q, y_q):
-            preds[MODEL], std = predict(predictor, u_ctx, y_ctx, u_q, batch_size, y_query=y_q, with_std=True,
-                                        at_rest=at_rest)
+            preds[MODEL], std = predict(predictor, u_ctx, y_ctx, u_q, batch_size, with_std=True, **kwargs)
         else:
-            preds[MODEL] = predict(predictor, u_ctx, y_ctx, u_q, batch_size, y_query=y_q, at_rest=at_rest)
+            preds[MODEL] = predict(predictor, u_ctx, y_ctx, u_q, batch_size, **kwargs)
     base, skipped, notes = run_baselines(w, tuple(baselines), arx_orders, train_blocks)
     for name, other in (others or {}).items():
         base[name] = (np.asarray(other, dtype=np.float64)[:, :w.horizon] if isinstance(other, np.ndarray)

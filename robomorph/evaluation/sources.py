@@ -20,13 +20,14 @@ from robomorph.evaluation.windows import EvaluationError, Window
 
 
 def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None,
-            with_std: bool = False, at_rest=None):
+            with_std: bool = False, at_rest=None, anchor=None):
     """The model's predictions in batches, with a progress bar on stderr.
 
     ``y_query`` (the true outputs) is read only by a ``paper_window`` model, which needs
     their statistics (the paper's protocol); any other model never receives them.
     ``at_rest`` (N,) bools, the windows that open their trajectory, goes to a hybrid model
-    (one with a physics backbone), whose simulation then starts at rest.
+    (one with a physics backbone), whose simulation then starts at rest; ``anchor`` (N, 7), where
+    each robot started (its springs' rest pose), goes to it too.
 
     Returns:
         (N, H, n_y) means, or with ``with_std`` the pair (means, standard deviations).
@@ -43,6 +44,8 @@ def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "mode
         kwargs = _extra(predictor, y_query, part, with_std)
         if at_rest is not None and getattr(predictor, "physics", None):
             kwargs["at_rest"] = np.asarray(at_rest)[part]
+        if anchor is not None and getattr(predictor, "physics", None):
+            kwargs["anchor"] = np.asarray(anchor)[part]
         out = predictor.simulate(u_ctx[part], y_ctx[part], u_query[part], **kwargs)
         mean = out[0] if with_std else out
         if with_std:

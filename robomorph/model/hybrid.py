@@ -102,19 +102,18 @@ class Hybrid:
         return mean.double().cpu().numpy(), torch.exp(0.5 * logvar).double().cpu().numpy()
 
     def predict(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, at_rest=None,
-                mode: str = "regression", return_std: bool = False, calibration=None
+                mode: str = "regression", return_std: bool = False, calibration=None, anchor=None
                 ) -> tuple[np.ndarray, np.ndarray | None]:
         """(B, H, n_y) mean prediction and, with ``return_std``, the std over parameter draws.
 
         Args:
-            at_rest: bool or (B,) bools: the context opens its trajectory (the robot starts
-                at rest); default False: the velocity at the first context sample is estimated.
+            at_rest: bool or (B,) bools: the context opens its trajectory (the robot starts at rest); default False.
             mode: one of :data:`MODES`.
             calibration: a :class:`robomorph.model.calibration.StdCalibration` of this
                 mode's std (``robomorph calibrate``), applied to it; None: the raw spread.
+            anchor: (B, 7) where each robot started (its springs' rest pose); default: the first context sample.
 
-        Raises:
-            HybridError: an unknown mode, or a simulated robot that diverged.
+        Raises: HybridError: an unknown mode, or a simulated robot that diverged.
         """
         from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
         from robomorph.sim.stiction import mixed_horizon  # noqa: PLC0415
@@ -130,7 +129,8 @@ class Hybrid:
         # identified once and only the horizons are simulated per row.
         shared = B > 1 and bool(np.all(uc == uc[:1]) and np.all(yc == yc[:1]) and np.all(rest == rest[0]))
         one = slice(0, 1) if shared else slice(None)
-        params, z, z_std = self._identify(u_ctx[one], y_ctx[one], mode, q_ctx[one, 0], qvel_start[one])
+        anchor = q_ctx[:, 0] if anchor is None else np.asarray(anchor, dtype=np.float64).reshape(B, -1)
+        params, z, z_std = self._identify(u_ctx[one], y_ctx[one], mode, anchor[one], qvel_start[one])
         mixture = self._mixture(mode, params, q_ctx[one], uc[one], qvel_start[one])
         if mixture is not None:
             # The std's parameter draws go around each window's most likely member.

@@ -231,7 +231,7 @@ class Predictor:
 
     @torch.no_grad()
     def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, inputs: str | None = None,
-                 return_std: bool = False, at_rest=None):
+                 return_std: bool = False, at_rest=None, anchor=None):
         """Predicts the outputs over the query horizon.
 
         Args:
@@ -247,8 +247,8 @@ class Predictor:
                 ``gaussian: true`` only), recalibrated by horizon when the checkpoint
                 carries a calibration (:attr:`calibration`). A hybrid model's standard
                 deviation is the spread over :attr:`physics_samples` parameter draws.
-            at_rest: hybrid models only: bool or (B,) bools, the context opens its trajectory
-                (the robot starts at rest); default False (its first velocity is estimated).
+            at_rest, anchor: hybrid models only: bool or (B,) bools, the context opens its trajectory (default
+                False); (B, 7) where each robot started (its springs' rest pose; default: the first context sample).
 
         Returns:
             y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``;
@@ -276,7 +276,7 @@ class Predictor:
         stats = None if hybrid else _query_stats(self, y_query_stats, len(tensors[0]))
         try:
             if hybrid:
-                mean, std = self.hybrid().predict(*tensors, at_rest=at_rest, mode=self.physics_mode,
+                mean, std = self.hybrid().predict(*tensors, at_rest=at_rest, mode=self.physics_mode, anchor=anchor,
                                                   return_std=return_std, calibration=self.calibration)
                 mean, std = (None if t is None else torch.as_tensor(t) for t in (mean, std))
             else:

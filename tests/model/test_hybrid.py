@@ -221,3 +221,25 @@ def test_held_joints_predict_the_weighted_mean_of_the_friction_mixture(hybrid_ck
     rows = held.any(axis=1)
     np.testing.assert_array_equal(alone[~rows], mean[~rows])
     assert np.abs(alone[rows] - mean[rows]).max() > 0
+
+
+def test_scoring_gives_the_hybrid_where_each_robot_started(hybrid_ckpt, simulated_store):
+    """Windows at random offsets: the scoring path tells the hybrid where each robot started (its
+    springs' rest pose), as it tells the physics baselines; without it the springs are anchored
+    at the first context sample and the prediction differs."""
+    from robomorph.evaluation.scoring import MODEL, score_windows
+    from robomorph.evaluation.windows import load_window
+    from robomorph.model.predictor import Predictor
+
+    store = simulated_store(robots=4, steps=CKPT_CONTEXT + CKPT_HORIZON + 60, seed=5)
+    p = Predictor.from_checkpoint(hybrid_ckpt)
+    p.has_std, p.physics_members = False, 1
+    w = load_window(store, CKPT_CONTEXT, CKPT_HORIZON, 4, p.data_info, p.n_u, p.n_y, "random", 0, "command")
+    moved = w.starts > 0
+    assert moved.any()
+    scored = score_windows(p, w, ()).preds[MODEL]
+    u_ctx, y_ctx, u_q, _ = w.split()
+    given = p.simulate(u_ctx, y_ctx, u_q, at_rest=~moved, anchor=w.y_first[:, 7:14])
+    np.testing.assert_allclose(scored, given, rtol=0, atol=1e-6)
+    default = p.simulate(u_ctx, y_ctx, u_q, at_rest=~moved)
+    assert np.abs(default[moved] - given[moved]).max() > 1e-6
