@@ -30,7 +30,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizons", help="steps shown in the report, as evaluate's --horizons")
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
-    p.add_argument("--remove", action="store_true", help="drop a stored calibration instead")
+    p.add_argument("--physics", choices=("regression", "learned", "fused", "refined", "blend", "none"),
+                   help="a hybrid model's physics mode to calibrate (default: its default mode); each mode keeps its "
+                        "own calibration (with --remove: drop that mode's only)")
+    p.add_argument("--remove", action="store_true", help="drop the stored calibrations instead")
     p.add_argument("--blend", action="store_true",
                    help="fit the per-step weights of the model's physics prediction against its decoder's instead "
                         "(physics early, decoder late: the total-torque formulation's default once fitted)")
@@ -39,8 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run(a: argparse.Namespace) -> int:
     if a.remove:
-        had = calibrating.remove(a.ckpt, a.out)
-        print(f"{'removed the std calibration from' if had else 'no std calibration in'} {a.ckpt}"
+        had = calibrating.remove(a.ckpt, a.out, a.physics)
+        what = "std calibration" + (f" of physics mode {a.physics}" if a.physics else "")
+        print(f"{'removed the ' + what + ' from' if had else 'no ' + what + ' in'} {a.ckpt}"
               + (f" (written: {a.out})" if a.out else ""))
         return 0
     if a.blend:
@@ -49,7 +53,7 @@ def run(a: argparse.Namespace) -> int:
         print(calibrating.blend_text(report))
         return 0
     report = calibrating.calibrate(a.ckpt, a.data, a.out, a.n, a.context_len, a.horizon, a.offset, a.seed, a.method,
-                                   a.batch_size, a.device, a.horizons)
+                                   a.batch_size, a.device, a.horizons, a.physics)
     print(calibrating.report_text(report))
     return 0
 

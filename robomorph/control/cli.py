@@ -62,14 +62,7 @@ def load_model(ckpt: str, physics_mode: str | None):
     from robomorph.model.predictor import Predictor  # noqa: PLC0415
 
     predictor = Predictor.from_checkpoint(ckpt, device="cpu")
-    if physics_mode is not None:
-        from robomorph.model.hybrid import MODES  # noqa: PLC0415
-
-        if physics_mode != "none" and not predictor.physics:
-            raise ControlError(f"--physics-mode {physics_mode}: {ckpt} has no physics backbone; drop the option")
-        if physics_mode not in (*MODES, "none"):
-            raise ControlError(f"--physics-mode {physics_mode!r}: choose none or one of {', '.join(MODES)}")
-        predictor.physics_mode = physics_mode
+    predictor.use_physics(physics_mode, "--physics-mode")
     return predictor
 
 

@@ -34,7 +34,8 @@ from robomorph.evaluation.horizons import error_curve, groups_for, parse_horizon
 from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.windows import (EvaluationError, Window, check_counts, check_patch, load_window, parse_offset,
                                           start_joints)
-from robomorph.model.calibration import CALIBRATION_KEY, CalibrationError, fit
+from robomorph.model.calibration import (CALIBRATION_KEY, CalibrationError, calibrations_entry, fit, mode_of,
+                                         read_calibrations)
 
 
 def _predictor(ckpt: str, device: str | None, need_std: bool = True):
@@ -108,7 +109,7 @@ def _fitting_windows(ckpt: str, predictor, sources, split: str, n, context_len, 
 def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,
               context_len: int | None = None, horizon: int | None = None, offset: str | int = "start",
               seed: int = 0, method: str = "coverage", batch_size: int = 64, device: str | None = None,
-              horizons_spec: str | None = None) -> dict:
+              horizons_spec: str | None = None, physics: str | None = None) -> dict:
     """Fits the calibration and writes the checkpoint with it to ``out`` (default: in place).
 
     Args:
@@ -118,6 +119,8 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
         offset, seed: where each window starts (``start``, ``random`` or a step), as in evaluate.
         method: ``coverage`` (default), ``nll`` or ``quantile`` (:mod:`robomorph.model.calibration`).
         horizons_spec: the steps the report shows (evaluate's ``--horizons``).
+        physics: a hybrid's physics mode to calibrate (default: its default mode); each mode keeps
+            its own calibration, so calibrating one leaves the others' in place.
 
     Returns:
         A report: the calibration's provenance, and the ±1σ/±2σ coverage of the calibration
@@ -128,6 +131,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     offset = parse_offset(offset)
     predictor = _predictor(ckpt, device)
+    predictor.use_physics(physics)
     ckpt_dict = read_model(ckpt)
     sources, split = _sources(ckpt_dict, data)
     w, source = _fitting_windows(ckpt, predictor, sources, split, n, context_len, horizon, offset, seed,
@@ -152,7 +156,8 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
                       "after": after.result["calibration"]["nll"]["all"]},
               "scale": [float(np.median(factors[s - 1])) for s in steps]}
     cal.source["coverage"] = {"steps": steps, "before": report["before"], "after": report["after"]}
-    ckpt_dict[CALIBRATION_KEY] = cal.to_dict()
+    ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
+                                                     mode_of(cal): cal})
     _write(ckpt_dict, out or ckpt)
     return report
 
@@ -243,12 +248,16 @@ def blend_text(report: dict) -> str:
         f"written: {report['out']}"])
 
 
-def remove(ckpt: str, out: str | None = None) -> bool:
-    """Drops a stored calibration (writing ``out``, default in place); False when there was none."""
+def remove(ckpt: str, out: str | None = None, physics: str | None = None) -> bool:
+    """Drops the stored calibrations, or with ``physics`` that mode's only (writing ``out``, default
+    in place); False when there was none."""
     from robomorph.model.files import read_model  # noqa: PLC0415  (a checkpoint or a model folder)
 
     ckpt_dict = read_model(ckpt)
-    had = ckpt_dict.pop(CALIBRATION_KEY, None) is not None
+    kept = read_calibrations(ckpt_dict.pop(CALIBRATION_KEY, None))
+    had = bool(kept) if physics is None else kept.pop(physics, None) is not None
+    if physics is not None and kept:
+        ckpt_dict[CALIBRATION_KEY] = calibrations_entry(kept)
     if had or (out and os.path.abspath(out) != os.path.abspath(ckpt)):
         _write(ckpt_dict, out or ckpt)
     return had
@@ -275,7 +284,8 @@ def report_text(report: dict) -> str:
             for i, (s, t) in enumerate(zip(report["steps"], secs))]
     lines = [f"std calibration ({report['calibration']['method']}) fitted on {src['n']} windows of "
              f"{', '.join(src['data'])} ({'validation split' if src['split'] == 'val' else 'whole store'}), "
-             f"context {src['context_len']}, horizon {src['horizon']}",
+             f"context {src['context_len']}, horizon {src['horizon']}"
+             + (f", physics mode {src['physics_mode']}" if src.get("physics_mode") else ""),
              markdown_table(["step", "seconds", "scale (median over channels)", "±1σ before", "±1σ after",
                              "±2σ before", "±2σ after"], rows)]
     if "nll" in report:

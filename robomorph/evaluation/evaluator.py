@@ -145,11 +145,7 @@ def _checked_predictor(ckpt: str, device: str | None, baselines, inputs: str | N
     if normalization is not None and normalization != predictor.normalization:
         raise NormalizationError(f"{ckpt} was trained with normalization {predictor.normalization!r}, not "
                                  f"{normalization!r}: the normalization is fixed at training time (data.normalization)")
-    if physics is not None:
-        if not predictor.physics and physics != "none":
-            raise EvaluationError(f"--physics {physics}: {ckpt} has no physics backbone (trained with --model.physics "
-                                  "none, e.g. on real logs without a catalogue robot); drop --physics")
-        predictor.physics_mode = physics if predictor.physics else "none"
+    predictor.use_physics(physics)
     return predictor
 
 

@@ -129,6 +129,34 @@ class StdCalibration:
                                    "with python -m robomorph.calibrate") from exc
 
 
+def mode_of(calibration: StdCalibration) -> str:
+    """The physics mode a calibration was fitted in (``none``: the black-box decoder's std)."""
+    return str(calibration.source.get("physics_mode", "none"))
+
+
+def read_calibrations(entry: dict | None) -> dict[str, StdCalibration]:
+    """The calibrations stored under :data:`CALIBRATION_KEY`, by physics mode: one calibration
+    (every checkpoint calibrated in one mode, and those written before modes were kept apart), or
+    ``{"by_mode": {mode: calibration}}`` for a hybrid calibrated in several modes."""
+    if not entry:
+        return {}
+    if not isinstance(entry, dict):
+        raise CalibrationError("unreadable std calibration (not a mapping): fit it again with python -m robomorph.calibrate")
+    docs = list(entry["by_mode"].values()) if isinstance(entry.get("by_mode"), dict) else [entry]
+    cals = [StdCalibration.from_dict(d) for d in docs]
+    return {mode_of(c): c for c in cals}
+
+
+def calibrations_entry(calibrations: dict[str, StdCalibration]) -> dict | None:
+    """What :func:`read_calibrations` reads back (None when there is none): one mode stays in the
+    single-calibration layout that every earlier checkpoint has."""
+    if not calibrations:
+        return None
+    if len(calibrations) == 1:
+        return next(iter(calibrations.values())).to_dict()
+    return {"by_mode": {mode: c.to_dict() for mode, c in sorted(calibrations.items())}}
+
+
 def check_knot_table(knots, values: np.ndarray, what: str, name: str, error: type[Exception]) -> None:
     """Refuses (with ``error``) knots that are not increasing steps >= 1, or ``values`` that are
     not (knots, n_y): the checks of every per-step table stored at knots."""

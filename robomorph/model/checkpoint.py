@@ -17,7 +17,7 @@ import torch
 from torch import nn
 
 from robomorph.model.blending import BLEND_KEY, BlendError, HorizonBlend
-from robomorph.model.calibration import CALIBRATION_KEY, CalibrationError, StdCalibration
+from robomorph.model.calibration import CALIBRATION_KEY, CalibrationError, StdCalibration, mode_of, read_calibrations
 
 # The reader of model files; these names are imported from here by the rest of the package.
 from robomorph.model.files import DATA_INFO_KEY, CheckpointError, load_checkpoint_file, read_model  # noqa: F401
@@ -99,8 +99,9 @@ class TrainedModel(nn.Module):
 
     Attributes:
         gaussian: the network has a Gaussian head (:meth:`forward_dist` gives a std).
-        calibration: the per-horizon scale of that std fitted after training
-            (``python -m robomorph.calibrate``), or None: applied by :meth:`forward_dist`.
+        calibrations: the per-horizon scales of that std fitted after training
+            (``python -m robomorph.calibrate``), by physics mode (``none``: the decoder's).
+        calibration: the decoder's, or None: applied by :meth:`forward_dist`.
         blend: the per-horizon weights of its physics prediction against its decoder's
             (``robomorph calibrate --blend``, :mod:`robomorph.model.blending`), or None.
     """
@@ -111,7 +112,7 @@ class TrainedModel(nn.Module):
         self.config, self.anchor, self.integrate = config, bool(anchor), bool(integrate)
         self.gaussian = bool(config.gaussian)
         self.net = MetaModel(config)
-        self.calibration: StdCalibration | None = None
+        self.calibrations: dict[str, StdCalibration] = {}
         self.blend = None
         self.normalizer = Normalizer(n_u=config.n_u, n_y=config.n_y, recenter=recenter, normalization=normalization)
 
@@ -135,14 +136,22 @@ class TrainedModel(nn.Module):
         return simulate_dist(self.net, self.normalizer, self.anchor, u_ctx, y_ctx, u_query, y_query_stats,
                              self.integrate)
 
+    @property
+    def calibration(self) -> StdCalibration | None:
+        """The decoder's std calibration (physics mode ``none``), or None."""
+        return self.calibrations.get("none")
+
     def set_calibration(self, calibration: StdCalibration | None) -> None:
-        """Attaches (or with None removes) a std calibration, checked against the model."""
-        if calibration is not None:
-            if not self.gaussian and not self.config.n_params:
-                raise CalibrationError("this model has no Gaussian head, so it has no standard deviation to calibrate")
-            if calibration.n_y != self.config.n_y:
-                raise CalibrationError(f"the calibration has {calibration.n_y} channels, the model {self.config.n_y}")
-        self.calibration = calibration
+        """Attaches a std calibration for the physics mode it was fitted in (replacing that mode's),
+        checked against the model; None removes them all."""
+        if calibration is None:
+            self.calibrations = {}
+            return
+        if not self.gaussian and not self.config.n_params:
+            raise CalibrationError("this model has no Gaussian head, so it has no standard deviation to calibrate")
+        if calibration.n_y != self.config.n_y:
+            raise CalibrationError(f"the calibration has {calibration.n_y} channels, the model {self.config.n_y}")
+        self.calibrations = {**self.calibrations, mode_of(calibration): calibration}
 
 
 def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
@@ -175,7 +184,8 @@ def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
         raise CheckpointError(f"{path} does not match its own hyper-parameters: {exc}") from exc
     if ckpt.get(CALIBRATION_KEY) is not None:
         try:
-            model.set_calibration(StdCalibration.from_dict(ckpt[CALIBRATION_KEY]))
+            for cal in read_calibrations(ckpt[CALIBRATION_KEY]).values():
+                model.set_calibration(cal)
         except CalibrationError as exc:
             raise CheckpointError(f"{path}: {exc}") from exc
     if ckpt.get(BLEND_KEY) is not None:

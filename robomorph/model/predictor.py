@@ -159,24 +159,24 @@ class Predictor:
 
     @property
     def calibration(self):
-        """The stored std calibration that applies to this prediction, or None. A hybrid's was
-        fitted in one physics mode (its std depends on how the robot is identified), and applies
-        in that mode only."""
-        cal = self.model.calibration
-        if cal is not None and self.physics and cal.source.get("physics_mode", "none") != self.physics_mode:
-            return None
-        return cal
+        """The stored std calibration that applies to this prediction, or None. A hybrid's std
+        depends on how the robot is identified: each physics mode has its own calibration."""
+        return self.model.calibrations.get(self.physics_mode if self.physics else "none")
+
+    def use_physics(self, mode: str | None, option: str = "--physics") -> None:
+        """Predicts in physics mode ``mode`` (None: the default); refuses one it cannot predict in."""
+        self.physics_mode = _checked_mode(self.physics, mode, option) or self.physics_mode
 
     @contextlib.contextmanager
     def raw_std(self) -> Iterator["Predictor"]:
         """Within the block, ``simulate`` returns the Gaussian head's own standard deviation,
         without the stored calibration (what calibrating is fitted on)."""
-        kept = self.model.calibration
-        self.model.calibration = None
+        kept = self.model.calibrations
+        self.model.calibrations = {}
         try:
             yield self
         finally:
-            self.model.calibration = kept
+            self.model.calibrations = kept
 
     @property
     def leaks_query_statistics(self) -> bool:
@@ -289,6 +289,18 @@ class Predictor:
         mean, std = select(mean, cols), select(std, cols)
         self._check_output(mean, tensors)
         return _outputs(u_query, [t[0] if single else t for t in (mean, std) if t is not None], return_std)
+
+
+def _checked_mode(physics: dict | None, mode: str | None, option: str) -> str | None:
+    """``mode`` once a model with backbone record ``physics`` can predict in it (None stays None)."""
+    from robomorph.model.hybrid import MODES  # noqa: PLC0415
+
+    if mode is not None and mode != "none" and not physics:
+        raise PredictionError(f"{option} {mode}: this model has no physics backbone (trained with --model.physics "
+                              "none, e.g. on real logs without a catalogue robot); drop the option")
+    if mode is not None and mode not in (*MODES, "none"):
+        raise PredictionError(f"{option} {mode!r}: choose none or one of {', '.join(MODES)}")
+    return mode
 
 
 def _backbone(model: TrainedModel, data_info: dict | None, inputs: str) -> tuple[dict | None, str]:

@@ -243,3 +243,34 @@ def test_scoring_gives_the_hybrid_where_each_robot_started(hybrid_ckpt, simulate
     np.testing.assert_allclose(scored, given, rtol=0, atol=1e-6)
     default = p.simulate(u_ctx, y_ctx, u_q, at_rest=~moved)
     assert np.abs(default[moved] - given[moved]).max() > 1e-6
+
+
+def test_each_physics_mode_keeps_its_own_std_calibration(hybrid_ckpt, simulated_store, tmp_path, capsys):
+    """calibrate --physics M fits mode M's calibration and leaves the others' in place; the
+    Predictor applies the one of the mode it predicts in (none for a mode never calibrated);
+    --remove --physics M drops M's alone, and one mode keeps the single-calibration layout."""
+    from robomorph.calibrate import main
+    from robomorph.model.calibration import CALIBRATION_KEY
+    from robomorph.model.files import load_checkpoint_file
+    from robomorph.model.predictor import Predictor
+
+    out = str(tmp_path / "cal.ckpt")
+    heldout = simulated_store(robots=4, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=8)
+    common = ["--ckpt", hybrid_ckpt, "--data", heldout, "--n", "4", "--out", out]
+    assert main([*common, "--physics", "regression"]) == 0
+    assert load_checkpoint_file(out)[CALIBRATION_KEY]["source"]["physics_mode"] == "regression"  # the old layout
+    assert main([*common[:-2], "--out", out, "--physics", "learned", "--ckpt", out]) == 0
+    assert "physics mode learned" in capsys.readouterr().out
+    p = Predictor.from_checkpoint(out)
+    assert set(p.model.calibrations) == {"regression", "learned"}
+    scales = {}
+    for mode in ("regression", "learned", "fused"):
+        p.use_physics(mode)
+        scales[mode] = None if p.calibration is None else p.calibration.scale
+    assert scales["fused"] is None and scales["regression"] != scales["learned"]
+    assert Predictor.from_checkpoint(hybrid_ckpt).calibration is None  # --out left the original alone
+    assert main(["--ckpt", out, "--remove", "--physics", "learned"]) == 0
+    kept = Predictor.from_checkpoint(out)
+    assert set(kept.model.calibrations) == {"regression"} and kept.calibration.scale == scales["regression"]
+    assert main(["--ckpt", out, "--remove", "--physics", "learned"]) == 0
+    assert "no std calibration of physics mode learned" in capsys.readouterr().out
