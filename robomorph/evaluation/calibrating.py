@@ -34,7 +34,7 @@ from robomorph.evaluation.horizons import error_curve, groups_for, parse_horizon
 from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.windows import (EvaluationError, Window, check_counts, check_patch, load_window, parse_offset,
                                           start_joints)
-from robomorph.model.calibration import (CALIBRATION_KEY, CalibrationError, calibrations_entry, fit, mode_of,
+from robomorph.model.calibration import (CALIBRATION_KEY, CalibrationError, calibration_key, calibrations_entry, fit,
                                          read_calibrations)
 
 
@@ -120,7 +120,9 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
         method: ``coverage`` (default), ``nll`` or ``quantile`` (:mod:`robomorph.model.calibration`).
         horizons_spec: the steps the report shows (evaluate's ``--horizons``).
         physics: a hybrid's physics mode to calibrate (default: its default mode); each mode keeps
-            its own calibration, so calibrating one leaves the others' in place.
+            its own calibration, so calibrating one leaves the others' in place. A hybrid keeps one
+            per window kind too: windows from the start, and windows that do not open their
+            trajectory (``offset`` random or a step), each applied to its own kind.
 
     Returns:
         A report: the calibration's provenance, and the ±1σ/±2σ coverage of the calibration
@@ -157,7 +159,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
               "scale": [float(np.median(factors[s - 1])) for s in steps]}
     cal.source["coverage"] = {"steps": steps, "before": report["before"], "after": report["after"]}
     ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
-                                                     mode_of(cal): cal})
+                                                     calibration_key(cal): cal})
     _write(ckpt_dict, out or ckpt)
     return report
 
@@ -255,8 +257,10 @@ def remove(ckpt: str, out: str | None = None, physics: str | None = None) -> boo
 
     ckpt_dict = read_model(ckpt)
     kept = read_calibrations(ckpt_dict.pop(CALIBRATION_KEY, None))
-    had = bool(kept) if physics is None else kept.pop(physics, None) is not None
-    if physics is not None and kept:
+    dropped = [k for k in kept if physics is None or k.split("/")[0] == physics]  # both window kinds of a mode
+    had = bool(dropped)
+    kept = {k: c for k, c in kept.items() if k not in dropped}
+    if kept:
         ckpt_dict[CALIBRATION_KEY] = calibrations_entry(kept)
     if had or (out and os.path.abspath(out) != os.path.abspath(ckpt)):
         _write(ckpt_dict, out or ckpt)
@@ -285,6 +289,7 @@ def report_text(report: dict) -> str:
     lines = [f"std calibration ({report['calibration']['method']}) fitted on {src['n']} windows of "
              f"{', '.join(src['data'])} ({'validation split' if src['split'] == 'val' else 'whole store'}), "
              f"context {src['context_len']}, horizon {src['horizon']}"
+             + ("" if src.get("offset", "start") == "start" else f", windows from offset {src['offset']}")
              + (f", physics mode {src['physics_mode']}" if src.get("physics_mode") else ""),
              markdown_table(["step", "seconds", "scale (median over channels)", "±1σ before", "±1σ after",
                              "±2σ before", "±2σ after"], rows)]

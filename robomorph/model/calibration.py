@@ -134,17 +134,27 @@ def mode_of(calibration: StdCalibration) -> str:
     return str(calibration.source.get("physics_mode", "none"))
 
 
+def calibration_key(calibration: StdCalibration) -> str:
+    """Where a model keeps a calibration: its physics mode, with ``/moving`` for a hybrid mode's
+    fitted on windows that do not open their trajectory (``calibrate --offset random``). A hybrid
+    knows which windows open theirs (``at_rest``) and applies each kind's to its own; a black-box
+    model has one calibration whatever its windows."""
+    mode = mode_of(calibration)
+    start = calibration.source.get("offset", "start") in ("start", 0)
+    return mode if mode == "none" or start else f"{mode}/moving"
+
+
 def read_calibrations(entry: dict | None) -> dict[str, StdCalibration]:
-    """The calibrations stored under :data:`CALIBRATION_KEY`, by physics mode: one calibration
-    (every checkpoint calibrated in one mode, and those written before modes were kept apart), or
-    ``{"by_mode": {mode: calibration}}`` for a hybrid calibrated in several modes."""
+    """The calibrations stored under :data:`CALIBRATION_KEY`, by :func:`calibration_key`: one
+    calibration (every checkpoint calibrated once, and those written before modes were kept apart),
+    or ``{"by_mode": {key: calibration}}`` for a hybrid calibrated in several modes or kinds."""
     if not entry:
         return {}
     if not isinstance(entry, dict):
         raise CalibrationError("unreadable std calibration (not a mapping): fit it again with python -m robomorph.calibrate")
     docs = list(entry["by_mode"].values()) if isinstance(entry.get("by_mode"), dict) else [entry]
     cals = [StdCalibration.from_dict(d) for d in docs]
-    return {mode_of(c): c for c in cals}
+    return {calibration_key(c): c for c in cals}
 
 
 def calibrations_entry(calibrations: dict[str, StdCalibration]) -> dict | None:
@@ -154,7 +164,7 @@ def calibrations_entry(calibrations: dict[str, StdCalibration]) -> dict | None:
         return None
     if len(calibrations) == 1:
         return next(iter(calibrations.values())).to_dict()
-    return {"by_mode": {mode: c.to_dict() for mode, c in sorted(calibrations.items())}}
+    return {"by_mode": {key: c.to_dict() for key, c in sorted(calibrations.items())}}
 
 
 def check_knot_table(knots, values: np.ndarray, what: str, name: str, error: type[Exception]) -> None:

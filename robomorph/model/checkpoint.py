@@ -17,7 +17,7 @@ import torch
 from torch import nn
 
 from robomorph.model.blending import BLEND_KEY, BlendError, HorizonBlend
-from robomorph.model.calibration import CALIBRATION_KEY, CalibrationError, StdCalibration, mode_of, read_calibrations
+from robomorph.model.calibration import CALIBRATION_KEY, CalibrationError, StdCalibration, calibration_key, read_calibrations
 
 # The reader of model files; these names are imported from here by the rest of the package.
 from robomorph.model.files import DATA_INFO_KEY, CheckpointError, load_checkpoint_file, read_model  # noqa: F401
@@ -100,7 +100,7 @@ class TrainedModel(nn.Module):
     Attributes:
         gaussian: the network has a Gaussian head (:meth:`forward_dist` gives a std).
         calibrations: the per-horizon scales of that std fitted after training
-            (``python -m robomorph.calibrate``), by physics mode (``none``: the decoder's).
+            (``python -m robomorph.calibrate``), by physics mode and window kind (``none``: the decoder's).
         calibration: the decoder's, or None: applied by :meth:`forward_dist`.
         blend: the per-horizon weights of its physics prediction against its decoder's
             (``robomorph calibrate --blend``, :mod:`robomorph.model.blending`), or None.
@@ -142,7 +142,7 @@ class TrainedModel(nn.Module):
         return self.calibrations.get("none")
 
     def set_calibration(self, calibration: StdCalibration | None) -> None:
-        """Attaches a std calibration for the physics mode it was fitted in (replacing that mode's),
+        """Attaches a std calibration under its :func:`calibration_key` (replacing the one there),
         checked against the model; None removes them all."""
         if calibration is None:
             self.calibrations = {}
@@ -151,7 +151,7 @@ class TrainedModel(nn.Module):
             raise CalibrationError("this model has no Gaussian head, so it has no standard deviation to calibrate")
         if calibration.n_y != self.config.n_y:
             raise CalibrationError(f"the calibration has {calibration.n_y} channels, the model {self.config.n_y}")
-        self.calibrations = {**self.calibrations, mode_of(calibration): calibration}
+        self.calibrations = {**self.calibrations, calibration_key(calibration): calibration}
 
 
 def load_trained(path: str) -> tuple[TrainedModel, dict | None]:

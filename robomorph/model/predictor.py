@@ -159,9 +159,9 @@ class Predictor:
 
     @property
     def calibration(self):
-        """The stored std calibration that applies to this prediction, or None. A hybrid's std
-        depends on how the robot is identified: each physics mode has its own calibration."""
-        return self.model.calibrations.get(self.physics_mode if self.physics else "none")
+        """The stored std calibration of this physics mode (a hybrid's std depends on how the robot
+        is identified), from windows that open their trajectory where there is one, or None."""
+        return _kind_calibrations(self)[0]
 
     def use_physics(self, mode: str | None, option: str = "--physics") -> None:
         """Predicts in physics mode ``mode`` (None: the default); refuses one it cannot predict in."""
@@ -244,9 +244,8 @@ class Predictor:
             inputs: which formulation the torques are (``total`` or ``command``); when
                 given, a mismatch with the training formulation is refused.
             return_std: also return the predicted standard deviation (models trained with
-                ``gaussian: true`` only), recalibrated by horizon when the checkpoint
-                carries a calibration (:attr:`calibration`). A hybrid model's standard
-                deviation is the spread over :attr:`physics_samples` parameter draws.
+                ``gaussian: true`` only), recalibrated by horizon when the checkpoint carries a calibration
+                (a hybrid's: the spread over :attr:`physics_samples` parameter draws, by window kind).
             at_rest, anchor: hybrid models only: bool or (B,) bools, the context opens its trajectory (default
                 False); (B, 7) where each robot started (its springs' rest pose; default: the first context sample).
 
@@ -277,8 +276,9 @@ class Predictor:
         try:
             if hybrid:
                 mean, std = self.hybrid().predict(*tensors, at_rest=at_rest, mode=self.physics_mode, anchor=anchor,
-                                                  return_std=return_std, calibration=self.calibration)
+                                                  return_std=return_std)
                 mean, std = (None if t is None else torch.as_tensor(t) for t in (mean, std))
+                std = None if std is None else _calibrated_rows(self, std, at_rest)
             else:
                 mean, std = self.model.forward_dist_raw(*tensors, stats)
                 std = std if std is None or self.calibration is None else self.calibration.apply(std)
@@ -289,6 +289,26 @@ class Predictor:
         mean, std = select(mean, cols), select(std, cols)
         self._check_output(mean, tensors)
         return _outputs(u_query, [t[0] if single else t for t in (mean, std) if t is not None], return_std)
+
+
+def _kind_calibrations(predictor: "Predictor") -> tuple:
+    """(for windows that open their trajectory, for the others): the mode's calibrations, each
+    standing in for the other where only one was fitted; (None, None) without any."""
+    mode = predictor.physics_mode if predictor.physics else "none"
+    start, moving = predictor.model.calibrations.get(mode), predictor.model.calibrations.get(f"{mode}/moving")
+    return start or moving, moving or start
+
+
+def _calibrated_rows(predictor: "Predictor", std: torch.Tensor, at_rest) -> torch.Tensor:
+    """A hybrid's std (B, H, n_y) recalibrated row by row: rows whose window opens its trajectory
+    (``at_rest``) by the calibration fitted on such windows, the others by the other kind's."""
+    start, moving = _kind_calibrations(predictor)
+    if start is None:
+        return std
+    rest = np.broadcast_to(np.asarray(False if at_rest is None else at_rest, dtype=bool), (std.shape[0],))
+    horizon = std.shape[-2]
+    factors = np.where(rest[:, None, None], start.factors(horizon)[None], moving.factors(horizon)[None])
+    return std * torch.as_tensor(factors, dtype=std.dtype, device=std.device)
 
 
 def _checked_mode(physics: dict | None, mode: str | None, option: str) -> str | None:

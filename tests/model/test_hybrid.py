@@ -274,3 +274,34 @@ def test_each_physics_mode_keeps_its_own_std_calibration(hybrid_ckpt, simulated_
     assert set(kept.model.calibrations) == {"regression"} and kept.calibration.scale == scales["regression"]
     assert main(["--ckpt", out, "--remove", "--physics", "learned"]) == 0
     assert "no std calibration of physics mode learned" in capsys.readouterr().out
+
+
+def test_windows_that_open_their_trajectory_and_the_others_each_get_their_kinds_calibration(
+        hybrid_ckpt, simulated_store, tmp_path):
+    """A hybrid keeps a calibration per window kind: --offset random fits the one for windows that
+    do not open their trajectory, kept beside the start windows'; a batch of both kinds gets each
+    row's own factors, and where one kind is missing the other stands in."""
+    from robomorph.calibrate import main
+    from robomorph.model.predictor import Predictor
+
+    out = str(tmp_path / "kinds.ckpt")
+    heldout = simulated_store(robots=4, steps=CKPT_CONTEXT + CKPT_HORIZON + 40, seed=9)
+    common = ["--data", heldout, "--n", "4", "--horizon", str(CKPT_HORIZON)]
+    assert main(["--ckpt", hybrid_ckpt, "--out", out, *common]) == 0
+    only_start = Predictor.from_checkpoint(out)
+    assert main(["--ckpt", out, *common, "--offset", "random", "--seed", "1"]) == 0
+    p = Predictor.from_checkpoint(out)
+    assert set(p.model.calibrations) == {"regression", "regression/moving"}
+    start, moving = p.model.calibrations["regression"], p.model.calibrations["regression/moving"]
+    assert start.scale != moving.scale and p.calibration is start
+    uc, yc, uq, *_ = _windows(heldout, n=2)
+    rest = np.array([True, False])
+    with p.raw_std():
+        _, raw = p.simulate(uc, yc, uq, return_std=True, at_rest=rest)
+    _, std = p.simulate(uc, yc, uq, return_std=True, at_rest=rest)
+    f = [start.factors(uq.shape[1]), moving.factors(uq.shape[1])]
+    np.testing.assert_allclose(std, raw * np.stack(f), rtol=1e-5)
+    _, alone = only_start.simulate(uc, yc, uq, return_std=True, at_rest=rest)
+    np.testing.assert_allclose(alone, raw * start.factors(uq.shape[1])[None], rtol=1e-5)
+    assert main(["--ckpt", out, "--remove", "--physics", "regression"]) == 0
+    assert Predictor.from_checkpoint(out).model.calibrations == {}
