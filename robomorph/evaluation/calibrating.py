@@ -138,6 +138,9 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     sources, split = _sources(ckpt_dict, data)
     w, source = _fitting_windows(ckpt, predictor, sources, split, n, context_len, horizon, offset, seed,
                                  "calibration window")
+    if getattr(predictor, "physics", None) and offset != "start":
+        w = _moving(w, offset)
+        source["n"] = int(len(w.u))
     horizon = source["horizon"]
     steps = parse_horizons(horizons_spec, horizon, w.dt)
     with predictor.raw_std():
@@ -162,6 +165,18 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
                                                      calibration_key(cal): cal})
     _write(ckpt_dict, out or ckpt)
     return report
+
+
+def _moving(w: Window, offset) -> Window:
+    """The windows that do not open their trajectory: what a hybrid's calibration from ``offset``
+    (random or a step) is for. Those that drew the start are the other kind's."""
+    rows = w.starts > 0
+    if rows.sum() < 2:
+        raise CalibrationError(f"--offset {offset}: {int(rows.sum())} of {len(rows)} windows start after their "
+                               f"trajectory's first step (context {w.context_len} + horizon {w.horizon} steps leave "
+                               "little room): shorten --horizon, or give a store of longer trajectories")
+    return replace(w, u=w.u[rows], y=w.y[rows], params=w.params[rows] if len(w.params) == len(rows) else w.params,
+                   starts=w.starts[rows], y_first=None if w.y_first is None else w.y_first[rows])
 
 
 def blend(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,

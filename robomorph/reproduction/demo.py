@@ -7,8 +7,8 @@
    whose predictions simulate the robot identified from the context
    (:mod:`robomorph.model.hybrid`); ``--inputs total`` trains on the paper's total torque.
 3. Recalibrates the model's predicted standard deviation (a hybrid's: the spread over
-   parameter draws) by horizon on the training run's validation robots
-   (``robomorph.calibrate``), then evaluates the model on held-out robots it never saw
+   parameter draws, for windows from the start and for windows of a moving robot) by horizon
+   on the training run's validation robots (``robomorph.calibrate``), then evaluates the model on held-out robots it never saw
    (context alone), beside the baselines, with the horizon and context sweeps, and prints
    the per-channel table.
 4. Writes the HTML report of all runs (``results/report.html``) and prints its path.
@@ -107,8 +107,10 @@ def evaluate_and_report(ckpt: str, test: str, runs_dir: str, identified: bool = 
 
 def calibrate_std(ckpt: str) -> bool:
     """Recalibrates a Gaussian head's std by horizon on the fit's validation robots (in place);
-    False for a model without one. A total-torque model first gets its physics/decoder blend."""
+    False for a model without one. A total-torque model first gets its physics/decoder blend; a
+    hybrid also gets the calibration of windows that do not open their trajectory."""
     from robomorph.evaluation.calibrating import blend, blend_text, calibrate, report_text  # noqa: PLC0415
+    from robomorph.model.calibration import CalibrationError  # noqa: PLC0415
     from robomorph.model.checkpoint import load_trained  # noqa: PLC0415
 
     model, info = load_trained(ckpt)
@@ -116,9 +118,17 @@ def calibrate_std(ckpt: str) -> bool:
         # Total torques: the identified robot's simulation for the first second, the decoder after
         # (robomorph calibrate --blend); the std below is then the blend's.
         print("\n" + blend_text(blend(ckpt, n=64)))
-    if not model.gaussian and not (model.config.n_params and (info or {}).get("physics")):
+    hybrid = bool(model.config.n_params and (info or {}).get("physics"))
+    if not model.gaussian and not hybrid:
         return False
     print("\n" + report_text(calibrate(ckpt)))
+    if hybrid:
+        # What a controller sends: contexts of a robot already moving, whose own calibration this is
+        # (windows at random offsets, with room for them: three quarters of the training horizon).
+        try:
+            print("\n" + report_text(calibrate(ckpt, horizon=max(1, 3 * int(info["horizon"]) // 4), offset="random")))
+        except CalibrationError as exc:
+            print(f"\n(no calibration for windows of a moving robot: {exc}; the start windows' serves them)")
     return True
 
 

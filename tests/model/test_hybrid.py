@@ -277,10 +277,11 @@ def test_each_physics_mode_keeps_its_own_std_calibration(hybrid_ckpt, simulated_
 
 
 def test_windows_that_open_their_trajectory_and_the_others_each_get_their_kinds_calibration(
-        hybrid_ckpt, simulated_store, tmp_path):
+        hybrid_ckpt, simulated_store, tmp_path, capsys):
     """A hybrid keeps a calibration per window kind: --offset random fits the one for windows that
     do not open their trajectory, kept beside the start windows'; a batch of both kinds gets each
-    row's own factors, and where one kind is missing the other stands in."""
+    row's own factors, and where one kind is missing the other stands in; windows that all open
+    their trajectory cannot fit the other kind's, and the checkpoint stays as it was."""
     from robomorph.calibrate import main
     from robomorph.model.predictor import Predictor
 
@@ -303,5 +304,28 @@ def test_windows_that_open_their_trajectory_and_the_others_each_get_their_kinds_
     np.testing.assert_allclose(std, raw * np.stack(f), rtol=1e-5)
     _, alone = only_start.simulate(uc, yc, uq, return_std=True, at_rest=rest)
     np.testing.assert_allclose(alone, raw * start.factors(uq.shape[1])[None], rtol=1e-5)
+    # Windows that fill their trajectory all open it: a "moving" calibration from them is refused.
+    before = open(out, "rb").read()
+    full = ["--data", heldout, "--n", "4", "--horizon", str(CKPT_HORIZON + 40), "--offset", "random"]
+    assert main(["--ckpt", out, *full]) == 2
+    assert "start after their trajectory's first step" in capsys.readouterr().err
+    assert open(out, "rb").read() == before
     assert main(["--ckpt", out, "--remove", "--physics", "regression"]) == 0
     assert Predictor.from_checkpoint(out).model.calibrations == {}
+
+
+def test_the_demo_calibrates_a_hybrid_for_start_windows_and_for_a_moving_robot(hybrid_ckpt, tmp_path, capsys):
+    """make demo's calibration step: the start windows' calibration, then the one for windows of a
+    robot already moving (what a controller sends), both on the fit's validation robots."""
+    import shutil
+
+    from robomorph.model.predictor import Predictor
+    from robomorph.reproduction.demo import calibrate_std
+
+    ckpt = str(tmp_path / "best.ckpt")
+    shutil.copy(hybrid_ckpt, ckpt)
+    assert calibrate_std(ckpt) is True
+    cals = Predictor.from_checkpoint(ckpt).model.calibrations
+    assert set(cals) == {"regression", "regression/moving"}
+    assert cals["regression/moving"].source["offset"] == "random"
+    assert "windows from offset random" in capsys.readouterr().out
