@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from robomorph.core.results import read_provenance, read_rows
@@ -125,10 +126,13 @@ def test_hybrid_benchmark_scores_modes_and_baselines_on_the_same_windows(tmp_pat
     csv, lat = tmp_path / "hybrid.csv", tmp_path / "latency.csv"
     done = run("hybrid.py", "--ckpt", ckpt, "--test", store, "--n", 2, "--offsets", "start",
                "--modes", "learned,regression", "--baselines", "hold", "--csv", csv, "--md", tmp_path / "h.md",
-               "--latency", "--repeats", 1, "--latency-csv", lat)
+               "--latency", "--repeats", 1, "--latency-csv", lat, "--std")
     assert done.stdout.startswith("*Produced by `benchmarks/hybrid.py")
     rows = read_rows(str(csv))
     assert [r["source"] for r in rows] == ["hold", "learned", "regression"]
     assert all(float(r["step1"]) > 0 for r in rows)
+    # Coverage at the reported steps: the mean lies within the lowest and highest step's (none for hold).
+    cover = [[float(r[f"cover1{k}"]) for k in ("_min", "", "_max")] for r in rows]
+    assert np.isnan(cover[0]).all() and all(lo <= mean <= hi for lo, mean, hi in cover[1:])
     assert read_provenance(str(csv))[0]["command"].startswith("benchmarks/hybrid.py")
     assert {r["mode"] for r in read_rows(str(lat))} == {"learned", "regression", "none"}
