@@ -16,7 +16,7 @@ from robomorph.core.errors import RoboMorphError
 from robomorph.core.normalizations import NormalizationError, query_output_stats
 from robomorph.evaluation import references
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, OPT_IN, hold
-from robomorph.evaluation.windows import EvaluationError, Window
+from robomorph.evaluation.windows import EvaluationError, Window, start_joints
 
 
 def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None,
@@ -138,11 +138,8 @@ def nominal_params(sim, w: Window) -> np.ndarray | None:
     """Nominal parameters with the joint springs anchored where each robot started (its
     trajectory's first sample), as the generator anchored them; None (the simulator anchors
     at the context's first sample) when every window opens its trajectory, where they agree."""
-    if not w.starts.any():
-        return None
-    # NominalPhysics checked the arm's layout (q0..q{n-1} in y).
-    q = w.y_first[:, [w.y_names.index(f"q{i}") for i in range(sim.n_joint)]]
-    return np.stack([sim.params(q0.astype(np.float64)) for q0 in q])
+    q = start_joints(w, sim.n_joint)  # NominalPhysics checked the arm's layout (q0..q{n-1} in y)
+    return None if q is None else np.stack([sim.params(q0) for q0 in q])
 
 
 def _batched(fn, u_ctx, y_ctx, u_q, desc: str, size: int = 16, params=None) -> np.ndarray:

@@ -195,12 +195,12 @@ def check_patch(patch: int, contexts: list[int]) -> None:
                          f"{odd} are not (--context-len / --sweep-context)")
 
 
-def start_joints(w: Window) -> np.ndarray | None:
-    """(N, 7) the Panda's joint positions where each window's trajectory started (its joint
-    springs' rest pose, as the generator anchored them: what the physics baselines and a hybrid
-    model are given), or None where every window opens its trajectory or the outputs hold no
-    joints q0..q6."""
-    names = [f"q{i}" for i in range(7)]
+def start_joints(w: Window, n_joint: int = 7) -> np.ndarray | None:
+    """(N, n_joint) the joint positions where each window's trajectory started (its joint springs'
+    rest pose, as the generator anchored them: what the physics baselines and a hybrid model are
+    given), or None where every window opens its trajectory (the context's first sample is then
+    that pose) or the outputs hold no joints q0..q{n_joint-1}."""
+    names = [f"q{i}" for i in range(n_joint)]
     if not w.starts.any() or w.y_first is None or not set(names) <= set(w.y_names):
         return None
     return w.y_first[:, [w.y_names.index(n) for n in names]].astype(np.float64)

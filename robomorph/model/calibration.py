@@ -129,17 +129,12 @@ class StdCalibration:
                                    "with python -m robomorph.calibrate") from exc
 
 
-def mode_of(calibration: StdCalibration) -> str:
-    """The physics mode a calibration was fitted in (``none``: the black-box decoder's std)."""
-    return str(calibration.source.get("physics_mode", "none"))
-
-
 def calibration_key(calibration: StdCalibration) -> str:
     """Where a model keeps a calibration: its physics mode, with ``/moving`` for a hybrid mode's
     fitted on windows that do not open their trajectory (``calibrate --offset random``). A hybrid
     knows which windows open theirs (``at_rest``) and applies each kind's to its own; a black-box
     model has one calibration whatever its windows."""
-    mode = mode_of(calibration)
+    mode = str(calibration.source.get("physics_mode", "none"))  # none: the black-box decoder's std
     start = calibration.source.get("offset", "start") in ("start", 0)
     return mode if mode == "none" or start else f"{mode}/moving"
 

@@ -256,10 +256,10 @@ def test_each_physics_mode_keeps_its_own_std_calibration(hybrid_ckpt, simulated_
 
     out = str(tmp_path / "cal.ckpt")
     heldout = simulated_store(robots=4, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=8)
-    common = ["--ckpt", hybrid_ckpt, "--data", heldout, "--n", "4", "--out", out]
-    assert main([*common, "--physics", "regression"]) == 0
+    common = ["--data", heldout, "--n", "4"]
+    assert main(["--ckpt", hybrid_ckpt, "--out", out, *common, "--physics", "regression"]) == 0
     assert load_checkpoint_file(out)[CALIBRATION_KEY]["source"]["physics_mode"] == "regression"  # the old layout
-    assert main([*common[:-2], "--out", out, "--physics", "learned", "--ckpt", out]) == 0
+    assert main(["--ckpt", out, *common, "--physics", "learned"]) == 0
     assert "physics mode learned" in capsys.readouterr().out
     p = Predictor.from_checkpoint(out)
     assert set(p.model.calibrations) == {"regression", "learned"}
