@@ -77,14 +77,7 @@ class RegressorIdentifier:
         self.last_held: np.ndarray | None = None
         self._nj = len(randomizer.friction0)
         self.exact_columns = bool(exact_columns)
-        # (nj, nbody): joint j carries body i (i is j's body or hangs below it).
-        m = self.model
-        self._carried = np.zeros((self._nj, m.nbody))
-        for i in range(1, m.nbody):
-            b = i
-            while b > 0:
-                self._carried[m.dof_bodyid[:self._nj] == b, i] = 1.0
-                b = m.body_parentid[b]
+        self._carried = _carried(self.model, self._nj)
         if int(iterations) < 1:
             raise ValueError(f"the regressor needs iterations >= 1, got {iterations}")
         self.iterations = int(iterations)
@@ -230,15 +223,7 @@ class RegressorIdentifier:
     def _inverse(self, params: np.ndarray, q: np.ndarray, v: np.ndarray, a: np.ndarray,
                  bodies: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """(T, 7) joint torques of the robot ``params`` at each state (gravity as the model has it)
-        and, with ``bodies``, (T, 7, nbody) each body's share of them (else None).
-
-        A body's share is the power pairing of each joint's motion axis with the force that
-        moving the body alone takes (its inertia times its acceleration, gravity included, plus
-        the gyroscopic term: MuJoCo's ``cfrc_int`` less its children's), over the bodies the
-        joint carries. It leaves out one thing a pass per mass sees: the discrete step's implicit
-        damping lets the friction losses' holding force depend on the inertia (measured: up to
-        4 % of a column on the hand, none without the discrete inverse).
-        """
+        and, with ``bodies``, (T, 7, nbody) each body's share of them (:func:`_shares`; else None)."""
         m, d, nj = self.model, self.data, self._nj
         self.randomizer.apply(m, params)
         out = np.empty((len(q), nj))
@@ -251,13 +236,35 @@ class RegressorIdentifier:
             if bodies:
                 mujoco.mj_rnePostConstraint(m, d)  # fills cfrc_int from the given accelerations
                 cdof[t], cfrc[t] = d.cdof[:nj], d.cfrc_int
-        if not bodies:
-            return out, None
-        own = cfrc.copy()  # cfrc_int sums a body's subtree: each body's own force
-        for i in range(1, m.nbody):
-            if m.body_parentid[i] > 0:
-                own[:, m.body_parentid[i]] -= cfrc[:, i]
-        return out, np.einsum("tjk,tik->tji", cdof, own) * self._carried[None]
+        return out, (_shares(m, cdof, cfrc, self._carried) if bodies else None)
+
+
+def _carried(model: mujoco.MjModel, nj: int) -> np.ndarray:
+    """(nj, nbody): 1 where joint j carries body i (i is j's body or hangs below it)."""
+    carried = np.zeros((nj, model.nbody))
+    for i in range(1, model.nbody):
+        b = i
+        while b > 0:
+            carried[model.dof_bodyid[:nj] == b, i] = 1.0
+            b = model.body_parentid[b]
+    return carried
+
+
+def _shares(model: mujoco.MjModel, cdof: np.ndarray, cfrc: np.ndarray, carried: np.ndarray) -> np.ndarray:
+    """(T, nj, nbody) each body's share of each joint's torque, from the joints' motion axes
+    ``cdof`` (T, nj, 6) and ``cfrc_int`` (T, nbody, 6), which sums a body's subtree.
+
+    A body's share is the power pairing of each joint's motion axis with the force that moving
+    the body alone takes (its inertia times its acceleration, gravity included, plus the
+    gyroscopic term: its ``cfrc_int`` less its children's), over the bodies the joint carries.
+    It leaves out one thing a pass per mass sees: the discrete step's implicit damping lets the
+    friction losses' holding force depend on the inertia (measured: up to 4 % of a column on the
+    hand, none without the discrete inverse)."""
+    own = cfrc.copy()
+    for i in range(1, model.nbody):
+        if model.body_parentid[i] > 0:
+            own[:, model.body_parentid[i]] -= cfrc[:, i]
+    return np.einsum("tjk,tik->tji", cdof, own) * carried[None]
 
 
 def _bounded_lstsq(hess: np.ndarray, grad: np.ndarray) -> np.ndarray:
