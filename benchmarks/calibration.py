@@ -51,7 +51,7 @@ def score_methods(pred: Predictor, w, cals: dict) -> dict:
     mean, std = raw.preds["model"], raw.std
     out = {}
     for method, cal in cals.items():
-        s = raw if cal is None else score_windows(Predictions(mean, std * cal.factors(w.horizon)[None]), w, ())
+        s = raw if cal is None else score_windows(Predictions(mean, cal.scaled(std)), w, ())
         h, c = s.result["horizons"], s.result["calibration"]
         out[method] = {"steps": h["steps"], "cover1": h["calibration"]["joints"]["1sigma"],
                        "cover2": h["calibration"]["joints"]["2sigma"],

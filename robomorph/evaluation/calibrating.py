@@ -108,7 +108,7 @@ def _fitting_windows(ckpt: str, predictor, sources, split: str, n, context_len, 
 
 def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,
               context_len: int | None = None, horizon: int | None = None, offset: str | int = "start",
-              seed: int = 0, method: str = "coverage", batch_size: int = 64, device: str | None = None,
+              seed: int = 0, method: str = "power", batch_size: int = 64, device: str | None = None,
               horizons_spec: str | None = None, physics: str | None = None) -> dict:
     """Fits the calibration and writes the checkpoint with it to ``out`` (default: in place).
 
@@ -117,7 +117,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
         n: at most this many windows.
         context_len, horizon: the window (default: the checkpoint's training window).
         offset, seed: where each window starts (``start``, ``random`` or a step), as in evaluate.
-        method: ``coverage`` (default), ``nll`` or ``quantile`` (:mod:`robomorph.model.calibration`).
+        method: ``power`` (default), ``coverage``, ``nll`` or ``quantile`` (:mod:`robomorph.model.calibration`).
         horizons_spec: the steps the report shows (evaluate's ``--horizons``).
         physics: a hybrid's physics mode to calibrate (default: its default mode); each mode keeps
             its own calibration, so calibrating one leaves the others' in place. A hybrid keeps one
@@ -152,7 +152,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
         source["physics_mode"] = predictor.physics_mode
     cal = fit(before.y, mean, std, method, source=source)
     factors = cal.factors(horizon)
-    after = score_windows(Predictions(mean, factors[None] * std), w, (), steps)
+    after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
     report = {"ckpt": ckpt, "out": out or ckpt, "calibration": cal.to_dict(), "steps": steps,
               "seconds": [s * w.dt for s in steps],
               "before": before.result["horizons"]["calibration"]["all"],

@@ -159,7 +159,7 @@ class Hybrid:
             return mean, self._spread(mode, params, z, z_std, mean, horizon, calibration) if return_std else None
         # The parameters' uncertainty about the most likely member, and the friction's between members.
         std = np.sqrt(self._spread(mode, params, z, z_std, horizon(params), horizon, None) ** 2 + mix_var)
-        return mean, std if calibration is None else std * calibration.factors(std.shape[-2])[None]
+        return mean, std if calibration is None else calibration.scaled(std)
 
     def _mixture(self, mode: str, params: np.ndarray, q_ctx: np.ndarray, uc: np.ndarray,
                  qvel_start: np.ndarray) -> list | None:
@@ -220,7 +220,7 @@ class Hybrid:
         """The std (B, H, n_y): the horizons of robots drawn around the estimate, about ``mean``."""
         covs = None if mode == "learned" else self._covs
         std = _draw_spread(self.backbone, params, z_std, covs, mean, horizon, self.samples, self.seed)
-        return std if calibration is None else std * calibration.factors(std.shape[-2])[None]
+        return std if calibration is None else calibration.scaled(std)
 
     def _regress(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, prior=None,
                  anchor: np.ndarray | None = None) -> np.ndarray:
@@ -298,4 +298,4 @@ def _blend(model, u_ctx, y_ctx, u_query, physics: np.ndarray, spread, calibratio
     with np.errstate(invalid="ignore", over="ignore"):
         physics_std = spread()
     out, out_std = model.blend.combine(physics, decoder, physics_std, std.double().cpu().numpy())
-    return out, out_std if calibration is None else out_std * calibration.factors(out_std.shape[-2])[None]
+    return out, out_std if calibration is None else calibration.scaled(out_std)

@@ -306,9 +306,9 @@ def _calibrated_rows(predictor: "Predictor", std: torch.Tensor, at_rest) -> torc
     if start is None:
         return std
     rest = np.broadcast_to(np.asarray(False if at_rest is None else at_rest, dtype=bool), (std.shape[0],))
-    horizon = std.shape[-2]
-    factors = np.where(rest[:, None, None], start.factors(horizon)[None], moving.factors(horizon)[None])
-    return std * torch.as_tensor(factors, dtype=std.dtype, device=std.device)
+    raw = std.detach().cpu().numpy()
+    out = np.where(rest[:, None, None], start.scaled(raw), moving.scaled(raw))
+    return torch.as_tensor(out, dtype=std.dtype, device=std.device)
 
 
 def _checked_mode(physics: dict | None, mode: str | None, option: str) -> str | None:

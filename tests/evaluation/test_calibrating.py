@@ -84,7 +84,7 @@ def test_evaluate_scores_the_calibrated_std_and_says_where_it_was_fitted(gaussia
     test = simulated_store(robots=8, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=7)
     res = evaluate(ckpt, test, str(tmp_path / "eval"), baselines=("hold",), samples=0)
     meta = res["meta"]["std_calibration"]
-    assert meta["split"] == "val" and meta["method"] == "coverage" and meta["data"] == [store]
+    assert meta["split"] == "val" and meta["method"] == "power" and meta["data"] == [store]
     plain = evaluate(best, test, str(tmp_path / "eval0"), baselines=("hold",), samples=0)
     assert plain["meta"]["std_calibration"] is None
     assert res["approach1"] == plain["approach1"]  # the mean prediction is unchanged

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from robomorph.model.calibration import (ONE_SIGMA, TWO_SIGMA, CalibrationError, StdCalibration, fit, knot_steps,
-                                        step_bands)
+from robomorph.model.calibration import (ONE_SIGMA, POWER_MIN_WINDOWS, TWO_SIGMA, CalibrationError, StdCalibration,
+                                        fit, knot_steps, read_calibrations, calibrations_entry, step_bands)
 from robomorph.model.checkpoint import TrainedModel
 from robomorph.model.transformer import ModelConfig
 
@@ -78,6 +78,59 @@ def test_coverage_scales_meet_both_levels_on_heavy_tailed_errors_where_one_level
     for method in ("nll", "quantile", "coverage"):
         scale = np.asarray(fit(gauss, mean, std, method).scale)
         assert abs(np.median(scale) - 4.0) < 0.2 and np.allclose(scale, 4.0, rtol=0.2)  # few samples at step 1
+
+
+def _over_spread(n: int, seed: int = 5):
+    """Errors whose true spread is the square root of the predicted one (in its units): the
+    prediction's spread varies too much across windows, so its z has heavy tails."""
+    rng = np.random.default_rng(seed)
+    shape = (n, 30, 2)
+    std = np.exp(rng.normal(0.0, 1.5, size=(n, 1, 2))) * np.ones(shape)  # one spread per window and channel
+    y = rng.normal(size=shape) * 3.0 * np.sqrt(std)
+    return y, np.zeros(shape), std
+
+
+def _levels(y, mean, std_cal):
+    z = np.abs(y - mean) / std_cal
+    return float(np.mean(z <= 1)), float(np.mean(z <= 2))
+
+
+def test_a_power_of_the_spread_meets_both_levels_where_one_scale_cannot():
+    y, mean, std = _over_spread(400)
+    power = fit(y, mean, std, "power")
+    p = np.asarray(power.power)
+    assert np.median(p) == 0.5 and p.min() >= 0.25 and p.max() <= 0.75  # the spread's true power, knot by knot
+    one, two = _levels(y, mean, power.scaled(std))
+    assert abs(one - ONE_SIGMA) < 0.03 and abs(two - TWO_SIGMA) < 0.015
+    scale = fit(y, mean, std, "coverage")
+    one, two = _levels(y, mean, scale.scaled(std))
+    assert max(abs(one - ONE_SIGMA) / 0.05, abs(two - TWO_SIGMA) / 0.03) > 1  # one scale misses a band
+    # Fresh windows of the same kind: the fitted power holds out of sample.
+    y2, mean2, std2 = _over_spread(400, seed=6)
+    one, two = _levels(y2, mean2, power.scaled(std2))
+    assert abs(one - ONE_SIGMA) < 0.05 and abs(two - TWO_SIGMA) < 0.03
+
+
+def test_with_few_windows_the_power_stays_one_and_the_scales_are_coverages():
+    y, mean, std = _over_spread(POWER_MIN_WINDOWS - 1)
+    power, scale = fit(y, mean, std, "power"), fit(y, mean, std, "coverage")
+    assert np.all(np.asarray(power.power) == 1.0) and np.allclose(power.scale, scale.scale, rtol=1e-12)
+    np.testing.assert_allclose(power.scaled(std), scale.scaled(std))
+
+
+def test_a_power_calibration_round_trips_through_a_model_file_and_applies_alike_in_numpy_and_torch():
+    y, mean, std = _over_spread(200)
+    cal = fit(y, mean, std, "power", source={"physics_mode": "regression"})
+    assert StdCalibration.from_dict(cal.to_dict()) == cal
+    assert read_calibrations(calibrations_entry({"regression": cal}))["regression"] == cal
+    np.testing.assert_allclose(cal.apply(torch.as_tensor(std)).numpy(), cal.scaled(std), rtol=1e-12)
+    plain = StdCalibration(cal.knots, cal.scale)  # without a power: the factors alone
+    np.testing.assert_allclose(plain.scaled(std), std * plain.factors(std.shape[1])[None])
+    doc = cal.to_dict()
+    with pytest.raises(CalibrationError, match="together"):
+        StdCalibration.from_dict({**doc, "reference": None})
+    with pytest.raises(CalibrationError, match="positive"):
+        StdCalibration.from_dict({**doc, "reference": [[-1.0] * 2] * len(doc["knots"])})
 
 
 def test_factors_equal_the_scales_at_knots_interpolate_log_log_and_hold_outside():
