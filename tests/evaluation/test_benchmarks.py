@@ -83,7 +83,7 @@ def test_quality_vs_time_measures_train_cpu_yaml_and_calibration_scores_it(tmp_p
                tmp_path / "cal.csv", "--random-horizon", 20, "--threads", 1)
     rows = read_rows(str(tmp_path / "cal.csv"))
     assert [(r["offset"], r["method"]) for r in rows] == [(o, m) for o in ("start", "random")
-                                                           for m in ("none", "nll", "quantile", "coverage")]
+                                                           for m in ("none", "nll", "quantile", "coverage", "power")]
     assert rows[0]["steps"] == "1/15/40" and rows[0]["dnll_vs_raw"] == "0.0"
     assert "ΔNLL vs head" in done.stdout
 
