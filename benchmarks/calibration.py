@@ -15,6 +15,14 @@ channels) relative to the uncalibrated head (negative: better; units cancel).
         --ckpt command-best=data/quality/confirm_runs_command/full_command/checkpoints/best.ckpt \\
         --ckpt command-last=data/quality/confirm_runs_command/full_command/checkpoints/last.ckpt \\
         --test data/quality/ms_heldout.zarr --csv results/benchmarks/calibration.csv
+
+A hybrid's calibration wants more windows than a validation split holds: ``--cal-data`` fits
+on another store of held-out robots (``--n`` of them), e.g. the hybrid's scale alone against
+scale and power (``results/benchmarks/calibration_hybrid.csv``):
+
+    python benchmarks/calibration.py --ckpt regression=data/hyb/regression_cal.ckpt \
+        --cal-data data/demo/ms_cal256.zarr --n 256 --methods coverage,power --offsets start \
+        --test data/demo/ms_test256.zarr --csv results/benchmarks/calibration_hybrid.csv
 """
 
 from __future__ import annotations
@@ -67,6 +75,10 @@ def main(argv=None) -> None:
     p.add_argument("--csv", default="results/benchmarks/calibration.csv")
     p.add_argument("--random-horizon", type=int, default=300, help="predicted steps from random offsets")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--cal-data", default=None, help="store to fit the calibrations on (default: the fit's validation split)")
+    p.add_argument("--n", type=int, default=None, help="at most this many calibration windows")
+    p.add_argument("--methods", default=",".join(METHODS), help="comma-separated calibration methods")
+    p.add_argument("--offsets", default="start,random", help="which test windows: start, random or both")
     a = p.parse_args(argv)
     print_provenance()
     torch.set_num_threads(a.threads)
@@ -77,18 +89,18 @@ def main(argv=None) -> None:
             pred = Predictor.from_checkpoint(ckpt, device="cpu")
             step = int(read_model(ckpt).get("global_step", 0))
             cals = {"none": None}
-            for method in METHODS:
-                report = calibrate(ckpt, out=os.path.join(tmp, f"{name}-{method}.ckpt"), method=method)
+            for method in a.methods.split(","):
+                report = calibrate(ckpt, a.cal_data, os.path.join(tmp, f"{name}-{method}.ckpt"), a.n, method=method)
                 cals[method] = StdCalibration.from_dict(report["calibration"])
-                print(f"{name}: {method} fitted on {report['calibration']['source']['n']} validation windows",
+                print(f"{name}: {method} fitted on {report['calibration']['source']['n']} windows",
                       file=sys.stderr)
-            for offset in ("start", "random"):
+            for offset in a.offsets.split(","):
                 w = _windows(pred, a.test, offset, a.random_horizon)
                 for method, s in score_methods(pred, w, cals).items():
                     rows.append({"model": name, "step": step, "offset": offset, "method": method, "windows": len(w.u),
                                  "steps": "/".join(map(str, s["steps"])),
-                                 "cover1sigma": "/".join(f"{c:.2f}" for c in s["cover1"]),
-                                 "cover2sigma": "/".join(f"{c:.2f}" for c in s["cover2"]),
+                                 "cover1sigma": "/".join(f"{c:.3f}" for c in s["cover1"]),
+                                 "cover2sigma": "/".join(f"{c:.3f}" for c in s["cover2"]),
                                  "miss1sigma": round(s["miss1"], 4), "miss2sigma": round(s["miss2"], 4),
                                  "dnll_vs_raw": round(s["dnll"], 4)})
                     print(rows[-1], file=sys.stderr)

@@ -34,8 +34,8 @@ from robomorph.evaluation.horizons import error_curve, groups_for, parse_horizon
 from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.windows import (EvaluationError, Window, check_counts, check_patch, load_window, parse_offset,
                                           start_joints)
-from robomorph.model.calibration import (CALIBRATION_KEY, CalibrationError, calibration_key, calibrations_entry, fit,
-                                         read_calibrations)
+from robomorph.model.calibration import (CALIBRATION_KEY, POWER_MIN_WINDOWS, CalibrationError, calibration_key,
+                                         calibrations_entry, fit, interp_log_step, read_calibrations)
 
 
 def _predictor(ckpt: str, device: str | None, need_std: bool = True):
@@ -159,12 +159,20 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
               "after": after.result["horizons"]["calibration"]["all"],
               "nll": {"before": before.result["calibration"]["nll"]["all"],
                       "after": after.result["calibration"]["nll"]["all"]},
-              "scale": [float(np.median(factors[s - 1])) for s in steps]}
+              "scale": [float(np.median(factors[s - 1])) for s in steps], "power": _power_at(cal, horizon, steps)}
     cal.source["coverage"] = {"steps": steps, "before": report["before"], "after": report["after"]}
     ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
                                                      calibration_key(cal): cal})
     _write(ckpt_dict, out or ckpt)
     return report
+
+
+def _power_at(cal, horizon: int, steps) -> list[float] | None:
+    """The spread's power at ``steps`` (median over channels); None for a calibration without one."""
+    if cal.power is None:
+        return None
+    power = interp_log_step(cal.knots, np.asarray(cal.power, dtype=np.float64), horizon)
+    return [float(np.median(power[s - 1])) for s in steps]
 
 
 def _moving(w: Window, offset) -> Window:
@@ -298,7 +306,9 @@ def report_text(report: dict) -> str:
     src = report["calibration"]["source"]
     secs = report.get("seconds") or [None] * len(report["steps"])
     b, a = report["before"], report["after"]
-    rows = [[s, "" if t is None else f"{t:.3g}", f"{report['scale'][i]:.3g}", f"{b['1sigma'][i]:.1%}",
+    power = report.get("power")
+    rows = [[s, "" if t is None else f"{t:.3g}", f"{report['scale'][i]:.3g}",
+             *([f"{power[i]:.3g}"] if power else []), f"{b['1sigma'][i]:.1%}",
              f"{a['1sigma'][i]:.1%}", f"{b['2sigma'][i]:.1%}", f"{a['2sigma'][i]:.1%}"]
             for i, (s, t) in enumerate(zip(report["steps"], secs))]
     lines = [f"std calibration ({report['calibration']['method']}) fitted on {src['n']} windows of "
@@ -306,8 +316,11 @@ def report_text(report: dict) -> str:
              f"context {src['context_len']}, horizon {src['horizon']}"
              + ("" if src.get("offset", "start") == "start" else f", windows from offset {src['offset']}")
              + (f", physics mode {src['physics_mode']}" if src.get("physics_mode") else ""),
-             markdown_table(["step", "seconds", "scale (median over channels)", "±1σ before", "±1σ after",
-                             "±2σ before", "±2σ after"], rows)]
+             markdown_table(["step", "seconds", "scale (median over channels)", *(["power (median)"] if power else []),
+                             "±1σ before", "±1σ after", "±2σ before", "±2σ after"], rows)]
+    if report["calibration"]["method"] == "power" and src["n"] < POWER_MIN_WINDOWS:
+        lines.append(f"the spread's power stays 1 (a scale alone) on fewer than {POWER_MIN_WINDOWS} windows: "
+                     "pass --data with a store of more held-out robots to fit it")
     if "nll" in report:
         lines.append(f"mean Gaussian NLL per value over the horizon: {report['nll']['before']:.4g} before, "
                      f"{report['nll']['after']:.4g} after")

@@ -86,6 +86,11 @@ def test_quality_vs_time_measures_train_cpu_yaml_and_calibration_scores_it(tmp_p
                                                            for m in ("none", "nll", "quantile", "coverage", "power")]
     assert rows[0]["steps"] == "1/15/40" and rows[0]["dnll_vs_raw"] == "0.0"
     assert "ΔNLL vs head" in done.stdout
+    # Fitted on another store's robots, one method, start windows only.
+    run("calibration.py", "--ckpt", f"tiny={ckpt}", "--test", out / "ms_heldout.zarr", "--csv", tmp_path / "cal2.csv",
+        "--cal-data", out / "ms_heldout.zarr", "--n", 3, "--methods", "power", "--offsets", "start", "--threads", 1)
+    rows = read_rows(str(tmp_path / "cal2.csv"))
+    assert [(r["offset"], r["method"]) for r in rows] == [("start", "none"), ("start", "power")]
 
 
 def test_formulations(tmp_path):

@@ -130,5 +130,7 @@ def test_the_command_prints_the_coverage_before_and_after(gaussian, tmp_path, si
     done = _cli("--ckpt", ckpt, "--data", held_out, "--horizons", "1,10,end")
     assert done.returncode == 0, done.stderr
     assert "±1σ before" in done.stdout and "whole store" in done.stdout and f"written: {ckpt}" in done.stdout
+    # The default method on 8 windows: its power column reads 1, and the report says why.
+    assert "power (median)" in done.stdout and "power stays 1 (a scale alone) on fewer than 128 windows" in done.stdout
     steps = [line.strip("|").split("|")[0].strip() for line in done.stdout.splitlines() if line.startswith("|")]
     assert steps[2:] == ["1", "10", str(CKPT_HORIZON)]  # after the header and the separator
