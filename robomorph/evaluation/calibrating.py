@@ -35,7 +35,7 @@ from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.windows import (EvaluationError, Window, check_counts, check_patch, load_window, parse_offset,
                                           start_joints)
 from robomorph.model.calibration import (CALIBRATION_KEY, POWER_MIN_WINDOWS, CalibrationError, calibration_key,
-                                         calibrations_entry, fit, interp_log_step, read_calibrations)
+                                         calibrations_entry, fit, read_calibrations)
 
 
 def _predictor(ckpt: str, device: str | None, need_std: bool = True):
@@ -151,7 +151,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
         # A hybrid's std depends on how it identifies the robot: the calibration is that mode's.
         source["physics_mode"] = predictor.physics_mode
     cal = fit(before.y, mean, std, method, source=source)
-    factors = cal.factors(horizon)
+    factors, powers = cal.factors(horizon), cal.powers(horizon)
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
     report = {"ckpt": ckpt, "out": out or ckpt, "calibration": cal.to_dict(), "steps": steps,
               "seconds": [s * w.dt for s in steps],
@@ -159,20 +159,13 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
               "after": after.result["horizons"]["calibration"]["all"],
               "nll": {"before": before.result["calibration"]["nll"]["all"],
                       "after": after.result["calibration"]["nll"]["all"]},
-              "scale": [float(np.median(factors[s - 1])) for s in steps], "power": _power_at(cal, horizon, steps)}
+              "scale": [float(np.median(factors[s - 1])) for s in steps],
+              "power": None if cal.power is None else [float(np.median(powers[s - 1])) for s in steps]}
     cal.source["coverage"] = {"steps": steps, "before": report["before"], "after": report["after"]}
     ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
                                                      calibration_key(cal): cal})
     _write(ckpt_dict, out or ckpt)
     return report
-
-
-def _power_at(cal, horizon: int, steps) -> list[float] | None:
-    """The spread's power at ``steps`` (median over channels); None for a calibration without one."""
-    if cal.power is None:
-        return None
-    power = interp_log_step(cal.knots, np.asarray(cal.power, dtype=np.float64), horizon)
-    return [float(np.median(power[s - 1])) for s in steps]
 
 
 def _moving(w: Window, offset) -> Window:

@@ -41,9 +41,9 @@ Two estimators of ``s`` at a knot, over the windows and the steps of the knot's 
   steps 1/15/60/300/800 is 71.9-73.0 / 92.5-93.7 %, inside the goal bands (68 ± 5 / 95 ± 3 %) at
   every step, against 70.7-75.3 / 89.9-92.6 % for ``coverage`` (inside at one step); the mean miss
   over all steps fell from 6.1 / 4.4 to 4.9 / 2.2 points. In an offline trial with 64
-  calibration robots neither method met the bands (the fitted powers follow the noise), so below :data:`POWER_MIN_WINDOWS` windows ``p`` stays 1. ``p`` is 1 too where a
-  power does not help, and the calibration is then ``coverage``'s. ``robomorph calibrate``'s
-  default.
+  calibration robots neither method met the bands (the fitted powers follow the noise), so
+  below :data:`POWER_MIN_WINDOWS` windows ``p`` stays 1. ``p`` is 1 too where a power does not
+  help, and the calibration is then ``coverage``'s. ``robomorph calibrate``'s default.
 
 Stored in a checkpoint under :data:`CALIBRATION_KEY` as plain lists, with where it was
 fitted, so a reader can tell the validation split from a test store.
@@ -139,6 +139,12 @@ class StdCalibration:
         """(horizon, n_y) multipliers for query steps 1..horizon (log-log interpolation, flat outside)."""
         return np.exp(interp_log_step(self.knots, np.log(np.asarray(self.scale, dtype=np.float64)), horizon))
 
+    def powers(self, horizon: int) -> np.ndarray:
+        """(horizon, n_y) the spread's powers for query steps 1..horizon (ones without a power)."""
+        if self.power is None:
+            return np.ones((horizon, self.n_y))
+        return interp_log_step(self.knots, np.asarray(self.power, dtype=np.float64), horizon)
+
     def scaled(self, std: np.ndarray) -> np.ndarray:
         """(..., H, n_y) ``std`` recalibrated at steps 1..H: times the factors, about the reference
         spread to the power (``power`` calibrations)."""
@@ -148,9 +154,8 @@ class StdCalibration:
         factors = self.factors(std.shape[-2])
         if self.power is None:
             return std * factors
-        power = interp_log_step(self.knots, np.asarray(self.power, dtype=np.float64), std.shape[-2])
         ref = np.exp(interp_log_step(self.knots, np.log(np.asarray(self.reference, dtype=np.float64)), std.shape[-2]))
-        return factors * ref * (np.maximum(std, 0.0) / ref) ** power
+        return factors * ref * (np.maximum(std, 0.0) / ref) ** self.powers(std.shape[-2])
 
     def apply(self, std: torch.Tensor) -> torch.Tensor:
         """``std`` (B, H, n_y) recalibrated at steps 1..H (:meth:`scaled`)."""

@@ -307,7 +307,10 @@ def _calibrated_rows(predictor: "Predictor", std: torch.Tensor, at_rest) -> torc
         return std
     rest = np.broadcast_to(np.asarray(False if at_rest is None else at_rest, dtype=bool), (std.shape[0],))
     raw = std.detach().cpu().numpy()
-    out = np.where(rest[:, None, None], start.scaled(raw), moving.scaled(raw))
+    out = np.empty_like(raw)
+    for rows, cal in ((rest, start), (~rest, moving)):  # each row by its own kind's, once
+        if rows.any():
+            out[rows] = cal.scaled(raw[rows])
     return torch.as_tensor(out, dtype=std.dtype, device=std.device)
 
 
