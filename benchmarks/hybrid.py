@@ -48,6 +48,20 @@ def _row(name: str, offset: str, scores, source: str, seconds: float | None, std
     return row
 
 
+def configure(pred: Predictor, spec: str) -> str:
+    """Sets ``pred`` up as ``MODE[@K][~M][/S]`` says (K regression solves, default 3; M members of
+    the friction mixture, default 9; S physics steps per sample after the first second, default
+    :func:`robomorph.sim.backbone.coarse_substeps`); returns MODE."""
+    spec, _, substeps = spec.partition("/")
+    mode, _, members = spec.partition("~")
+    mode, _, solves = mode.partition("@")
+    pred.physics_mode, pred.physics_members = mode, int(members or 9)
+    pred.physics_substeps = int(substeps) if substeps else None
+    if pred.physics and mode != "none":
+        pred.hybrid().iterations = int(solves or 3)
+    return mode
+
+
 def latency(args) -> None:
     """Median wall time of Predictor.simulate per mode: one trajectory, and 256 candidates on one context."""
     from robomorph.data.store import open_store  # noqa: PLC0415
@@ -60,11 +74,7 @@ def latency(args) -> None:
     cands = u[0, c:c + 60][None] + rng.normal(0, 0.2, size=(256, 60, u.shape[2])).astype(np.float32)
     rows = []
     for spec in [m for m in args.modes.split(",") if m] + ["none"]:
-        mode, _, members = spec.partition("~")
-        mode, _, solves = mode.partition("@")
-        pred.physics_mode, pred.physics_members = mode, int(members or 9)
-        if pred.physics:
-            pred.hybrid().iterations = int(solves or 3)
+        configure(pred, spec)
         for what, call in (("one trajectory (200 + 800)", lambda: pred.simulate(u[0, :c], y[0, :c], u[0, c:c + h])),
                            ("256 candidates x 60 steps, one context",
                             lambda: pred.simulate(np.repeat(u[:, :c], 256, 0), np.repeat(y[:, :c], 256, 0), cands))):
@@ -89,7 +99,9 @@ def main(argv=None) -> int:
     p.add_argument("--modes", default="learned,regression,refined",
                    help="comma-separated physics modes; MODE@K solves the regression K times (default 3), "
                         "each linearized where the last landed; MODE~M predicts with M robots of the friction "
-                        "mixture over the joints that held still (default 9; ~1: the estimate alone)")
+                        "mixture over the joints that held still (default 9; ~1: the estimate alone); MODE/S "
+                        "simulates the horizon after its first second at S physics steps per sample (default: "
+                        "a 240th of a second, 4 for the Panda recipe's 8; /8 re-enacts the generator throughout)")
     p.add_argument("--baselines", default="hold,nominal_physics,identified_physics")
     p.add_argument("--offsets", default="start,random")
     p.add_argument("--black-box", action="store_true", help="also score the checkpoint's black-box decoder")
@@ -129,13 +141,7 @@ def main(argv=None) -> int:
         for name, ckpt, mode in sources:
             pred = Predictor.from_checkpoint(ckpt)
             if mode is not None:
-                mode, _, members = mode.partition("~")
-                mode, _, solves = mode.partition("@")
-                pred.physics_mode = mode
-                if solves:
-                    pred.hybrid().iterations = int(solves)
-                if members:
-                    pred.physics_members = int(members)
+                mode = configure(pred, mode)
             std = args.std and mode not in (None, "none")
             if not std and pred.physics:
                 pred.has_std = False  # the mean alone: the cost of a prediction without draws

@@ -118,6 +118,9 @@ class Predictor:
         physics_samples: parameter draws behind the hybrid's standard deviation.
         physics_members: robots of the friction mixture over the joints that held still in the context
             (:mod:`robomorph.sim.stiction`; command formulation); 1: the estimate alone (cheaper).
+        physics_substeps: physics steps per sample of the hybrid's horizons after their first
+            second (None: :func:`robomorph.sim.backbone.coarse_substeps`, 4 for the Panda
+            recipe's 8; the recipe's own re-enacts the generator to the bit throughout).
         channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside,
             its outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
     """
@@ -135,6 +138,7 @@ class Predictor:
         self.physics, self.physics_mode = _backbone(model, data_info, self.inputs)
         self.physics_samples: int = 8
         self.physics_members: int = 9
+        self.physics_substeps: int | None = None
         self.channels: tuple[list[str], list[str]] | None = None
         self._hybrid = None
         if self.physics:
@@ -147,9 +151,12 @@ class Predictor:
 
         if not self.physics:
             raise PredictionError("this model has no physics backbone (it was trained with --model.physics none)")
+        if self._hybrid is not None and self._hybrid.substeps != self.physics_substeps:
+            self._hybrid.close()  # its simulators run at another physics step
+            self._hybrid = None
         if self._hybrid is None:
             self._hybrid = Hybrid(self.model, self.physics, self.inputs, samples=self.physics_samples,
-                                  members=self.physics_members)
+                                  members=self.physics_members, substeps=self.physics_substeps)
         self._hybrid.samples, self._hybrid.members = self.physics_samples, self.physics_members
         return self._hybrid
 

@@ -62,6 +62,59 @@ def test_backbone_threads_do_not_change_the_result(command_store):
     np.testing.assert_array_equal(outs[0], outs[1])
 
 
+def test_fewer_physics_substeps_simulate_the_later_horizon_at_a_coarser_step(command_store):
+    """``substeps`` is the physics step of the horizon after its first ``FINE_STEPS``: those stay
+    the generator's to the bit, the later ones are a real coarser integration (they differ)
+    that stays within a fraction of a milliradian of it."""
+    from robomorph.sim.backbone import BackboneError, PhysicsBackbone, parameter_layout
+
+    uc, yc, uq, yq, params, attrs = _windows(command_store)
+    layout = parameter_layout(attrs)
+    ss = int(layout["recipe"]["substeps"])
+    with PhysicsBackbone(layout, "command", nthread=1, substeps=ss // 2) as bb:
+        assert (bb.substeps, bb.coarse) == (ss, ss // 2)
+        bb.FINE_STEPS = 20  # the test's horizon is shorter than the default's second
+        coarse = bb.simulate(params, yc[..., 7:], uc, uq, np.zeros((len(uc), 7)), yc[:, -1, 3:7])
+        assert bb.ident.model.opt.timestep == pytest.approx(attrs["dt"] / ss)
+        assert all(m.opt.timestep == bb.ident.model.opt.timestep for m in bb.ident._models)  # restored
+    np.testing.assert_allclose(coarse[:, :20], yq[:, :20], atol=2e-6)  # float32 storage
+    joints = (coarse - yq)[:, 20:, 7:]
+    assert np.abs(joints).max() > 1e-7 and np.sqrt(np.mean(joints ** 2)) < 3e-4
+    for bad in (0, -2, 2.5, True):
+        with pytest.raises(BackboneError, match="positive integer"):
+            PhysicsBackbone(layout, "command", nthread=1, substeps=bad)
+
+
+def test_the_default_coarse_step_is_a_240th_of_a_second_never_finer_than_the_recipes(command_store):
+    import dataclasses
+
+    from robomorph.sim.backbone import PhysicsBackbone, coarse_substeps, parameter_layout
+
+    layout = parameter_layout(_windows(command_store)[-1])
+    with PhysicsBackbone(layout, "command", nthread=1) as bb:
+        assert bb.coarse == coarse_substeps(bb.recipe) == round(bb.recipe.dt * 240)
+        for dt, substeps, expected in ((1 / 60, 8, 4), (1 / 60, 2, 2), (1 / 30, 8, 8), (1 / 120, 8, 2), (1 / 600, 4, 1)):
+            assert coarse_substeps(dataclasses.replace(bb.recipe, dt=dt, substeps=substeps)) == expected
+
+
+def test_the_predictor_rebuilds_its_physics_at_the_substeps_asked_for(hybrid_ckpt, command_store):
+    from robomorph.model.predictor import Predictor
+
+    uc, yc, uq, yq, _, attrs = _windows(command_store, n=1)
+    p = Predictor.from_checkpoint(hybrid_ckpt)
+    p.physics_substeps = attrs["substeps"]  # the generator's own step throughout
+    exact = p.simulate(uc, yc, uq, at_rest=True)
+    assert p.hybrid().backbone.coarse == attrs["substeps"]
+    p.physics_substeps = attrs["substeps"] // 2
+    p.hybrid().backbone.FINE_STEPS = 20  # the test's horizon is shorter than the default's second
+    coarse = p.simulate(uc, yc, uq, at_rest=True)
+    assert p.hybrid().backbone.coarse == attrs["substeps"] // 2
+    np.testing.assert_array_equal(coarse[:, :20], exact[:, :20])
+    assert np.abs(coarse - exact).max() > 0 and np.sqrt(np.mean((coarse - exact)[..., 7:] ** 2)) < 3e-4
+    p.physics_substeps = attrs["substeps"]
+    np.testing.assert_array_equal(p.simulate(uc, yc, uq, at_rest=True), exact)
+
+
 def test_parameter_head_never_sees_the_query(hybrid_ckpt, command_store):
     """Poisoned query: the parameters and the prediction up to step k do not move when the
     query outputs change (never given) or the query torques from step k on change."""
