@@ -65,12 +65,10 @@ class Hybrid:
         members: robots of the friction mixture over the joints that held still in the context
             (:mod:`robomorph.sim.stiction`; command formulation); 1: the estimate alone.
         seed: the seed of the parameter draws (the same windows give the same std).
-        substeps: physics steps per sample of the horizons after their first second (None: the
-            default of :class:`robomorph.sim.backbone.PhysicsBackbone`).
     """
 
     def __init__(self, model, physics: dict, inputs: str, samples: int = 8, refine_iters: int = 3, seed: int = 0,
-                 iterations: int = 3, members: int = 9, substeps: int | None = None):
+                 iterations: int = 3, members: int = 9):
         from robomorph.sim.backbone import PhysicsBackbone  # noqa: PLC0415  (MuJoCo only when used)
 
         if model.config.n_params and model.config.n_params != len(physics["names"]):
@@ -78,10 +76,10 @@ class Hybrid:
                               f"names {len(physics['names'])} parameters: the checkpoint is inconsistent")
         self.model, self.physics, self.inputs = model, physics, inputs
         self.samples, self.refine_iters, self.seed = int(samples), int(refine_iters), int(seed)
-        self.iterations, self.members, self.substeps = int(iterations), int(members), substeps
+        self.iterations, self.members = int(iterations), int(members)
         if self.members < 1:
             raise HybridError(f"the friction mixture needs members >= 1, got {members}")
-        self.backbone = PhysicsBackbone(physics, inputs, substeps=substeps)
+        self.backbone = PhysicsBackbone(physics, inputs)
         self._identifier = None
         self._regressor = None
         self._stiction = None

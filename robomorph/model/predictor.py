@@ -101,16 +101,13 @@ class Predictor:
             or ``command`` (the command without the arm's gravity compensation).
         data_info: channel names, dt and the training window (None for checkpoints that predate it).
         has_std: the model has a Gaussian head (``simulate(..., return_std=True)`` works).
-        calibration: the per-horizon scale of that std stored in the checkpoint by
-            ``python -m robomorph.calibrate`` (a :class:`StdCalibration`), or None; ``simulate``
-            applies it.
+        calibration: the per-horizon scale of that std stored in the checkpoint by ``python -m
+            robomorph.calibrate`` (a :class:`StdCalibration`), or None; ``simulate`` applies it.
         device: where it runs.
-        max_input_std: ``simulate`` refuses torques further than this many training
-            standard deviations from the training mean (default :data:`MAX_INPUT_STDS`;
-            None: no check).
-        physics: the physics backbone's record (parameter layout and generator recipe) of a
-            model trained with ``--model.physics amortized`` or given a blend by
-            ``robomorph calibrate --blend``, else None.
+        max_input_std: ``simulate`` refuses torques further than this many training standard deviations
+            from the training mean (default :data:`MAX_INPUT_STDS`; None: no check).
+        physics: the physics backbone's record (parameter layout and generator recipe) of a model trained
+            with ``--model.physics amortized`` or given a blend by ``robomorph calibrate --blend``, else None.
         physics_mode: how such a model predicts: ``regression``, ``learned``, ``fused``,
             ``refined``, ``blend`` (:data:`robomorph.model.hybrid.MODES`) or ``none`` (its
             decoder). Default: ``regression`` for commands; for total torques ``blend`` when
@@ -118,11 +115,10 @@ class Predictor:
         physics_samples: parameter draws behind the hybrid's standard deviation.
         physics_members: robots of the friction mixture over the joints that held still in the context
             (:mod:`robomorph.sim.stiction`; command formulation); 1: the estimate alone (cheaper).
-        physics_substeps: physics steps per sample of the hybrid's horizons after their first
-            second (None: :func:`robomorph.sim.backbone.coarse_substeps`, 4 for the Panda
-            recipe's 8; the recipe's own re-enacts the generator to the bit throughout).
-        channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside,
-            its outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
+        physics_substeps: physics steps per sample of the hybrid's horizons after their first second (None:
+            :func:`robomorph.sim.backbone.coarse_substeps`, 4 of the Panda's 8; 8 re-enacts the generator throughout).
+        channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside, its
+            outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
     """
 
     def __init__(self, model: TrainedModel, device: str | torch.device | None = None, data_info: dict | None = None):
@@ -151,13 +147,10 @@ class Predictor:
 
         if not self.physics:
             raise PredictionError("this model has no physics backbone (it was trained with --model.physics none)")
-        if self._hybrid is not None and self._hybrid.substeps != self.physics_substeps:
-            self._hybrid.close()  # its simulators run at another physics step
-            self._hybrid = None
         if self._hybrid is None:
-            self._hybrid = Hybrid(self.model, self.physics, self.inputs, samples=self.physics_samples,
-                                  members=self.physics_members, substeps=self.physics_substeps)
+            self._hybrid = Hybrid(self.model, self.physics, self.inputs)
         self._hybrid.samples, self._hybrid.members = self.physics_samples, self.physics_members
+        self._hybrid.backbone.coarse = self.physics_substeps
         return self._hybrid
 
     def check_inputs(self, inputs: str | None) -> None:

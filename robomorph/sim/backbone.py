@@ -124,10 +124,8 @@ class PhysicsBackbone:
 
         self.layout, self.inputs = layout, inputs
         self.recipe = from_dict(Recipe, layout["recipe"], "model's recipe")
-        if substeps is not None and (isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1):
-            raise BackboneError(f"physics substeps must be a positive integer (physics steps per sample), got {substeps!r}")
         self.substeps = int(self.recipe.substeps)
-        self.coarse = int(substeps or coarse_substeps(self.recipe))  # the physics steps per sample after FINE_STEPS
+        self.coarse = substeps  # the physics steps per sample after FINE_STEPS
         nthread = nthread or os.cpu_count() or 1
         self.ident = Identifier(self.recipe, inputs, IdentifyConfig(nthread=nthread))
         self.index = np.asarray(layout["index"], dtype=np.int64)
@@ -139,6 +137,17 @@ class PhysicsBackbone:
         self.open_loop = self.ident._feedback is None
         self._closed = None  # (full model, data, controller settings) for the formulations that need feedback
         self._kinematics = SiteKinematics(self.ident.model, "ee")
+
+    @property
+    def coarse(self) -> int:
+        """Physics steps per sample of open-loop horizons after :attr:`FINE_STEPS` (settable; None: the default)."""
+        return self._coarse
+
+    @coarse.setter
+    def coarse(self, substeps: int | None) -> None:
+        if substeps is not None and (isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1):
+            raise BackboneError(f"physics substeps must be a positive integer (physics steps per sample), got {substeps!r}")
+        self._coarse = int(substeps or coarse_substeps(self.recipe))
 
     def close(self) -> None:
         self.ident.close()
