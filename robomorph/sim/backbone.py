@@ -12,8 +12,9 @@ with no optimization:
    last context sample: in the command formulation that velocity follows the context's
    dynamics better than a finite-difference estimate (measured for ``identified_physics``);
 2. from the measured joint positions at the last context sample and that velocity, the
-   horizon is simulated under the query torques; the end-effector pose is the catalogue
-   kinematics of the simulated joint angles (link geometry is not randomized).
+   horizon is simulated under the query torques, at the recipe's physics step for its first
+   second and at a coarser one after (:data:`COARSE_STEP`); the end-effector pose is the
+   catalogue kinematics of the simulated joint angles (link geometry is not randomized).
 
 Step 2 runs in one threaded ``mujoco.rollout`` call where the formulation needs no state
 feedback inside the horizon (the command on an arm that compensates its own gravity through
@@ -252,19 +253,21 @@ class PhysicsBackbone:
                 mujoco.mj_resetData(model, d)
                 d.qpos[:nj], d.qvel[:nj] = qpos0[b], qvel0[b]
                 mujoco.mj_getState(model, d, x[k], _STATE)
-            for first, last, ss in segments:
-                if last == first:
-                    continue
+            try:
+                for first, last, ss in segments:
+                    if last == first:
+                        continue
+                    for model in ms:
+                        model.opt.timestep = self.dt / ss
+                    control = np.repeat(torque[group.start:group.stop, first:last], ss, axis=1)
+                    state = np.empty((len(group), (last - first) * ss, size))
+                    ident._rollout(ms, x, control, state=state)
+                    rows = np.arange(1, last - first + 1) * ss - 1  # after the last physics step of each frame
+                    out[group.start:group.stop, first + 1:last + 1] = state[:, rows, nq0:nq0 + nj]
+                    x = state[:, -1].copy()
+            finally:
                 for model in ms:
-                    model.opt.timestep = self.dt / ss
-                control = np.repeat(torque[group.start:group.stop, first:last], ss, axis=1)
-                state = np.empty((len(group), (last - first) * ss, size))
-                ident._rollout(ms, x, control, state=state)
-                rows = np.arange(1, last - first + 1) * ss - 1  # after the last physics step of each frame
-                out[group.start:group.stop, first + 1:last + 1] = state[:, rows, nq0:nq0 + nj]
-                x = state[:, -1].copy()
-            for model in ms:
-                model.opt.timestep = m.opt.timestep  # the recipe's, which the context's simulations use
+                    model.opt.timestep = m.opt.timestep  # the recipe's, which the context's simulations use
         return out
 
     def _closed_loop(self, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:

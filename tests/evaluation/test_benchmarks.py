@@ -130,14 +130,30 @@ def test_hybrid_benchmark_scores_modes_and_baselines_on_the_same_windows(tmp_pat
     ckpt = fit(args).best_ckpt
     csv, lat = tmp_path / "hybrid.csv", tmp_path / "latency.csv"
     done = run("hybrid.py", "--ckpt", ckpt, "--test", store, "--n", 2, "--offsets", "start",
-               "--modes", "learned,regression", "--baselines", "hold", "--csv", csv, "--md", tmp_path / "h.md",
+               "--modes", "learned,regression,regression~1/2", "--baselines", "hold", "--csv", csv, "--md", tmp_path / "h.md",
                "--latency", "--repeats", 1, "--latency-csv", lat, "--std")
     assert done.stdout.startswith("*Produced by `benchmarks/hybrid.py")
     rows = read_rows(str(csv))
-    assert [r["source"] for r in rows] == ["hold", "learned", "regression"]
+    assert [r["source"] for r in rows] == ["hold", "learned", "regression", "regression~1/2"]
     assert all(float(r["step1"]) > 0 for r in rows)
     # Coverage at the reported steps: the mean lies within the lowest and highest step's (none for hold).
     cover = [[float(r[f"cover1{k}"]) for k in ("_min", "", "_max")] for r in rows]
     assert np.isnan(cover[0]).all() and all(lo <= mean <= hi for lo, mean, hi in cover[1:])
     assert read_provenance(str(csv))[0]["command"].startswith("benchmarks/hybrid.py")
-    assert {r["mode"] for r in read_rows(str(lat))} == {"learned", "regression", "none"}
+    assert {r["mode"] for r in read_rows(str(lat))} == {"learned", "regression", "regression~1/2", "none"}
+
+
+def test_horizon_step_benchmark_is_exact_at_the_generators_step_and_in_the_first_second(tmp_path, simulated_store):
+    store = simulated_store(robots=3, steps=90, seed=6)
+    csv = tmp_path / "step.csv"
+    done = run("horizon_step.py", "--test", store, "--n", 3, "--context", 20, "--horizon", 70, "--csv", csv)
+    assert done.stdout.startswith("*Produced by `benchmarks/horizon_step.py")
+    rows = read_rows(str(csv))
+    assert len(rows) == 4 and "(default)" in rows[2]["setting"]
+    exact, everywhere, default = ({k: float(v) for k, v in r.items() if k.startswith("step")} for r in rows[:3])
+    assert max(exact.values()) < 1e-3  # the recorded robot, to float32 storage [mrad]
+    assert default["step1"] == exact["step1"] and default["step60"] == exact["step60"]
+    assert everywhere["step60"] > 10 * exact["step60"]  # a coarse step is a real change, and would show
+    assert int(rows[2]["physics_steps"]) < int(rows[0]["physics_steps"])
+    done = run("horizon_step.py", "--test", store, "--n", 3, "--horizon", 800, ok=False)
+    assert done.returncode == 2 and "fewer than --context + --horizon" in done.stderr
