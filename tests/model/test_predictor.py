@@ -77,8 +77,26 @@ def test_bad_inputs_are_named(tiny_checkpoint, window):
         pred.simulate(u[1, :C, :3], y[1, :C], u[1, C:])
     with pytest.raises(ValueError, match="NaN"):
         pred.simulate(u[1, :C] * np.nan, y[1, :C], u[1, C:])
+    one_inf = y[1, :C].copy()
+    one_inf[7, 3] = np.inf
+    with pytest.raises(ValueError, match="y_ctx holds NaN or inf"):
+        pred.simulate(u[1, :C], one_inf, u[1, C:])
     with pytest.raises(ValueError, match="unbatched"):
         pred.simulate(u[:, :C], y[1, :C], u[1, C:])
+
+
+def test_all_finite_is_exact_where_the_sum_is_not():
+    from robomorph.model.predictor import all_finite
+
+    big = torch.full((4, 100, 7), 3e38)  # finite values whose sum overflows to inf
+    assert all_finite(big) and all_finite(torch.zeros(0, 3)) and all_finite(torch.randn(8, 5, 2))
+    for bad in (float("nan"), float("inf"), -float("inf")):
+        t = torch.randn(8, 5, 2)
+        t[3, 2, 1] = bad
+        assert not all_finite(t)
+    t = big.clone()
+    t[0, 0, 0] = float("nan")
+    assert not all_finite(t)
 
 
 def test_bad_checkpoints(tiny_checkpoint, tmp_path):
