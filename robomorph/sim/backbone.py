@@ -83,12 +83,13 @@ def to_unit(layout: dict, params: np.ndarray) -> np.ndarray:
 
 
 # The physics step of a horizon after its first second, by default [s]. Measured on 32 held-out
-# robots with their true parameters (Panda recipe, 60 Hz): 4 physics steps per sample instead of
-# the generator's 8 move the horizon by 0.06 and 0.08 mrad at 5 and 13.3 s, a few percent of
-# what identification leaves; on 64 held-out robots `regression` scored 1.831 / 4.053 mrad there
-# against 1.828 / 4.049, the same to four digits before, for 37 % fewer physics steps over a
-# 200 + 800 window. Everywhere coarse, the first steps would move too (0.005 and 0.035 mrad at
-# steps 1 and 15, a third and a sixth of the error there); 2 per sample moved 5 s by 0.24 mrad.
+# robots with their true parameters (Panda recipe, 60 Hz; results/benchmarks/horizon_step.csv):
+# 4 physics steps per sample instead of the generator's 8 move the horizon by 0.06 and 0.08 mrad
+# at 5 and 13.3 s, a few percent of what identification leaves, for 37 % fewer physics steps over
+# a 200 + 800 window; on 64 held-out robots `regression` scored 1.831 / 4.053 mrad there against
+# 1.828 / 4.049, the same to four digits before. Everywhere coarse, the first steps would move
+# too (0.0025 and 0.034 mrad at steps 1 and 15, about a sixth of the error there); 2 physics
+# steps per sample moved 5 s by 0.22 mrad.
 COARSE_STEP = 1 / 240
 
 
