@@ -55,7 +55,13 @@ class CrossAttention(nn.Module):
 
     def forward(self, x: torch.Tensor, memory: torch.Tensor) -> torch.Tensor:
         q = self.c_q(x)  # (B, Tq, d)
-        k, v = self.c_kv(memory).chunk(2, dim=-1)  # 2 x (B, Tm, d)
+        if memory.shape[0] > 1 and memory.stride(0) == 0:
+            # One memory shared by every row (candidates on one context, robomorph.model.transformer):
+            # projected once, which a third of the decoder's work for 256 candidates had been.
+            kv = self.c_kv(memory[:1]).expand(memory.shape[0], -1, -1)
+        else:
+            kv = self.c_kv(memory)
+        k, v = kv.chunk(2, dim=-1)  # 2 x (B, Tm, d)
         p = self.dropout if self.training else 0.0
         return self.resid_drop(self.c_proj(_attend(q, k, v, self.n_head, p, causal=False)))
 

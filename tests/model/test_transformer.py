@@ -144,13 +144,18 @@ def test_batch_items_are_independent():
 
 
 def test_candidates_on_one_context_match_their_own_predictions():
-    """A batch sharing one context (a controller's candidates) is encoded once; each row is
-    still its own prediction, and the context still matters."""
+    """A batch sharing one context (a controller's candidates) is encoded once, and its memory
+    projected once per cross-attention; each row is still its own prediction, and the context
+    still matters."""
     model = tiny_model(n_init=2)
     u_ctx, y_ctx, u_q = batch(4, 16, 20)
     shared_u, shared_y = u_ctx[:1].expand(4, -1, -1), y_ctx[:1].expand(4, -1, -1)
+    rows = []
+    hook = model.decoder.blocks[0].cross.c_kv.register_forward_hook(lambda m, args, out: rows.append(len(args[0])))
     with torch.no_grad():
         full = model(shared_u, shared_y, u_q)
+        assert rows == [1]
+        hook.remove()
         for b in range(4):
             assert_same(full[b:b + 1], model(u_ctx[:1], y_ctx[:1], u_q[b:b + 1]))
         assert_differs(full[1:2], model(u_ctx[1:2], y_ctx[1:2], u_q[1:2]))
