@@ -23,7 +23,10 @@ Their weighted spread is the part of the standard deviation that the unknown fri
 
 Measured on the same 64 robots (9 members), joint RMS [mrad] at steps 1/15/60/300/800:
 0.0162/0.232/0.738/1.84/4.03, against 0.0181/0.317/0.790/2.09/5.37 for the regression's
-single robot (``benchmarks/hybrid.py`` scores it against identified physics).
+single robot (``benchmarks/hybrid.py`` scores it against identified physics). Since the
+regression re-tries held joints from below (:mod:`robomorph.sim.regressor`), which finds the
+wrists that slid, the single robot is at 0.0146/0.195/0.511/1.65/4.89 and the mixture at
+0.0146/0.195/0.632/1.80/3.99: the mixture is the better one at 13.3 s only.
 """
 
 from __future__ import annotations
