@@ -87,9 +87,9 @@ def to_unit(layout: dict, params: np.ndarray) -> np.ndarray:
 # 4 physics steps per sample instead of the generator's 8 move the horizon by 0.06 and 0.08 mrad
 # at 5 and 13.3 s, a few percent of what identification leaves, for 37 % fewer physics steps over
 # a 200 + 800 window; on 64 held-out robots `regression` scored 1.799 / 3.985 mrad there against
-# 1.796 / 3.981, the same to four digits before (results/benchmarks/hybrid.md). Everywhere coarse, the first steps would move
-# too (0.0025 and 0.034 mrad at steps 1 and 15, about a sixth of the error there); 2 physics
-# steps per sample moved 5 s by 0.22 mrad.
+# 1.796 / 3.981, the same to four digits before (results/benchmarks/hybrid.md). Everywhere
+# coarse, the first steps would move too (0.0025 and 0.034 mrad at steps 1 and 15, about a
+# sixth of the error there); 2 physics steps per sample moved 5 s by 0.22 mrad.
 COARSE_STEP = 1 / 240
 
 

@@ -103,6 +103,7 @@ class RegressorIdentifier:
         self.iterations = int(iterations)
         self._half = (space.high - space.low) / 2
         self._mid = (space.high + space.low) / 2
+        self._friction = _friction_entries(space, randomizer)
 
     def fit(self, base: np.ndarray, q: np.ndarray, torque: np.ndarray, prior_mean: np.ndarray | None = None,
             prior_std: np.ndarray | None = None) -> np.ndarray:
@@ -126,7 +127,7 @@ class RegressorIdentifier:
         base = np.asarray(base, dtype=np.float64)
         z_base = self._unit(base)
         fit = self._solves(base, z_base, data, self.iterations)
-        self.last_held = _held(self.randomizer.names, self.space.index, fit.cols, self._nj)
+        self.last_held = _held(self._friction, fit.cols, self._nj)
         if prior_mean is None and self.last_held.any():
             fit = self._slipped(fit, z_base, data)
         params = fit.params
@@ -169,21 +170,20 @@ class RegressorIdentifier:
             x, b_z, gram, atb = _solve(A_z, (tau - tau0).ravel() / self.sigma, z_lin, z_base, self.prior)
             params[index] = self._mid + x * self._half
             z_lin = x
-        return _Fit(params, cols, x, b_z, gram, atb, np.einsum("ij,j->i", A_z, x) - b_z)
+        return _Fit(params, cols, b_z, gram, atb, np.einsum("ij,j->i", A_z, x) - b_z)
 
     def _slipped(self, fit: "_Fit", z_base: np.ndarray, data: tuple) -> "_Fit":
         """The fit again, the friction losses of the joints that held at its estimate started at
         the low end of their ranges; kept where it explains the context's torques much better
         (:data:`SLIP_RATIO`; why: the module's docstring)."""
         start = fit.params.copy()
-        for c, k in enumerate(self.space.index):
-            kind, _, joint = self.randomizer.names[k].rpartition("_q")
-            if kind == "frictionloss" and joint.isdigit() and self.last_held[int(joint)]:
-                start[k] = self.space.low[c]
+        for c, j in self._friction:
+            if self.last_held[j]:
+                start[self.space.index[c]] = self.space.low[c]
         alt = self._solves(start, z_base, data, RETRY_SOLVES, fit.cols)
         if np.linalg.norm(alt.err) >= SLIP_RATIO * np.linalg.norm(fit.err):
             return fit
-        self.last_held = _held(self.randomizer.names, self.space.index, alt.cols, self._nj)
+        self.last_held = _held(self._friction, alt.cols, self._nj)
         return alt
 
     def _columns(self, params: np.ndarray, qs: np.ndarray, v: np.ndarray, a: np.ndarray,
@@ -259,26 +259,33 @@ class RegressorIdentifier:
 
 
 class _Fit(NamedTuple):
-    """A fit's estimate, regressor, unit-coordinate solution, normal equations and linearized residual."""
+    """A fit's estimate, regressor, normal equations and linearized residual (in units of ``sigma``)."""
 
     params: np.ndarray
     cols: np.ndarray
-    x: np.ndarray
     b_z: np.ndarray
     gram: np.ndarray
     atb: np.ndarray
     err: np.ndarray
 
 
-def _held(names: list, index: np.ndarray, cols: np.ndarray, nj: int) -> np.ndarray:
+def _friction_entries(space, randomizer) -> list[tuple[int, int]]:
+    """(column, joint) of each friction loss among the identified parameters."""
+    out = []
+    for c, k in enumerate(space.index):
+        kind, _, joint = randomizer.names[k].rpartition("_q")
+        if kind == "frictionloss" and joint.isdigit():
+            out.append((c, int(joint)))
+    return out
+
+
+def _held(friction: list[tuple[int, int]], cols: np.ndarray, nj: int) -> np.ndarray:
     """(nj,) whether each joint's friction loss never saturated: its column (the Coulomb force's
     sign per unit of friction loss where the constraint saturates, zero where it holds the
-    joint) stays below half a unit at every state of the context."""
+    joint) stays below half a unit at every state of the context. ``friction``: (column, joint)."""
     held = np.zeros(nj, dtype=bool)
-    for c, k in enumerate(index):
-        kind, _, joint = names[k].rpartition("_q")
-        if kind == "frictionloss" and joint.isdigit():
-            held[int(joint)] = bool(np.max(np.abs(cols[:, int(joint), c])) < 0.5)
+    for c, j in friction:
+        held[j] = bool(np.max(np.abs(cols[:, j, c])) < 0.5)
     return held
 
 

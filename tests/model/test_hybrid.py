@@ -97,7 +97,7 @@ def test_the_default_coarse_step_is_a_240th_of_a_second_never_finer_than_the_rec
             assert coarse_substeps(dataclasses.replace(bb.recipe, dt=dt, substeps=substeps)) == expected
 
 
-def test_the_predictor_rebuilds_its_physics_at_the_substeps_asked_for(hybrid_ckpt, command_store):
+def test_the_predictor_simulates_at_the_physics_substeps_asked_for(hybrid_ckpt, command_store):
     from robomorph.model.predictor import Predictor
 
     uc, yc, uq, yq, _, attrs = _windows(command_store, n=1)
