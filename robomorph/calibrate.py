@@ -31,13 +31,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizons", help="steps shown in the report, as evaluate's --horizons")
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
-    p.add_argument("--physics", choices=("regression", "learned", "fused", "refined", "blend", "none"),
+    p.add_argument("--physics", choices=("regression", "learned", "fused", "refined", "blend", "smoothed", "none"),
                    help="a hybrid model's physics mode to calibrate (default: its default mode); each mode keeps its "
                         "own calibration (with --remove: drop that mode's only)")
     p.add_argument("--remove", action="store_true", help="drop the stored calibrations instead")
     p.add_argument("--blend", action="store_true",
                    help="fit the per-step weights of the model's physics prediction against its decoder's instead "
                         "(physics early, decoder late: the total-torque formulation's default once fitted)")
+    p.add_argument("--blend-physics", choices=("smoothed", "regression"),
+                   help="with --blend: the physics prediction blended: the identified robot smoothed against the "
+                        "decoder over the whole horizon (the default for a model with a Gaussian head), or "
+                        "simulated forward (the default otherwise)")
     return p
 
 
@@ -50,7 +54,7 @@ def run(a: argparse.Namespace) -> int:
         return 0
     if a.blend:
         report = calibrating.blend(a.ckpt, a.data, a.out, a.n, a.context_len, a.horizon, a.offset, a.seed,
-                                   min(a.batch_size, 16), a.device, a.horizons)
+                                   min(a.batch_size, 16), a.device, a.horizons, a.blend_physics)
         print(calibrating.blend_text(report))
         return 0
     report = calibrating.calibrate(a.ckpt, a.data, a.out, a.n, a.context_len, a.horizon, a.offset, a.seed, a.method,

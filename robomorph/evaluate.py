@@ -43,7 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="input formulation of the data (default: the checkpoint's; a different one is refused)")
     p.add_argument("--compare", action="append", default=[], metavar="NAME=CKPT",
                    help="another checkpoint scored beside the baselines (repeatable), e.g. scratch=runs/a/checkpoints/best.ckpt")
-    p.add_argument("--physics", choices=("regression", "learned", "fused", "refined", "blend", "none"),
+    p.add_argument("--physics", choices=("regression", "learned", "fused", "refined", "blend", "smoothed", "none"),
                    help="how a model with a physics backbone predicts: its robot identified by linear solves "
                         "(regression, the default for commands), read by the network (learned), both (fused), "
                         "fused then a few Gauss-Newton steps (refined), the regression's simulation and the decoder "

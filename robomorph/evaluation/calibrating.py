@@ -182,18 +182,23 @@ def _moving(w: Window, offset) -> Window:
 
 def blend(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,
           context_len: int | None = None, horizon: int | None = None, offset: str | int = "start", seed: int = 0,
-          batch_size: int = 16, device: str | None = None, horizons_spec: str | None = None) -> dict:
+          batch_size: int = 16, device: str | None = None, horizons_spec: str | None = None,
+          physics: str | None = None) -> dict:
     """Fits the physics/decoder blend (:mod:`robomorph.model.blending`) and writes the checkpoint
-    with it to ``out`` (default: in place); arguments as :func:`calibrate`.
+    with it to ``out`` (default: in place); arguments as :func:`calibrate`. ``physics``: the physics
+    prediction blended (:data:`robomorph.model.blending.PHYSICS_MODES`; ``smoothed`` needs a model
+    with a Gaussian head; None: ``smoothed`` where it has one, else ``regression``).
 
     Returns:
         A report: where it was fitted, the weights and the joints' RMS error of the physics,
         the decoder and the blend on the fitting windows at the reported steps.
     """
     from robomorph.evaluation.sources import predict  # noqa: PLC0415
-    from robomorph.model.blending import BLEND_KEY, HorizonBlend, fit_blend  # noqa: PLC0415
+    from robomorph.model.blending import BLEND_KEY, PHYSICS_MODES, HorizonBlend, fit_blend  # noqa: PLC0415
     from robomorph.model.files import read_model  # noqa: PLC0415
 
+    if physics is not None and physics not in PHYSICS_MODES:
+        raise CalibrationError(f"--blend-physics must be one of {', '.join(PHYSICS_MODES)}, got {physics!r}")
     check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     offset = parse_offset(offset)
     predictor = _predictor(ckpt, device, need_std=False)
@@ -211,18 +216,23 @@ def blend(ckpt: str, data: str | None = None, out: str | None = None, n: int | N
     anchor = start_joints(w)  # where each robot started, as the scoring path gives it
     decoder = predict(predictor, u_ctx, y_ctx, u_q, batch_size, "decoder", at_rest=rest)
     # The physics alone: a blend that weights it fully (the decoder where a simulation diverged).
-    predictor.model.blend = HorizonBlend((1,), (tuple([1.0] * predictor.n_y),), physics=layout)
+    gaussian = bool(getattr(predictor.model, "gaussian", False))
+    physics = physics or ("smoothed" if gaussian else "regression")
+    if physics == "smoothed" and not gaussian:
+        raise CalibrationError(f"{ckpt} has no Gaussian head, which the smoothed physics weighs its decoder by: "
+                               "use --blend-physics regression")
+    predictor.model.blend = HorizonBlend((1,), (tuple([1.0] * predictor.n_y),), physics=layout, physics_mode=physics)
     predictor.physics, predictor.physics_mode, predictor.has_std = layout, "blend", False
-    physics = predict(predictor, u_ctx, y_ctx, u_q, batch_size, "physics", at_rest=rest, anchor=anchor)
+    sim = predict(predictor, u_ctx, y_ctx, u_q, batch_size, "physics", at_rest=rest, anchor=anchor)
     own = (predictor.data_info or {}).get("physics") and predictor.model.config.n_params  # its record has it
-    fitted = fit_blend(y_q, physics, decoder, source=source, layout=None if own else layout)
+    fitted = fit_blend(y_q, sim, decoder, source=source, layout=None if own else layout, physics_mode=physics)
     steps = parse_horizons(horizons_spec, source["horizon"], w.dt)
-    mixed = fitted.combine(physics, decoder)[0]
+    mixed = fitted.combine(sim, decoder)[0]
     joints = next(g for g in groups_for(w.y_names) if g.name == "joints")
     rms = {k: [float(error_curve(y_q, v, joints)[s - 1]) for s in steps]
-           for k, v in (("physics", physics), ("decoder", decoder), ("blend", mixed))}
+           for k, v in (("physics", sim), ("decoder", decoder), ("blend", mixed))}
     fitted.source["joint_rms_mrad"] = {"steps": steps, **rms}
-    fitted.source["gated_windows"] = int(fitted.gated(physics, decoder)[:, -1].sum())
+    fitted.source["gated_windows"] = int(fitted.gated(sim, decoder)[:, -1].sum())
     ckpt_dict[BLEND_KEY] = fitted.to_dict()
     _write(ckpt_dict, out or ckpt)
     weights = fitted.weights(source["horizon"])[:, list(joints.channels)]

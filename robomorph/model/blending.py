@@ -46,6 +46,8 @@ from robomorph.model.calibration import check_knot_table, interp_log_step, knot_
 BLEND_KEY = "robomorph_physics_blend"
 # The gates tried when fitting (multiples of the decoder's RMS error; inf: no gate).
 GATES = (3.0, 5.0, 10.0, 20.0, 50.0, float("inf"))
+# The physics predictions a blend can weigh against the decoder (the hybrid's modes of those names).
+PHYSICS_MODES = ("smoothed", "regression")
 
 
 class BlendError(RoboMorphError, ValueError):
@@ -63,6 +65,10 @@ class HorizonBlend:
             None: no gate.
         gate: a window's physics is dropped from the first step it departs from the decoder by
             more than this many ``decoder_rms`` (inf: never).
+        physics_mode: which physics prediction is blended: ``smoothed``, the identified robot's
+            horizon smoothed against the decoder (:mod:`robomorph.sim.smoother`), or
+            ``regression``, its simulation forward from the context (blends fitted before there
+            was a choice).
         source: where it was fitted (store, windows, errors before and after); for readers.
         physics: the physics backbone's record (:func:`robomorph.sim.backbone.parameter_layout`)
             when the model was trained without one (a black-box model of simulated stores);
@@ -75,8 +81,11 @@ class HorizonBlend:
     physics: dict | None = None
     decoder_rms: tuple[tuple[float, ...], ...] | None = None
     gate: float = float("inf")
+    physics_mode: str = "regression"
 
     def __post_init__(self) -> None:
+        if self.physics_mode not in PHYSICS_MODES:
+            raise BlendError(f"a blend's physics must be one of {PHYSICS_MODES}, got {self.physics_mode!r}")
         weight = np.asarray(self.weight, dtype=np.float64)
         check_knot_table(self.knots, weight, "blend", "weights", BlendError)
         if not (np.isfinite(weight).all() and (weight >= 0).all() and (weight <= 1).all()):
@@ -123,7 +132,8 @@ class HorizonBlend:
     def to_dict(self) -> dict:
         return {"knots": [int(k) for k in self.knots], "weight": [[float(v) for v in r] for r in self.weight],
                 "source": dict(self.source), "physics": self.physics, "gate": float(self.gate),
-                "decoder_rms": None if self.decoder_rms is None else [[float(v) for v in r] for r in self.decoder_rms]}
+                "decoder_rms": None if self.decoder_rms is None else [[float(v) for v in r] for r in self.decoder_rms],
+                "physics_mode": self.physics_mode}
 
     @classmethod
     def from_dict(cls, doc: dict) -> "HorizonBlend":
@@ -132,7 +142,7 @@ class HorizonBlend:
                        dict(doc.get("source") or {}), doc.get("physics"),
                        None if doc.get("decoder_rms") is None else tuple(tuple(float(v) for v in r)
                                                                         for r in doc["decoder_rms"]),
-                       float(doc.get("gate", float("inf"))))
+                       float(doc.get("gate", float("inf"))), str(doc.get("physics_mode", "regression")))
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, BlendError):
                 raise
@@ -141,7 +151,8 @@ class HorizonBlend:
 
 
 def fit_blend(y: np.ndarray, physics: np.ndarray, decoder: np.ndarray, knots: np.ndarray | None = None,
-              source: dict | None = None, layout: dict | None = None) -> HorizonBlend:
+              source: dict | None = None, layout: dict | None = None, physics_mode: str = "regression"
+              ) -> HorizonBlend:
     """Fits the least-squares weights on windows whose truth is known.
 
     Args:
@@ -151,6 +162,7 @@ def fit_blend(y: np.ndarray, physics: np.ndarray, decoder: np.ndarray, knots: np
         knots: query steps to fit at (default :func:`robomorph.model.calibration.knot_steps`).
         source: provenance stored with it.
         layout: the physics backbone's record to store with it (:attr:`HorizonBlend.physics`).
+        physics_mode: which physics prediction ``physics`` is (:attr:`HorizonBlend.physics_mode`).
     """
     y, physics, decoder = (np.asarray(a, dtype=np.float64) for a in (y, physics, decoder))
     if y.ndim != 3 or y.shape != physics.shape or y.shape != decoder.shape:
@@ -178,7 +190,7 @@ def fit_blend(y: np.ndarray, physics: np.ndarray, decoder: np.ndarray, knots: np
             den = np.sum(g * g, axis=0)
             w = np.where(den > 0, np.sum(e * g, axis=0) / np.where(den > 0, den, 1.0), 0.0)
             rows.append(tuple(float(v) for v in np.clip(w, 0.0, 1.0)))
-        blend = HorizonBlend(probe.knots, tuple(rows), dict(source or {}), layout, rms, gate)
+        blend = HorizonBlend(probe.knots, tuple(rows), dict(source or {}), layout, rms, gate, physics_mode)
         score = float(np.mean(r2(y, blend.combine(physics, decoder)[0])))
         if best is None or score > best[0]:
             best = (score, blend)

@@ -17,6 +17,9 @@ parameter layout and the generator recipe of its training stores. Prediction:
    ``refined``, a few Gauss-Newton iterations of the rollout fit
    (:class:`robomorph.sim.identify.Identifier`) over the armature and friction losses
    (:data:`REFINE_KINDS`), started from the regression's estimate and pulled toward it;
+   ``smoothed`` (total torques, where any simulation forward diverges), the regression's robot
+   over the whole horizon at once, smoothed against the decoder's prediction
+   (:mod:`robomorph.sim.smoother`);
 3. the standard deviation (when asked for) is the spread of the horizon over ``samples``
    robots drawn from the head's Gaussian (clipped to the ranges), so it says how much the
    parameters the context leaves uncertain move the prediction.
@@ -32,7 +35,7 @@ import torch
 
 from robomorph.core.errors import RoboMorphError
 
-MODES = ("learned", "regression", "fused", "refined", "blend")
+MODES = ("learned", "regression", "fused", "refined", "blend", "smoothed")
 # The modes that read the parameter head (a model trained with --model.physics amortized).
 HEAD_MODES = ("learned", "fused")
 # What ``refined`` fits over rollouts: the parameters the regression leaves least certain. Early
@@ -82,8 +85,12 @@ class Hybrid:
         self.backbone = PhysicsBackbone(physics, inputs)
         self._identifier = None
         self._regressor = None
+        self._regressor_gravity = False
         self._stiction = None
         self._held: np.ndarray | None = None  # (B, nj) of the last regression: joints that held still
+        from robomorph.sim.smoother import SmootherConfig  # noqa: PLC0415
+
+        self.smoother = SmootherConfig()  # how mode ``smoothed`` weighs physics and decoder
         self.last_fits: list = []
 
     def close(self) -> None:
@@ -113,8 +120,7 @@ class Hybrid:
                 mode's std (``robomorph calibrate``), applied to it; None: the raw spread.
             anchor: (B, 7) where each robot started (its springs' rest pose); default: the first context sample.
 
-        Raises: HybridError: an unknown mode, or a simulated robot that diverged.
-        """
+        Raises: HybridError: an unknown mode, or a simulated robot that diverged."""
         from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
         from robomorph.sim.stiction import mixed_horizon  # noqa: PLC0415
 
@@ -131,6 +137,8 @@ class Hybrid:
         one = slice(0, 1) if shared else slice(None)
         anchor = q_ctx[:, 0] if anchor is None else np.asarray(anchor, dtype=np.float64).reshape(B, -1)
         params, z, z_std = self._identify(u_ctx[one], y_ctx[one], mode, anchor[one], qvel_start[one])
+        if mode == "smoothed" or (mode == "blend" and self.model.blend.physics_mode == "smoothed"):
+            return _smoothed(self, u_ctx, y_ctx, u_query, params, mode, return_std, calibration)
         mixture = self._mixture(mode, params, q_ctx[one], uc[one], qvel_start[one])
         if mixture is not None:
             # The std's parameter draws go around each window's most likely member.
@@ -210,7 +218,7 @@ class Hybrid:
         self._held = None
         if mode != "learned":
             prior = (z, z_std) if mode == "fused" else None
-            params = self._regress(params, q_ctx, uc, prior, anchor)
+            params = _regress(self, params, q_ctx, uc, prior, anchor)
         if mode == "refined":
             params = self._refine(params, q_ctx, uc, qvel_start)
         return params, z, z_std
@@ -222,26 +230,6 @@ class Hybrid:
         std = _draw_spread(self.backbone, params, z_std, covs, mean, horizon, self.samples, self.seed)
         return std if calibration is None else calibration.scaled(std)
 
-    def _regress(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, prior=None,
-                 anchor: np.ndarray | None = None) -> np.ndarray:
-        """The catalogue robot's identified entries solved for, window by window (springs
-        anchored at ``anchor``, default the first context sample)."""
-        from robomorph.sim.regressor import RegressorIdentifier  # noqa: PLC0415
-
-        if self._regressor is None:
-            ident = self.backbone.ident
-            self._regressor = RegressorIdentifier(self.backbone.recipe, ident.space, ident.randomizer, self.inputs,
-                                                  iterations=self.iterations)
-        self._regressor.iterations = self.iterations
-        base = np.stack([self.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
-        out, self._covs, held = [], [], []
-        for b in range(len(params)):
-            out.append(self._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))
-            self._covs.append(self._regressor.last_cov)
-            held.append(self._regressor.last_held)
-        self._held = np.stack(held)
-        return np.stack(out)
-
     def _refine(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray) -> np.ndarray:
         from robomorph.sim.identify import Identifier, IdentifyConfig  # noqa: PLC0415
 
@@ -250,6 +238,35 @@ class Hybrid:
             self._identifier = Identifier(self.backbone.recipe, self.inputs, config)
         self.last_fits = [self._identifier.fit(params[b], q_ctx[b], u_ctx[b], qvel_start[b]) for b in range(len(params))]
         return np.stack([f.params for f in self.last_fits])
+
+
+def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, prior=None,
+             anchor: np.ndarray | None = None) -> np.ndarray:
+    """The catalogue robot's identified entries solved for, window by window (springs
+    anchored at ``anchor``, default the first context sample)."""
+    from robomorph.sim.identify import GRAVITY_KINDS, ParameterSpace  # noqa: PLC0415
+    from robomorph.sim.regressor import RegressorIdentifier  # noqa: PLC0415
+
+    # Total torques pay gravity in the torque: the centres of mass are solved for as well (a
+    # centimetre moves it by ~0.1 N m), except under the head's prior, which does not name them.
+    gravity = hybrid.inputs == "total" and prior is None
+    if hybrid._regressor is None or hybrid._regressor_gravity != gravity:
+        ident = hybrid.backbone.ident
+        space = ParameterSpace.of(ident.randomizer, hybrid.backbone.recipe.randomization, GRAVITY_KINDS) \
+            if gravity else ident.space
+        hybrid._regressor = RegressorIdentifier(hybrid.backbone.recipe, space, ident.randomizer, hybrid.inputs,
+                                                iterations=hybrid.iterations)
+        hybrid._regressor_gravity = gravity
+    hybrid._regressor.iterations = hybrid.iterations
+    base = np.stack([hybrid.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
+    out, hybrid._covs, held = [], [], []
+    n = len(hybrid.backbone.index)  # the layout's entries come first; the draws of the std move those
+    for b in range(len(params)):
+        out.append(hybrid._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))
+        hybrid._covs.append(hybrid._regressor.last_cov[:n, :n])
+        held.append(hybrid._regressor.last_held)
+    hybrid._held = np.stack(held)
+    return np.stack(out)
 
 
 def _draw_spread(backbone, params: np.ndarray, z_std: np.ndarray, covs, mean: np.ndarray, horizon, samples: int,
@@ -282,6 +299,28 @@ def check_mode(model, mode: str) -> None:
     if mode == "blend" and getattr(model, "blend", None) is None:
         raise HybridError("physics mode 'blend' needs the blend's weights, which this model has not: fit them "
                           "with robomorph calibrate --blend")
+
+
+@torch.no_grad()
+def _smoothed(hybrid: Hybrid, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, params: np.ndarray,
+              mode: str, with_std: bool, calibration) -> tuple[np.ndarray, np.ndarray | None]:
+    """Mode ``smoothed``, or a blend of it (:mod:`robomorph.sim.smoother`): mean and std (B, H, n_y)."""
+    from robomorph.sim.smoother import smooth_windows  # noqa: PLC0415
+
+    if hybrid.inputs != "total":
+        raise HybridError("physics mode 'smoothed' is for total torques (their simulation diverges); in the "
+                          "command formulation the simulation is stable: use 'regression'")
+    mean, std = hybrid.model.forward_dist_raw(u_ctx, y_ctx, u_query)
+    if std is None:
+        raise HybridError("physics mode 'smoothed' weighs the decoder by its standard deviation, and this model "
+                          "has no Gaussian head: use 'regression' or 'none'")
+    decoder, decoder_std = mean.double().cpu().numpy(), std.double().cpu().numpy()
+    uc, yc, uq = (t.double().cpu().numpy() for t in (u_ctx, y_ctx, u_query))
+    out, out_std = smooth_windows(hybrid.backbone, params, yc[..., 7:14], uc, uq, yc[:, -1, 3:7], decoder,
+                                  decoder_std, hybrid.smoother, with_std)
+    if mode == "blend":
+        out, out_std = hybrid.model.blend.combine(out, decoder, out_std, decoder_std)
+    return out, (None if not with_std else out_std if calibration is None else calibration.scaled(out_std))
 
 
 @torch.no_grad()

@@ -225,11 +225,7 @@ class PhysicsBackbone:
             q = self._rollout(params, q_ctx[:, -1], qvel_end, torque)
         else:
             q = np.stack([self._closed_loop(params[b], q_ctx[b, -1], qvel_end[b], torque[b]) for b in range(n)])
-        y = self._outputs(q)  # (N, H + 1, 14), row 0: the last context sample
-        if quat_last is not None:
-            flip = np.einsum("nk,nk->n", y[:, 0, 3:7], np.asarray(quat_last)) < 0
-            y[flip, :, 3:7] *= -1.0
-        return y[:, 1:]
+        return signed(self._outputs(q), quat_last)[:, 1:]  # row 0: the last context sample
 
     def _rollout(self, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:
         """(N, F + 1, 7) joint positions at the frame starts of F open-loop frames (row 0: the start):
@@ -299,3 +295,12 @@ class PhysicsBackbone:
         pos, quat = self._kinematics(q)
         quat = continuous_quaternion(quat)
         return np.concatenate([pos, quat[..., [1, 2, 3, 0]], q], axis=-1)
+
+
+def signed(y: np.ndarray, quat_last: np.ndarray | None) -> np.ndarray:
+    """Outputs (N, T, 14) whose row 0 is the last context sample, their quaternions flipped (in
+    place) where row 0's disagrees in sign with ``quat_last`` (N, 4; None: left as they are)."""
+    if quat_last is not None:
+        flip = np.einsum("nk,nk->n", y[:, 0, 3:7], np.asarray(quat_last)) < 0
+        y[flip, :, 3:7] *= -1.0
+    return y

@@ -55,6 +55,10 @@ SLIP_RATIO = 0.5
 # Solves of the re-try (two passes each). With one, the held-out ratios were 0.31-0.56 and 0.97 or
 # more (one context nearer the threshold, the same predictions to three digits): two keep the gap.
 RETRY_SOLVES = 2
+# The step of a centre-of-mass coordinate's column [m] (the randomization moves them by up to 1 cm).
+# Fitted for total torques only: their gravity torque is linear in them, their inertia nearly so
+# over a centimetre, so the column is a difference of the inverse dynamics taken once.
+COM_STEP = 1e-3
 
 
 class RegressorIdentifier:
@@ -213,6 +217,8 @@ class RegressorIdentifier:
                 cols[:, j, c] = a[:, j]  # the armature adds to the inertia's diagonal: exact
             elif kind == "frictionloss":
                 friction.append((c, k, j))
+            elif self.randomizer.names[k].startswith("com_"):  # total torques (see COM_STEP)
+                cols[:, :, c] = _bumped(self, params, k, COM_STEP, (qs, v, a), tau0)
             elif bodies is not None:
                 # The torque is linear in a link's mass (its inertia scales with it, its centre of
                 # mass stays): its column is the link's share of the torque per kilogram.
@@ -220,10 +226,7 @@ class RegressorIdentifier:
             else:
                 # A link's mass (inertia scaled with it) moves every joint's torque: a difference
                 # of MuJoCo's own inverse dynamics (exact for a mass: the torque is linear in it).
-                step = 0.01 * max(abs(params[k]), 1e-3)
-                bumped = params.copy()
-                bumped[k] += step
-                cols[:, :, c] = (self._inverse(bumped, qs, v, a)[0] - tau0) / step
+                cols[:, :, c] = _bumped(self, params, k, 0.01 * max(abs(params[k]), 1e-3), (qs, v, a), tau0)
         if friction:
             # A joint's friction loss is a soft constraint on that joint alone (its constraint
             # Jacobian row is the joint's unit vector), so all of them are bumped in one pass and
@@ -256,6 +259,14 @@ class RegressorIdentifier:
                 mujoco.mj_rnePostConstraint(m, d)  # fills cfrc_int from the given accelerations
                 cdof[t], cfrc[t] = d.cdof[:nj], d.cfrc_int
         return out, (_shares(m, cdof, cfrc, self._carried) if bodies else None)
+
+
+def _bumped(ident: RegressorIdentifier, params: np.ndarray, k: int, step: float, states: tuple,
+            tau0: np.ndarray) -> np.ndarray:
+    """(T, nj, ...) the torque's change per unit of parameter ``k``: a difference of MuJoCo's inverse dynamics."""
+    bumped = params.copy()
+    bumped[k] += step
+    return (ident._inverse(bumped, *states)[0] - tau0) / step
 
 
 class _Fit(NamedTuple):

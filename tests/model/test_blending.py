@@ -135,11 +135,10 @@ def test_calibrate_blend_gives_a_black_box_model_a_backbone_and_the_blend_by_def
         pred.simulate(u[:, :c], y[:, :c], u[:, c:], at_rest=True, return_std=True)
 
 
-def test_a_gaussian_models_blend_has_a_std_that_calibrate_then_rescales_in_blend_mode(
-        total_store, simulated_store, tmp_path_factory):
-    from robomorph.data.store import open_store
-    from robomorph.evaluation.calibrating import blend, calibrate
-    from robomorph.model.predictor import Predictor
+@pytest.fixture(scope="module")
+def gaussian_blended(total_store, simulated_store, tmp_path_factory):
+    """A tiny total-torque model with a Gaussian head, given a blend (smoothed, its default) on other robots."""
+    from robomorph.evaluation.calibrating import blend
     from robomorph.training.fitting import fit
     from tests.conftest import tiny_fit_args
 
@@ -148,7 +147,16 @@ def test_a_gaussian_models_blend_has_a_std_that_calibrate_then_rescales_in_blend
                ).best_ckpt
     heldout = simulated_store(robots=6, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=7)
     out = str(runs / "blended.ckpt")
-    blend(ckpt, heldout, out, n=6)
+    report = blend(ckpt, heldout, out, n=6)
+    return out, heldout, report
+
+
+def test_a_gaussian_models_blend_has_a_std_that_calibrate_then_rescales_in_blend_mode(gaussian_blended, total_store):
+    from robomorph.data.store import open_store
+    from robomorph.evaluation.calibrating import calibrate
+    from robomorph.model.predictor import Predictor
+
+    out, heldout, _ = gaussian_blended
     pred = Predictor.from_checkpoint(out)
     ds = open_store(total_store)
     u, y = ds.read("u")[:3], ds.read("y")[:3]
@@ -156,8 +164,9 @@ def test_a_gaussian_models_blend_has_a_std_that_calibrate_then_rescales_in_blend
     mean, std = pred.simulate(u[:, :c], y[:, :c], u[:, c:], at_rest=True, return_std=True)
     np.testing.assert_allclose(mean, pred.simulate(u[:, :c], y[:, :c], u[:, c:], at_rest=True), rtol=1e-5, atol=1e-7)
     assert std.shape == mean.shape and np.all(np.isfinite(std)) and np.all(std > 0)
-    calibrate(out, heldout, n=6)
-    pred = Predictor.from_checkpoint(out)
+    calibrated_out = out.replace(".ckpt", "_cal.ckpt")
+    calibrate(out, heldout, calibrated_out, n=6)
+    pred = Predictor.from_checkpoint(calibrated_out)
     assert pred.calibration is not None and pred.calibration.source["physics_mode"] == "blend"
     _, calibrated = pred.simulate(u[:, :c], y[:, :c], u[:, c:], at_rest=True, return_std=True)
     np.testing.assert_allclose(calibrated, std * pred.calibration.factors(u.shape[1] - c)[None], rtol=1e-4)
@@ -203,3 +212,53 @@ def test_blend_without_weights_and_on_stores_without_parameters_is_refused(tiny_
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "physics backbone" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_a_gaussian_models_blend_weighs_the_smoothed_physics_which_keeps_to_the_robot_not_the_decoder(
+        gaussian_blended, total_store):
+    from robomorph.data.store import open_store
+    from robomorph.model.predictor import Predictor
+
+    out, _, report = gaussian_blended
+    pred = Predictor.from_checkpoint(out)
+    blend = pred.model.blend
+    assert blend.physics_mode == "smoothed" and report["blend"]["physics_mode"] == "smoothed"
+    ds = open_store(total_store)
+    u, y = ds.read("u")[:3], ds.read("y")[:3]
+    c = CKPT_CONTEXT
+    args = (u[:, :c], y[:, :c], u[:, c:])
+    mixed, mixed_std = pred.simulate(*args, at_rest=True, return_std=True)
+    pred.physics_mode = "smoothed"
+    smoothed, smoothed_std = pred.simulate(*args, at_rest=True, return_std=True)
+    pred.physics_mode = "none"
+    decoder, decoder_std = pred.simulate(*args, return_std=True)
+    want, want_std = blend.combine(smoothed, decoder, smoothed_std, decoder_std)
+    np.testing.assert_allclose(mixed, want, rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(mixed_std, want_std, rtol=1e-4, atol=1e-7)
+    pred.physics_mode = "regression"  # the identified robot simulated forward, from the same estimate
+    forward = pred.simulate(*args, at_rest=True)
+    truth = y[:, c:, 7:]
+    err = lambda p: np.sqrt(np.mean((p[..., 7:] - truth) ** 2))  # noqa: E731
+    # Over one second the forward simulation has not left yet (tests/sim/test_smoother.py follows one that
+    # has): the smoothed horizon stays with it, not with this 6-step decoder.
+    assert err(smoothed) < 0.2 * err(decoder) and err(smoothed) < 2 * err(forward)
+    assert np.all(np.isfinite(smoothed_std)) and np.all(smoothed_std > 0)
+    # The query outputs are never read: poisoning them changes nothing.
+    pred.physics_mode = "smoothed"
+    np.testing.assert_array_equal(pred.simulate(*args, at_rest=True), smoothed)
+
+
+def test_the_smoothed_mode_refuses_commands_and_decoders_without_a_std(blended, total_store):
+    from robomorph.data.store import open_store
+    from robomorph.model.hybrid import HybridError
+    from robomorph.model.predictor import Predictor
+
+    pred = Predictor.from_checkpoint(blended[0])
+    ds = open_store(total_store)
+    u, y = ds.read("u")[:1], ds.read("y")[:1]
+    pred.physics_mode = "smoothed"
+    with pytest.raises(HybridError, match="no Gaussian head"):
+        pred.simulate(u[:, :CKPT_CONTEXT], y[:, :CKPT_CONTEXT], u[:, CKPT_CONTEXT:])
+    pred.hybrid().inputs = "command"
+    with pytest.raises(HybridError, match="total torques"):
+        pred.simulate(u[:, :CKPT_CONTEXT], y[:, :CKPT_CONTEXT], u[:, CKPT_CONTEXT:])

@@ -1,0 +1,311 @@
+"""Total torques over a whole horizon: the identified robot's physics, smoothed against the decoder.
+
+In the paper's formulation the recorded torque holds gravity paid at the *recorded* state, so
+a simulation forward from the last context sample meets uncompensated gravity at every
+deviation, and the deviation grows about tenfold every 57 steps: even the true robot leaves
+the trajectory within seconds. The horizon is still determined, from both of its ends:
+
+- the directions that the gravity makes stable are fixed by the last context state and
+  remain so forward (a simulation follows them);
+- the unstable ones are fixed by the *future*: the arm stayed on its trajectory because the
+  controller paid gravity where the arm was, so the torques recorded after step ``k`` say where
+  it was at ``k``, and an error there decays tenfold every 57 steps *backwards* in time.
+
+So the horizon is estimated as a whole, as a nonlinear smoothing problem over the states
+``x_k = (q_k, v_k)`` at query steps 0..H (step 0: the last context sample):
+
+    minimize  |x_0 - x0|^2_P0  +  sum_k |x_{k+1} - F_k(x_k)|^2_Q  +  sum_k |q_k - d_k|^2_R_k
+
+with ``F_k`` one sample of the identified robot's physics under the recorded torque (the
+generator's gravity compensation: the command ``u_k - g(q_k)`` held over the sample, gravity
+compensated through the actuators at every physics step), ``Q`` the model's error per sample
+and ``d_k`` the decoder's prediction with its standard deviation (inflated by ``alpha``: its
+errors are correlated over many steps, where the smoother takes them as independent). The
+decoder anchors the unstable directions where the torques have not yet fixed them: near the
+end of the horizon. Gauss-Newton steps with a Levenberg-Marquardt damping are each a linear
+Kalman smoother (Rauch-Tung-Striebel) over the linearized frames; their Jacobians are finite
+differences of one threaded ``mujoco.rollout`` call over all frames. Started at the decoder's
+prediction, the decoder's weight is lowered in stages (``alphas``): a strong pull first, where
+the problem is nearly convex, the calibrated weight last. The smoothed covariance gives the
+standard deviation.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+
+import mujoco
+import numpy as np
+
+from robomorph.core.errors import RoboMorphError
+
+_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+class SmootherError(RoboMorphError, ValueError):
+    """Smoother settings or inputs that cannot work; the message says what to change."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SmootherConfig:
+    """How the horizon is smoothed.
+
+    Attributes:
+        q_std, v_std: the model's error per sample in joint position [rad] and velocity [rad/s].
+        q0_std, v0_std: the last context state's uncertainty (positions recorded, velocity estimated).
+        alphas: the decoder's standard deviation is multiplied by each in turn (its errors are
+            correlated over steps; the last is the weight of the answer).
+        iterations: most Gauss-Newton steps per stage.
+        tol: a stage ends when a step lowers the cost by less than this fraction.
+        jacobian_substeps: physics steps per sample of the Jacobians' rollouts (None: the recipe's).
+    """
+
+    q_std: float = 1e-6
+    v_std: float = 1e-4
+    q0_std: float = 1e-6
+    v0_std: float = 2e-3
+    alphas: tuple[float, ...] = (1.0, 3.0, 8.0)
+    iterations: int = 4
+    tol: float = 1e-2
+    jacobian_substeps: int | None = None
+
+    def __post_init__(self):
+        stds = (self.q_std, self.v_std, self.q0_std, self.v0_std)
+        if not all(np.isfinite(s) and s > 0 for s in stds):
+            raise SmootherError(f"smoother standard deviations must be positive, got {stds}")
+        if not self.alphas or min(self.alphas) <= 0:
+            raise SmootherError(f"smoother alphas must be positive, got {self.alphas}")
+        if self.iterations < 1 or not 0 < self.tol < 1:
+            raise SmootherError("smoother iterations must be >= 1 and 0 < tol < 1")
+        if self.jacobian_substeps is not None and self.jacobian_substeps < 1:
+            raise SmootherError(f"jacobian_substeps must be >= 1, got {self.jacobian_substeps}")
+
+
+class FrameMap:
+    """One robot's physics over one sample under a total torque, for many states at once.
+
+    Args:
+        model: the lean arm (:func:`robomorph.sim.identify.lean_model`) of the recipe; copied.
+        apply: ``apply(model)`` writes the robot's parameters into the copy.
+        substeps: physics steps per sample (the recipe's).
+        gravity_in_actuators: the recipe compensated gravity through the actuators
+            (``true_model``): the command is then ``u - g(q)`` at the sample's start.
+        rollout: a :class:`robomorph.sim.open_loop.ThreadedRollout` to run on.
+    """
+
+    def __init__(self, model: mujoco.MjModel, apply, substeps: int, gravity_in_actuators: bool, rollout):
+        self.model = copy.deepcopy(model)
+        apply(self.model)
+        self.substeps, self.gravity_in_actuators, self._rollout = int(substeps), bool(gravity_in_actuators), rollout
+        self._data = mujoco.MjData(self.model)
+        self._size = mujoco.mj_stateSize(self.model, _STATE)
+        mujoco.mj_resetData(self.model, self._data)
+        self._template = np.empty(self._size)
+        mujoco.mj_getState(self.model, self._data, self._template, _STATE)
+        self.nq = self.model.nq
+        self.timestep = float(self.model.opt.timestep)
+
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """(N, nj) g(q) of each row (the bias force at rest: the velocity is never set, so zero)."""
+        m, d = self.model, self._data
+        out, bias = np.empty_like(q), np.empty(m.nv)
+        nj = q.shape[1]
+        for i, row in enumerate(q):
+            d.qpos[:nj] = row
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_rne(m, d, 0, bias)
+            out[i] = bias[:nj]
+        return out
+
+    def __call__(self, x: np.ndarray, torque: np.ndarray, substeps: int | None = None) -> np.ndarray:
+        """(N, 2 nj) states [q, v] and (N, nj) torques at the sample's start -> the states one sample later."""
+        n, nj = len(x), torque.shape[1]
+        ss = int(substeps or self.substeps)
+        x0 = np.repeat(self._template[None], n, axis=0)
+        x0[:, 1:1 + nj], x0[:, 1 + self.nq:1 + self.nq + nj] = x[:, :nj], x[:, nj:]
+        command = torque - self.gravity(x[:, :nj]) if self.gravity_in_actuators else torque
+        state = np.empty((n, ss, self._size))
+        try:
+            self.model.opt.timestep = self.timestep * self.substeps / ss
+            self._rollout([self.model] * n, x0, np.repeat(command[:, None], ss, axis=1), state=state)
+        finally:
+            self.model.opt.timestep = self.timestep
+        out = np.empty_like(x)
+        out[:, :nj], out[:, nj:] = state[:, -1, 1:1 + nj], state[:, -1, 1 + self.nq:1 + self.nq + nj]
+        return out
+
+    def linearize(self, x: np.ndarray, torque: np.ndarray, substeps: int | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """F(x_k) (H, n) and its Jacobians (H, n, n) by forward differences (one rollout call:
+        the nominal rows at the recipe's step, the differences at ``substeps``)."""
+        h, n = x.shape
+        eps = np.r_[np.full(n // 2, 1e-6), np.full(n // 2, 1e-5)]
+        rows = np.repeat(x[:, None], n + 1, axis=1)
+        rows[:, 1:] += np.diag(eps)[None]
+        nominal = self(x, torque)
+        if substeps is None or substeps == self.substeps:
+            moved = self(rows[:, 1:].reshape(-1, n), np.repeat(torque, n, axis=0)).reshape(h, n, n)
+            base = nominal
+        else:  # both ends of each difference at the coarse step
+            both = self(rows.reshape(-1, n), np.repeat(torque, n + 1, axis=0), substeps).reshape(h, n + 1, n)
+            moved, base = both[:, 1:], both[:, 0]
+        jac = ((moved - base[:, None]) / eps[None, :, None]).transpose(0, 2, 1)
+        return nominal, jac
+
+
+def _update(m: np.ndarray, p: np.ndarray, z: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A Kalman update by a measurement of every state component: values ``z``, weights (inverse
+    variances) ``w`` (0: not measured)."""
+    seen = w > 0
+    if not seen.any():
+        return m, p
+    ps = p[:, seen]
+    s = ps[seen] + np.diag(1.0 / w[seen])
+    gain = np.linalg.solve(s, ps.T).T
+    m = m + gain @ (z[seen] - m[seen])
+    p = p - gain @ ps.T
+    return m, 0.5 * (p + p.T)
+
+
+def rts(x0, p0, nominal, jac, xbar, q, meas, weight):
+    """The linear smoother of ``x_{k+1} = nominal_k + jac_k (x_k - xbar_k) + w_k`` (cov ``q``) with
+    measurements ``meas[k]`` of x_k (k = 0..H) weighted by ``weight[k]``; returns means (H+1, n)
+    and covariances (H+1, n, n)."""
+    h, n = nominal.shape
+    mf, pf = np.empty((h + 1, n)), np.empty((h + 1, n, n))
+    mp, pp = np.empty((h + 1, n)), np.empty((h + 1, n, n))
+    mf[0], pf[0] = _update(x0, p0, meas[0], weight[0])
+    for k in range(h):
+        mp[k + 1] = nominal[k] + jac[k] @ (mf[k] - xbar[k])
+        pp[k + 1] = jac[k] @ pf[k] @ jac[k].T + q
+        mf[k + 1], pf[k + 1] = _update(mp[k + 1], pp[k + 1], meas[k + 1], weight[k + 1])
+    ms, ps = mf.copy(), pf.copy()
+    for k in range(h - 1, -1, -1):
+        g = np.linalg.solve(pp[k + 1], jac[k] @ pf[k]).T  # pf J' pp^-1 (both symmetric)
+        ms[k] = mf[k] + g @ (ms[k + 1] - mp[k + 1])
+        ps[k] = pf[k] + g @ (ps[k + 1] - pp[k + 1]) @ g.T
+    return ms, ps
+
+
+class Smoother:
+    """Smooths horizons of one robot (:class:`FrameMap`) against a decoder's predictions."""
+
+    def __init__(self, frames: FrameMap, config: SmootherConfig = SmootherConfig()):
+        self.frames, self.config = frames, config
+        self.last_cost: float | None = None
+        self.last_steps = 0
+
+    def _cost(self, x, x0, w0, torque, d, wd, wq) -> float:
+        r = x[1:] - self.frames(x[:-1], torque)
+        nj = d.shape[1]
+        return float(np.sum(r * r * wq) + np.sum((x[1:, :nj] - d) ** 2 * wd) + np.sum((x[0] - x0) ** 2 * w0))
+
+    def __call__(self, q_last: np.ndarray, v_last: np.ndarray, torque: np.ndarray, decoder: np.ndarray,
+                 decoder_std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The smoothed joint positions (H, nj) at query steps 1..H and their covariances (H, nj, nj).
+
+        Args:
+            q_last, v_last: (nj,) the last context sample and its velocity estimate.
+            torque: (H, nj) the torques of samples 0..H-1 (the last context torque, then the query's).
+            decoder, decoder_std: (H, nj) the decoder's joint positions at steps 1..H and their std.
+        """
+        cfg, frames = self.config, self.frames
+        h, nj = decoder.shape
+        if torque.shape != (h, nj) or decoder_std.shape != (h, nj):
+            raise SmootherError(f"smoother needs torques and stds shaped as the decoder's {decoder.shape}, got "
+                                f"{torque.shape} and {decoder_std.shape}")
+        x0 = np.r_[q_last, v_last].astype(np.float64)
+        w0 = 1.0 / np.r_[np.full(nj, cfg.q0_std), np.full(nj, cfg.v0_std)] ** 2
+        wq = 1.0 / np.r_[np.full(nj, cfg.q_std), np.full(nj, cfg.v_std)] ** 2
+        q = np.diag(1.0 / wq)
+        x = np.empty((h + 1, 2 * nj))
+        x[0], x[1:, :nj] = x0, decoder
+        x[1:, nj:] = np.gradient(np.concatenate([q_last[None], decoder]), frames.timestep * frames.substeps,
+                                 axis=0)[1:]
+        # Levenberg-Marquardt: a pull toward the linearization point of variance damp / lam.
+        damp = 1.0 / np.r_[np.full(nj, 1e-2), np.full(nj, 1e-1)] ** 2
+        nominal, jac = frames.linearize(x[:-1], torque, cfg.jacobian_substeps)
+        self.last_steps, cov = 0, None
+        for alpha in cfg.alphas:
+            wd = 1.0 / (alpha * np.maximum(decoder_std, 1e-9)) ** 2
+            cost, lam = self._cost(x, x0, w0, torque, decoder, wd, wq), 1.0
+            for _ in range(cfg.iterations):
+                weight = np.broadcast_to(lam * damp, (h + 1, 2 * nj)).copy()
+                meas = x.copy()
+                # The decoder's measurement and the damping's, of the same positions, as one.
+                wpos = weight[1:, :nj] + wd
+                meas[1:, :nj] = (weight[1:, :nj] * x[1:, :nj] + wd * decoder) / wpos
+                weight[1:, :nj] = wpos  # (the prior on x_0 enters as the filter's start)
+                trial, cov_trial = rts(x0, np.diag(1.0 / w0), nominal, jac, x[:-1], q, meas, weight)
+                new = self._cost(trial, x0, w0, torque, decoder, wd, wq) if np.isfinite(trial).all() else np.inf
+                if new < cost:
+                    gain, cost, x, cov = cost - new, new, trial, cov_trial
+                    lam = max(lam / 3, 1e-6)
+                    self.last_steps += 1
+                    nominal, jac = frames.linearize(x[:-1], torque, cfg.jacobian_substeps)
+                    if gain < cfg.tol * cost:
+                        break
+                else:
+                    lam *= 10
+                    if lam > 1e4:
+                        break
+        self.last_cost = cost
+        if cov is None:  # no step was taken: the covariance of the starting point
+            cov = rts(x0, np.diag(1.0 / w0), nominal, jac, x[:-1], q, x, np.zeros((h + 1, 2 * nj)))[1]
+        return x[1:, :nj], cov[1:, :nj, :nj]
+
+
+def smooth_windows(backbone, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, u_query: np.ndarray,
+                   quat_last: np.ndarray, decoder: np.ndarray, decoder_std: np.ndarray, config: SmootherConfig,
+                   with_std: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """Smoothed outputs (B, H, n_y) of windows of total torques, and their std (None without ``with_std``).
+
+    Args:
+        backbone: the :class:`robomorph.sim.backbone.PhysicsBackbone` (recipe, lean arm, rollout threads).
+        params: (B, P) each window's robot, or (1, P) one robot for every row (candidates on one context).
+        q_ctx, u_ctx: (B, Tc, 7) the contexts' joint positions and torques; u_query (B, H, 7).
+        quat_last: (B, 4) the last context quaternion, whose sign the outputs keep.
+        decoder, decoder_std: (B, H, n_y) the decoder's prediction and std (its joints are read).
+        config: the smoother's settings (``jacobian_substeps`` None: the backbone's coarse step).
+
+    A window whose smoothing is not finite is its decoder's (mean and std).
+    """
+    from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
+    from robomorph.sim.backbone import coarse_substeps, signed  # noqa: PLC0415
+
+    b_n, h, nj = len(u_ctx), u_query.shape[1], q_ctx.shape[2]
+    if config.jacobian_substeps is None:
+        config = dataclasses.replace(config, jacobian_substeps=coarse_substeps(backbone.recipe))
+    v_last = estimate_velocity(q_ctx, backbone.dt)
+    torque = np.concatenate([u_ctx[:, -1:], u_query[:, :h - 1]], axis=1)
+    in_actuators = backbone.recipe.gravity_compensation == "true_model"
+    randomizer, cols = backbone.ident.randomizer, slice(7, 7 + nj)
+    q, cov = np.empty((b_n, h + 1, nj)), np.empty((b_n, h, nj, nj))
+    q[:, 0] = q_ctx[:, -1]
+    for b in range(b_n):
+        p = params[min(b, len(params) - 1)]
+        frames = FrameMap(backbone.ident.model, lambda m, p=p: randomizer.apply(m, p), backbone.substeps,
+                          in_actuators, backbone.ident._rollout)
+        q[b, 1:], cov[b] = Smoother(frames, config)(q_ctx[b, -1], v_last[b], torque[b], decoder[b, :, cols],
+                                                    decoder_std[b, :, cols])
+    out = signed(backbone._outputs(q), quat_last)[:, 1:]
+    bad = ~np.isfinite(out).all(axis=(1, 2))
+    out[bad] = decoder[bad]
+    if not with_std:
+        return out, None
+    std = output_std(backbone, q[:, 1:], cov)
+    std[bad] = decoder_std[bad]
+    return out, std
+
+
+def output_std(backbone, q: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """(N, T, n_y) standard deviations of the outputs for joint positions ``q`` (N, T, 7) with
+    covariances ``cov`` (N, T, 7, 7): the kinematics linearized (differences of 1e-6 rad)."""
+    step = 1e-6
+    y0 = backbone._outputs(q)
+    jac = np.stack([(backbone._outputs(q + step * np.eye(q.shape[-1])[j]) - y0) / step
+                    for j in range(q.shape[-1])], axis=-1)  # (N, T, n_y, 7)
+    var = np.einsum("ntcj,ntjk,ntck->ntc", jac, cov, jac)
+    return np.sqrt(np.maximum(var, 0.0))
