@@ -223,6 +223,7 @@ def test_a_gaussian_models_blend_weighs_the_smoothed_physics_which_keeps_to_the_
     pred = Predictor.from_checkpoint(out)
     blend = pred.model.blend
     assert blend.physics_mode == "smoothed" and report["blend"]["physics_mode"] == "smoothed"
+    assert blend.gate == float("inf")  # a smoothed horizon does not run away from its decoder
     ds = open_store(total_store)
     u, y = ds.read("u")[:3], ds.read("y")[:3]
     c = CKPT_CONTEXT
