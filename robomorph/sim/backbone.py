@@ -215,10 +215,8 @@ class PhysicsBackbone:
         params = np.asarray(params, dtype=np.float64)
         q_ctx = np.asarray(q_ctx, dtype=np.float64)
         torque_ctx = np.asarray(torque_ctx, dtype=np.float64)
-        n, H = len(params), np.shape(torque_query)[1]
-        # Frames c-1 .. c+H-2 from the last context sample: the last context torque, then the query's.
-        torque = np.concatenate([torque_ctx[:, -1:], np.asarray(torque_query, dtype=np.float64)[:, :H - 1]
-                                 if H > 1 else torque_ctx[:, :0]], axis=1)
+        n = len(params)
+        torque = frame_torques(torque_ctx, torque_query)
         if qvel_end is None:
             qvel_end = self.context_velocity(params, q_ctx, torque_ctx, qvel_start)
         if self.open_loop:
@@ -295,6 +293,15 @@ class PhysicsBackbone:
         pos, quat = self._kinematics(q)
         quat = continuous_quaternion(quat)
         return np.concatenate([pos, quat[..., [1, 2, 3, 0]], q], axis=-1)
+
+
+def frame_torques(torque_ctx: np.ndarray, torque_query: np.ndarray) -> np.ndarray:
+    """(N, H, 7) the torques of frames c-1 .. c+H-2 from the last context sample: the last context
+    torque, then the query's (``torque_query[k]`` is applied from query step k + 1)."""
+    torque_ctx = np.asarray(torque_ctx, dtype=np.float64)
+    h = np.shape(torque_query)[1]
+    return np.concatenate([torque_ctx[:, -1:], np.asarray(torque_query, dtype=np.float64)[:, :h - 1]
+                           if h > 1 else torque_ctx[:, :0]], axis=1)
 
 
 def signed(y: np.ndarray, quat_last: np.ndarray | None) -> np.ndarray:

@@ -276,13 +276,13 @@ def smooth_windows(backbone, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
     A window whose smoothing is not finite is its decoder's (mean and std).
     """
     from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
-    from robomorph.sim.backbone import coarse_substeps, signed  # noqa: PLC0415
+    from robomorph.sim.backbone import coarse_substeps, frame_torques, signed  # noqa: PLC0415
 
     b_n, h, nj = len(u_ctx), u_query.shape[1], q_ctx.shape[2]
     if config.jacobian_substeps is None:
         config = dataclasses.replace(config, jacobian_substeps=coarse_substeps(backbone.recipe))
     v_last = estimate_velocity(q_ctx, backbone.dt)
-    torque = np.concatenate([u_ctx[:, -1:], u_query[:, :h - 1]], axis=1)
+    torque = frame_torques(u_ctx, u_query)
     in_actuators = backbone.recipe.gravity_compensation == "true_model"
     randomizer, cols = backbone.ident.randomizer, slice(7, 7 + nj)
     q, cov = np.empty((b_n, h + 1, nj)), np.empty((b_n, h, nj, nj))
