@@ -62,6 +62,12 @@ class SmootherConfig:
         iterations: most Gauss-Newton steps per stage.
         tol: a stage ends when a step lowers the cost by less than this fraction.
         jacobian_substeps: physics steps per sample of the Jacobians' rollouts (None: the recipe's).
+        grow, fail_cost: where the solve ends with a cost above ``fail_cost`` per decoder
+            measurement, the decoder was too far from any path the physics allows for Gauss-Newton
+            to start from it (out of distribution: chirp torques); the horizon is then solved
+            again over its first ``grow`` steps, then ``grow`` more, ..., each stage started from
+            the last one's answer and the physics forward from its end (a forward simulation
+            leaves the trajectory only tenfold per 57 steps), and the lower cost kept; 0: never.
     """
 
     q_std: float = 1e-6
@@ -72,6 +78,8 @@ class SmootherConfig:
     iterations: int = 4
     tol: float = 1e-2
     jacobian_substeps: int | None = None
+    grow: int = 100
+    fail_cost: float = 10.0
 
     def __post_init__(self):
         stds = (self.q_std, self.v_std, self.q0_std, self.v0_std)
@@ -81,6 +89,8 @@ class SmootherConfig:
             raise SmootherError(f"smoother alphas must be positive, got {self.alphas}")
         if self.iterations < 1 or not 0 < self.tol < 1:
             raise SmootherError("smoother iterations must be >= 1 and 0 < tol < 1")
+        if self.grow < 0 or not self.fail_cost > 0:
+            raise SmootherError(f"smoother grow must be >= 0 and fail_cost > 0, got {self.grow}, {self.fail_cost}")
         if self.jacobian_substeps is not None and self.jacobian_substeps < 1:
             raise SmootherError(f"jacobian_substeps must be >= 1, got {self.jacobian_substeps}")
 
@@ -199,6 +209,7 @@ class Smoother:
         self.frames, self.config = frames, config
         self.last_cost: float | None = None
         self.last_steps = 0
+        self.grown = False  # the last window's answer came from the horizon grown in stages
 
     def _cost(self, x, x0, w0, torque, d, wd, wq) -> float:
         r = x[1:] - self.frames(x[:-1], torque)
@@ -222,16 +233,56 @@ class Smoother:
         x0 = np.r_[q_last, v_last].astype(np.float64)
         w0 = 1.0 / np.r_[np.full(nj, cfg.q0_std), np.full(nj, cfg.v0_std)] ** 2
         wq = 1.0 / np.r_[np.full(nj, cfg.q_std), np.full(nj, cfg.v_std)] ** 2
+        start = np.empty((h + 1, 2 * nj))
+        start[0], start[1:, :nj] = x0, decoder
+        start[1:, nj:] = np.gradient(np.concatenate([q_last[None], decoder]), frames.timestep * frames.substeps,
+                                     axis=0)[1:]
+        problem = (x0, w0, torque, decoder, decoder_std)
+        self.last_steps, self.grown = 0, False
+        x, cov, cost = self._solve(start, problem, wq, cfg.alphas)
+        if cfg.grow and not cost <= cfg.fail_cost * h * nj:
+            y, cov_y, cost_y = self._in_stages(problem, wq)
+            if cost_y < cost:
+                x, cov, cost, self.grown = y, cov_y, cost_y, True
+        self.last_cost = cost
+        if cov is None:  # no step was taken: the covariance of the starting point
+            nominal, jac = frames.linearize(x[:-1], torque, cfg.jacobian_substeps)
+            cov = rts(x0, np.diag(1.0 / w0), nominal, jac, x[:-1], np.diag(1.0 / wq), x,
+                      np.zeros((h + 1, 2 * nj)))[1]
+        return x[1:, :nj], cov[1:, :nj, :nj]
+
+    def _in_stages(self, problem: tuple, wq: np.ndarray) -> tuple:
+        """The horizon solved over its first ``grow`` steps, then ``grow`` more, ..., each stage at
+        the first alpha (the decoder's strongest pull), started from the last one's answer and the
+        physics forward from its end; then the whole horizon through all alphas: ``(x, cov, cost)``."""
+        cfg = self.config
+        x0, w0, torque, decoder, decoder_std = problem
+        h = len(decoder)
+        x, n = x0[None].copy(), int(cfg.grow)
+        while True:
+            n = min(n, h)
+            ext = [x[-1]]
+            for k in range(len(x) - 1, n):
+                ext.append(self.frames(ext[-1][None], torque[k:k + 1])[0])
+            x = np.concatenate([x, np.asarray(ext[1:]).reshape(-1, x.shape[1])])
+            x = self._solve(x, (x0, w0, torque[:n], decoder[:n], decoder_std[:n]), wq, cfg.alphas[:1])[0]
+            if n == h:
+                return self._solve(x, problem, wq, cfg.alphas)
+            n += int(cfg.grow)
+
+    def _solve(self, x: np.ndarray, problem: tuple, wq: np.ndarray, alphas) -> tuple:
+        """Levenberg-Marquardt Gauss-Newton from ``x`` (H + 1, 2 nj) with model-error weights
+        ``wq``, the decoder's std scaled by each of ``alphas`` in turn: ``(x, cov or None, cost)``,
+        the cost at the last alpha."""
+        cfg, frames = self.config, self.frames
+        x0, w0, torque, decoder, decoder_std = problem
+        h, nj = decoder.shape
         q = np.diag(1.0 / wq)
-        x = np.empty((h + 1, 2 * nj))
-        x[0], x[1:, :nj] = x0, decoder
-        x[1:, nj:] = np.gradient(np.concatenate([q_last[None], decoder]), frames.timestep * frames.substeps,
-                                 axis=0)[1:]
         # Levenberg-Marquardt: a pull toward the linearization point of variance damp / lam.
         damp = 1.0 / np.r_[np.full(nj, 1e-2), np.full(nj, 1e-1)] ** 2
         nominal, jac = frames.linearize(x[:-1], torque, cfg.jacobian_substeps)
-        self.last_steps, cov = 0, None
-        for alpha in cfg.alphas:
+        cov, cost = None, np.inf
+        for alpha in alphas:
             wd = 1.0 / (alpha * np.maximum(decoder_std, 1e-9)) ** 2
             cost, lam = self._cost(x, x0, w0, torque, decoder, wd, wq), 1.0
             for _ in range(cfg.iterations):
@@ -254,10 +305,7 @@ class Smoother:
                     lam *= 10
                     if lam > 1e4:
                         break
-        self.last_cost = cost
-        if cov is None:  # no step was taken: the covariance of the starting point
-            cov = rts(x0, np.diag(1.0 / w0), nominal, jac, x[:-1], q, x, np.zeros((h + 1, 2 * nj)))[1]
-        return x[1:, :nj], cov[1:, :nj, :nj]
+        return x, cov, cost
 
 
 def smooth_windows(backbone, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, u_query: np.ndarray,

@@ -112,6 +112,34 @@ def test_the_smoother_follows_the_robot_where_its_simulation_leaves_and_beats_th
     np.testing.assert_array_less(0.0, np.diagonal(cov, axis1=1, axis2=2))
 
 
+def test_a_decoder_far_from_any_physical_path_is_smoothed_in_stages(robot):
+    """Out of distribution (chirp torques) a confident decoder can be so far from every path the
+    physics allows that Gauss-Newton started at it stalls; the horizon grown in stages from the
+    context's end recovers the first second, and its cost is the lower."""
+    import dataclasses
+
+    from robomorph.core.velocity import estimate_velocity
+    from robomorph.sim.smoother import Smoother, SmootherConfig
+
+    bb, u, y, params = robot
+    q = y[:, 7:]
+    truth, torque = q[CONTEXT:], u[CONTEXT - 1:-1]
+    v_last = estimate_velocity(q[None, :CONTEXT], bb.dt)[0]
+    t = np.arange(1, HORIZON + 1)[:, None]
+    decoder = truth + 1.0 * np.minimum(1.0, t / 10) * np.sin(0.3 * t + np.arange(7))  # a radian off, sure of it
+    std = np.full(decoder.shape, 2e-3)
+    frames = _frames(bb, params)
+    direct = Smoother(frames, dataclasses.replace(SmootherConfig(), grow=0))
+    mean_direct, _ = direct(q[CONTEXT - 1], v_last, torque, decoder, std)
+    staged = Smoother(frames)
+    mean, cov = staged(q[CONTEXT - 1], v_last, torque, decoder, std)
+    assert direct.last_cost > SmootherConfig().fail_cost * decoder.size  # the direct solve stalled
+    assert staged.grown and staged.last_cost < direct.last_cost
+    first = slice(0, 60)
+    assert np.abs(mean[first] - truth[first]).max() < 0.2 * np.abs(mean_direct[first] - truth[first]).max()
+    assert np.isfinite(cov).all()
+
+
 def test_centres_of_mass_fitted_for_total_torques_put_gravity_where_the_robot_has_it(robot):
     from robomorph.sim.identify import GRAVITY_KINDS, KINDS, ParameterSpace
     from robomorph.sim.regressor import RegressorIdentifier
@@ -132,7 +160,7 @@ def test_bad_settings_and_shapes_are_refused_in_one_line(robot):
     from robomorph.sim.smoother import Smoother, SmootherConfig, SmootherError
 
     for bad in ({"q_std": 0.0}, {"alphas": ()}, {"alphas": (1.0, -2.0)}, {"iterations": 0}, {"tol": 1.0},
-                {"jacobian_substeps": 0}):
+                {"jacobian_substeps": 0}, {"grow": -1}, {"fail_cost": 0.0}):
         with pytest.raises(SmootherError):
             SmootherConfig(**bad)
     bb, u, y, params = robot
