@@ -68,6 +68,11 @@ class SmootherConfig:
             again over its first ``grow`` steps, then ``grow`` more, ..., each stage started from
             the last one's answer and the physics forward from its end (a forward simulation
             leaves the trajectory only tenfold per 57 steps), and the lower cost kept; 0: never.
+        handover: a smoothed path that leaves the joint range the recorded robots stay inside (the
+            generator discards trajectories that come near a limit) has fallen where nothing
+            holds it (a decoder out of distribution, unsure of itself); from the last step before
+            it left at which it agreed with the decoder within this many decoder stds, the
+            window is the decoder's (:func:`handover_steps`).
     """
 
     q_std: float = 1e-6
@@ -80,6 +85,7 @@ class SmootherConfig:
     jacobian_substeps: int | None = None
     grow: int = 100
     fail_cost: float = 10.0
+    handover: float = 5.0
 
     def __post_init__(self):
         stds = (self.q_std, self.v_std, self.q0_std, self.v0_std)
@@ -89,8 +95,9 @@ class SmootherConfig:
             raise SmootherError(f"smoother alphas must be positive, got {self.alphas}")
         if self.iterations < 1 or not 0 < self.tol < 1:
             raise SmootherError("smoother iterations must be >= 1 and 0 < tol < 1")
-        if self.grow < 0 or not self.fail_cost > 0:
-            raise SmootherError(f"smoother grow must be >= 0 and fail_cost > 0, got {self.grow}, {self.fail_cost}")
+        if self.grow < 0 or not self.fail_cost > 0 or not self.handover > 0:
+            raise SmootherError(f"smoother grow must be >= 0, fail_cost and handover > 0, got {self.grow}, "
+                                f"{self.fail_cost}, {self.handover}")
         if self.jacobian_substeps is not None and self.jacobian_substeps < 1:
             raise SmootherError(f"jacobian_substeps must be >= 1, got {self.jacobian_substeps}")
 
@@ -344,11 +351,42 @@ def smooth_windows(backbone, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
     out = signed(backbone._outputs(q), quat_last)[:, 1:]
     bad = ~np.isfinite(out).all(axis=(1, 2))
     out[bad] = decoder[bad]
+    box = joint_box(backbone.ident.model, nj, backbone.recipe.filters.joint_margin)
+    start = handover_steps(q[:, 1:], decoder[..., cols], decoder_std[..., cols], box, config.handover)
+    after = np.arange(h)[None] >= start[:, None]  # (B, H): the decoder's steps
+    out[after] = decoder[after]
     if not with_std:
         return out, None
     std = output_std(backbone, q[:, 1:], cov)
-    std[bad] = decoder_std[bad]
+    std[bad], std[after] = decoder_std[bad], decoder_std[after]
     return out, std
+
+
+def joint_box(model: mujoco.MjModel, nj: int, margin: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The range (lo, hi) of the first ``nj`` joints that a stored trajectory stays inside: the
+    limits less the generator's discard ``margin``; None where a joint has no limit."""
+    if not model.jnt_limited[:nj].all():
+        return None
+    rng = np.asarray(model.jnt_range[:nj], dtype=np.float64)
+    return rng[:, 0] + margin, rng[:, 1] - margin
+
+
+def handover_steps(q: np.ndarray, decoder: np.ndarray, decoder_std: np.ndarray, box, gate: float) -> np.ndarray:
+    """(B,) the first step index (0-based) from which each window is its decoder's; H where never.
+
+    A window whose smoothed joints ``q`` (B, H, nj) leave ``box`` (lo, hi; None: no range) is
+    handed over from the step after the last one, before it left, at which every joint lay within
+    ``gate`` decoder stds of the decoder (from step 0 if none did)."""
+    b_n, h = q.shape[:2]
+    start = np.full(b_n, h)
+    if box is None:
+        return start
+    out = ((q < box[0]) | (q > box[1])).any(axis=2)
+    apart = (np.abs(q - decoder) > gate * decoder_std).any(axis=2)
+    for b in np.flatnonzero(out.any(axis=1)):
+        agreed = np.flatnonzero(~apart[b, :int(np.argmax(out[b]))])
+        start[b] = agreed[-1] + 1 if len(agreed) else 0
+    return start
 
 
 def output_std(backbone, q: np.ndarray, cov: np.ndarray) -> np.ndarray:

@@ -140,6 +140,22 @@ def test_a_decoder_far_from_any_physical_path_is_smoothed_in_stages(robot):
     assert np.isfinite(cov).all()
 
 
+def test_a_path_that_leaves_the_joint_range_is_handed_to_the_decoder_from_where_they_parted():
+    from robomorph.sim.smoother import handover_steps
+
+    h, nj = 50, 2
+    box = (np.full(nj, -1.0), np.full(nj, 1.0))
+    decoder, std = np.zeros((3, h, nj)), np.full((3, h, nj), 0.01)
+    q = np.zeros((3, h, nj))
+    q[0, 20:, 1] = np.linspace(0.0, 2.0, h - 20)  # parts from the decoder at step 21, leaves at 35
+    q[1, :, 0] = 0.5  # apart from the decoder throughout, but inside the range: kept
+    q[2, :, 0] = 1.5  # outside from the start
+    parted = 20 + int(np.argmax(np.abs(q[0, 20:, 1]) > 0.05))
+    start = handover_steps(q, decoder, std, box, 5.0)
+    assert start.tolist() == [parted, h, 0]
+    assert handover_steps(q, decoder, std, None, 5.0).tolist() == [h, h, h]
+
+
 def test_centres_of_mass_fitted_for_total_torques_put_gravity_where_the_robot_has_it(robot):
     from robomorph.sim.identify import GRAVITY_KINDS, KINDS, ParameterSpace
     from robomorph.sim.regressor import RegressorIdentifier
@@ -160,7 +176,7 @@ def test_bad_settings_and_shapes_are_refused_in_one_line(robot):
     from robomorph.sim.smoother import Smoother, SmootherConfig, SmootherError
 
     for bad in ({"q_std": 0.0}, {"alphas": ()}, {"alphas": (1.0, -2.0)}, {"iterations": 0}, {"tol": 1.0},
-                {"jacobian_substeps": 0}, {"grow": -1}, {"fail_cost": 0.0}):
+                {"jacobian_substeps": 0}, {"grow": -1}, {"fail_cost": 0.0}, {"handover": 0.0}):
         with pytest.raises(SmootherError):
             SmootherConfig(**bad)
     bb, u, y, params = robot
