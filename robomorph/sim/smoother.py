@@ -37,6 +37,7 @@ import dataclasses
 
 import mujoco
 import numpy as np
+from tqdm.auto import tqdm
 
 from robomorph.core.errors import RoboMorphError
 
@@ -336,13 +337,12 @@ def smooth_windows(backbone, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
     b_n, h, nj = len(u_ctx), u_query.shape[1], q_ctx.shape[2]
     if config.jacobian_substeps is None:
         config = dataclasses.replace(config, jacobian_substeps=coarse_substeps(backbone.recipe))
-    v_last = estimate_velocity(q_ctx, backbone.dt)
-    torque = frame_torques(u_ctx, u_query)
+    v_last, torque = estimate_velocity(q_ctx, backbone.dt), frame_torques(u_ctx, u_query)
     in_actuators = backbone.recipe.gravity_compensation == "true_model"
     randomizer, cols = backbone.ident.randomizer, slice(7, 7 + nj)
     q, cov = np.empty((b_n, h + 1, nj)), np.empty((b_n, h, nj, nj))
     q[:, 0] = q_ctx[:, -1]
-    for b in range(b_n):
+    for b in tqdm(range(b_n), desc="smoothing", unit="window", leave=False, disable=b_n < 2):  # seconds each
         p = params[min(b, len(params) - 1)]
         frames = FrameMap(backbone.ident.model, lambda m, p=p: randomizer.apply(m, p), backbone.substeps,
                           in_actuators, backbone.ident._rollout)
