@@ -38,7 +38,8 @@ from robomorph.evaluation.baselines import BASELINES
 from robomorph.evaluation.horizons import horizon_markdown, parse_horizons
 from robomorph.evaluation.scoring import Scores, score_windows
 from robomorph.evaluation.sources import check_baselines
-from robomorph.evaluation.tables import cost_note, diverged_note, write_csv, write_horizons_csv, write_table
+from robomorph.evaluation.tables import (cost_note, diverged_note, smoothing_note, write_csv, write_horizons_csv,
+                                         write_table)
 
 # Window, EvaluationError and parse_range re-exported: callers import them from here.
 from robomorph.evaluation.windows import (  # noqa: F401
@@ -122,7 +123,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
                            train_blocks=training_data.reader(ckpt, arx_train_data), batch_size=batch_size)
     result = scores.result
     result["meta"] = {"ckpt": ckpt, "data": data, **result["meta"], "offset": offset, "seed": seed,
-                      **in_sample(info, data)}
+                      **in_sample(info, data), **_smoothing(predictor)}  # (before the sweeps predict again)
     result["meta"]["baseline_notes"].update({name: {"ckpt": path} for name, path in (compare or {}).items()})
     # A result folder says what made it (command, commit, date, machine), as every result file does.
     result["provenance"] = provenance()
@@ -154,6 +155,13 @@ def _write_files(out: str, result: dict) -> None:
     write_horizons_csv(os.path.join(out, "horizons.csv"), result["horizons"], result.get("provenance"))
     write_table(os.path.join(out, "table.md"), result)
     write_json(os.path.join(out, "metrics.json"), result)
+
+
+def _smoothing(predictor) -> dict:
+    """``{"smoothing": tally}`` where the smoothed physics predicted (a copy), else {}."""
+    # The hybrid exists once a physics mode has predicted (it is built on first use).
+    tally = getattr(getattr(predictor, "_hybrid", None), "smoothing", None)
+    return {"smoothing": {**tally, "handed_from": list(tally["handed_from"])}} if tally and tally["windows"] else {}
 
 
 def _sweeps(predictor, w: Window, horizons: list[int], contexts: list[int], base: dict, batch_size: int,
@@ -214,6 +222,8 @@ def summary_text(res: dict, out: str, horizons: bool = True) -> str:
                      + (f"  ({note})" if (note := diverged_note(notes.get(b, {}), meta["n"])) else "")
                      + (f"  ({note})" if (note := cost_note(notes.get(b, {}))) else ""))
     lines += [f"  skipped {b}: {why}" for b, why in res["skipped_baselines"].items()]
+    if note := smoothing_note(meta.get("smoothing")):
+        lines.append(f"  {note}")
     cal = meta.get("std_calibration")
     if cal:
         where = "the fit's validation split" if cal.get("split") == "val" else ", ".join(cal.get("data") or [])

@@ -59,6 +59,17 @@ def cost_note(note: dict) -> str:
             f"{note['iterations_mean']:.3g} iterations")
 
 
+def smoothing_note(report: dict | None) -> str:
+    """What the smoothed physics did out of its depth (:func:`robomorph.sim.smoother.new_report`), or ""."""
+    if not report or not (report["staged"] or report["handed_from"]):
+        return ""
+    n, handed = report["windows"], report["handed_from"]
+    return (f"smoothed physics: {report['staged']} of {n} windows solved in stages (the decoder far from any path "
+            f"the physics allows), {len(handed)} handed to the decoder where the smoothed arm would have left its "
+            f"joint range" + (f" (from steps {min(handed)}-{max(handed)})" if handed else "")
+            + ": inputs unlike the decoder's training data")
+
+
 def table_markdown(result: dict) -> str:
     """Per-channel R^2 and FIT (approaches 1 and 2) of the model, FIT of each baseline."""
     meta, a1, a2 = result["meta"], result["approach1"], result["approach2"]
@@ -92,6 +103,8 @@ def table_markdown(result: dict) -> str:
             lines.append(f"Baseline `{b}`: {note}.")
     for b, why in result.get("skipped_baselines", {}).items():
         lines.append(f"Skipped baseline `{b}`: {why}")
+    if note := smoothing_note(meta.get("smoothing")):
+        lines += ["", f"**Model: {note}.**"]
     if "horizons" in result:
         lines += ["", "RMS error by horizon over the trajectories, in physical units (step k is k dt after the last "
                   f"context sample; windows from offset `{meta.get('offset', 'start')}`):", "",

@@ -88,9 +88,10 @@ class Hybrid:
         self._regressor_gravity = False
         self._stiction = None
         self._held: np.ndarray | None = None  # (B, nj) of the last regression: joints that held still
-        from robomorph.sim.smoother import SmootherConfig  # noqa: PLC0415
+        from robomorph.sim.smoother import SmootherConfig, new_report  # noqa: PLC0415
 
         self.smoother = SmootherConfig()  # how mode ``smoothed`` weighs physics and decoder
+        self.smoothing = new_report()  # what it did so far (robomorph.sim.smoother.smooth_windows)
         self.last_fits: list = []
 
     def close(self) -> None:
@@ -317,7 +318,7 @@ def _smoothed(hybrid: Hybrid, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query:
     decoder, decoder_std = mean.double().cpu().numpy(), std.double().cpu().numpy()
     uc, yc, uq = (t.double().cpu().numpy() for t in (u_ctx, y_ctx, u_query))
     out, out_std = smooth_windows(hybrid.backbone, params, yc[..., 7:14], uc, uq, yc[:, -1, 3:7], decoder,
-                                  decoder_std, hybrid.smoother, with_std)
+                                  decoder_std, hybrid.smoother, with_std, hybrid.smoothing)
     if mode == "blend":
         out, out_std = hybrid.model.blend.combine(out, decoder, out_std, decoder_std)
     return out, (None if not with_std else out_std if calibration is None else calibration.scaled(out_std))

@@ -21,13 +21,10 @@ generator's gravity compensation: the command ``u_k - g(q_k)`` held over the sam
 compensated through the actuators at every physics step), ``Q`` the model's error per sample
 and ``d_k`` the decoder's prediction with its standard deviation (inflated by ``alpha``: its
 errors are correlated over many steps, where the smoother takes them as independent). The
-decoder anchors the unstable directions where the torques have not yet fixed them: near the
-end of the horizon. Gauss-Newton steps with a Levenberg-Marquardt damping are each a linear
-Kalman smoother (Rauch-Tung-Striebel) over the linearized frames; their Jacobians are finite
-differences of one threaded ``mujoco.rollout`` call over all frames. Started at the decoder's
-prediction, the decoder's weight is lowered in stages (``alphas``): a strong pull first, where
-the problem is nearly convex, the calibrated weight last. The smoothed covariance gives the
-standard deviation.
+decoder anchors the unstable directions near the end of the horizon. Levenberg-Marquardt
+Gauss-Newton steps are each a Rauch-Tung-Striebel smoother over the linearized frames, whose
+Jacobians are finite differences in one threaded ``mujoco.rollout`` call; started at the
+decoder, its weight lowered in stages (``alphas``). The smoothed covariance gives the std.
 """
 
 from __future__ import annotations
@@ -40,6 +37,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from robomorph.core.errors import RoboMorphError
+from robomorph.sim.kalman import rts
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -177,40 +175,6 @@ class FrameMap:
         return nominal, jac
 
 
-def _update(m: np.ndarray, p: np.ndarray, z: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A Kalman update by a measurement of every state component: values ``z``, weights (inverse
-    variances) ``w`` (0: not measured)."""
-    seen = w > 0
-    if not seen.any():
-        return m, p
-    ps = p[:, seen]
-    s = ps[seen] + np.diag(1.0 / w[seen])
-    gain = np.linalg.solve(s, ps.T).T
-    m = m + gain @ (z[seen] - m[seen])
-    p = p - gain @ ps.T
-    return m, 0.5 * (p + p.T)
-
-
-def rts(x0, p0, nominal, jac, xbar, q, meas, weight):
-    """The linear smoother of ``x_{k+1} = nominal_k + jac_k (x_k - xbar_k) + w_k`` (cov ``q``) with
-    measurements ``meas[k]`` of x_k (k = 0..H) weighted by ``weight[k]``; returns means (H+1, n)
-    and covariances (H+1, n, n)."""
-    h, n = nominal.shape
-    mf, pf = np.empty((h + 1, n)), np.empty((h + 1, n, n))
-    mp, pp = np.empty((h + 1, n)), np.empty((h + 1, n, n))
-    mf[0], pf[0] = _update(x0, p0, meas[0], weight[0])
-    for k in range(h):
-        mp[k + 1] = nominal[k] + jac[k] @ (mf[k] - xbar[k])
-        pp[k + 1] = jac[k] @ pf[k] @ jac[k].T + q
-        mf[k + 1], pf[k + 1] = _update(mp[k + 1], pp[k + 1], meas[k + 1], weight[k + 1])
-    ms, ps = mf.copy(), pf.copy()
-    for k in range(h - 1, -1, -1):
-        g = np.linalg.solve(pp[k + 1], jac[k] @ pf[k]).T  # pf J' pp^-1 (both symmetric)
-        ms[k] = mf[k] + g @ (ms[k + 1] - mp[k + 1])
-        ps[k] = pf[k] + g @ (ps[k + 1] - pp[k + 1]) @ g.T
-    return ms, ps
-
-
 class Smoother:
     """Smooths horizons of one robot (:class:`FrameMap`) against a decoder's predictions."""
 
@@ -318,7 +282,7 @@ class Smoother:
 
 def smooth_windows(backbone, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, u_query: np.ndarray,
                    quat_last: np.ndarray, decoder: np.ndarray, decoder_std: np.ndarray, config: SmootherConfig,
-                   with_std: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+                   with_std: bool = True, report: dict | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Smoothed outputs (B, H, n_y) of windows of total torques, and their std (None without ``with_std``).
 
     Args:
@@ -328,6 +292,7 @@ def smooth_windows(backbone, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
         quat_last: (B, 4) the last context quaternion, whose sign the outputs keep.
         decoder, decoder_std: (B, H, n_y) the decoder's prediction and std (its joints are read).
         config: the smoother's settings (``jacobian_substeps`` None: the backbone's coarse step).
+        report: a :func:`new_report` to add these windows to (how many, solved in stages, handed over).
 
     A window whose smoothing is not finite is its decoder's (mean and std).
     """
@@ -342,12 +307,14 @@ def smooth_windows(backbone, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
     randomizer, cols = backbone.ident.randomizer, slice(7, 7 + nj)
     q, cov = np.empty((b_n, h + 1, nj)), np.empty((b_n, h, nj, nj))
     q[:, 0] = q_ctx[:, -1]
+    staged = 0
     for b in tqdm(range(b_n), desc="smoothing", unit="window", leave=False, disable=b_n < 2):  # seconds each
         p = params[min(b, len(params) - 1)]
         frames = FrameMap(backbone.ident.model, lambda m, p=p: randomizer.apply(m, p), backbone.substeps,
                           in_actuators, backbone.ident._rollout)
-        q[b, 1:], cov[b] = Smoother(frames, config)(q_ctx[b, -1], v_last[b], torque[b], decoder[b, :, cols],
-                                                    decoder_std[b, :, cols])
+        smoother = Smoother(frames, config)
+        q[b, 1:], cov[b] = smoother(q_ctx[b, -1], v_last[b], torque[b], decoder[b, :, cols], decoder_std[b, :, cols])
+        staged += smoother.grown
     out = signed(backbone._outputs(q), quat_last)[:, 1:]
     bad = ~np.isfinite(out).all(axis=(1, 2))
     out[bad] = decoder[bad]
@@ -355,11 +322,21 @@ def smooth_windows(backbone, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
     start = handover_steps(q[:, 1:], decoder[..., cols], decoder_std[..., cols], box, config.handover)
     after = np.arange(h)[None] >= start[:, None]  # (B, H): the decoder's steps
     out[after] = decoder[after]
+    if report is not None:
+        report["windows"] += b_n
+        report["staged"] += staged
+        report["handed_from"] += [int(k) + 1 for k in start[start < h]]  # 1-based steps
     if not with_std:
         return out, None
     std = output_std(backbone, q[:, 1:], cov)
     std[bad], std[after] = decoder_std[bad], decoder_std[after]
     return out, std
+
+
+def new_report() -> dict:
+    """An empty tally of :func:`smooth_windows`: windows, those solved in stages, and the (1-based)
+    step from which each handed-over window is its decoder's."""
+    return {"windows": 0, "staged": 0, "handed_from": []}
 
 
 def joint_box(model: mujoco.MjModel, nj: int, margin: float) -> tuple[np.ndarray, np.ndarray] | None:

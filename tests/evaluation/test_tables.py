@@ -40,3 +40,17 @@ def test_the_table_has_a_row_per_channel_the_mean_and_the_skipped_baselines(tmp_
     assert "Skipped baseline `arx`: too few steps" in text and "`best.ckpt` on `t.zarr`" in text
     write_table(str(tmp_path / "t.md"), _result())
     assert (tmp_path / "t.md").read_text() == text
+
+
+def test_the_table_says_when_the_smoothed_physics_was_out_of_its_depth():
+    from robomorph.sim.smoother import new_report
+
+    result = _result()
+    quiet = new_report()
+    quiet["windows"] = 4
+    result["meta"]["smoothing"] = quiet
+    assert "smoothed physics" not in table_markdown(result)  # in distribution: nothing to say
+    result["meta"]["smoothing"] = {"windows": 16, "staged": 7, "handed_from": [212, 131, 390]}
+    line = next(ln for ln in table_markdown(result).splitlines() if "smoothed physics" in ln)
+    assert "7 of 16 windows solved in stages" in line and "3 handed to the decoder" in line
+    assert "from steps 131-390" in line

@@ -247,6 +247,10 @@ def test_a_gaussian_models_blend_weighs_the_smoothed_physics_which_keeps_to_the_
     # The query outputs are never read: poisoning them changes nothing.
     pred.physics_mode = "smoothed"
     np.testing.assert_array_equal(pred.simulate(*args, at_rest=True), smoothed)
+    # Every smoothed window is tallied (the blend's three, then three smoothed twice).
+    tally = pred.hybrid().smoothing
+    assert tally["windows"] == 9 and 0 <= tally["staged"] <= 9
+    assert all(1 <= k <= u.shape[1] - c for k in tally["handed_from"])
 
 
 def test_the_smoothed_mode_refuses_commands_and_decoders_without_a_std(blended, total_store):

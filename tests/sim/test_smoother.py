@@ -46,7 +46,7 @@ def test_the_true_robots_frames_re_enact_the_recorded_trajectory_and_the_catalog
 
 
 def test_the_linear_smoother_is_the_least_squares_solution_and_its_covariance():
-    from robomorph.sim.smoother import rts
+    from robomorph.sim.kalman import rts
 
     rng = np.random.default_rng(0)
     h, n = 6, 4
