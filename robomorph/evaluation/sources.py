@@ -7,6 +7,7 @@ checkpoint); ``return_std=True`` is asked for only when it accepts it.
 
 from __future__ import annotations
 
+import copy
 import inspect
 import sys
 
@@ -72,6 +73,7 @@ def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
     Asked of the first trajectory: a predictor without the keyword, one that refuses it
     (a model without a Gaussian head) or one that answers ``(mean, None)`` gives none.
     """
+    kept = copy.deepcopy(getattr(getattr(predictor, "_hybrid", None), "smoothing", None))
     try:
         params = inspect.signature(predictor.simulate).parameters
         if "return_std" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
@@ -79,6 +81,12 @@ def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
         out = predictor.simulate(u_ctx[:1], y_ctx[:1], u_query[:1], **_extra(predictor, y_query, slice(0, 1), True))
     except (NotImplementedError, RoboMorphError, ValueError, TypeError):
         return False
+    finally:
+        # The probe is not one of the windows: a hybrid's tally of smoothed windows forgets it.
+        if (hybrid := getattr(predictor, "_hybrid", None)) is not None and hasattr(hybrid, "smoothing"):
+            from robomorph.sim.smoother import new_report  # noqa: PLC0415
+
+            hybrid.smoothing = kept or new_report()
     return isinstance(out, tuple) and len(out) == 2 and out[1] is not None
 
 

@@ -267,3 +267,15 @@ def test_the_smoothed_mode_refuses_commands_and_decoders_without_a_std(blended, 
     pred.hybrid().inputs = "command"
     with pytest.raises(HybridError, match="total torques"):
         pred.simulate(u[:, :CKPT_CONTEXT], y[:, :CKPT_CONTEXT], u[:, CKPT_CONTEXT:])
+
+
+def test_evaluate_tallies_each_smoothed_window_once(gaussian_blended, tmp_path):
+    """The std probe on the first window is not one of the windows: the tally counts n."""
+    import json
+
+    from robomorph.evaluation.evaluator import evaluate
+
+    out, heldout, _ = gaussian_blended
+    evaluate(out, heldout, str(tmp_path / "ev"), n=3, baselines=(), samples=0)
+    meta = json.loads((tmp_path / "ev" / "metrics.json").read_text())["meta"]
+    assert meta["smoothing"]["windows"] == 3 and meta["smoothing"]["staged"] <= 3
