@@ -26,6 +26,7 @@ before it, so every point of it scores the same targets.
 
 from __future__ import annotations
 
+import copy
 import os
 
 from robomorph.core.atomic import write_json
@@ -161,7 +162,7 @@ def _smoothing(predictor) -> dict:
     """``{"smoothing": tally}`` where the smoothed physics predicted (a copy), else {}."""
     # The hybrid exists once a physics mode has predicted (it is built on first use).
     tally = getattr(getattr(predictor, "_hybrid", None), "smoothing", None)
-    return {"smoothing": {**tally, "handed_from": list(tally["handed_from"])}} if tally and tally["windows"] else {}
+    return {"smoothing": copy.deepcopy(tally)} if tally and tally["windows"] else {}
 
 
 def _sweeps(predictor, w: Window, horizons: list[int], contexts: list[int], base: dict, batch_size: int,

@@ -217,10 +217,6 @@ class Smoother:
             if cost_y < cost:
                 x, cov, cost, self.grown = y, cov_y, cost_y, True
         self.last_cost = cost
-        if cov is None:  # no step was taken: the covariance of the starting point
-            nominal, jac = frames.linearize(x[:-1], torque, cfg.jacobian_substeps)
-            cov = rts(x0, np.diag(1.0 / w0), nominal, jac, x[:-1], np.diag(1.0 / wq), x,
-                      np.zeros((h + 1, 2 * nj)))[1]
         return x[1:, :nj], cov[1:, :nj, :nj]
 
     def _in_stages(self, problem: tuple, wq: np.ndarray) -> tuple:
@@ -244,8 +240,8 @@ class Smoother:
 
     def _solve(self, x: np.ndarray, problem: tuple, wq: np.ndarray, alphas) -> tuple:
         """Levenberg-Marquardt Gauss-Newton from ``x`` (H + 1, 2 nj) with model-error weights
-        ``wq``, the decoder's std scaled by each of ``alphas`` in turn: ``(x, cov or None, cost)``,
-        the cost at the last alpha."""
+        ``wq``, the decoder's std scaled by each of ``alphas`` in turn: ``(x, cov, cost)``, the cost
+        at the last alpha (where no step was taken, the covariance of the starting point)."""
         cfg, frames = self.config, self.frames
         x0, w0, torque, decoder, decoder_std = problem
         h, nj = decoder.shape
@@ -277,6 +273,8 @@ class Smoother:
                     lam *= 10
                     if lam > 1e4:
                         break
+        if cov is None:  # the linearization at hand is the starting point's
+            cov = rts(x0, np.diag(1.0 / w0), nominal, jac, x[:-1], q, x, np.zeros((h + 1, 2 * nj)))[1]
         return x, cov, cost
 
 
