@@ -7,9 +7,18 @@ a ``Trainer`` (logging on, checkpointing and validation off). Then trajectories/
 default CPU config, the paper's config (d_model 192, 12+12 layers, 12 heads) and the
 token-reduction option; on a GPU, the same in bf16.
 
-    python benchmarks/train.py [--steps 30] [--threads 2]
+On a GPU it then times what ``fit`` runs for the paper's model (batch 16, context 200 +
+horizon 800, 12 + 12 layers, d_model 192, patch 1): the Lightning step eager and optimized
+(``--model.compile auto``: the step compiled with CUDA graphs, fused AdamW; see
+robomorph.training.compiling), each in fp32 and bf16, in steps/s after warm-up steps that
+include the compilation.
 
-The last line is ``lightning_vs_plain_ratio=<float>`` (Lightning time / plain time; goal <= 1.05).
+    python benchmarks/train.py [--steps 30] [--threads 2]
+    python benchmarks/train.py --paper-only   # on a GPU: the paper model's four runs alone
+
+The last line is ``lightning_vs_plain_ratio=<float>`` on a CPU (Lightning time / plain time;
+goal <= 1.05) and ``gpu_speedup=<float>`` on a GPU (optimized bf16 steps/s over the step as it
+was, eager bf16 with the unfused AdamW; goal: optimized bf16 >= 28 steps/s).
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ import torch.nn.functional as F
 from common import print_provenance
 
 from robomorph.data.statistics import Stats
+from robomorph.training import optim
 from robomorph.training.module import MetaModule
 
 N_U, N_Y = 7, 14
@@ -46,9 +56,9 @@ def _stats(batches) -> Stats:
     return Stats.from_arrays(u, y)
 
 
-def _module(cfg: dict, stats: Stats, device: str) -> MetaModule:
+def _module(cfg: dict, stats: Stats, device: str, compile: str = "off") -> MetaModule:
     torch.manual_seed(0)
-    m = MetaModule(n_u=N_U, n_y=N_Y, max_context=1024, max_horizon=1024, **cfg)
+    m = MetaModule(n_u=N_U, n_y=N_Y, max_context=1024, max_horizon=1024, compile=compile, **cfg)
     m.normalizer.set_stats(stats)
     m.stats_ready.fill_(True)
     return m.to(device)
@@ -75,8 +85,11 @@ def plain_loop(module: MetaModule, batches: list[dict], device: str, bf16: bool)
 
 
 class _Timer(L.Callback):
+    def __init__(self, warmup: int = 1) -> None:
+        self.warmup = warmup
+
     def on_train_batch_start(self, trainer, *args):
-        if trainer.global_step == 1:  # skip the first step (lazy init) as the plain loop's warm-up does
+        if trainer.global_step == self.warmup:  # skip the first steps (lazy init, compilation)
             _sync(trainer.strategy.root_device.type)
             self.t0 = time.perf_counter()
 
@@ -85,8 +98,9 @@ class _Timer(L.Callback):
         self.elapsed = time.perf_counter() - self.t0
 
 
-def lightning_loop(module: MetaModule, batches: list[dict], device: str, bf16: bool) -> float:
-    timer = _Timer()
+def lightning_loop(module: MetaModule, batches: list[dict], device: str, bf16: bool, warmup: int = 1) -> float:
+    """Seconds of the last ``len(batches) - warmup`` steps of ``fit``'s Lightning step."""
+    timer = _Timer(warmup)
     trainer = L.Trainer(max_steps=len(batches), accelerator="gpu" if device == "cuda" else "cpu", devices=1,
                         precision="bf16-mixed" if bf16 else "32-true", logger=False, enable_checkpointing=False,
                         enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
@@ -114,6 +128,37 @@ def compare(cfg: dict, steps: int, batch: int, ctx: int, hor: int, device: str, 
     return float(np.median(plain)), float(np.median(light))
 
 
+PAPER = {"d_model": 192, "n_head": 12, "n_layer": 12, "patch": 1}
+
+
+def paper_speed(args) -> float:
+    """Steps/s of the paper's model under ``fit``'s Lightning step on this GPU, eager and
+    optimized, fp32 and bf16; returns optimized bf16 over eager bf16 (printed as gpu_speedup)."""
+    warmup = 8  # compilation and the CUDA graphs' recording happen in the first steps
+    batches = make_batches(warmup + args.paper_steps, args.batch, args.context, args.horizon)
+    stats = _stats(batches[:4])
+    batches = [{k: v.pin_memory() for k, v in b.items()} for b in batches]  # as fit's loader pins them
+    rates = {}
+    names = {"before": "eager, unfused AdamW (the step as it was)", "off": "eager, fused AdamW",
+             "auto": "optimized (compiled step, CUDA graphs, fused AdamW)"}
+    for bf16 in (True, False):  # bf16 first: the speed-up is read from it
+        for variant, name in names.items():
+            torch._dynamo.reset()
+            optim.FUSED_ON_GPU = variant != "before"
+            module = _module(PAPER, stats, "cuda", "auto" if variant == "auto" else "off")
+            seconds = lightning_loop(module, batches, "cuda", bf16, warmup=warmup)
+            rates[variant, bf16] = args.paper_steps / seconds
+            print(f"paper model {'bf16' if bf16 else 'fp32'} {name}: {rates[variant, bf16]:.2f} steps/s "
+                  f"({1e3 / rates[variant, bf16]:.1f} ms/step), peak memory "
+                  f"{torch.cuda.max_memory_allocated() / 2**30:.2f} GiB", flush=True)
+            torch.cuda.reset_peak_memory_stats()
+            del module
+            torch.cuda.empty_cache()
+    optim.FUSED_ON_GPU = True
+    print(f"paper_steps_per_s_optimized_bf16={rates['auto', True]:.2f} (goal >= 28)")
+    return rates["auto", True] / rates["before", True]
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=30)
@@ -121,10 +166,17 @@ def main() -> None:
     p.add_argument("--batch", type=int, default=16)
     p.add_argument("--context", type=int, default=200)
     p.add_argument("--horizon", type=int, default=800)
+    p.add_argument("--paper-steps", type=int, default=40, help="timed steps of each paper-model run on a GPU")
+    p.add_argument("--paper-only", action="store_true", help="on a GPU, only the paper model's four runs")
     args = p.parse_args()
     print_provenance()
     torch.set_num_threads(args.threads)
     device = "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cuda":
+        print(f"gpu={torch.cuda.get_device_name()} torch={torch.__version__}", flush=True)
+    if args.paper_only and device == "cuda":
+        print(f"gpu_speedup={paper_speed(args):.2f}")
+        return
     default = {"d_model": 128, "n_head": 4, "n_layer": 4, "patch": 10}
     configs = {
         "default (d128, 4+4, patch 10)": (default, args.steps),
@@ -142,7 +194,11 @@ def main() -> None:
                   f"{args.batch / light:.1f} traj/s (lightning), ratio {light / plain:.3f}")
             if ratio is None:
                 ratio = light / plain
-    print(f"lightning_vs_plain_ratio={ratio:.3f}")
+    if device == "cuda":
+        print(f"lightning_vs_plain_ratio={ratio:.3f}")
+        print(f"gpu_speedup={paper_speed(args):.2f}")
+    else:
+        print(f"lightning_vs_plain_ratio={ratio:.3f}")
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from typing import Literal
 
 import lightning.pytorch as L
 import numpy as np
+import torch
 from torch.utils.data import DataLoader
 
 from robomorph.core.inputs import check_inputs
@@ -216,8 +217,10 @@ class RoboMorphDataModule(L.LightningDataModule):
     def _loader(self, split: str) -> DataLoader:
         self.setup()
         sampler = self.train_sampler if split == "train" else None
+        # Pinned host memory lets a GPU's copy of the batch run without stopping the host.
         return DataLoader(getattr(self, f"{split}_set"), batch_size=self.batch_size, sampler=sampler,
-                          shuffle=False, num_workers=self.num_workers, persistent_workers=self.num_workers > 0)
+                          shuffle=False, num_workers=self.num_workers, persistent_workers=self.num_workers > 0,
+                          pin_memory=torch.cuda.is_available())
 
     def train_dataloader(self) -> DataLoader:
         """The weighted, seeded training stream (``train_samples_per_epoch`` windows)."""

@@ -42,7 +42,7 @@ the torque without the gravity compensation the arm adds) instead of the total j
 torque: its runs are named ``...-command``, its tables go to ``results/paper/<scale>-command``
 by default and name the formulation in their header.
 
-Run times of each scale: README, section 14. Sizes and budgets:
+Run times of each scale: docs/guide/reproducing.md. Sizes and budgets:
 :mod:`robomorph.reproduction.scales`.
 """
 

@@ -1,9 +1,9 @@
-"""The sizes and budgets of ``python -m robomorph.reproduce`` at each scale: ci, small, paper.
+"""The sizes and budgets of ``python -m robomorph.reproduce`` at each scale: ci, small, gpu, paper.
 
 Budgets are optimizer steps, not wall-clock time, so a scale trains the same models on any
 machine and a resumed run stops where an uninterrupted one would. What each scale costs in
-time (measured where it was run, estimated from step times otherwise) is in the README,
-section 14.
+time (measured where it was run, estimated from step times otherwise) is in
+docs/guide/reproducing.md.
 
 ``ci``: tiny stores (16 training robots
 of 90 steps, context 30 + horizon 60), d_model 16 models of 1, 2 and 3 layers, 10-20
@@ -21,6 +21,20 @@ decoder):
 - table 2: pre-training 8000 steps, fine-tuning B = 2000 steps and scratch 2000 steps
   (``scratch_ratio`` 1: the same budget as the fine-tuning, the fair comparison when B is
   this short); then the context figure's sweeps.
+
+``gpu`` (one GPU, 16 cores; about 15 minutes on an H100, estimated from measured step times
+and not yet run, docs/guide/reproducing.md): the paper's model at the paper's depths 10, 12 and 16, and the
+project's model beside it at 12 (the improved row), with the optimized training step
+(:mod:`robomorph.training.compiling`; 55 steps/s for 12 + 12 layers in bf16 on an H100):
+
+- data: 2048 multi-sine, 3 x 256 test, 2048 mixture, 512 + 256 spiral robots (about 2 minutes
+  of generation on 16 cores);
+- table 1: 3000 steps per depth (batch 16: 48,000 windows, 23 per training robot);
+- table 2: pre-training 5000 steps, fine-tuning B = 1200 and scratch 1200 steps
+  (``scratch_ratio`` 1, as ``small``: the paper's 3.6 would be most of the budget).
+
+The improved row trains on windows of varying length, so eagerly (13 steps/s; see
+:mod:`robomorph.training.compiling`): 4 of the about 9 minutes of training.
 
 ``paper`` (a GPU): the paper's model (d_model 192, 12 heads, patch 1, batch 16, lr 6e-4, 10k warmup steps) at 10,
 12 and 16 layers on 40 000 training robots per store (the paper used millions; 40 000 x
@@ -45,7 +59,7 @@ class Scale:
     """Sizes and budgets of one reproduction scale.
 
     Attributes:
-        name: ``ci``, ``small`` or ``paper``.
+        name: ``ci``, ``small``, ``gpu`` or ``paper``.
         steps: samples per trajectory in every store.
         train_robots: Table 1's multi-sine training store.
         test_robots: each test store (test0..test2 and the spiral test store).
@@ -158,6 +172,11 @@ SCALES: dict[str, Scale] = {
         context_len=200, horizon=800, d_model=128, n_head=4, patch=10, depths=(2, 4, 6), batch_size=32, lr=1e-3,
         warmup_steps=300, train_steps=4000, pretrain_steps=8000, finetune_steps=2000, scratch_ratio=1.0,
         sweep_horizon="100:800:100", sweep_context="20:200:20"),
+    "gpu": Scale(
+        name="gpu", steps=1000, train_robots=2048, test_robots=256, mixture_robots=2048, spiral_robots=512,
+        context_len=200, horizon=800, d_model=192, n_head=12, patch=1, depths=(10, 12, 16), batch_size=16, lr=6e-4,
+        warmup_steps=300, train_steps=3000, pretrain_steps=5000, finetune_steps=1200, scratch_ratio=1.0,
+        sweep_horizon="100:800:100", sweep_context="20:200:20", val_every=500, val_fraction=0.05, val_subset=200),
     "paper": Scale(
         name="paper", steps=1000, train_robots=40_000, test_robots=1000, mixture_robots=40_000, spiral_robots=10_000,
         context_len=200, horizon=800, d_model=192, n_head=12, patch=1, depths=(10, 12, 16), batch_size=16, lr=6e-4,

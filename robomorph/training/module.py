@@ -26,10 +26,11 @@ from robomorph.model.checkpoint import (
 )
 from robomorph.model.normalization import Normalizer
 from robomorph.model.transformer import MetaModel, ModelConfig
+from robomorph.training.compiling import COMPILE_MODES, check_compile
 from robomorph.training.data_record import check_channels, data_info
 from robomorph.training.losses import ModelOptionError, check_loss
 from robomorph.training.optim import lr_factor as _lr_factor
-from robomorph.training.optim import optimizers
+from robomorph.training.optim import clip_fused, optimizers
 from robomorph.training.physics import N_PHYSICAL, check_physics, resolve_physics
 from robomorph.training.pretrained import apply_freeze, start_from
 from robomorph.training.steps import Steps
@@ -96,6 +97,10 @@ class MetaModule(Steps, L.LightningModule):
         channel_mask: some training stores lack some of the run's channels (arms with fewer
             joints): the network reads which are absent and the loss skips them
             (:class:`robomorph.model.architecture.ModelConfig`); linked from the datamodule.
+        compile: how the training step runs: ``auto`` (compiled with CUDA graphs on a CUDA
+            device, eager on a CPU), ``off``, or a ``torch.compile`` mode (``default``,
+            ``reduce-overhead``, ``max-autotune``); see :mod:`robomorph.training.compiling`.
+            It changes the speed of training, not the model or its checkpoint.
     """
 
     def __init__(
@@ -138,18 +143,18 @@ class MetaModule(Steps, L.LightningModule):
         decoder_loss: bool = True,
         n_params: int | None = None,
         channel_mask: bool = False,
+        compile: Literal[COMPILE_MODES] = "auto",
     ):
         super().__init__()
         check_physics(physics, param_weight, decoder_loss)
         check_loss(loss, gaussian, horizon_weight, horizon_tau)
-        _check_training(freeze, normalization_from, lr, min_lr_ratio, warmup_steps, huber_delta)
+        _check_training(freeze, normalization_from, lr, min_lr_ratio, warmup_steps, huber_delta, compile)
         check_context(context_len, patch, max_context)
         check_normalization(normalization, recenter)
         self.save_hyperparameters()
         self.hparams.n_params = _n_params(physics, channel_mask)
         self._physics_on, self._layout = physics == "amortized", None  # set by setup from the data
-        self.net: MetaModel | None = None
-        self.normalizer: Normalizer | None = None
+        self.net, self.normalizer = None, None  # MetaModel and Normalizer, built by _build
         # Set by robomorph.fit when it resumes a run: the checkpoint then supplies the
         # weights, so init_ckpt (possibly gone by now) must not be read again.
         self.resuming = False
@@ -233,6 +238,10 @@ class MetaModule(Steps, L.LightningModule):
     def configure_optimizers(self):
         return optimizers(self)
 
+    def configure_gradient_clipping(self, optimizer, gradient_clip_val=None, gradient_clip_algorithm=None) -> None:
+        if not clip_fused(optimizer, gradient_clip_val, gradient_clip_algorithm):
+            super().configure_gradient_clipping(optimizer, gradient_clip_val, gradient_clip_algorithm)
+
 
 def _n_params(physics: str, channel_mask: bool) -> int:
     """The parameter head's width: the Panda's identifiable parameters, whatever the ranges; none
@@ -241,9 +250,10 @@ def _n_params(physics: str, channel_mask: bool) -> int:
 
 
 def _check_training(freeze: str, normalization_from: str, lr: float, min_lr_ratio: float,
-                    warmup_steps: int, huber_delta: float) -> None:
-    """Refuses freeze, transfer and optimizer settings that cannot work, naming the flag
+                    warmup_steps: int, huber_delta: float, compile: str = "auto") -> None:
+    """Refuses freeze, transfer, optimizer and compile settings that cannot work, naming the flag
     (the loss: :func:`robomorph.training.losses.check_loss`)."""
+    check_compile(compile)
     if freeze not in FREEZE_MODES:
         raise ModelSettingsError(f"--model.freeze must be one of {FREEZE_MODES}, got {freeze!r}")
     if normalization_from not in ("source", "target"):

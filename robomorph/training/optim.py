@@ -6,6 +6,10 @@ import math
 
 import torch
 
+# AdamW's fused kernel on a GPU (one launch per step instead of several per tensor;
+# robomorph.training.compiling). benchmarks/train.py turns it off to time the step as it was.
+FUSED_ON_GPU = True
+
 
 def optimizers(module) -> dict:
     """AdamW (no decay on biases, norms and embeddings) with warmup and cosine decay, per step."""
@@ -16,7 +20,11 @@ def optimizers(module) -> dict:
     decay = [p for p in params if p.dim() >= 2 and not is_embedding(net, p)]
     no_decay = [p for p in params if all(p is not q for q in decay)]
     groups = [{"params": decay, "weight_decay": h.weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
-    opt = torch.optim.AdamW(groups, lr=h.lr, betas=tuple(h.betas))
+    # Not under fp16's gradient scaler, which a fused AdamW would unscale inside its kernel,
+    # after clipping; on a CPU, the default implementation, as before.
+    fp16 = str(module.trainer.precision).startswith("16")
+    fused = {"fused": True} if FUSED_ON_GPU and not fp16 and all(p.is_cuda for p in params) else {}
+    opt = torch.optim.AdamW(groups, lr=h.lr, betas=tuple(h.betas), **fused)
     max_steps = module.trainer.max_steps
     total = h.decay_steps or (max_steps if max_steps > 0 else 10_000)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda step: lr_factor(step, h.warmup_steps, total, h.min_lr_ratio))
@@ -33,3 +41,22 @@ def lr_factor(step: int, warmup: int, total: int, floor: float) -> float:
 
 def is_embedding(net: torch.nn.Module, p: torch.Tensor) -> bool:
     return any(p is m.weight for m in net.modules() if isinstance(m, torch.nn.Embedding))
+
+
+def clip_fused(optimizer: torch.optim.Optimizer, clip_val: float | None, algorithm: str | None) -> bool:
+    """Clips the gradients of a fused optimizer's parameters; False (nothing done) for another optimizer.
+
+    Lightning's mixed-precision plugin refuses to clip for any fused optimizer, as if a
+    gradient scaler were unscaling inside it. Under bf16 and fp32 there is none (and fused
+    AdamW is not used under fp16, :func:`optimizers`): the gradients are final, so they are
+    clipped here, as Lightning clips them otherwise.
+    """
+    if not optimizer.defaults.get("fused"):
+        return False
+    if clip_val:
+        params = [p for group in optimizer.param_groups for p in group["params"]]
+        if algorithm in (None, "norm"):
+            torch.nn.utils.clip_grad_norm_(params, clip_val)
+        else:
+            torch.nn.utils.clip_grad_value_(params, clip_val)
+    return True

@@ -14,6 +14,7 @@ from robomorph.core import metrics
 from robomorph.core.names import LR, TEST_FIT, TEST_LOSS, TEST_R2, TRAIN_LOSS, VAL_FIT, VAL_LOSS, VAL_R2
 from robomorph.model.checkpoint import predict_normalized_dist
 from robomorph.model.normalization import query_stats
+from robomorph.training.compiling import CompiledStep, resolve_compile
 from robomorph.training.losses import elementwise_loss, horizon_weights, masked_loss, whole_patches
 from robomorph.training.physics import TRAIN_PARAM_RMSE, param_loss
 
@@ -25,12 +26,16 @@ class Steps:
         """The batch's query-output statistics when the normalization uses them (the paper's leak), else None."""
         return query_stats(batch["y_query"]) if self.normalizer.uses_query_stats else None
 
-    def _step(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+    def _losses(self, batch: dict):
+        """Loss, normalized prediction and target, and the parameter head's (NLL, RMS error) or None.
+
+        No side effects, so that the training step can be compiled (:mod:`robomorph.training.compiling`).
+        """
         h, batch = self.hparams, whole_patches(batch, self.hparams.patch)
         qs = self._query_stats(batch)
         uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"], qs)
         target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"], qs)
-        loss, pred = torch.zeros((), device=uc.device), None
+        loss, pred, param_error = torch.zeros((), device=uc.device), None, None
         if not self._physics_on or h.decoder_loss:
             pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate)
             weights = horizon_weights(target.shape[1], h.horizon_weight, h.horizon_tau, target.device)
@@ -39,15 +44,45 @@ class Steps:
             else:
                 loss = (elementwise_loss(h.loss, pred, logvar, target, h.huber_delta) * weights[:, None]).mean()
         if self._physics_on:
-            self._param_error = param_loss(self.net, self._layout, batch, uc, yc)
-            loss = loss + h.param_weight * self._param_error[0]
+            param_error = param_loss(self.net, self._layout, batch, uc, yc)
+            loss = loss + h.param_weight * param_error[0]
+        return loss, pred, target, param_error
+
+    def _step(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        loss, pred, target, self._param_error = self._losses(batch)
         return loss, pred, target
 
+    def _train_loss(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """What a training step computes (and what ``--model.compile`` compiles): the loss and
+        the parameter head's RMS error (None without one)."""
+        loss, _, _, param_error = self._losses(batch)
+        return loss, None if param_error is None else param_error[1]
+
+    def _training_loss_fn(self):
+        """The training step's loss function: compiled on first use where ``--model.compile``
+        says so for this device, else :meth:`_train_loss` itself."""
+        fn = self.__dict__.get("_compiled_step")
+        if fn is None:
+            varying = self._varying_windows()
+            mode = resolve_compile(self.hparams.get("compile", "off"), self.device.type, varying)
+            if mode is None:
+                return self._train_loss
+            step = CompiledStep(self._train_loss, mode, dynamic=varying)
+            fn = self.__dict__["_compiled_step"] = step  # a plain attribute: not in the state dict
+        return fn
+
+    def _varying_windows(self) -> bool:
+        """Whether the training windows' lengths vary from batch to batch (the datamodule's
+        ``context_min`` / ``horizon_min``)."""
+        dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
+        return dm is not None and (getattr(dm, "context_min", None) is not None
+                                   or getattr(dm, "horizon_min", None) is not None)
+
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
-        loss, _, _ = self._step(batch)
+        loss, param_rmse = self._training_loss_fn()(batch)
         self.log(TRAIN_LOSS, loss, prog_bar=True, batch_size=len(batch["u_ctx"]))
-        if self._physics_on:
-            self.log(TRAIN_PARAM_RMSE, self._param_error[1], batch_size=len(batch["u_ctx"]))
+        if param_rmse is not None:
+            self.log(TRAIN_PARAM_RMSE, param_rmse, batch_size=len(batch["u_ctx"]))
         self.log(LR, self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=len(batch["u_ctx"]))
         return loss
 
