@@ -6,14 +6,14 @@
 #   bash benchmarks/gpu_session.sh [OUT_DIR]
 #
 # On a bare GPU box whose Python lacks this project's dependencies (MuJoCo, Zarr,
-# jsonargparse), put their wheels in .whl/ first (docs/guide/gpu.md says how); they are
-# installed into /tmp/site, not over the box's own packages. Logs go to OUT_DIR
-# (default /tmp/gpu_session).
+# jsonargparse), build their wheels first, where PyPI is reachable: bash tools/device_site.sh
+# (then carry .devsite). They are installed into /tmp/site, not over the box's own packages.
+# Logs go to OUT_DIR (default /tmp/gpu_session).
 set -u
 out=${1:-/tmp/gpu_session}
 mkdir -p "$out"
-if compgen -G ".whl/*.whl" >/dev/null; then
-    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
+if compgen -G ".devsite/*.whl" >/dev/null; then
+    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .devsite/*.whl \
         && export PYTHONPATH=/tmp/site${PYTHONPATH:+:$PYTHONPATH}
 fi
 export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1 WANDB_MODE=disabled
