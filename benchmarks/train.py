@@ -35,6 +35,7 @@ from common import print_provenance
 from robomorph.data.statistics import Stats
 from robomorph.training import optim
 from robomorph.training.module import MetaModule
+from robomorph.training.progress import quiet_lightning
 
 N_U, N_Y = 7, 14
 
@@ -101,12 +102,13 @@ class _Timer(L.Callback):
 def lightning_loop(module: MetaModule, batches: list[dict], device: str, bf16: bool, warmup: int = 1) -> float:
     """Seconds of the last ``len(batches) - warmup`` steps of ``fit``'s Lightning step."""
     timer = _Timer(warmup)
-    trainer = L.Trainer(max_steps=len(batches), accelerator="gpu" if device == "cuda" else "cpu", devices=1,
-                        precision="bf16-mixed" if bf16 else "32-true", logger=False, enable_checkpointing=False,
-                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
-                        gradient_clip_val=1.0, callbacks=[timer])
     module.hparams.warmup_steps = 0
-    trainer.fit(module, train_dataloaders=torch.utils.data.DataLoader(batches, batch_size=None))
+    with quiet_lightning(False):  # no tips, accelerator lines or deprecation warnings between the figures
+        trainer = L.Trainer(max_steps=len(batches), accelerator="gpu" if device == "cuda" else "cpu", devices=1,
+                            precision="bf16-mixed" if bf16 else "32-true", logger=False, enable_checkpointing=False,
+                            enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
+                            gradient_clip_val=1.0, callbacks=[timer])
+        trainer.fit(module, train_dataloaders=torch.utils.data.DataLoader(batches, batch_size=None))
     return timer.elapsed
 
 

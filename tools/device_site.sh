@@ -36,24 +36,13 @@ for name in $packages; do
 done
 rm -rf "$dest"
 mkdir -p "$dest"
-python3 - "$wheels" "$dest" <<'PY'
-import pathlib, sys, zipfile
-
-src, dest = map(pathlib.Path, sys.argv[1:])
-cut = tuple(f"dm_control/{d}/" for d in ("suite", "locomotion", "blender"))
-for wheel in sorted(src.glob("*.whl")):
-    if not wheel.name.startswith("dm_control-"):
-        (dest / wheel.name).write_bytes(wheel.read_bytes())
-        continue
-    with zipfile.ZipFile(wheel) as zin, zipfile.ZipFile(dest / wheel.name, "w", zipfile.ZIP_DEFLATED) as zout:
-        for item in zin.infolist():
-            if item.filename.startswith(cut):
-                continue
-            data = zin.read(item)
-            if item.filename.endswith(".dist-info/RECORD"):  # the files left, as pip reads them
-                data = b"".join(line for line in data.splitlines(True) if not line.startswith(tuple(c.encode() for c in cut)))
-            zout.writestr(item, data)
-PY
+for w in "$wheels"/*.whl; do
+    case "$(basename "$w")" in
+        dm_control-*) python3 tools/trim_wheel.py "$w" "$dest" dm_control/suite dm_control/locomotion dm_control/blender \
+                          >/dev/null ;;
+        *) cp "$w" "$dest/" ;;
+    esac
+done
 exclude=$(git rev-parse --git-path info/exclude)
 grep -qx "/$dest/" "$exclude" 2>/dev/null || echo "/$dest/" >> "$exclude"
 echo "device_site: $(du -sm "$dest" | cut -f1) MB in $dest/ ($(ls "$dest" | wc -l) wheels for Python $py); carry $dest"
