@@ -11,8 +11,8 @@ make the host's share of a step small enough for bf16 to pay.
 ``--model.compile`` chooses:
 
 - ``auto`` (default): ``reduce-overhead`` when training on a CUDA device and Triton is
-  there, otherwise ``off``. The CPU path stays eager, as it was (compiling there costs
-  minutes of a C++ compiler for little gain at the CPU model's size). Where the training
+  there, otherwise ``off``. The CPU path stays eager, as it was (on a CPU the compiled step
+  needs a C++ compiler, and its speed there has not been measured). Where the training
   windows vary in length (``--data.context_min``, ``--data.horizon_min``, as in
   ``train_cpu.yaml``), ``auto`` stays eager too: CUDA graphs would be recorded again for
   every length (hundreds of them, each holding memory), and the compiled step for symbolic
