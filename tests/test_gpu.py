@@ -1,5 +1,7 @@
-"""Checks that need a CUDA device (skipped without one). The store is written with the
-project's own writer so that these run where MuJoCo is not installed (a bare GPU box)."""
+"""Checks that need a CUDA device (skipped without one): fit on a GPU, and compiled training
+(robomorph.training.compiling) against eager. The store is written with the project's own
+writer, so no simulation runs; on a bare GPU box install the wheels of tools/device_site.sh
+first (benchmarks/gpu_session.sh runs this file, then the training benchmark)."""
 
 import os
 
