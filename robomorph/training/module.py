@@ -239,7 +239,7 @@ class MetaModule(Steps, L.LightningModule):
         return optimizers(self)
 
     def configure_gradient_clipping(self, optimizer, gradient_clip_val=None, gradient_clip_algorithm=None) -> None:
-        if not clip_fused(optimizer, gradient_clip_val, gradient_clip_algorithm):
+        if not clip_fused(self, optimizer, gradient_clip_val, gradient_clip_algorithm):
             super().configure_gradient_clipping(optimizer, gradient_clip_val, gradient_clip_algorithm)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import torch
+from lightning.pytorch.plugins.precision import Precision
 
 # AdamW's fused kernel on a GPU (one launch per step instead of several per tensor;
 # robomorph.training.compiling). benchmarks/train.py turns it off to time the step as it was.
@@ -43,20 +44,15 @@ def is_embedding(net: torch.nn.Module, p: torch.Tensor) -> bool:
     return any(p is m.weight for m in net.modules() if isinstance(m, torch.nn.Embedding))
 
 
-def clip_fused(optimizer: torch.optim.Optimizer, clip_val: float | None, algorithm: str | None) -> bool:
-    """Clips the gradients of a fused optimizer's parameters; False (nothing done) for another optimizer.
 
-    Lightning's mixed-precision plugin refuses to clip for any fused optimizer, as if a
-    gradient scaler were unscaling inside it. Under bf16 and fp32 there is none (and fused
-    AdamW is not used under fp16, :func:`optimizers`): the gradients are final, so they are
-    clipped here, as Lightning clips them otherwise.
+def clip_fused(module, optimizer: torch.optim.Optimizer, clip_val: float | None, algorithm: str | None) -> bool:
+    """Clips a fused optimizer's gradients as Lightning clips any other's; False (nothing done) otherwise.
+
+    Lightning's mixed-precision plugin refuses to clip for any fused optimizer, as if a gradient
+    scaler unscaled inside it. Under bf16 and fp32 there is none (fused AdamW is not used under
+    fp16, :func:`optimizers`), so the plugin's base class clips as usual.
     """
-    if not optimizer.defaults.get("fused"):
+    if not (optimizer.defaults.get("fused") and clip_val):
         return False
-    if clip_val:
-        params = [p for group in optimizer.param_groups for p in group["params"]]
-        if algorithm in (None, "norm"):
-            torch.nn.utils.clip_grad_norm_(params, clip_val)
-        else:
-            torch.nn.utils.clip_grad_value_(params, clip_val)
+    Precision.clip_gradients(module.trainer.precision_plugin, optimizer, clip_val, algorithm or "norm")
     return True

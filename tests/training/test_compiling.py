@@ -97,3 +97,22 @@ def test_the_cpu_optimizer_is_not_the_fused_kernel():
     m.__dict__["_trainer"] = Trainer()  # what optimizers() reads of a trainer
     opt = optimizers(m)["optimizer"]
     assert not opt.defaults.get("fused")
+
+
+def test_a_fused_optimizer_is_clipped_under_bf16_mixed_precision():
+    """Lightning's mixed-precision plugin refuses to clip for any fused optimizer (the first GPU
+    run's failure); the module clips it itself, as Lightning clips any other (here on a CPU,
+    where torch has a fused AdamW too)."""
+    import lightning.pytorch as L
+
+    m = _module()
+    m.trainer = L.Trainer(accelerator="cpu", precision="bf16-mixed", logger=False, enable_progress_bar=False)
+    opt = torch.optim.AdamW(m.net.parameters(), fused=True)
+    loss, _ = m._train_loss(_batch())
+    (loss * 1e3).backward()
+    norm = lambda: float(torch.linalg.vector_norm(torch.stack([p.grad.norm() for p in m.net.parameters()])))  # noqa: E731
+    assert norm() > 1.0
+    with pytest.raises(RuntimeError, match="fused"):  # what Lightning's own path does
+        L.LightningModule.configure_gradient_clipping(m, opt, 1.0, "norm")
+    m.configure_gradient_clipping(opt, 1.0, "norm")
+    assert norm() == pytest.approx(1.0, rel=1e-4)
