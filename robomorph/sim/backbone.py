@@ -184,6 +184,12 @@ class PhysicsBackbone:
 
         if self.inputs != "command":
             return estimate_velocity(q_ctx, self.dt)
+        if self.open_loop:
+            # All contexts in threaded batches: the rollouts of the fit's problem (_Problem), to the bit.
+            nj = q_ctx.shape[2]
+            states = self.frame_states(params, q_ctx[:, 0], np.asarray(qvel_start, dtype=np.float64),
+                                       np.asarray(torque_ctx, dtype=np.float64)[:, :-1], fine=True)
+            return states[:, -1, 1 + nj:1 + 2 * nj]  # state: time, qpos, qvel
         out = np.empty((len(params), q_ctx.shape[2]))
         space = self.ident.space
         for b in range(len(params)):
@@ -220,50 +226,49 @@ class PhysicsBackbone:
         if qvel_end is None:
             qvel_end = self.context_velocity(params, q_ctx, torque_ctx, qvel_start)
         if self.open_loop:
-            q = self._rollout(params, q_ctx[:, -1], qvel_end, torque)
+            q = self.frame_states(params, q_ctx[:, -1], qvel_end, torque)[..., 1:1 + q_ctx.shape[2]]  # time, qpos, ...
         else:
             q = np.stack([self._closed_loop(params[b], q_ctx[b, -1], qvel_end[b], torque[b]) for b in range(n)])
         return signed(self._outputs(q), quat_last)[:, 1:]  # row 0: the last context sample
 
-    def _rollout(self, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:
-        """(N, F + 1, 7) joint positions at the frame starts of F open-loop frames (row 0: the start):
-        the first :attr:`FINE_STEPS` frames at the recipe's physics step, the rest at ``coarse``."""
+    def frame_states(self, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray,
+                     fine: bool = False) -> np.ndarray:
+        """(N, F + 1, S) full physics states (``mjSTATE_FULLPHYSICS``) at the starts of F open-loop frames (row 0:
+        the start): :meth:`segments`' physics steps, or with ``fine`` the recipe's throughout (as contexts are simulated)."""
         ident, nj = self.ident, qpos0.shape[1]
         m, d = ident.model, ident._scratch
         frames = torque.shape[1]
-        out = np.empty((len(params), frames + 1, nj))
-        out[:, 0] = qpos0
-        if frames == 0:
-            return out
-        fine = frames if self.coarse == self.substeps else min(frames, self.FINE_STEPS)
-        segments = [(0, fine, self.substeps), (fine, frames, self.coarse)]
+        size = mujoco.mj_stateSize(m, _STATE)
+        out = np.empty((len(params), frames + 1, size))
         models = ident._models
-        nq0, size = 1, mujoco.mj_stateSize(m, _STATE)  # state layout: time, qpos, qvel, ...
         for s in range(0, len(params), len(models)):
             group = range(s, min(s + len(models), len(params)))
             ms = models[:len(group)]
-            x = np.empty((len(group), size))
+            x = out[group.start:group.stop, 0]
             for k, (model, b) in enumerate(zip(ms, group)):
                 ident.randomizer.apply(model, params[b])
                 mujoco.mj_resetData(model, d)
                 d.qpos[:nj], d.qvel[:nj] = qpos0[b], qvel0[b]
                 mujoco.mj_getState(model, d, x[k], _STATE)
             try:
-                for first, last, ss in segments:
-                    if last == first:
-                        continue
+                for first, last, ss in [(0, frames, self.substeps)] if fine else self.segments(frames):
                     for model in ms:
                         model.opt.timestep = self.dt / ss
                     control = np.repeat(torque[group.start:group.stop, first:last], ss, axis=1)
                     state = np.empty((len(group), (last - first) * ss, size))
-                    ident._rollout(ms, x, control, state=state)
+                    ident._rollout(ms, np.ascontiguousarray(out[group.start:group.stop, first]), control, state=state)
                     rows = np.arange(1, last - first + 1) * ss - 1  # after the last physics step of each frame
-                    out[group.start:group.stop, first + 1:last + 1] = state[:, rows, nq0:nq0 + nj]
-                    x = state[:, -1].copy()
+                    out[group.start:group.stop, first + 1:last + 1] = state[:, rows]
             finally:
                 for model in ms:
                     model.opt.timestep = m.opt.timestep  # the recipe's, which the context's simulations use
         return out
+
+    def segments(self, frames: int) -> list[tuple[int, int, int]]:
+        """``(first, last, substeps)`` of the horizon's open-loop stretches: :attr:`FINE_STEPS` frames at the
+        recipe's step, the rest at ``coarse`` (empty stretches left out)."""
+        fine = frames if self.coarse == self.substeps else min(frames, self.FINE_STEPS)
+        return [(a, b, ss) for a, b, ss in ((0, fine, self.substeps), (fine, frames, self.coarse)) if b > a]
 
     def _closed_loop(self, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:
         """(F + 1, 7) joint positions of one robot simulated closed loop (state feedback in the formulation)."""
