@@ -30,9 +30,6 @@ from the context's last state and the query torques.
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 import torch
 
@@ -50,8 +47,6 @@ REFINE_KINDS = ("armature", "frictionloss")
 # The modes whose estimate comes from the regression, and so knows which joints held still in the
 # context: their prediction is the friction mixture of :mod:`robomorph.sim.stiction` (command formulation).
 MIXED_MODES = ("regression", "fused", "refined")
-# Threads of the windows' regression solves (0: one per core).
-REGRESSION_THREADS = 0
 
 
 class HybridError(RoboMorphError, ValueError):
@@ -89,7 +84,7 @@ class Hybrid:
             raise HybridError(f"the friction mixture needs members >= 1, got {members}")
         self.backbone = PhysicsBackbone(physics, inputs)
         self._identifier = None
-        self._regressors: list = []  # one regression solver per thread
+        self._regressor = None
         self._regressor_gravity = False
         self._stiction = None
         self._held: np.ndarray | None = None  # (B, nj) of the last regression: joints that held still
@@ -256,36 +251,23 @@ def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
     # Total torques pay gravity in the torque: the centres of mass are solved for as well (a
     # centimetre moves it by ~0.1 N m), except under the head's prior, which does not name them.
     gravity = hybrid.inputs == "total" and prior is None
-    if hybrid._regressor_gravity != gravity:
-        hybrid._regressors, hybrid._regressor_gravity = [], gravity
-    # One solver per thread (a solver is not thread-safe; the randomizer it reads is): MuJoCo's inverse
-    # dynamics and numpy's solves release the GIL for part of each window's fit (1.3x on 2 cores, measured).
-    workers = max(1, min(len(params), REGRESSION_THREADS or os.cpu_count() or 1))
-    while len(hybrid._regressors) < workers:
+    if hybrid._regressor is None or hybrid._regressor_gravity != gravity:
         ident = hybrid.backbone.ident
         space = ParameterSpace.of(ident.randomizer, hybrid.backbone.recipe.randomization, GRAVITY_KINDS) \
             if gravity else ident.space
-        hybrid._regressors.append(RegressorIdentifier(hybrid.backbone.recipe, space, ident.randomizer, hybrid.inputs,
-                                                      iterations=hybrid.iterations))
+        hybrid._regressor = RegressorIdentifier(hybrid.backbone.recipe, space, ident.randomizer, hybrid.inputs,
+                                                iterations=hybrid.iterations)
+        hybrid._regressor_gravity = gravity
+    hybrid._regressor.iterations = hybrid.iterations
     base = np.stack([hybrid.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
+    out, hybrid._covs, held = [], [], []
     n = len(hybrid.backbone.index)  # the layout's entries come first; the draws of the std move those
-    fits: list = [None] * len(params)
-
-    def solve(worker: int) -> None:
-        regressor = hybrid._regressors[worker]
-        regressor.iterations = hybrid.iterations
-        for b in range(worker, len(params), workers):
-            p = regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ()))
-            fits[b] = (p, regressor.last_cov[:n, :n], regressor.last_held)
-
-    if workers == 1:
-        solve(0)
-    else:
-        with ThreadPoolExecutor(workers) as pool:
-            list(pool.map(solve, range(workers)))  # list(): a worker's exception is raised here
-    hybrid._covs = [f[1] for f in fits]
-    hybrid._held = np.stack([f[2] for f in fits])
-    return np.stack([f[0] for f in fits])
+    for b in range(len(params)):
+        out.append(hybrid._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))
+        hybrid._covs.append(hybrid._regressor.last_cov[:n, :n])
+        held.append(hybrid._regressor.last_held)
+    hybrid._held = np.stack(held)
+    return np.stack(out)
 
 
 def _draw_spread(backbone, params: np.ndarray, z_std: np.ndarray, covs, mean: np.ndarray, horizon, samples: int,

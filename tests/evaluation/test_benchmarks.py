@@ -157,3 +157,22 @@ def test_horizon_step_benchmark_is_exact_at_the_generators_step_and_in_the_first
     assert int(rows[2]["physics_steps"]) < int(rows[0]["physics_steps"])
     done = run("horizon_step.py", "--test", store, "--n", 3, "--horizon", 800, ok=False)
     assert done.returncode == 2 and "fewer than --context + --horizon" in done.stderr
+
+
+def test_candidates_benchmark_is_exact_for_the_reference_and_linear_without_friction(tmp_path, simulated_store):
+    store = simulated_store(robots=2, steps=90, seed=6)
+    csv, md = tmp_path / "cand.csv", tmp_path / "cand.md"
+    done = run("candidates.py", "--test", store, "--n", 2, "--context", 20, "--candidates", 8, "--sigma", "0.001,0.5",
+               "--csv", csv, "--md", md)
+    assert done.stdout.startswith("*Produced by `benchmarks/candidates.py")
+    rows = read_rows(str(csv))
+    assert len(rows) == 2 * 2 * 6 and md.read_text().startswith("*Produced by")
+    err = {(float(r["sigma"]), r["robot"], r["method"]): float(r["step60"]) for r in rows}
+    for b in ("0", "1"):
+        assert err[(0.5, b, "exact (reference)")] == 0.0
+        # Without dry friction the tangent follows the exact candidates (second order in the deviation);
+        # a coarser step is a real change, which the comparison would show.
+        assert err[(0.001, b, "tangent-linear, no friction loss")] < 1e-3
+        assert err[(0.5, b, "exact, 1 physics steps per sample")] > err[(0.5, b, "exact, 4 physics steps per sample")]
+    done = run("candidates.py", "--test", store, "--context", 60, ok=False)
+    assert done.returncode == 2 and "fewer than --context + 60" in done.stderr

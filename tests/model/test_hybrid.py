@@ -257,7 +257,7 @@ def test_held_joints_predict_the_weighted_mean_of_the_friction_mixture(hybrid_ck
     mix = FrictionMixture(hyb.backbone.ident, hyb.members)
     bb, q = hyb.backbone, yc[..., 7:].astype(np.float64)
     for b in range(len(uc)):
-        est = hyb._regressors[0].fit(bb.catalogue(q[b, 0]), q[b], uc[b].astype(np.float64))
+        est = hyb._regressor.fit(bb.catalogue(q[b, 0]), q[b], uc[b].astype(np.float64))
         members, w, qvel_end = mix.weigh(est, held[b], q[b], uc[b], np.zeros(7))
         np.testing.assert_allclose(params[b], w @ members)  # what a controller simulates with
         k = len(w)
