@@ -9,7 +9,10 @@ the baselines are scored on the same held-out windows with
 offsets (seed 0). Printed and written: joint RMS error [mrad] at steps 1, 15, 60, 300 and 800
 (the first step, 0.25 s, 1 s, 5 s, 13.3 s; step k is k dt after the last context sample),
 R^2 (approach 1, all channels), the joints' ±1σ/±2σ coverage at the reported steps (mean, lowest
-and highest), and the cost per window (wall clock on this machine, all its cores).
+and highest), and the cost per window (wall clock on this machine, all its cores). With
+``identified_physics`` among the baselines, a second table compares window by window: at each
+reported step, the share of windows where a source's joint error is below identified physics'
+and the median of the ratio of the two errors (an RMS over windows can be decided by a few).
 
     python benchmarks/hybrid.py --ckpt data/hyb/runs/amort40/checkpoints/best.ckpt \\
         --test data/demo/ms_heldout.zarr --n 16 --csv results/benchmarks/hybrid.csv
@@ -26,11 +29,30 @@ from common import print_provenance
 
 from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
+from robomorph.evaluation.horizons import squared_error
 from robomorph.evaluation.scoring import MODEL, score_windows
 from robomorph.evaluation.windows import load_window
 from robomorph.model.predictor import Predictor
 
 STEPS = (1, 15, 60, 300, 800)
+# The baseline the window-by-window table compares against.
+PAIRED = "identified_physics"
+
+
+def _window_errors(scores, source: str) -> np.ndarray:
+    """(N, len(STEPS)) each window's joint RMS error [mrad] at the reported steps (nan beyond the horizon)."""
+    group = scores.group("joints")
+    err = np.sqrt(squared_error(scores.y, scores.preds[source], group)) * group.scale
+    return np.stack([err[:, k - 1] if k <= err.shape[1] else np.full(len(err), np.nan) for k in STEPS], axis=1)
+
+
+def _paired(row: dict, mine: np.ndarray, ref: np.ndarray | None) -> dict:
+    """``row`` with, per reported step, the share of windows below ``ref``'s error and the median ratio."""
+    for i, k in enumerate(STEPS):
+        ok = ref is not None and not np.isnan(ref[:, i]).all()
+        row[f"below_ref{k}"] = float(np.mean(mine[:, i] < ref[:, i])) if ok else float("nan")
+        row[f"ratio_ref{k}"] = float(np.median(mine[:, i] / np.maximum(ref[:, i], 1e-12))) if ok else float("nan")
+    return row
 
 
 def _row(name: str, offset: str, scores, source: str, seconds: float | None, std: bool) -> dict:
@@ -130,10 +152,12 @@ def main(argv=None) -> int:
         baselines = tuple(b for b in args.baselines.split(",") if b)
         t0 = time.perf_counter()
         scores = score_windows(None, w, baselines)
+        ref = _window_errors(scores, PAIRED) if PAIRED in scores.preds else None
         for b in baselines:
             if b in scores.preds:
                 note = scores.result["meta"]["baseline_notes"].get(b, {})
-                rows.append(_row(b, offset, scores, b, note.get("seconds_per_window"), False))
+                rows.append(_paired(_row(b, offset, scores, b, note.get("seconds_per_window"), False),
+                                    _window_errors(scores, b), None if b == PAIRED else ref))
         sources = [(m, args.ckpt, m) for m in args.modes.split(",") if m]  # "mode@k": k regression solves
         if args.black_box:
             sources.append(("black_box", args.ckpt, "none"))
@@ -147,12 +171,21 @@ def main(argv=None) -> int:
                 pred.has_std = False  # the mean alone: the cost of a prediction without draws
             t0 = time.perf_counter()
             s = score_windows(pred, w, ())
-            rows.append(_row(name, offset, s, MODEL, (time.perf_counter() - t0) / len(w.u), std))
+            rows.append(_paired(_row(name, offset, s, MODEL, (time.perf_counter() - t0) / len(w.u), std),
+                                _window_errors(s, MODEL), ref))
             print(f"  scored {name} ({offset})", file=sys.stderr, flush=True)
     headers = ["source", "windows"] + [f"step{k}" for k in STEPS] + ["r2", "cover1", "cover2", "s_per_window"]
     table = markdown_table(["source", "windows"] + [f"step {k}" for k in STEPS] + ["R²", "±1σ [%]", "±2σ [%]", "s/window"],
                            [[_coverage(r, h) if h.startswith("cover") else r[h] for h in headers] for r in rows],
                            floatfmt=".4g")
+    paired = [r for r in rows if not np.isnan(r["below_ref1"])]
+    if paired:
+        table += ("\n\nWindow by window against identified physics, at steps " + ", ".join(map(str, STEPS))
+                  + ": the share of windows where the source's joint error is below identified physics' [%], "
+                  "and the median ratio of the two errors.\n\n")
+        table += markdown_table(["source", "windows"] + [f"below at {k} [%]" for k in STEPS] + [f"ratio at {k}" for k in STEPS],
+                                [[r["source"], r["windows"]] + [100 * r[f"below_ref{k}"] for k in STEPS]
+                                 + [r[f"ratio_ref{k}"] for k in STEPS] for r in paired], floatfmt=".3g")
     print(table)
     if args.md:
         write_markdown(args.md, f"# The hybrid model's modes beside the baselines ({args.test}, {args.n} robots)\n\n"
