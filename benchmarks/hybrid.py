@@ -71,9 +71,13 @@ def _row(name: str, offset: str, scores, source: str, seconds: float | None, std
 
 
 def configure(pred: Predictor, spec: str) -> str:
-    """Sets ``pred`` up as ``MODE[@K][~M][/S]`` says (K regression solves, default 3; M members of
+    """Sets ``pred`` up as ``MODE[@K][~M][/S][+obs]`` says (K regression solves, default 3; M members of
     the friction mixture, default 9; S physics steps per sample after the first second, default
     :func:`robomorph.sim.backbone.coarse_substeps`); returns MODE."""
+    spec, plus, observer = spec.partition("+")
+    if plus and observer != "obs":
+        raise SystemExit(f"error: a mode's suffix after '+' can only be 'obs' (the observer's velocity), got {observer!r}")
+    pred.physics_observer = bool(plus)
     spec, _, substeps = spec.partition("/")
     mode, _, members = spec.partition("~")
     mode, _, solves = mode.partition("@")
@@ -123,7 +127,8 @@ def main(argv=None) -> int:
                         "each linearized where the last landed; MODE~M predicts with M robots of the friction "
                         "mixture over the joints that held still (default 9; ~1: the estimate alone); MODE/S "
                         "simulates the horizon after its first second at S physics steps per sample (default: "
-                        "a 240th of a second, 4 for the Panda recipe's 8; /8 re-enacts the generator throughout)")
+                        "a 240th of a second, 4 for the Panda recipe's 8; /8 re-enacts the generator throughout); "
+                        "MODE+obs starts the horizon from the observer's velocity (Predictor.physics_observer)")
     p.add_argument("--baselines", default="hold,nominal_physics,identified_physics")
     p.add_argument("--offsets", default="start,random")
     p.add_argument("--black-box", action="store_true", help="also score the checkpoint's black-box decoder")

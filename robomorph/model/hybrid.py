@@ -181,7 +181,7 @@ class Hybrid:
             return None
         if self._stiction is None or self._stiction.members != self.members:
             self._stiction = FrictionMixture(self.backbone.ident, self.members)
-        return [self._stiction.weigh(params[b], self._held[b], q_ctx[b], uc[b], qvel_start[b])
+        return [self._stiction.weigh(params[b], self._held[b], q_ctx[b], uc[b], qvel_start[b], self.backbone.observe)
                 for b in range(len(params))]
 
     @torch.no_grad()

@@ -125,6 +125,7 @@ class Predictor:
             (:mod:`robomorph.sim.stiction`; command formulation); 1: the estimate alone (cheaper).
         physics_substeps: physics steps per sample of the hybrid's horizons after their first second (None:
             :func:`robomorph.sim.backbone.coarse_substeps`, 4 of the Panda's 8; 8 re-enacts the generator throughout).
+        physics_observer: commands: horizons from :func:`robomorph.sim.backbone.observed_velocity`.
         channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside, its
             outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
     """
@@ -140,9 +141,9 @@ class Predictor:
         # Checkpoints written before the command formulation were all trained on total torque.
         self.inputs: str = (data_info or {}).get("inputs", "total")
         self.physics, self.physics_mode = _backbone(model, data_info, self.inputs)
-        self.physics_samples: int = 8
-        self.physics_members: int = 9
+        self.physics_samples, self.physics_members = 8, 9
         self.physics_substeps: int | None = None
+        self.physics_observer: bool = False
         self.channels: tuple[list[str], list[str]] | None = None
         self._hybrid = None
         if self.physics:
@@ -158,7 +159,7 @@ class Predictor:
         if self._hybrid is None:
             self._hybrid = Hybrid(self.model, self.physics, self.inputs)
         self._hybrid.samples, self._hybrid.members = self.physics_samples, self.physics_members
-        self._hybrid.backbone.coarse = self.physics_substeps
+        self._hybrid.backbone.coarse, self._hybrid.backbone.observe = self.physics_substeps, self.physics_observer
         return self._hybrid
 
     def check_inputs(self, inputs: str | None) -> None:

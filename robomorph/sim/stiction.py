@@ -72,7 +72,7 @@ class FrictionMixture:
         return out
 
     def weigh(self, params: np.ndarray, held: np.ndarray, q_ctx: np.ndarray, torque_ctx: np.ndarray,
-              qvel_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              qvel_start: np.ndarray, observe: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The members of one context, their weights and where each leaves the context.
 
         Args:
@@ -80,6 +80,8 @@ class FrictionMixture:
             held: (nj,) the joints whose friction loss never saturated over the context.
             q_ctx, torque_ctx: (T, nj) the context's joint positions and torques (command formulation).
             qvel_start: (nj,) the joint velocity at the first context sample.
+            observe: each member's end velocity corrected by its context's position residual
+                (:func:`robomorph.sim.backbone.observed_velocity`).
 
         Returns:
             ``(members (K, P), weights (K,) summing to 1, qvel_end (K, nj))``.
@@ -95,7 +97,13 @@ class FrictionMixture:
         # Gaussian joint errors with the best member's variance: log-likelihoods relative to it.
         logw = -0.5 * err.shape[1] * (mse / max(float(mse.min()), 1e-18) - 1.0)
         w = np.exp(logw - logw.max())
-        return members, w / w.sum(), problem.last_qvel_end.copy()
+        qvel_end = problem.last_qvel_end.copy()
+        if observe:
+            from robomorph.sim.backbone import observed_velocity  # noqa: PLC0415
+
+            dt = self.ident.substeps * self.ident.model.opt.timestep
+            qvel_end = observed_velocity(qvel_end, -err.reshape(len(members), -1, q_ctx.shape[1]), dt)
+        return members, w / w.sum(), qvel_end
 
 
 def mixed_horizon(backbone, mixture: list, q_ctx: np.ndarray, torque_ctx: np.ndarray, torque_query: np.ndarray,

@@ -25,3 +25,23 @@ def test_batched_context_velocities_equal_the_fits_rollouts(command_store):
             problem.joint_error(space.to_unit(params[b][space.index])[None])
             np.testing.assert_allclose(batched[b], problem.last_qvel_end[0], rtol=0, atol=1e-12)
     assert np.abs(batched).max() > 1e-3  # the robots move: a zero velocity would not pass
+
+
+def test_the_observers_velocity_corrects_a_drifting_context_toward_the_true_one(command_store):
+    """A robot that re-enacts its context has no residual, so the observer changes nothing; the
+    catalogue robot drifts over the context, and the residual's velocity brings its end velocity
+    toward the true robot's."""
+    from robomorph.sim.backbone import PhysicsBackbone, parameter_layout
+
+    uc, yc, _, _, params, attrs = _windows(command_store, n=4)
+    q, u, rest = yc[..., 7:].astype(np.float64), uc.astype(np.float64), np.zeros((4, 7))
+    with PhysicsBackbone(parameter_layout(attrs), "command") as bb:
+        true_end = bb.context_velocity(params, q, u, rest)
+        catalogue = np.stack([bb.catalogue(qq) for qq in q[:, 0]])
+        plain = bb.context_velocity(catalogue, q, u, rest)
+        bb.observe = True
+        observed_true = bb.context_velocity(params, q, u, rest)
+        observed = bb.context_velocity(catalogue, q, u, rest)
+    np.testing.assert_allclose(observed_true, true_end, atol=1e-3)  # float32 storage of q
+    before, after = np.abs(plain - true_end).mean(), np.abs(observed - true_end).mean()
+    assert before > 1e-3 and after < 0.5 * before
