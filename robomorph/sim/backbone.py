@@ -113,7 +113,7 @@ class PhysicsBackbone:
             coarse step's error is largest against it. Closed-loop horizons (formulations with
             state feedback) keep the recipe's step.
 
-    ``observe`` (settable, default False): open-loop commands start the horizon from
+    ``observe`` (settable, default False): commands start the horizon from
     :func:`observed_velocity` instead of the simulated context's own end velocity.
     """
 
@@ -199,8 +199,9 @@ class PhysicsBackbone:
         for b in range(len(params)):
             problem = _Problem(self.ident, params[b], q_ctx[b], torque_ctx[b], np.asarray(qvel_start[b]))
             z = self.ident.space.to_unit(params[b][self.ident.space.index])
-            problem.joint_error(z[None])
+            residual = -problem.joint_error(z[None]).reshape(1, -1, q_ctx.shape[2])  # rows 1.. of the context
             out[b] = problem._qvel_end[z.tobytes()][:q_ctx.shape[2]]
+            out[b] = observed_velocity(out[b:b + 1], residual, self.dt)[0] if self.observe else out[b]
         return out
 
     def simulate(self, params: np.ndarray, q_ctx: np.ndarray, torque_ctx: np.ndarray, torque_query: np.ndarray,

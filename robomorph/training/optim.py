@@ -44,7 +44,6 @@ def is_embedding(net: torch.nn.Module, p: torch.Tensor) -> bool:
     return any(p is m.weight for m in net.modules() if isinstance(m, torch.nn.Embedding))
 
 
-
 def clip_fused(module, optimizer: torch.optim.Optimizer, clip_val: float | None, algorithm: str | None) -> bool:
     """Clips a fused optimizer's gradients as Lightning clips any other's; False (nothing done) otherwise.
 

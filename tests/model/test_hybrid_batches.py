@@ -45,3 +45,22 @@ def test_the_observers_velocity_corrects_a_drifting_context_toward_the_true_one(
     np.testing.assert_allclose(observed_true, true_end, atol=1e-3)  # float32 storage of q
     before, after = np.abs(plain - true_end).mean(), np.abs(observed - true_end).mean()
     assert before > 1e-3 and after < 0.5 * before
+
+
+def test_the_observer_is_the_same_in_the_batched_and_the_window_by_window_context(command_store):
+    """Formulations with state feedback simulate each context on its own (the fit's problem); the
+    observer corrects those the same way as the batched open-loop ones."""
+    from robomorph.sim.backbone import PhysicsBackbone, parameter_layout
+
+    uc, yc, _, _, _, attrs = _windows(command_store, n=3)
+    q, u, rest = yc[..., 7:].astype(np.float64), uc.astype(np.float64), np.zeros((3, 7))
+    with PhysicsBackbone(parameter_layout(attrs), "command") as bb:
+        catalogue = np.stack([bb.catalogue(qq) for qq in q[:, 0]])
+        bb.observe = True
+        batched = bb.context_velocity(catalogue, q, u, rest)
+        bb.open_loop = False  # the window-by-window path
+        one_by_one = bb.context_velocity(catalogue, q, u, rest)
+        bb.observe = False
+        plain = bb.context_velocity(catalogue, q, u, rest)
+    np.testing.assert_allclose(one_by_one, batched, rtol=0, atol=1e-9)
+    assert np.abs(one_by_one - plain).max() > 1e-3  # the correction acts in both paths
