@@ -10,7 +10,7 @@ import sys
 
 from robomorph.core.errors import run_command
 from robomorph.evaluation import calibrating
-from robomorph.model.calibration import METHODS
+from robomorph.model.calibration import METHODS, CalibrationError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,6 +34,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--physics", choices=("regression", "learned", "fused", "refined", "blend", "smoothed", "none"),
                    help="a hybrid model's physics mode to calibrate (default: its default mode); each mode keeps its "
                         "own calibration (with --remove: drop that mode's only)")
+    p.add_argument("--observer", choices=("on", "off"),
+                   help="a command-formulation hybrid: start its horizons from the observer's velocity (the simulated "
+                        "context's end velocity corrected by its position residual; on by default for models trained "
+                        "since 2026-11-26) or not, recorded in the checkpoint; each setting keeps its own calibrations")
     p.add_argument("--remove", action="store_true", help="drop the stored calibrations instead")
     p.add_argument("--blend", action="store_true",
                    help="fit the per-step weights of the model's physics prediction against its decoder's instead "
@@ -46,6 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run(a: argparse.Namespace) -> int:
+    if a.observer and (a.remove or a.blend):
+        raise CalibrationError("--observer sets what a calibration is fitted on: drop --remove and --blend with it")
     if a.remove:
         had = calibrating.remove(a.ckpt, a.out, a.physics)
         what = "std calibration" + (f" of physics mode {a.physics}" if a.physics else "")
@@ -58,7 +64,8 @@ def run(a: argparse.Namespace) -> int:
         print(calibrating.blend_text(report))
         return 0
     report = calibrating.calibrate(a.ckpt, a.data, a.out, a.n, a.context_len, a.horizon, a.offset, a.seed, a.method,
-                                   a.batch_size, a.device, a.horizons, a.physics)
+                                   a.batch_size, a.device, a.horizons, a.physics,
+                                   None if a.observer is None else a.observer == "on")
     print(calibrating.report_text(report))
     return 0
 

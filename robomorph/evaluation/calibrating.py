@@ -109,7 +109,7 @@ def _fitting_windows(ckpt: str, predictor, sources, split: str, n, context_len, 
 def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,
               context_len: int | None = None, horizon: int | None = None, offset: str | int = "start",
               seed: int = 0, method: str = "power", batch_size: int = 64, device: str | None = None,
-              horizons_spec: str | None = None, physics: str | None = None) -> dict:
+              horizons_spec: str | None = None, physics: str | None = None, observer: bool | None = None) -> dict:
     """Fits the calibration and writes the checkpoint with it to ``out`` (default: in place).
 
     Args:
@@ -123,18 +123,23 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
             its own calibration, so calibrating one leaves the others' in place. A hybrid keeps one
             per window kind too: windows from the start, and windows that do not open their
             trajectory (``offset`` random or a step), each applied to its own kind.
+        observer: a command-formulation hybrid's observer (:attr:`Predictor.physics_observer`) set in the
+            checkpoint's record before fitting (None: as recorded); its calibrations are kept apart.
 
     Returns:
         A report: the calibration's provenance, and the ±1σ/±2σ coverage of the calibration
         windows before and after at the reported steps.
     """
     from robomorph.model.files import read_model  # noqa: PLC0415  (a checkpoint or a model folder)
+    from robomorph.model.predictor import observing  # noqa: PLC0415
 
     check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     offset = parse_offset(offset)
     predictor = _predictor(ckpt, device)
     predictor.use_physics(physics)
     ckpt_dict = read_model(ckpt)
+    if observer is not None:
+        _set_observer(predictor, ckpt_dict, observer)
     sources, split = _sources(ckpt_dict, data)
     w, source = _fitting_windows(ckpt, predictor, sources, split, n, context_len, horizon, offset, seed,
                                  "calibration window")
@@ -149,12 +154,21 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     source["normalization"] = predictor.normalization
     if getattr(predictor, "physics", None):
         # A hybrid's std depends on how it identifies the robot: the calibration is that mode's.
-        source["physics_mode"] = predictor.physics_mode
+        source["physics_mode"], source["observer"] = predictor.physics_mode, observing(predictor)
     cal = fit(before.y, mean, std, method, source=source)
-    factors, powers = cal.factors(horizon), cal.powers(horizon)
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
+    report = _report(ckpt, out, cal, w.dt, horizon, steps, before, after)
+    ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
+                                                     calibration_key(cal): cal})
+    _write(ckpt_dict, out or ckpt)
+    return report
+
+
+def _report(ckpt: str, out: str | None, cal, dt: float, horizon: int, steps: list[int], before, after) -> dict:
+    """What a calibration did: its record and the windows' coverage and NLL before and after (kept in it too)."""
+    factors, powers = cal.factors(horizon), cal.powers(horizon)
     report = {"ckpt": ckpt, "out": out or ckpt, "calibration": cal.to_dict(), "steps": steps,
-              "seconds": [s * w.dt for s in steps],
+              "seconds": [s * dt for s in steps],
               "before": before.result["horizons"]["calibration"]["all"],
               "after": after.result["horizons"]["calibration"]["all"],
               "nll": {"before": before.result["calibration"]["nll"]["all"],
@@ -162,10 +176,18 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
               "scale": [float(np.median(factors[s - 1])) for s in steps],
               "power": None if cal.power is None else [float(np.median(powers[s - 1])) for s in steps]}
     cal.source["coverage"] = {"steps": steps, "before": report["before"], "after": report["after"]}
-    ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
-                                                     calibration_key(cal): cal})
-    _write(ckpt_dict, out or ckpt)
     return report
+
+
+def _set_observer(predictor, ckpt_dict: dict, on: bool) -> None:
+    """Records the observer's setting in the model's physics record (refused where it cannot apply)."""
+    from robomorph.model.files import DATA_INFO_KEY  # noqa: PLC0415
+
+    record = (ckpt_dict.get(DATA_INFO_KEY) or {}).get("physics") if predictor.model.config.n_params else None
+    if not record or predictor.inputs != "command":
+        raise CalibrationError("--observer needs a command-formulation model trained with --model.physics amortized "
+                               "(it corrects the simulated context, which total torques do not use)")
+    record["observer"] = predictor.physics_observer = bool(on)
 
 
 def _moving(w: Window, offset) -> Window:
@@ -283,7 +305,8 @@ def remove(ckpt: str, out: str | None = None, physics: str | None = None) -> boo
 
     ckpt_dict = read_model(ckpt)
     kept = read_calibrations(ckpt_dict.pop(CALIBRATION_KEY, None))
-    dropped = [k for k in kept if physics is None or k.split("/")[0] == physics]  # both window kinds of a mode
+    # Both window kinds of a mode, with and without the observer.
+    dropped = [k for k in kept if physics is None or k.split("/")[0].partition("+")[0] == physics]
     had = bool(dropped)
     kept = {k: c for k, c in kept.items() if k not in dropped}
     if kept:
@@ -318,7 +341,8 @@ def report_text(report: dict) -> str:
              f"{', '.join(src['data'])} ({'validation split' if src['split'] == 'val' else 'whole store'}), "
              f"context {src['context_len']}, horizon {src['horizon']}"
              + ("" if src.get("offset", "start") == "start" else f", windows from offset {src['offset']}")
-             + (f", physics mode {src['physics_mode']}" if src.get("physics_mode") else ""),
+             + (f", physics mode {src['physics_mode']}" if src.get("physics_mode") else "")
+             + (" with the observer's start velocity" if src.get("observer") else ""),
              markdown_table(["step", "seconds", "scale (median over channels)", *(["power (median)"] if power else []),
                              "±1σ before", "±1σ after", "±2σ before", "±2σ after"], rows)]
     if report["calibration"]["method"] == "power" and src["n"] < POWER_MIN_WINDOWS:

@@ -27,6 +27,7 @@ import torch
 from robomorph.core.errors import DeviceError, RoboMorphError
 from robomorph.core.inputs import check_model_inputs
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
+from robomorph.model.calibration import mode_key
 from robomorph.model.channels import arm_columns, pad, select
 from robomorph.model.checkpoint import CheckpointError, TrainedModel, load_trained
 
@@ -125,7 +126,7 @@ class Predictor:
             (:mod:`robomorph.sim.stiction`; command formulation); 1: the estimate alone (cheaper).
         physics_substeps: physics steps per sample of the hybrid's horizons after their first second (None:
             :func:`robomorph.sim.backbone.coarse_substeps`, 4 of the Panda's 8; 8 re-enacts the generator throughout).
-        physics_observer: commands: horizons from :func:`robomorph.sim.backbone.observed_velocity`.
+        physics_observer: commands: horizons from :func:`robomorph.sim.backbone.observed_velocity` (default: the record's).
         channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside, its
             outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
     """
@@ -143,7 +144,7 @@ class Predictor:
         self.physics, self.physics_mode = _backbone(model, data_info, self.inputs)
         self.physics_samples, self.physics_members = 8, 9
         self.physics_substeps: int | None = None
-        self.physics_observer: bool = False
+        self.physics_observer: bool = bool((self.physics or {}).get("observer", False))  # checkpoints before it: off
         self.channels: tuple[list[str], list[str]] | None = None
         self._hybrid = None
         if self.physics:
@@ -302,9 +303,14 @@ class Predictor:
 def _kind_calibrations(predictor: "Predictor") -> tuple:
     """(for windows that open their trajectory, for the others): the mode's calibrations, each
     standing in for the other where only one was fitted; (None, None) without any."""
-    mode = predictor.physics_mode if predictor.physics else "none"
+    mode = mode_key(predictor.physics_mode if predictor.physics else "none", observing(predictor))
     start, moving = predictor.model.calibrations.get(mode), predictor.model.calibrations.get(f"{mode}/moving")
     return start or moving, moving or start
+
+
+def observing(predictor: "Predictor") -> bool:
+    """True when the predictions start the horizon from the observer's velocity (commands' simulated contexts)."""
+    return bool(predictor.physics and predictor.physics_observer and predictor.inputs == "command")
 
 
 def _calibrated_rows(predictor: "Predictor", std: torch.Tensor, at_rest) -> torch.Tensor:

@@ -113,8 +113,9 @@ class PhysicsBackbone:
             coarse step's error is largest against it. Closed-loop horizons (formulations with
             state feedback) keep the recipe's step.
 
-    ``observe`` (settable, default False): commands start the horizon from
-    :func:`observed_velocity` instead of the simulated context's own end velocity.
+    ``observe`` (settable; default: the layout's ``observer``, absent and so False in records written
+    before 2026-11-26): commands start the horizon from :func:`observed_velocity` instead of the
+    simulated context's own end velocity.
     """
 
     # Query steps simulated at the recipe's physics step before ``substeps`` takes over (1 s at 60 Hz).
@@ -142,7 +143,7 @@ class PhysicsBackbone:
         self.open_loop = self.ident._feedback is None
         self._closed = None  # (full model, data, controller settings) for the formulations that need feedback
         self._kinematics = SiteKinematics(self.ident.model, "ee")
-        self.observe = False
+        self.observe = bool(layout.get("observer", False))
 
     @property
     def coarse(self) -> int:

@@ -193,7 +193,9 @@ class MetaModule(Steps, L.LightningModule):
         self._physics_on, self._layout = resolve_physics(self.hparams.physics if self.hparams.n_params else "none",
                                                          dm, stage)
         if self._physics_on:
-            self.data_info = {**self.data_info, "physics": {**self._layout, "mode": "amortized"}}
+            # The observer's start velocity (robomorph.sim.backbone.observed_velocity): on for models trained
+            # since it was measured (first step 2.5x lower); older records lack it and predict as before.
+            self.data_info = {**self.data_info, "physics": {**self._layout, "mode": "amortized", "observer": True}}
         if stage == "fit" and self.hparams.init_ckpt and not self.resuming and not getattr(self, "_transferred", False):
             start_from(self, self.hparams.init_ckpt)
             self._transferred = True

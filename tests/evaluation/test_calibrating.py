@@ -115,6 +115,8 @@ def test_refusals_are_one_line_exit_2_and_leave_the_checkpoint_untouched(gaussia
     before = open(ckpt, "rb").read()
     done = _cli("--ckpt", ckpt, "--data", store)
     assert done.returncode == 2 and "is a training store" in done.stderr and "Traceback" not in done.stderr
+    done = _cli("--ckpt", ckpt, "--observer", "on")  # a black box has no simulated context to correct
+    assert done.returncode == 2 and "--model.physics amortized" in done.stderr and "Traceback" not in done.stderr
     plain = _copy(tiny_checkpoint, tmp_path, "plain.ckpt")
     plain_bytes = open(plain, "rb").read()
     done = _cli("--ckpt", plain)

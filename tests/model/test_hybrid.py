@@ -258,7 +258,7 @@ def test_held_joints_predict_the_weighted_mean_of_the_friction_mixture(hybrid_ck
     bb, q = hyb.backbone, yc[..., 7:].astype(np.float64)
     for b in range(len(uc)):
         est = hyb._regressor.fit(bb.catalogue(q[b, 0]), q[b], uc[b].astype(np.float64))
-        members, w, qvel_end = mix.weigh(est, held[b], q[b], uc[b], np.zeros(7))
+        members, w, qvel_end = mix.weigh(est, held[b], q[b], uc[b], np.zeros(7), bb.observe)
         np.testing.assert_allclose(params[b], w @ members)  # what a controller simulates with
         k = len(w)
         ys = bb.simulate(members, np.repeat(q[b:b + 1], k, 0), np.repeat(uc[b:b + 1], k, 0), np.repeat(uq[b:b + 1], k, 0),
@@ -315,7 +315,7 @@ def test_each_physics_mode_keeps_its_own_std_calibration(hybrid_ckpt, simulated_
     assert main(["--ckpt", out, *common, "--physics", "learned"]) == 0
     assert "physics mode learned" in capsys.readouterr().out
     p = Predictor.from_checkpoint(out)
-    assert set(p.model.calibrations) == {"regression", "learned"}
+    assert set(p.model.calibrations) == {"regression+obs", "learned+obs"}  # fitted with the observer on
     scales = {}
     for mode in ("regression", "learned", "fused"):
         p.use_physics(mode)
@@ -324,7 +324,7 @@ def test_each_physics_mode_keeps_its_own_std_calibration(hybrid_ckpt, simulated_
     assert Predictor.from_checkpoint(hybrid_ckpt).calibration is None  # --out left the original alone
     assert main(["--ckpt", out, "--remove", "--physics", "learned"]) == 0
     kept = Predictor.from_checkpoint(out)
-    assert set(kept.model.calibrations) == {"regression"} and kept.calibration.scale == scales["regression"]
+    assert set(kept.model.calibrations) == {"regression+obs"} and kept.calibration.scale == scales["regression"]
     assert main(["--ckpt", out, "--remove", "--physics", "learned"]) == 0
     assert "no std calibration of physics mode learned" in capsys.readouterr().out
 
@@ -345,8 +345,8 @@ def test_windows_that_open_their_trajectory_and_the_others_each_get_their_kinds_
     only_start = Predictor.from_checkpoint(out)
     assert main(["--ckpt", out, *common, "--offset", "random", "--seed", "1"]) == 0
     p = Predictor.from_checkpoint(out)
-    assert set(p.model.calibrations) == {"regression", "regression/moving"}
-    start, moving = p.model.calibrations["regression"], p.model.calibrations["regression/moving"]
+    assert set(p.model.calibrations) == {"regression+obs", "regression+obs/moving"}
+    start, moving = p.model.calibrations["regression+obs"], p.model.calibrations["regression+obs/moving"]
     assert start.scale != moving.scale and p.calibration is start
     uc, yc, uq, *_ = _windows(heldout, n=2)
     rest = np.array([True, False])
@@ -379,6 +379,6 @@ def test_the_demo_calibrates_a_hybrid_for_start_windows_and_for_a_moving_robot(h
     shutil.copy(hybrid_ckpt, ckpt)
     assert calibrate_std(ckpt) is True
     cals = Predictor.from_checkpoint(ckpt).model.calibrations
-    assert set(cals) == {"regression", "regression/moving"}
-    assert cals["regression/moving"].source["offset"] == "random"
+    assert set(cals) == {"regression+obs", "regression+obs/moving"}
+    assert cals["regression+obs/moving"].source["offset"] == "random"
     assert "windows from offset random" in capsys.readouterr().out
