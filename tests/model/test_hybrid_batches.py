@@ -47,20 +47,27 @@ def test_the_observers_velocity_corrects_a_drifting_context_toward_the_true_one(
     assert before > 1e-3 and after < 0.5 * before
 
 
-def test_the_observer_is_the_same_in_the_batched_and_the_window_by_window_context(command_store):
-    """Formulations with state feedback simulate each context on its own (the fit's problem); the
-    observer corrects those the same way as the batched open-loop ones."""
-    from robomorph.sim.backbone import PhysicsBackbone, parameter_layout
+def test_the_observer_reads_the_contexts_tail_and_agrees_with_the_whole_context(command_store):
+    """Open-loop contexts simulate only the last OBSERVED_TAIL samples for the observer: what came
+    before cannot change the velocity, which agrees with the whole context simulated (the path
+    of formulations with state feedback, window by window) far within the correction itself."""
+    from robomorph.sim.backbone import OBSERVED_TAIL, PhysicsBackbone, parameter_layout
 
     uc, yc, _, _, _, attrs = _windows(command_store, n=3)
     q, u, rest = yc[..., 7:].astype(np.float64), uc.astype(np.float64), np.zeros((3, 7))
+    early = slice(0, q.shape[1] - OBSERVED_TAIL - 3)  # before the tail and its central difference
+    assert early.stop > 2
+    q2, u2 = q.copy(), u.copy()
+    q2[:, early], u2[:, early] = q[::-1, early], -u[:, early]  # another past
     with PhysicsBackbone(parameter_layout(attrs), "command") as bb:
         catalogue = np.stack([bb.catalogue(qq) for qq in q[:, 0]])
         bb.observe = True
-        batched = bb.context_velocity(catalogue, q, u, rest)
-        bb.open_loop = False  # the window-by-window path
-        one_by_one = bb.context_velocity(catalogue, q, u, rest)
+        tail = bb.context_velocity(catalogue, q, u, rest)
+        np.testing.assert_array_equal(bb.context_velocity(catalogue, q2, u2, rest), tail)
+        bb.open_loop = False  # the window-by-window path: the whole context
+        whole = bb.context_velocity(catalogue, q, u, rest)
         bb.observe = False
         plain = bb.context_velocity(catalogue, q, u, rest)
-    np.testing.assert_allclose(one_by_one, batched, rtol=0, atol=1e-9)
-    assert np.abs(one_by_one - plain).max() > 1e-3  # the correction acts in both paths
+    correction = np.abs(whole - plain).max()
+    assert correction > 1e-3  # the observer acts
+    assert np.abs(tail - whole).max() < 0.05 * correction, (np.abs(tail - whole).max(), correction)
