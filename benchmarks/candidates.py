@@ -100,6 +100,7 @@ def main(argv=None) -> int:
     p.add_argument("--csv", default=None, help="every robot's row")
     p.add_argument("--md", default=None, help="the printed table, with its provenance")
     args = p.parse_args(argv)
+    prov = provenance()  # of the code that runs: taken before this run rewrites its own (tracked) result files
     print_provenance()
     ds = open_store(args.test)
     c, h = args.context, 60
@@ -146,10 +147,10 @@ def main(argv=None) -> int:
         write_markdown(args.md, f"# Cheaper physics for {args.candidates} candidates of 60 steps ({args.test}, "
                        f"{args.n} robots)\n\nJoint RMS difference to the exact candidates (the recipe's physics step) "
                        "[mrad], mean over the robots; the candidates' spread about their mean at step 60; the "
-                       "milliseconds per call, median over the robots.\n\n" + table + "\n", provenance())
+                       "milliseconds per call, median over the robots.\n\n" + table + "\n", prov)
         print(f"written: {args.md}")
     if args.csv:
-        write_rows(args.csv, rows, provenance())
+        write_rows(args.csv, rows, prov)
         print(f"written: {args.csv}")
     return 0
 

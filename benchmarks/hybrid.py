@@ -88,7 +88,7 @@ def configure(pred: Predictor, spec: str) -> str:
     return mode
 
 
-def latency(args) -> None:
+def latency(args, prov: dict) -> None:
     """Median wall time of Predictor.simulate per mode: one trajectory, and 256 candidates on one context."""
     from robomorph.data.store import open_store  # noqa: PLC0415
 
@@ -113,7 +113,7 @@ def latency(args) -> None:
             rows.append({"mode": spec, "call": what, "ms_median": 1e3 * float(np.median(times))})
     print(markdown_table(["mode", "call", "ms (median)"], [[r["mode"], r["call"], r["ms_median"]] for r in rows]))
     if args.latency_csv:
-        write_rows(args.latency_csv, rows, provenance())
+        write_rows(args.latency_csv, rows, prov)
         print(f"written: {args.latency_csv}")
 
 
@@ -144,9 +144,10 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--latency-csv", default=None)
     args = p.parse_args(argv)
+    prov = provenance()  # of the code that runs: taken before this run rewrites its own (tracked) result files
     print_provenance()
     if args.latency:
-        latency(args)
+        latency(args, prov)
     base = Predictor.from_checkpoint(args.ckpt)
     info = base.data_info
     rows = []
@@ -198,10 +199,10 @@ def main(argv=None) -> int:
                        "context sample; random-offset windows have a shorter horizon), R² (approach 1), the "
                        "joints' ±1σ/±2σ coverage at the reported steps (sources with a std: the mean, and the "
                        "lowest and highest step in brackets), and the wall time per window on this machine.\n\n"
-                       + table + "\n", provenance())
+                       + table + "\n", prov)
         print(f"written: {args.md}")
     if args.csv:
-        write_rows(args.csv, rows, provenance())
+        write_rows(args.csv, rows, prov)
         print(f"written: {args.csv}")
     return 0
 
