@@ -358,4 +358,7 @@ def _bounded_lstsq(hess: np.ndarray, grad: np.ndarray) -> np.ndarray:
 
     chol = np.linalg.cholesky(hess)  # H = L L'
     rhs = np.linalg.solve(chol, grad)  # ||L' z - L^-1 g||^2 = z'Hz - 2 g'z + const
+    z = np.linalg.solve(chol.T, rhs)  # the unconstrained minimum
+    if np.all(np.abs(z) <= 1.0):
+        return z  # inside the box, so also the box's minimum (a convex problem): no bounded solve
     return lsq_linear(chol.T, rhs, bounds=(-1.0, 1.0), method="bvls").x
