@@ -124,7 +124,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
                            train_blocks=training_data.reader(ckpt, arx_train_data), batch_size=batch_size)
     result = scores.result
     result["meta"] = {"ckpt": ckpt, "data": data, **result["meta"], "offset": offset, "seed": seed,
-                      **in_sample(info, data), **_smoothing(predictor)}  # (before the sweeps predict again)
+                      **in_sample(info, data), **_smoothing(predictor), **_physics(predictor)}  # (before the sweeps)
     result["meta"]["baseline_notes"].update({name: {"ckpt": path} for name, path in (compare or {}).items()})
     # A result folder says what made it (command, commit, date, machine), as every result file does.
     result["provenance"] = provenance()
@@ -156,6 +156,17 @@ def _write_files(out: str, result: dict) -> None:
     write_horizons_csv(os.path.join(out, "horizons.csv"), result["horizons"], result.get("provenance"))
     write_table(os.path.join(out, "table.md"), result)
     write_json(os.path.join(out, "metrics.json"), result)
+
+
+def _physics(predictor) -> dict:
+    """``{"physics": how a hybrid predicted}`` (mode, observer, friction-mixture members, physics steps per
+    sample after the first second; None: the default), else {} (a black-box model, or its decoder)."""
+    if not getattr(predictor, "physics", None) or predictor.physics_mode == "none":
+        return {}
+    from robomorph.model.predictor import observing  # noqa: PLC0415
+
+    return {"physics": {"mode": predictor.physics_mode, "observer": observing(predictor),
+                        "members": predictor.physics_members, "substeps": predictor.physics_substeps}}
 
 
 def _smoothing(predictor) -> dict:

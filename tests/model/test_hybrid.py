@@ -231,6 +231,8 @@ def test_evaluate_physics_modes_and_refusal(hybrid_ckpt, tiny_checkpoint, comman
     res = json.loads((out / "metrics.json").read_text())
     assert res["horizons"]["steps"][0] == 1 and "model" in res["horizons"]["rms"]
     assert "calibration" in res["horizons"]  # the hybrid gives a std (parameter draws)
+    assert res["meta"]["physics"]["mode"] == "learned" and res["meta"]["physics"]["observer"] is True
+    assert "mode `learned`, horizons from the observer's start velocity" in (out / "table.md").read_text()
     capsys.readouterr()
     assert main(["--ckpt", tiny_checkpoint, "--data", command_store, "--n", "2", "--physics", "regression",
                  "--inputs", "total", "--out", str(tmp_path / "e2")]) == 2
