@@ -23,19 +23,19 @@ error on joint 7, against 0.08 with the constraint's own linearization).
 Velocities and accelerations are central differences of the recorded joint positions. A
 second difference spans two frames of zero-order-held torque, so it is matched with the
 mean of the two torques. Cost: one inverse-dynamics pass over the context for the catalogue
-robot, which also gives the link masses' columns (each body's share of the torque), and one
-for all the friction losses (damping and armature columns are analytic); two more for each
-re-linearization. Six passes for the Panda's three solves (there were 14 with a pass per link
-mass: the same fits to four digits on 64 held-out robots, 8 % less time for a whole
-prediction), about ten milliseconds per 200-step context on one core, against seconds for
-the nonlinear fit over rollouts, which it can start (``refined``).
+robot, which also gives the link masses' columns (each body's share of the torque) and the friction
+losses' (each constraint's state: saturated, +-1; else 0); one more per re-linearization, and for the
+last solve one bumping all friction losses (the held joints' test keeps the bump's margin). Four passes
+for the Panda's three solves (14 with a pass per link mass; 6 with every solve's friction bumped: 20.3
+-> 17.2 ms per single-robot window, 64 robots, interleaved), a few milliseconds per 200-step context
+on one core, against seconds for the nonlinear fit over rollouts, which it can start (``refined``).
 
 A joint whose friction loss never saturated at the estimate is *held*: its column is zero, and
 the solves cannot move it. That is right for a joint that stood still (the context only bounds
 its friction loss: :mod:`robomorph.sim.stiction`), but a joint that slid slowly at a friction
 loss below the estimate's can look held too, the soft constraint's viscous regime explaining
 its motion. So where a joint held, the solves are repeated from the low end of its friction
-range (two more solves, four passes), where its column is the Coulomb force's, and that fit is
+range (two more solves, three passes), where its column is the Coulomb force's, and that fit is
 kept if it explains the context's torques much better (:data:`SLIP_RATIO`); a joint that truly
 held fits worse from below, a constant Coulomb force where a varying holding force was needed.
 """
@@ -52,7 +52,7 @@ import numpy as np
 # of ``ms_cal`` (the ratio was 0.15 for the one context whose wrist slid, 0.93 or more for the other
 # 45 with a held joint); on the 64 held-out robots it was 0.29-0.47 for four and 0.97 or more for 42.
 SLIP_RATIO = 0.5
-# Solves of the re-try (two passes each). With one, the held-out ratios were 0.31-0.56 and 0.97 or
+# Solves of the re-try (a pass each, and the last a bump). With one, the held-out ratios were 0.31-0.56 and 0.97 or
 # more (one context nearer the threshold, the same predictions to three digits): two keep the gap.
 RETRY_SOLVES = 2
 # The step of a centre-of-mass coordinate's column [m] (the randomization moves them by up to 1 cm).
@@ -170,8 +170,10 @@ class RegressorIdentifier:
             # one pass for the torque and one for the friction columns per extra iteration. The first
             # pass also keeps each body's share of the torque: the link masses' columns.
             fresh = it == 0 and cols is None
-            tau0, bodies = self._inverse(params, qs, v, a, bodies=fresh and not self.exact_columns)
-            cols = self._columns(params, qs, v, a, tau0, None if fresh else cols, bodies)
+            tau0, bodies, signs = self._inverse(params, qs, v, a, bodies=fresh and not self.exact_columns)
+            # The last solve's friction columns bumped (a held joint, :func:`_held`, keeps the bump's margin).
+            signs = None if it == iterations - 1 else signs  # the others: from the torque's pass, a pass fewer
+            cols = self._columns(params, qs, v, a, tau0, None if fresh else cols, bodies, signs)
             A_z = cols.reshape(-1, len(index)) * (self._half / self.sigma)[None, :]
             x, b_z, gram, atb = _solve(A_z, (tau - tau0).ravel() / self.sigma, z_lin, z_base, self.prior)
             params[index] = self._mid + x * self._half
@@ -192,14 +194,15 @@ class RegressorIdentifier:
         self.last_held = _held(self._friction, alt.cols, self._nj)
         return alt
 
-    def _columns(self, params: np.ndarray, qs: np.ndarray, v: np.ndarray, a: np.ndarray,
-                 tau0: np.ndarray, previous: np.ndarray | None = None, bodies: np.ndarray | None = None) -> np.ndarray:
+    def _columns(self, params: np.ndarray, qs: np.ndarray, v: np.ndarray, a: np.ndarray, tau0: np.ndarray,
+                 previous: np.ndarray | None = None, bodies: np.ndarray | None = None,
+                 signs: np.ndarray | None = None) -> np.ndarray:
         """(T, nj, n) the regressor: each identified parameter's torque per unit, at every state.
 
         ``previous``: the columns at an earlier estimate, of which only the friction losses'
         are taken again (the others do not depend on where they are taken, to first order).
         ``bodies``: (T, nj, nbody) each body's share of the torque (:meth:`_inverse`), from which
-        the link masses' columns are read instead of a pass per mass."""
+        the link masses' columns are read instead of a pass per mass. ``signs``: the friction losses' (:meth:`_inverse`)."""
         index = self.space.index
         cols = np.zeros((len(qs), self._nj, len(index))) if previous is None else previous.copy()
         h = self.model.opt.timestep
@@ -229,7 +232,10 @@ class RegressorIdentifier:
                 # A link's mass (inertia scaled with it) moves every joint's torque: a difference
                 # of MuJoCo's own inverse dynamics (exact for a mass: the torque is linear in it).
                 cols[:, :, c] = _bumped(self, params, k, 0.01 * max(abs(params[k]), 1e-3), (qs, v, a), tau0)
-        if friction:
+        if friction and signs is not None:
+            for c, k, j in friction:  # read from the torque's own pass (:func:`_friction_signs`)
+                cols[:, j, c] = signs[:, j]
+        elif friction:
             # A joint's friction loss is a soft constraint on that joint alone (its constraint
             # Jacobian row is the joint's unit vector), so all of them are bumped in one pass and
             # each joint's torque change is its own column: a linearization (Coulomb when
@@ -245,24 +251,54 @@ class RegressorIdentifier:
         return cols
 
     def _inverse(self, params: np.ndarray, q: np.ndarray, v: np.ndarray, a: np.ndarray,
-                 bodies: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
-        """(T, 7) joint torques of the robot ``params`` at each state (gravity as the model has it)
-        and, with ``bodies``, (T, 7, nbody) each body's share of them (:func:`_shares`; else None)."""
-        m, d, nj = self.model, self.data, self._nj
-        self.randomizer.apply(m, params)
-        out = np.empty((len(q), nj))
-        cdof = np.empty((len(q), nj, 6)) if bodies else None
-        cfrc = np.empty((len(q), m.nbody, 6)) if bodies else None
-        # Views fetched once: each attribute access builds a new array, a fifth of the loop's time.
-        qpos, qvel, qacc, qfrc, inverse = d.qpos[:nj], d.qvel[:nj], d.qacc[:nj], d.qfrc_inverse[:nj], mujoco.mj_inverse
-        for t in range(len(q)):
-            qpos[:], qvel[:], qacc[:] = q[t], v[t], a[t]
-            inverse(m, d)
-            out[t] = qfrc
-            if bodies:
-                mujoco.mj_rnePostConstraint(m, d)  # fills cfrc_int from the given accelerations
-                cdof[t], cfrc[t] = d.cdof[:nj], d.cfrc_int
-        return out, (_shares(m, cdof, cfrc, self._carried) if bodies else None)
+                 bodies: bool = False) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        self.randomizer.apply(self.model, params)  # then its inverse dynamics (:func:`_inverse_pass`)
+        return _inverse_pass(self.model, self.data, self._nj, self._carried, q, v, a, bodies)
+
+
+def _inverse_pass(m: mujoco.MjModel, d: mujoco.MjData, nj: int, carried: np.ndarray, q: np.ndarray, v: np.ndarray,
+                  a: np.ndarray, bodies: bool = False) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(T, 7) joint torques of the model ``m`` at each state (gravity as the model has it); with
+    ``bodies``, (T, 7, nbody) each body's share of them (:func:`_shares`; else None); and (T, 7) each
+    joint's friction-loss column (:func:`_friction_signs`; None where the constraint rows are unreadable)."""
+    out = np.empty((len(q), nj))
+    cdof = np.empty((len(q), nj, 6)) if bodies else None
+    cfrc = np.empty((len(q), m.nbody, 6)) if bodies else None
+    states = np.zeros((len(q), nj), dtype=np.int32)
+    nf, dofs = 0, None  # friction rows, read once the first state shows they come first
+    # Views fetched once: each attribute access builds a new array, a fifth of the loop's time.
+    qpos, qvel, qacc, qfrc, inverse = d.qpos[:nj], d.qvel[:nj], d.qacc[:nj], d.qfrc_inverse[:nj], mujoco.mj_inverse
+    for t in range(len(q)):
+        qpos[:], qvel[:], qacc[:] = q[t], v[t], a[t]
+        inverse(m, d)
+        out[t] = qfrc
+        if t == 0:
+            nf, dofs = _friction_rows(d, nj)
+        if nf:
+            states[t, :nf] = d.efc_state[:nf]
+        if bodies:
+            mujoco.mj_rnePostConstraint(m, d)  # fills cfrc_int from the given accelerations
+            cdof[t], cfrc[t] = d.cdof[:nj], d.cfrc_int
+    shares = _shares(m, cdof, cfrc, carried) if bodies else None
+    return out, shares, (_friction_signs(states[:, :nf], dofs, nj) if nf else None)
+
+
+def _friction_rows(d: mujoco.MjData, nj: int) -> tuple[int, np.ndarray | None]:
+    """(rows, their joints) of the friction-loss constraints where they lead the rows (MuJoCo's order), else (0, None)."""
+    nf = int(d.nf)
+    if d.ne or not nf or np.any(d.efc_type[:nf] != mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF):
+        return 0, None
+    dofs = d.efc_id[:nf].copy()
+    return (nf, dofs) if np.all(dofs < nj) else (0, None)
+
+
+def _friction_signs(states: np.ndarray, dofs: np.ndarray, nj: int) -> np.ndarray:
+    """(T, nj) the torque's change per unit of each joint's friction loss: its constraint saturated (Coulomb:
+    +1 or -1 with the force's side), or not (0: the force does not depend on it). The derivative that a bumped
+    pass approximates (equal on 5,542 of 5,544 samples of four held-out contexts, the others within 1 % of the bend)."""
+    out, kinds = np.zeros((len(states), nj)), mujoco.mjtConstraintState
+    out[:, dofs] = (states == int(kinds.mjCNSTRSTATE_LINEARPOS)) * 1.0 - (states == int(kinds.mjCNSTRSTATE_LINEARNEG))
+    return out
 
 
 def _bumped(ident: RegressorIdentifier, params: np.ndarray, k: int, step: float, states: tuple,

@@ -100,16 +100,19 @@ def test_the_shortcut_columns_match_mujocos_inverse_dynamics(stores):
     q = y[0, :, 7:]
     v, a = (q[2:] - q[:-2]) / (2 * reg.dt), (q[2:] - 2 * q[1:-1] + q[:-2]) / reg.dt ** 2
     params = NominalPhysics(ds.attrs, "command").params(q[0])
-    tau0, bodies = reg._inverse(params, q[1:-1], v, a, bodies=True)
+    tau0, bodies, signs = reg._inverse(params, q[1:-1], v, a, bodies=True)
     fast = reg._columns(params, q[1:-1], v, a, tau0, None, bodies)
+    read = reg._columns(params, q[1:-1], v, a, tau0, None, bodies, signs)  # friction from the torque's pass
     slow = exact._columns(params, q[1:-1], v, a, tau0)
     kinds = [reg.randomizer.names[k].split("_", 1)[0] for k in space.index]
     for c, kind in enumerate(kinds):
         if kind == "frictionloss":
             np.testing.assert_allclose(fast[:, :, c], slow[:, :, c], rtol=0, atol=1e-9 * np.abs(slow[:, :, c]).max())
+            assert np.mean(np.isclose(read[:, :, c], slow[:, :, c], atol=1e-6)) > 0.99  # but within the bump of the bend
         if kind == "mass":  # the bodies' shares leave out the holding force's dependence on the inertia
             np.testing.assert_allclose(fast[:, :, c], slow[:, :, c], rtol=0, atol=0.05 * np.abs(slow[:, :, c]).max())
     assert kinds.count("frictionloss") == 7 and kinds.count("mass") == 8
+    assert signs is not None and np.abs(signs).max() == 1.0  # some joint slid: Coulomb columns
     for b in range(len(y)):
         base = NominalPhysics(ds.attrs, "command").params(y[b, 0, 7:])
         z_fast, z_slow = (space.to_unit(r.fit(base, y[b, :, 7:], u[b])[space.index]) for r in (reg, exact))
@@ -131,7 +134,7 @@ def test_the_link_masses_columns_are_each_bodys_share_of_mujocos_inverse_dynamic
     q = ds.read("y").astype(np.float64)[1, :, 7:]
     v, a = (q[2:] - q[:-2]) / (2 * reg.dt), (q[2:] - 2 * q[1:-1] + q[:-2]) / reg.dt ** 2
     params = NominalPhysics(ds.attrs, inputs).params(q[0])
-    tau0, bodies = reg._inverse(params, q[1:-1], v, a, bodies=True)
+    tau0, bodies, _ = reg._inverse(params, q[1:-1], v, a, bodies=True)
     np.testing.assert_array_equal(tau0, exact._inverse(params, q[1:-1], v, a)[0])
     fast = reg._columns(params, q[1:-1], v, a, tau0, None, bodies)
     slow = exact._columns(params, q[1:-1], v, a, tau0)
