@@ -159,13 +159,16 @@ def _write_files(out: str, result: dict) -> None:
 
 
 def _physics(predictor) -> dict:
-    """``{"physics": how a hybrid predicted}`` (mode, observer, friction-mixture members, physics steps per
-    sample after the first second; None: the default), else {} (a black-box model, or its decoder)."""
+    """``{"physics": how a hybrid predicted}`` (mode, observer, friction-mixture members and whether the mode
+    uses the mixture, physics steps per sample after the first second; None: the default), else {} (a
+    black-box model, or its decoder)."""
     if not getattr(predictor, "physics", None) or predictor.physics_mode == "none":
         return {}
+    from robomorph.model.hybrid import MIXED_MODES  # noqa: PLC0415
     from robomorph.model.predictor import observing  # noqa: PLC0415
 
-    return {"physics": {"mode": predictor.physics_mode, "observer": observing(predictor),
+    mixture = predictor.inputs == "command" and predictor.physics_mode in MIXED_MODES and predictor.physics_members > 1
+    return {"physics": {"mode": predictor.physics_mode, "observer": observing(predictor), "mixture": mixture,
                         "members": predictor.physics_members, "substeps": predictor.physics_substeps}}
 
 

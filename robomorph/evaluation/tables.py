@@ -106,7 +106,7 @@ def table_markdown(result: dict) -> str:
     if phys := meta.get("physics"):
         lines += ["", f"Model predicted on its physics backbone: mode `{phys['mode']}`"
                   + (", horizons from the observer's start velocity" if phys.get("observer") else "")
-                  + (f", friction mixture of {phys['members']} robots" if (phys.get("members") or 1) > 1 else "") + "."]
+                  + (f", friction mixture of {phys['members']} robots" if phys.get("mixture") else "") + "."]
     if note := smoothing_note(meta.get("smoothing")):
         lines += ["", f"**Model: {note}.**"]
     if "horizons" in result:

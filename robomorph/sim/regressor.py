@@ -170,9 +170,9 @@ class RegressorIdentifier:
             # one pass for the torque and one for the friction columns per extra iteration. The first
             # pass also keeps each body's share of the torque: the link masses' columns.
             fresh = it == 0 and cols is None
-            tau0, bodies, signs = self._inverse(params, qs, v, a, bodies=fresh and not self.exact_columns)
-            # The last solve's friction columns bumped (a held joint, :func:`_held`, keeps the bump's margin).
-            signs = None if it == iterations - 1 else signs  # the others: from the torque's pass, a pass fewer
+            # The last solve's friction columns bumped (a held joint, :func:`_held`, keeps the bump's margin);
+            # the others read from the torque's own pass, a pass fewer each.
+            tau0, bodies, signs = self._inverse(params, qs, v, a, fresh and not self.exact_columns, it < iterations - 1)
             cols = self._columns(params, qs, v, a, tau0, None if fresh else cols, bodies, signs)
             A_z = cols.reshape(-1, len(index)) * (self._half / self.sigma)[None, :]
             x, b_z, gram, atb = _solve(A_z, (tau - tau0).ravel() / self.sigma, z_lin, z_base, self.prior)
@@ -250,17 +250,17 @@ class RegressorIdentifier:
                 cols[:, j, c] = diff[:, j] / steps[c]
         return cols
 
-    def _inverse(self, params: np.ndarray, q: np.ndarray, v: np.ndarray, a: np.ndarray,
-                 bodies: bool = False) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    def _inverse(self, params: np.ndarray, q: np.ndarray, v: np.ndarray, a: np.ndarray, bodies: bool = False,
+                 friction: bool = False) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         self.randomizer.apply(self.model, params)  # then its inverse dynamics (:func:`_inverse_pass`)
-        return _inverse_pass(self.model, self.data, self._nj, self._carried, q, v, a, bodies)
+        return _inverse_pass(self.model, self.data, self._nj, self._carried, q, v, a, bodies, friction)
 
 
 def _inverse_pass(m: mujoco.MjModel, d: mujoco.MjData, nj: int, carried: np.ndarray, q: np.ndarray, v: np.ndarray,
-                  a: np.ndarray, bodies: bool = False) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+                  a: np.ndarray, bodies: bool = False, friction: bool = False) -> tuple:
     """(T, 7) joint torques of the model ``m`` at each state (gravity as the model has it); with
-    ``bodies``, (T, 7, nbody) each body's share of them (:func:`_shares`; else None); and (T, 7) each
-    joint's friction-loss column (:func:`_friction_signs`; None where the constraint rows are unreadable)."""
+    ``bodies``, (T, 7, nbody) each body's share of them (:func:`_shares`; else None); with ``friction``,
+    (T, 7) each joint's friction-loss column (:func:`_friction_signs`; else, or where unreadable, None)."""
     out = np.empty((len(q), nj))
     cdof = np.empty((len(q), nj, 6)) if bodies else None
     cfrc = np.empty((len(q), m.nbody, 6)) if bodies else None
@@ -272,7 +272,7 @@ def _inverse_pass(m: mujoco.MjModel, d: mujoco.MjData, nj: int, carried: np.ndar
         qpos[:], qvel[:], qacc[:] = q[t], v[t], a[t]
         inverse(m, d)
         out[t] = qfrc
-        if t == 0:
+        if t == 0 and friction:
             nf, dofs = _friction_rows(d, nj)
         if nf:
             states[t, :nf] = d.efc_state[:nf]

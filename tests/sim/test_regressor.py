@@ -100,7 +100,7 @@ def test_the_shortcut_columns_match_mujocos_inverse_dynamics(stores):
     q = y[0, :, 7:]
     v, a = (q[2:] - q[:-2]) / (2 * reg.dt), (q[2:] - 2 * q[1:-1] + q[:-2]) / reg.dt ** 2
     params = NominalPhysics(ds.attrs, "command").params(q[0])
-    tau0, bodies, signs = reg._inverse(params, q[1:-1], v, a, bodies=True)
+    tau0, bodies, signs = reg._inverse(params, q[1:-1], v, a, bodies=True, friction=True)
     fast = reg._columns(params, q[1:-1], v, a, tau0, None, bodies)
     read = reg._columns(params, q[1:-1], v, a, tau0, None, bodies, signs)  # friction from the torque's pass
     slow = exact._columns(params, q[1:-1], v, a, tau0)
