@@ -12,7 +12,11 @@ parameters (so identification is out of the picture), in the command formulation
   physics steps per frame), every candidate the mean plus the linear response to its deviation
   (``dx[t+1] = A[t] dx[t] + B[t] du[t]``); once with the robot as it is, once with its joints'
   friction losses set to zero (against the exact frictionless candidates): dry friction is the
-  one non-smooth term of the Panda's dynamics.
+  one non-smooth term of the Panda's dynamics;
+- **tangent-linear, dry friction corrected** (:mod:`robomorph.sim.tangent`, what
+  ``Predictor.physics_candidates = "tangent"`` simulates): the same, with the friction torque each
+  candidate's linear response implies held inside the friction losses, and sliding joints whose
+  velocity would cross zero stopped.
 
 Candidates: the recorded query torques plus white noise of ``--sigma`` N m (a sampling
 planner's perturbations). Printed and written: the joint RMS difference to the exact candidates
@@ -35,6 +39,7 @@ from robomorph.core.errors import UsageError, run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
 from robomorph.data.store import open_store
 from robomorph.sim.backbone import PhysicsBackbone, parameter_layout
+from robomorph.sim.tangent import candidate_joints
 
 STEPS = (1, 15, 60)
 
@@ -124,6 +129,8 @@ def main(argv=None) -> int:
                 runs = [(f"exact, {ss} physics steps per sample", False,
                          lambda ss=ss: exact(bb, params[b], *start, torque, ss)) for ss in (4, 2, 1)]
                 runs += [("tangent-linear", False, lambda: tangent_joints(bb, params[b], *start, torque)),
+                         ("tangent-linear, dry friction corrected", False,
+                          lambda: candidate_joints(bb, params[b], *start, torque)),
                          ("tangent-linear, no friction loss", True,
                           lambda: tangent_joints(bb, frictionless, *start, torque))]
                 for name, nofric, fn in [("exact (reference)", False, None)] + runs:

@@ -5,15 +5,13 @@
     pred = Predictor.from_pretrained("model/")   # or a folder written by robomorph export
     y_query = pred.simulate(u_ctx, y_ctx, u_query)   # physical units in and out
 
-This is what a model predictive controller calls: given a window of measured torques and
-outputs of the robot at hand (the context) and candidate future torques, it returns the
-predicted outputs. Normalization is handled inside (statistics stored in the checkpoint).
-Only ``robomorph.model`` and ``robomorph.core`` are needed: no training code, no Lightning.
+This is what a model predictive controller calls: given a window of measured torques and outputs of the
+robot at hand (the context) and candidate future torques, it returns the predicted outputs. Normalization is
+handled inside (statistics stored in the checkpoint). Only ``robomorph.model`` and ``robomorph.core`` are needed.
 
-A model trained with ``data.normalization: paper_window`` (the paper's protocol) rescales
-each window with the mean and std of the very outputs it predicts; ``simulate`` refuses it
-unless the caller passes those statistics explicitly (``y_query_stats``), which only an
-evaluation against recorded outputs can do.
+A model trained with ``data.normalization: paper_window`` (the paper's protocol) rescales each window with the
+mean and std of the very outputs it predicts; ``simulate`` refuses it unless the caller passes those statistics
+explicitly (``y_query_stats``), which only an evaluation against recorded outputs can do.
 """
 
 from __future__ import annotations
@@ -127,6 +125,7 @@ class Predictor:
         physics_substeps: physics steps per sample of the hybrid's horizons after their first second (None:
             :func:`robomorph.sim.backbone.coarse_substeps`, 4 of the Panda's 8; 8 re-enacts the generator throughout).
         physics_observer: commands: horizons from :func:`robomorph.sim.backbone.observed_velocity` (default: the record's).
+        physics_candidates: many horizons on one context: ``exact``, or ``tangent`` (:mod:`robomorph.sim.tangent`).
         channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside, its
             outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
     """
@@ -145,7 +144,7 @@ class Predictor:
         self.physics_samples, self.physics_members = 8, 9
         self.physics_substeps: int | None = None
         self.physics_observer: bool = bool((self.physics or {}).get("observer", False))  # checkpoints before it: off
-        self.channels: tuple[list[str], list[str]] | None = None
+        self.physics_candidates, self.channels = "exact", None
         self._hybrid = None
         if self.physics:
             self.has_std = True  # the spread over parameter draws
@@ -157,10 +156,10 @@ class Predictor:
 
         if not self.physics:
             raise PredictionError("this model has no physics backbone (it was trained with --model.physics none)")
-        if self._hybrid is None:
-            self._hybrid = Hybrid(self.model, self.physics, self.inputs)
+        self._hybrid = self._hybrid or Hybrid(self.model, self.physics, self.inputs)
         self._hybrid.samples, self._hybrid.members = self.physics_samples, self.physics_members
-        self._hybrid.backbone.coarse, self._hybrid.backbone.observe = self.physics_substeps, self.physics_observer
+        bb = self._hybrid.backbone
+        bb.coarse, bb.observe, bb.candidates = self.physics_substeps, self.physics_observer, self.physics_candidates
         return self._hybrid
 
     def check_inputs(self, inputs: str | None) -> None:
@@ -236,7 +235,6 @@ class Predictor:
             f"the model's predictions are non-finite (NaN or inf) for batch rows {rows[:10]}: the inputs reach "
             f"{scale:.3g} training standard deviations, far outside what the model was trained on; check their "
             "units and scale (the checkpoint expects the training data's)")
-
 
     @torch.no_grad()
     def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, inputs: str | None = None,

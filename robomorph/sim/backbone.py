@@ -38,6 +38,9 @@ from robomorph.core.errors import RoboMorphError
 from robomorph.sim.kinematics import SiteKinematics
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
+# Many horizons of one robot from one state (a planner's candidates): ``exact`` rollouts, or ``tangent``
+# (:mod:`robomorph.sim.tangent`: one exact rollout and a linear model about it, dry friction corrected).
+CANDIDATES = ("exact", "tangent")
 
 
 class BackboneError(RoboMorphError, ValueError):
@@ -150,6 +153,7 @@ class PhysicsBackbone:
         self._closed = None  # (full model, data, controller settings) for the formulations that need feedback
         self._kinematics = SiteKinematics(self.ident.model, "ee")
         self.observe = bool(layout.get("observer", False))
+        self.candidates = "exact"
 
     @property
     def coarse(self) -> int:
@@ -161,6 +165,17 @@ class PhysicsBackbone:
         if substeps is not None and (isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1):
             raise BackboneError(f"physics substeps must be a positive integer (physics steps per sample), got {substeps!r}")
         self._coarse = int(substeps or coarse_substeps(self.recipe))
+
+    @property
+    def candidates(self) -> str:
+        """How many horizons of one robot from one state are simulated: ``exact`` or ``tangent`` (settable)."""
+        return self._candidates
+
+    @candidates.setter
+    def candidates(self, how: str) -> None:
+        if how not in CANDIDATES:
+            raise BackboneError(f"candidate physics must be one of {list(CANDIDATES)}, got {how!r}")
+        self._candidates = how
 
     def close(self) -> None:
         self.ident.close()
@@ -238,10 +253,15 @@ class PhysicsBackbone:
         torque = frame_torques(torque_ctx, torque_query)
         if qvel_end is None:
             qvel_end = self.context_velocity(params, q_ctx, torque_ctx, qvel_start)
-        if self.open_loop:
+        if self.open_loop and self.candidates == "tangent" and n > 1 and all(
+                np.all(a == a[:1]) for a in (params, q_ctx[:, -1], qvel_end)):  # one robot from one state
+            from robomorph.sim.tangent import candidate_joints  # noqa: PLC0415
+
+            q = candidate_joints(self, params[0], q_ctx[0, -1], qvel_end[0], torque)
+        elif self.open_loop:
             q = self.frame_states(params, q_ctx[:, -1], qvel_end, torque)[..., 1:1 + q_ctx.shape[2]]  # time, qpos, ...
         else:
-            q = np.stack([self._closed_loop(params[b], q_ctx[b, -1], qvel_end[b], torque[b]) for b in range(n)])
+            q = np.stack([_closed_loop(self, params[b], q_ctx[b, -1], qvel_end[b], torque[b]) for b in range(n)])
         return signed(self._outputs(q), quat_last)[:, 1:]  # row 0: the last context sample
 
     def frame_states(self, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray,
@@ -277,27 +297,6 @@ class PhysicsBackbone:
                     model.opt.timestep = m.opt.timestep  # the recipe's, which the context's simulations use
         return out
 
-    def _closed_loop(self, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:
-        """(F + 1, 7) joint positions of one robot simulated closed loop (state feedback in the formulation)."""
-        from robomorph.sim import panda  # noqa: PLC0415
-        from robomorph.sim.closed_loop import formulation_controller, simulate_closed_loop  # noqa: PLC0415
-        from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
-        from robomorph.sim.filters import to_outputs  # noqa: PLC0415
-
-        recipe, nj = self.recipe, len(qpos0)
-        in_actuators = recipe.gravity_compensation == "true_model"
-        if self._closed is None:
-            model = panda.build_model(self.substeps, recipe.dt, in_actuators)
-            grav = NominalGravity(recipe) if self.inputs == "command" and not in_actuators \
-                and recipe.gravity_compensation == "nominal_model" else None
-            self._closed = (model, mujoco.MjData(model), grav)
-        model, data, grav = self._closed
-        self.ident.randomizer.apply(model, params)
-        torque = np.concatenate([torque, torque[-1:]], axis=0)  # a row per frame start, the start included
-        control = formulation_controller(torque, self.inputs, in_actuators, nj, grav)
-        sens = simulate_closed_loop(model, data, qpos0, len(torque), self.substeps, control, qvel0)
-        return to_outputs(sens)[1][:, 7:7 + nj]
-
     def _outputs(self, q: np.ndarray) -> np.ndarray:
         """(..., T, 7) joint positions -> (..., T, 14) y (catalogue kinematics: link geometry is not randomized)."""
         from robomorph.sim.filters import continuous_quaternion  # noqa: PLC0415
@@ -305,6 +304,28 @@ class PhysicsBackbone:
         pos, quat = self._kinematics(q)
         quat = continuous_quaternion(quat)
         return np.concatenate([pos, quat[..., [1, 2, 3, 0]], q], axis=-1)
+
+
+def _closed_loop(bb: PhysicsBackbone, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:
+    """(F + 1, 7) joint positions of one robot simulated closed loop (state feedback in the formulation)."""
+    from robomorph.sim import panda  # noqa: PLC0415
+    from robomorph.sim.closed_loop import formulation_controller, simulate_closed_loop  # noqa: PLC0415
+    from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
+    from robomorph.sim.filters import to_outputs  # noqa: PLC0415
+
+    recipe, nj = bb.recipe, len(qpos0)
+    in_actuators = recipe.gravity_compensation == "true_model"
+    if bb._closed is None:
+        model = panda.build_model(bb.substeps, recipe.dt, in_actuators)
+        grav = NominalGravity(recipe) if bb.inputs == "command" and not in_actuators \
+            and recipe.gravity_compensation == "nominal_model" else None
+        bb._closed = (model, mujoco.MjData(model), grav)
+    model, data, grav = bb._closed
+    bb.ident.randomizer.apply(model, params)
+    torque = np.concatenate([torque, torque[-1:]], axis=0)  # a row per frame start, the start included
+    control = formulation_controller(torque, bb.inputs, in_actuators, nj, grav)
+    sens = simulate_closed_loop(model, data, qpos0, len(torque), bb.substeps, control, qvel0)
+    return to_outputs(sens)[1][:, 7:7 + nj]
 
 
 def segments(bb: PhysicsBackbone, frames: int) -> list[tuple[int, int, int]]:

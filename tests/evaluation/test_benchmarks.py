@@ -173,7 +173,7 @@ def test_candidates_benchmark_is_exact_for_the_reference_and_linear_without_fric
                "--csv", csv, "--md", md)
     assert done.stdout.startswith("*Produced by `benchmarks/candidates.py")
     rows = read_rows(str(csv))
-    assert len(rows) == 2 * 2 * 6 and md.read_text().startswith("*Produced by")
+    assert len(rows) == 2 * 2 * 7 and md.read_text().startswith("*Produced by")
     err = {(float(r["sigma"]), r["robot"], r["method"]): float(r["step60"]) for r in rows}
     for b in ("0", "1"):
         assert err[(0.5, b, "exact (reference)")] == 0.0
@@ -181,5 +181,7 @@ def test_candidates_benchmark_is_exact_for_the_reference_and_linear_without_fric
         # a coarser step is a real change, which the comparison would show.
         assert err[(0.001, b, "tangent-linear, no friction loss")] < 1e-3
         assert err[(0.5, b, "exact, 1 physics steps per sample")] > err[(0.5, b, "exact, 4 physics steps per sample")]
+        # Dry friction's switches corrected: closer to the exact candidates than the plain tangent.
+        assert err[(0.5, b, "tangent-linear, dry friction corrected")] < 0.7 * err[(0.5, b, "tangent-linear")]
     done = run("candidates.py", "--test", store, "--context", 60, ok=False)
     assert done.returncode == 2 and "fewer than --context + 60" in done.stderr

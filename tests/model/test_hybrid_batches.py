@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tests.model.test_hybrid import _windows, command_store  # noqa: F401  (fixture)
+from tests.model.test_hybrid import _windows, command_store, hybrid_ckpt  # noqa: F401  (fixtures)
 
 
 def test_batched_context_velocities_equal_the_fits_rollouts(command_store):
@@ -71,3 +71,30 @@ def test_the_observer_reads_the_contexts_tail_and_agrees_with_the_whole_context(
     correction = np.abs(whole - plain).max()
     assert correction > 1e-3  # the observer acts
     assert np.abs(tail - whole).max() < 0.05 * correction, (np.abs(tail - whole).max(), correction)
+
+
+def test_a_planners_candidates_tangent_linear_on_request(command_store, hybrid_ckpt):
+    """``physics_candidates = "tangent"`` answers many torque sequences on one context near the exact
+    rollouts (:mod:`robomorph.sim.tangent`) and leaves windows of different contexts exact; an unknown
+    setting is refused in one line that names the choices."""
+    import pytest
+
+    from robomorph.model.predictor import Predictor
+    from robomorph.sim.backbone import BackboneError
+
+    uc, yc, uq, _, _, _ = _windows(command_store, n=2)
+    k = 8
+    rng = np.random.default_rng(0)
+    cands = uq[:1, :20] + rng.normal(0.0, 0.3, (k, 20, 7)).astype(np.float32)
+    pred = Predictor.from_checkpoint(hybrid_ckpt)
+    pred.physics_mode, pred.physics_members = "regression", 1
+    exact, exact_windows = pred.simulate(np.repeat(uc[:1], k, 0), np.repeat(yc[:1], k, 0), cands), \
+        pred.simulate(uc, yc, uq[:, :20])
+    pred.physics_candidates = "tangent"
+    tangent, tangent_windows = pred.simulate(np.repeat(uc[:1], k, 0), np.repeat(yc[:1], k, 0), cands), \
+        pred.simulate(uc, yc, uq[:, :20])
+    assert 0 < np.abs(tangent - exact).max() < 2e-3
+    np.testing.assert_array_equal(tangent_windows, exact_windows)
+    pred.physics_candidates = "approximate"
+    with pytest.raises(BackboneError, match=r"one of \['exact', 'tangent'\], got 'approximate'"):
+        pred.simulate(uc, yc, uq[:, :20])
