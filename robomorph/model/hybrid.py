@@ -130,12 +130,12 @@ class Hybrid:
         q_ctx, quat_last = yc[..., 7:14], yc[:, -1, 3:7]
         B = len(uc)
         rest = np.broadcast_to(np.asarray(False if at_rest is None else at_rest, dtype=bool), (B,))
-        qvel_start = -estimate_velocity(q_ctx[:, ::-1], self.backbone.dt)
-        qvel_start[rest] = 0.0
         # Candidate torque sequences on one context (model-predictive control): the robot is
         # identified once and only the horizons are simulated per row.
         shared = B > 1 and bool(np.all(uc == uc[:1]) and np.all(yc == yc[:1]) and np.all(rest == rest[0]))
         one = slice(0, 1) if shared else slice(None)
+        qvel_start = np.repeat(-estimate_velocity(q_ctx[one, ::-1], self.backbone.dt), B if shared else 1, axis=0)
+        qvel_start[rest] = 0.0
         anchor = q_ctx[:, 0] if anchor is None else np.asarray(anchor, dtype=np.float64).reshape(B, -1)
         params, z, z_std = self._identify(u_ctx[one], y_ctx[one], mode, anchor[one], qvel_start[one])
         if mode == "smoothed" or (mode == "blend" and self.model.blend.physics_mode == "smoothed"):

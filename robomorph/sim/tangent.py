@@ -20,11 +20,12 @@ constraint solve). This module answers with one exact rollout and a linear model
    tangent-linear answer; only the switches of dry friction, which no linearization follows,
    are corrected.
 
-Measured against the exact candidates (``benchmarks/candidates.py``, 4 held-out robots given
-their true parameters, candidates the recorded torques plus white noise, joint RMS difference at
-frame 60): 0.20 mrad at 0.2 N m of noise and 1.1 mrad at 1 N m (the candidates' own spread there
-2.7 and 13.7 mrad), against 0.91 and 6.6 for the plain tangent-linear model and 0.12 and 0.47 for
-the exact rollouts at 2 physics steps per frame, at a fifth of the latter's time.
+The maps are taken at every second frame (:data:`EVERY`) and both robots' rollouts go in one
+threaded call. Measured against the exact candidates (``benchmarks/candidates.py``, 4 held-out
+robots given their true parameters, candidates the recorded torques plus white noise, joint RMS
+difference at frame 60): 0.21 mrad at 0.2 N m of noise and 1.1 mrad at 1 N m (the candidates' own
+spread there 2.7 and 13.7 mrad), against 0.91 and 6.6 for the plain tangent-linear model and 0.12
+and 0.47 for the exact rollouts at 2 physics steps per frame, in 19-21 ms against their 121-142.
 """
 
 from __future__ import annotations
@@ -33,6 +34,9 @@ import numpy as np
 
 # Physics steps per frame of the finite-difference maps (the mean itself runs at the backbone's step).
 JAC_SUBSTEPS = 2
+# The maps are taken at every EVERY-th frame and held over the frames between (measured against every frame:
+# 0.205 -> 0.210 and 1.125 -> 1.134 mrad at frame 60, 27-37 -> 20-21 ms; every third: 0.218 and 1.173).
+EVERY = 2
 # Forward-difference step of the states and torques.
 EPS = 1e-6
 # A joint the mean slides in a frame: its friction torque at least this share of its friction loss.
@@ -40,28 +44,43 @@ EPS = 1e-6
 SLIDING = 0.7
 
 
-def one_frame_maps(bb, params: np.ndarray, states: np.ndarray, torque: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(F, nx)`` the one-frame ends of the unperturbed rollouts from ``states`` (F + 1 full physics
-    states) under ``torque`` (F, nj), and ``(F, nx, nx + nj)`` their Jacobians ``[A | B]`` (nx = 2 nj:
-    joint positions and velocities), of the robot ``params``."""
+def one_frame_maps(bb, robots: list, states: np.ndarray, torque: np.ndarray, every: int = 1) -> list:
+    """Per robot of ``robots`` (full parameter vectors): ``(F, nx)`` the one-frame ends of the unperturbed
+    rollouts from ``states`` (F + 1 full physics states) under ``torque`` (F, nj), and ``(F, nx, nx + nj)``
+    their Jacobians ``[A | B]`` (nx = 2 nj: joint positions and velocities), taken at every ``every``-th
+    frame and held over the frames between; all robots' rollouts in one threaded call."""
     frames, nj = torque.shape
     nx, per = 2 * nj, 1 + 3 * nj  # the unperturbed rollout, then one per state and torque component
-    x0 = np.repeat(states[:-1, None], per, axis=1)
+    at = np.arange(0, frames, every)
+    x0 = np.repeat(states[at, None], per, axis=1)
     x0[:, 1:1 + nx, 1:1 + nx] += EPS * np.eye(nx)  # state: time, qpos, qvel, ...
-    ctrl = np.repeat(torque[:, None], per, axis=1)
+    ctrl = np.repeat(torque[at, None], per, axis=1)
     ctrl[:, 1 + nx:] += EPS * np.eye(nj)
-    model = bb.ident._models[0]
-    bb.ident.randomizer.apply(model, params)
-    model.opt.timestep = bb.dt / JAC_SUBSTEPS
-    n = frames * per
-    end = np.empty((n, JAC_SUBSTEPS, x0.shape[2]))
+    # Then the unperturbed rollouts of the frames between (their ends are each frame's own).
+    rest = np.setdiff1d(np.arange(frames), at)
+    x0 = np.concatenate([x0.reshape(-1, x0.shape[2]), states[rest]])
+    ctrl = np.concatenate([ctrl.reshape(-1, nj), torque[rest]])
+    models = bb.ident._models[:len(robots)]
+    for model, params in zip(models, robots):
+        bb.ident.randomizer.apply(model, params)
+        model.opt.timestep = bb.dt / JAC_SUBSTEPS
+    n = len(x0)
+    end = np.empty((len(robots) * n, JAC_SUBSTEPS, x0.shape[1]))
     try:
-        bb.ident._rollout([model] * n, np.ascontiguousarray(x0.reshape(n, -1)),
-                          np.repeat(ctrl.reshape(n, 1, nj), JAC_SUBSTEPS, axis=1), state=end)
+        bb.ident._rollout([m for m in models for _ in range(n)], np.ascontiguousarray(np.tile(x0, (len(robots), 1))),
+                          np.repeat(np.tile(ctrl, (len(robots), 1))[:, None], JAC_SUBSTEPS, axis=1), state=end)
     finally:
-        model.opt.timestep = bb.ident.model.opt.timestep
-    end = end[:, -1, 1:1 + nx].reshape(frames, per, nx)
-    return end[:, 0], ((end[:, 1:] - end[:, :1]) / EPS).transpose(0, 2, 1)
+        for model in models:
+            model.opt.timestep = bb.ident.model.opt.timestep
+    out = []
+    for r in range(len(robots)):
+        e = end[r * n:(r + 1) * n, -1, 1:1 + nx]
+        grid = e[:len(at) * per].reshape(len(at), per, nx)
+        base = np.empty((frames, nx))
+        base[at], base[rest] = grid[:, 0], e[len(at) * per:]
+        jac = ((grid[:, 1:] - grid[:, :1]) / EPS).transpose(0, 2, 1)
+        out.append((base, jac[np.minimum(np.arange(frames) // every, len(at) - 1)]))
+    return out
 
 
 def candidate_joints(bb, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:
@@ -72,25 +91,25 @@ def candidate_joints(bb, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarra
     ref = torque.mean(axis=0)
     states = bb.frame_states(params[None], qpos0[None], qvel0[None], ref[None])[0]
     mean = states[:, 1:1 + nx]
-    jac = one_frame_maps(bb, params, states, ref)[1]
     friction = np.array([i for i, name in enumerate(bb.ident.randomizer.names) if name.startswith("frictionloss")])
     bound = params[friction]
     free = params.copy()
     free[friction] = 0.0
-    end0, jac0 = one_frame_maps(bb, free, states, ref)
+    (_, jac), (end0, jac0) = one_frame_maps(bb, [params, free], states, ref, EVERY)
     vel = jac0[:, nj:, nx:]  # (F, nj, nj): the velocity change per unit of joint torque over a frame
     vel_inv = np.linalg.inv(vel)
     # The mean's own friction torque per frame: its velocity change less the frictionless one's.
     held = np.clip(np.einsum("fij,fj->fi", vel_inv, mean[1:, nj:] - end0[:, nj:]), -bound, bound)
     sliding = np.abs(held) >= SLIDING * bound
     diag = np.einsum("fjj->fj", vel)
+    both = np.concatenate([jac, jac0], axis=1).transpose(0, 2, 1)  # (F, nx + nj, 2 nx): one product a frame
+    xu = np.zeros((k, nx + nj))  # the deviation of state and torque from the mean's
     du = torque - ref
-    dx = np.zeros((k, nx))
     out = np.empty((k, frames + 1, nj))
     out[:, 0] = mean[0, :nj]
     for t in range(frames):
-        lin = dx @ jac[t, :, :nx].T + du[:, t] @ jac[t, :, nx:].T
-        lin0 = dx @ jac0[t, :, :nx].T + du[:, t] @ jac0[t, :, nx:].T
+        xu[:, nx:] = du[:, t]
+        lin, lin0 = np.split(xu @ both[t], 2, axis=1)
         implied = held[t] + (lin - lin0)[:, nj:] @ vel_inv[t].T  # the friction torque the linearization gives
         tau = np.clip(implied, -bound, bound)
         v_end = mean[t + 1, nj:] + lin[:, nj:] + (tau - implied) @ vel[t].T
@@ -98,6 +117,6 @@ def candidate_joints(bb, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarra
         # an end velocity of the torque's sign crossed zero: the joint is stopped instead (within the bound).
         crossed = sliding[t] & (np.sign(v_end) == np.sign(held[t])) & (v_end != 0)
         tau = np.clip(np.where(crossed, tau - v_end / diag[t], tau), -bound, bound)
-        dx = lin + (tau - implied) @ jac0[t, :, nx:].T
-        out[:, t + 1] = mean[t + 1, :nj] + dx[:, :nj]
+        xu[:, :nx] = lin + (tau - implied) @ jac0[t, :, nx:].T
+        out[:, t + 1] = mean[t + 1, :nj] + xu[:, :nj]
     return out
