@@ -91,3 +91,24 @@ def test_the_box_constrained_solve_is_bvls_minimum():
     assert bounds_hit > 100
     hess, grad = np.diag([2.0, 4.0]), np.array([1.0, -2.0])
     np.testing.assert_array_equal(_bounded_lstsq(hess, grad), np.linalg.solve(hess, grad))
+
+
+@pytest.mark.parametrize("robot", ["ur5e", "iiwa", "kinova3", "xarm7", "sawyer", "jaco"])
+def test_every_arms_copies_give_its_inverse_dynamics_to_the_bit(robot):
+    """The other arms of the library stack as the Panda does (their joints, bodies and constraint rows in
+    contiguous blocks per copy): random states, torques and bodies' shares equal one call per state."""
+    single = lean_model(8, 1 / 60, False, robot)
+    single.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_INVDISCRETE
+    nj = single.nu
+    stacked = StackedInverse(lambda: lean_spec(8, 1 / 60, False, robot), single, nj, 4)
+    rng = np.random.default_rng(1)
+    q, v, a = rng.normal(0.0, 0.3, (10, nj)), rng.normal(0.0, 1.0, (10, nj)), rng.normal(0.0, 3.0, (10, nj))
+    carried = carried_bodies(single, nj)
+    expect = inverse_pass(single, mujoco.MjData(single), nj, carried, q, v, a, True, True)
+    stacked.load(single)
+    got = stacked.run(q, v, a, carried, True, True)
+    for e, g in zip(expect, got):
+        assert (e is None) == (g is None)
+        if e is not None:
+            np.testing.assert_array_equal(g, e)
+    assert np.abs(got[0]).max() > 0.1
