@@ -20,8 +20,8 @@ constraint solve). This module answers with one exact rollout and a linear model
    tangent-linear answer; only the switches of dry friction, which no linearization follows,
    are corrected.
 
-The maps are taken at every second frame (:data:`EVERY`) and both robots' rollouts go in one
-threaded call. Measured against the exact candidates (``benchmarks/candidates.py``, 4 held-out
+The maps are taken at every second frame (:data:`EVERY`), the first frames' at the mean's own
+physics step (:data:`FINE_FRAMES`), and both robots' rollouts go in one threaded call. Measured against the exact candidates (``benchmarks/candidates.py``, 4 held-out
 robots given their true parameters, candidates the recorded torques plus white noise, joint RMS
 difference at frame 60): 0.21 mrad at 0.2 N m of noise and 1.1 mrad at 1 N m (the candidates' own
 spread there 2.7 and 13.7 mrad), against 0.91 and 6.6 for the plain tangent-linear model and 0.12
@@ -34,6 +34,9 @@ import numpy as np
 
 # Physics steps per frame of the finite-difference maps (the mean itself runs at the backbone's step).
 JAC_SUBSTEPS = 2
+# The first frames' maps at the mean's own physics step (step 1: 0.021 -> 0.006 mrad at 0.2 N m, 0.129 -> 0.052
+# at 1 N m, for 1-3 ms; four frames changed step 60 by under 0.02 mrad more for 4-5 ms).
+FINE_FRAMES = 2
 # The maps are taken at every EVERY-th frame and held over the frames between (measured against every frame:
 # 0.205 -> 0.210 and 1.125 -> 1.134 mrad at frame 60, 27-37 -> 20-21 ms; every third: 0.218 and 1.173).
 EVERY = 2
@@ -44,7 +47,8 @@ EPS = 1e-6
 SLIDING = 0.7
 
 
-def one_frame_maps(bb, robots: list, states: np.ndarray, torque: np.ndarray, every: int = 1) -> list:
+def one_frame_maps(bb, robots: list, states: np.ndarray, torque: np.ndarray, every: int = 1,
+                   substeps: int = JAC_SUBSTEPS) -> list:
     """Per robot of ``robots`` (full parameter vectors): ``(F, nx)`` the one-frame ends of the unperturbed
     rollouts from ``states`` (F + 1 full physics states) under ``torque`` (F, nj), and ``(F, nx, nx + nj)``
     their Jacobians ``[A | B]`` (nx = 2 nj: joint positions and velocities), taken at every ``every``-th
@@ -63,12 +67,12 @@ def one_frame_maps(bb, robots: list, states: np.ndarray, torque: np.ndarray, eve
     models = bb.ident._models[:len(robots)]
     for model, params in zip(models, robots):
         bb.ident.randomizer.apply(model, params)
-        model.opt.timestep = bb.dt / JAC_SUBSTEPS
+        model.opt.timestep = bb.dt / substeps
     n = len(x0)
-    end = np.empty((len(robots) * n, JAC_SUBSTEPS, x0.shape[1]))
+    end = np.empty((len(robots) * n, substeps, x0.shape[1]))
     try:
         bb.ident._rollout([m for m in models for _ in range(n)], np.ascontiguousarray(np.tile(x0, (len(robots), 1))),
-                          np.repeat(np.tile(ctrl, (len(robots), 1))[:, None], JAC_SUBSTEPS, axis=1), state=end)
+                          np.repeat(np.tile(ctrl, (len(robots), 1))[:, None], substeps, axis=1), state=end)
     finally:
         for model in models:
             model.opt.timestep = bb.ident.model.opt.timestep
@@ -96,6 +100,10 @@ def candidate_joints(bb, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarra
     free = params.copy()
     free[friction] = 0.0
     (_, jac), (end0, jac0) = one_frame_maps(bb, [params, free], states, ref, EVERY)
+    # The first frames at the mean's own physics step: a coarse map's error is largest against the spread there.
+    fine = FINE_FRAMES
+    (_, jac[:fine]), (end0[:fine], jac0[:fine]) = one_frame_maps(bb, [params, free], states[:fine + 1], ref[:fine], 1,
+                                                                 bb.substeps)
     vel = jac0[:, nj:, nx:]  # (F, nj, nj): the velocity change per unit of joint torque over a frame
     vel_inv = np.linalg.inv(vel)
     # The mean's own friction torque per frame: its velocity change less the frictionless one's.

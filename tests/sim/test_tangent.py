@@ -5,7 +5,7 @@ import pytest
 
 from robomorph.data.store import open_store
 from robomorph.sim.backbone import BackboneError, PhysicsBackbone, parameter_layout
-from robomorph.sim.tangent import candidate_joints
+from robomorph.sim.tangent import FINE_FRAMES, candidate_joints
 
 CONTEXT, FRAMES = 40, 40
 
@@ -40,24 +40,26 @@ def test_candidates_equal_to_their_mean_are_its_exact_rollout(robots):
 
 
 def test_candidates_follow_the_exact_ones_within_a_small_share_of_their_spread(robots):
-    """Noisy candidates of each robot: from the fifth frame on, the difference to their exact horizons stays
-    a small share of the candidates' spread about their mean (measured: up to 12 %), and on the robot without
-    friction losses (the plain tangent-linear model) a smaller share still (up to 3.5 %). The first frame's
-    share is larger on both (12-22 %: the maps are taken at 2 physics steps per frame, the mean at 8)."""
+    """Noisy candidates of each robot: at every frame the difference to their exact horizons stays a small
+    share of the candidates' spread about their mean (measured: up to 17.5 %), and on the robot without
+    friction losses (the plain tangent-linear model) a smaller share still (up to 5 %), next to nothing over
+    the first frames (second order: under 0.1 %), whose maps are taken at the mean's own physics step."""
     u, q, params, layout = robots
     with PhysicsBackbone(layout, "command") as bb:
         friction = [i for i, name in enumerate(bb.ident.randomizer.names) if name.startswith("frictionloss")]
         for b in range(len(params)):
             v0 = bb.context_velocity(params[b:b + 1], q[b:b + 1, :CONTEXT], u[b:b + 1, :CONTEXT], np.zeros((1, 7)))[0]
             torque = _candidates(u, b, 0.5, seed=b)
-            for p, share in ((params[b], 0.15), (np.where(np.isin(np.arange(len(params[b])), friction), 0.0,
-                                                                 params[b]), 0.05)):
+            for p, share in ((params[b], 0.2), (np.where(np.isin(np.arange(len(params[b])), friction), 0.0,
+                                                                params[b]), 0.06)):
                 exact = _exact(bb, p, q[b, CONTEXT - 1], v0, torque)
                 got = candidate_joints(bb, p, q[b, CONTEXT - 1], v0, torque)
                 err = np.sqrt(np.mean((got - exact) ** 2, axis=(0, 2)))[1:]
                 spread = np.sqrt(np.mean((exact - exact.mean(0)) ** 2, axis=(0, 2)))[1:]
                 ratio = err / spread
-                assert ratio[0] < 0.3 and np.all(ratio[4:] < share), (b, share, np.round(ratio[[0, 4, 9, 19, 39]], 3))
+                assert np.all(ratio < share), (b, share, np.round(ratio[[0, 1, 2, 4, 9, 19, 39]], 3))
+                if share < 0.1:  # no friction: the first frames' maps at the mean's own step are exact
+                    assert np.all(ratio[:FINE_FRAMES] < 1e-3)  # second order in the deviation
                 assert spread[-1] > 1e-3  # the candidates do spread
 
 
