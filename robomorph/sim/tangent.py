@@ -95,7 +95,7 @@ def candidate_joints(bb, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarra
     ref = torque.mean(axis=0)
     states = bb.frame_states(params[None], qpos0[None], qvel0[None], ref[None])[0]
     mean = states[:, 1:1 + nx]
-    friction = np.array([i for i, name in enumerate(bb.ident.randomizer.names) if name.startswith("frictionloss")])
+    friction = np.array([i for i, name in enumerate(bb.ident.randomizer.names) if name.startswith("frictionloss")], int)
     bound = params[friction]
     free = params.copy()
     free[friction] = 0.0
