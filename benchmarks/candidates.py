@@ -39,34 +39,19 @@ from robomorph.core.errors import UsageError, run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
 from robomorph.data.store import open_store
 from robomorph.sim.backbone import PhysicsBackbone, parameter_layout
-from robomorph.sim.tangent import candidate_joints
+from robomorph.sim.tangent import candidate_joints, one_frame_maps
 
 STEPS = (1, 15, 60)
 
 
 def tangent_joints(bb: PhysicsBackbone, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray,
-                   torque: np.ndarray, jac_substeps: int = 2, eps: float = 1e-6) -> np.ndarray:
-    """(K, F + 1, n) joint positions of K candidates (K, F, n) on one robot, linearized about their mean."""
+                   torque: np.ndarray) -> np.ndarray:
+    """(K, F + 1, n) joint positions of K candidates (K, F, n) on one robot, linearized about their mean
+    (the maps of :func:`robomorph.sim.tangent.one_frame_maps` at every frame, no friction correction)."""
     k, frames, nj = torque.shape
     nx, ref = 2 * nj, torque.mean(axis=0)
     states = bb.frame_states(params[None], qpos0[None], qvel0[None], ref[None])[0]  # (F + 1, S): time, qpos, qvel
-    per = 1 + nx + nj  # the unperturbed one-frame rollout, then one per state and torque component
-    x0 = np.repeat(states[:-1, None], per, axis=1)
-    x0[:, 1:1 + nx, 1:1 + nx] += eps * np.eye(nx)
-    ctrl = np.repeat(ref[:, None], per, axis=1)
-    ctrl[:, 1 + nx:] += eps * np.eye(nj)
-    model = bb.ident._models[0]
-    bb.ident.randomizer.apply(model, params)
-    model.opt.timestep = bb.dt / jac_substeps
-    n = frames * per
-    end = np.empty((n, jac_substeps, x0.shape[2]))
-    try:
-        bb.ident._rollout([model] * n, np.ascontiguousarray(x0.reshape(n, -1)),
-                          np.repeat(ctrl.reshape(n, 1, nj), jac_substeps, axis=1), state=end)
-    finally:
-        model.opt.timestep = bb.ident.model.opt.timestep
-    end = end[:, -1, 1:1 + nx].reshape(frames, per, nx)
-    diff = ((end[:, 1:] - end[:, :1]) / eps).transpose(0, 2, 1)  # (F, nx, nx + nj): [A | B]
+    (_, diff), = one_frame_maps(bb, [params], states, ref)  # (F, nx, nx + nj): [A | B]
     du, dx = torque - ref, np.zeros((k, nx))
     out = np.empty((k, frames + 1, nj))
     out[:, 0] = states[0, 1:1 + nj]

@@ -28,6 +28,7 @@ import numpy as np
 
 from robomorph.core.errors import RoboMorphError
 from robomorph.sim import panda
+from robomorph.sim.identify import lean_spec
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -40,12 +41,7 @@ def planning_model(dt: float, substeps: int) -> mujoco.MjModel:
     """The Panda a planner simulates: the same bodies, joints and motors (gravity compensated
     through the actuators, as the arm does), no meshes or contacts, and two sensors, the EE
     position and orientation, so a rollout returns ``y`` without a kinematics pass."""
-    xml, assets = panda._compiled_xml(float(dt) / substeps, True)
-    spec = mujoco.MjSpec.from_string(xml, assets=assets)
-    for kind in ("geoms", "meshes", "sensors"):
-        for element in list(getattr(spec, kind)):
-            if kind != "geoms" or element.type == mujoco.mjtGeom.mjGEOM_MESH:
-                spec.delete(element)
+    spec = lean_spec(substeps, dt, True)
     for sensor_type in (mujoco.mjtSensor.mjSENS_FRAMEPOS, mujoco.mjtSensor.mjSENS_FRAMEQUAT):
         sensor = spec.add_sensor()
         sensor.type, sensor.objtype, sensor.objname = sensor_type, mujoco.mjtObj.mjOBJ_SITE, "ee"

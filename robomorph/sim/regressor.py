@@ -98,7 +98,6 @@ class RegressorIdentifier:
         if inputs == "command":
             self.model.opt.gravity[:] = 0.0
         self.model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_INVDISCRETE
-        self.data = mujoco.MjData(self.model)
         self._nj = len(randomizer.friction0)
         self._stacked = StackedInverse(lambda: lean_spec(recipe.substeps, recipe.dt, False, recipe.robot),
                                        self.model, self._nj)

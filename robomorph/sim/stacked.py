@@ -9,8 +9,7 @@ dynamics and constraint rows are its own (inverse dynamics solves no coupled pro
 constraint's force follows from its own row), and each copy's constants (``dof_invweight0``, which
 sets the friction constraints' softness) are the single arm's, so every copy's torque is the
 single arm's at its state (to rounding: the Jacobians are sparse here, block diagonal, which keeps
-the cost linear in the copies). :func:`inverse_pass` is the one-state-per-call reference the
-tests hold it to.
+the cost linear in the copies). The tests hold it to one call per state on the single arm.
 """
 
 from __future__ import annotations
@@ -65,7 +64,9 @@ class StackedInverse:
 
     def run(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, carried: np.ndarray, bodies: bool = False,
             friction: bool = False) -> tuple:
-        """What :func:`inverse_pass` returns for these states, ``copies`` states per call."""
+        """(T, nj) joint torques at each state (gravity as the single arm has it); with ``bodies``, (T, nj, nbody)
+        each body's share of them (:func:`_shares`; else None); with ``friction``, (T, nj) each joint's
+        friction-loss column (:func:`_signs`; else, or where unreadable, None). ``copies`` states per call."""
         m, d, k, nj = self.model, self.data, self.copies, self.nj
         t_all = len(q)
         out = np.empty((t_all, nj))
@@ -85,61 +86,29 @@ class StackedInverse:
                 mujoco.mj_rnePostConstraint(m, d)  # fills cfrc_int from the given accelerations
                 cdof[s:s + n] = d.cdof.reshape(k, self.nv, 6)[:n, :nj]
                 cfrc[s:s + n, 1:] = d.cfrc_int[1:].reshape(k, self.nb, 6)[:n]
-        shares = _shares(self.nb + 1, self._parents(), cdof, cfrc, carried) if bodies else None
-        return out, shares, (_signs(states, self._friction_joints()) if readable else None)
-
-    def _parents(self) -> np.ndarray:
-        return self.model.body_parentid[:self.nb + 1]
-
-    def _friction_joints(self) -> np.ndarray:
-        return np.flatnonzero(self.model.dof_frictionloss[:self.nj] > 0)
+        shares = _shares(self.nb + 1, self.model.body_parentid[:self.nb + 1], cdof, cfrc, carried) if bodies else None
+        return out, shares, (_signs(states) if readable else None)
 
 
 def _read_friction(d: mujoco.MjData, states: np.ndarray, n: int, nv: int, nj: int) -> bool:
-    """Writes each copy's friction-loss constraint states into ``states`` (n, nj) (0 where a joint has no
-    such row); False where the rows cannot be read (other constraints lead them: MuJoCo's order)."""
+    """Writes each copy's friction-loss constraint states into ``states`` (n, nj) (left 0, satisfied, where a
+    joint has no such row); False where the rows cannot be read (other constraints lead them: MuJoCo's order)."""
     nf = int(d.nf)
     if d.ne or not nf or np.any(d.efc_type[:nf] != _FRICTION_ROW):
         return False  # as no rows at all: the caller bumps instead
     copy, joint = np.divmod(d.efc_id[:nf], nv)
-    keep = (copy < n) & (joint < nj)
     if np.any(joint >= nj):
         return False
+    keep = copy < n  # the copies past the last state hold stale states
     states[copy[keep], joint[keep]] = d.efc_state[:nf][keep]
     return True
 
 
-def _signs(states: np.ndarray, joints: np.ndarray) -> np.ndarray:
+def _signs(states: np.ndarray) -> np.ndarray:
     """(T, nj) the torque's change per unit of each joint's friction loss: its constraint saturated (Coulomb:
     +1 or -1 with the force's side), or not (0: the force does not depend on it). The derivative that a bumped
     pass approximates (equal on 5,542 of 5,544 samples of four held-out contexts, the others within 1 % of the bend)."""
-    out = (states == _SATURATED[0]) * 1.0 - (states == _SATURATED[1])
-    keep = np.zeros(states.shape[1], dtype=bool)
-    keep[joints] = True
-    return out * keep
-
-
-def inverse_pass(m: mujoco.MjModel, d: mujoco.MjData, nj: int, carried: np.ndarray, q: np.ndarray, v: np.ndarray,
-                 a: np.ndarray, bodies: bool = False, friction: bool = False) -> tuple:
-    """(T, nj) joint torques of the single arm ``m`` at each state, one call per state (the reference);
-    with ``bodies``, (T, nj, nbody) each body's share of them (:func:`_shares`; else None); with ``friction``,
-    (T, nj) each joint's friction-loss column (:func:`_signs`; else, or where unreadable, None)."""
-    out = np.empty((len(q), nj))
-    cdof = np.empty((len(q), nj, 6)) if bodies else None
-    cfrc = np.empty((len(q), m.nbody, 6)) if bodies else None
-    states, readable = np.zeros((len(q), nj), dtype=np.int32), friction
-    for t in range(len(q)):
-        d.qpos[:nj], d.qvel[:nj], d.qacc[:nj] = q[t], v[t], a[t]
-        mujoco.mj_inverse(m, d)
-        out[t] = d.qfrc_inverse[:nj]
-        if readable:
-            readable = _read_friction(d, states[t:t + 1], 1, m.nv, nj)
-        if bodies:
-            mujoco.mj_rnePostConstraint(m, d)
-            cdof[t], cfrc[t] = d.cdof[:nj], d.cfrc_int
-    joints = np.flatnonzero(m.dof_frictionloss[:nj] > 0)
-    shares = _shares(m.nbody, m.body_parentid, cdof, cfrc, carried) if bodies else None
-    return out, shares, (_signs(states, joints) if readable else None)
+    return (states == _SATURATED[0]) * 1.0 - (states == _SATURATED[1])  # a joint without a row: 0, satisfied
 
 
 def carried_bodies(model: mujoco.MjModel, nj: int) -> np.ndarray:

@@ -97,10 +97,9 @@ def candidate_joints(bb, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarra
     ref = torque.mean(axis=0)
     states = bb.frame_states(params[None], qpos0[None], qvel0[None], ref[None])[0]
     mean = states[:, 1:1 + nx]
-    friction = np.array([i for i, name in enumerate(bb.ident.randomizer.names) if name.startswith("frictionloss")], int)
-    bound = params[friction]
+    bound = bb.ident.randomizer.split(params)["frictionloss"]
     free = params.copy()
-    free[friction] = 0.0
+    bb.ident.randomizer.split(free)["frictionloss"][:] = 0.0  # a view: the robot without friction losses
     (_, jac), (end0, jac0) = one_frame_maps(bb, [params, free], states, ref, EVERY)
     # The first frames at the mean's own physics step: a coarse map's error is largest against the spread there.
     fine = FINE_FRAMES

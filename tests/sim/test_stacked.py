@@ -11,7 +11,26 @@ from robomorph.sim.identify import lean_model, lean_spec
 from robomorph.sim.randomize import Randomizer
 from robomorph.sim.recipe import Recipe
 from robomorph.sim.regressor import _bounded_lstsq
-from robomorph.sim.stacked import StackedInverse, carried_bodies, inverse_pass
+from robomorph.sim.stacked import StackedInverse, _read_friction, _shares, _signs, carried_bodies
+
+
+def inverse_pass(m, d, nj, carried, q, v, a, bodies=False, friction=False):
+    """The reference: what :meth:`StackedInverse.run` returns, one ``mj_inverse`` call per state on the single arm."""
+    out = np.empty((len(q), nj))
+    cdof = np.empty((len(q), nj, 6)) if bodies else None
+    cfrc = np.empty((len(q), m.nbody, 6)) if bodies else None
+    states, readable = np.zeros((len(q), nj), dtype=np.int32), friction
+    for t in range(len(q)):
+        d.qpos[:nj], d.qvel[:nj], d.qacc[:nj] = q[t], v[t], a[t]
+        mujoco.mj_inverse(m, d)
+        out[t] = d.qfrc_inverse[:nj]
+        if readable:
+            readable = _read_friction(d, states[t:t + 1], 1, m.nv, nj)
+        if bodies:
+            mujoco.mj_rnePostConstraint(m, d)
+            cdof[t], cfrc[t] = d.cdof[:nj], d.cfrc_int
+    shares = _shares(m.nbody, m.body_parentid, cdof, cfrc, carried) if bodies else None
+    return out, shares, (_signs(states) if readable else None)
 
 
 @pytest.fixture(scope="module")
