@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Builds .devsite/: wheels of the packages this project needs that a bare GPU box's Python
 # lacks, so that the box (which reaches no package index) can generate, train, evaluate and
-# reproduce. The box's own torch, Lightning, NumPy, SciPy, Matplotlib, Jinja2, tabulate and
-# safetensors are used as they are; the versions fetched are those of this checkout's .venv.
+# reproduce (the Panda's meshes come from dm-robotics-panda). The box's own torch, Lightning,
+# NumPy, SciPy, Matplotlib, Jinja2, tabulate and safetensors are used as they are; the versions
+# fetched are those of this checkout's .venv.
 #
 #   bash tools/device_site.sh            # here, where PyPI is reachable
 #   # there, in the repository root (the device tool: carry .devsite):
@@ -18,7 +19,7 @@ dest=.devsite
 wheels=$(mktemp -d)
 trap 'rm -rf "$wheels"' EXIT
 packages="mujoco glfw websockets dm-control dm-env zarr numcodecs donfig google-crc32c jsonargparse
-          docstring-parser typeshed-client"
+          docstring-parser typeshed-client dm-robotics-panda"
 platforms=""
 for p in manylinux_2_28_x86_64 manylinux_2_27_x86_64 manylinux_2_17_x86_64 manylinux2014_x86_64 manylinux1_x86_64 \
          manylinux_2_5_x86_64; do

@@ -20,6 +20,9 @@ Targets:
   the middle depth, same store and budget), added to an existing ``<out>/table1.*``;
   ``table1`` trains and adds it itself (leak-free runs only).
 - ``all``: table1, table2 and context in order, sharing data and models.
+- ``collect``: Table 1 from the evaluations already in ``--work``, training and scoring nothing
+  (for a command cut short, or runs fetched back from another machine without their
+  checkpoints; :mod:`robomorph.reproduction.collect`).
 - ``compare``: Table 1 under both normalizations side by side with the paper's figures,
   from the ``table1.json`` of a ``train_stats`` and a ``paper_window`` output folder
   (:mod:`robomorph.reproduction.protocols`); trains nothing.
@@ -68,7 +71,7 @@ from robomorph.reproduction.scales import Scale
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.transfer import regime_overrides
 
-TARGETS = ("table1", "improved", "table2", "context", "all", "compare")
+TARGETS = ("table1", "improved", "table2", "context", "all", "compare", "collect")
 # (recipe, robots field of the scale, seed): disjoint seeds, so no test robot is a training robot.
 STORES = {
     "ms_train": ("multisine", "train_robots", 0),
@@ -228,6 +231,8 @@ def make_table1(plan: Plan) -> dict:
         results[depth] = {t: scored(plan, "table1", ckpt, path, t) for t, path in tests.items()}
     rows = table1_rows(results)
     if plan.normalization == "train_stats":  # the paper's protocol is measured on its own architecture only
+        # Written before the improved row trains, so that a command stopped there keeps the paper's rows.
+        write_table1(plan.out, rows, {**run_info(plan), "pending": IMPROVED})
         rows += table1_rows({plan.scale.transfer_depth: improved_results(plan, train_store, tests)}, IMPROVED)
     doc = write_table1(plan.out, rows, run_info(plan))
     say("table1", f"written {os.path.join(plan.out, 'table1.md')} (.tex, .json)")
@@ -246,7 +251,7 @@ def make_improved(plan: Plan) -> dict:
         raise MissingInputError(f"{path} not found: run `python -m robomorph.reproduce table1 --scale "
                                 f"{plan.scale.name} --out {plan.out}` (it adds the improved row itself)")
     doc = skip.read_json(path)
-    info = doc["info"]
+    info = {k: v for k, v in doc["info"].items() if k != "pending"}  # this command adds what was pending
     if (info.get("scale"), info.get("inputs", "total"), info.get("normalization") or "train_stats") != (
             plan.scale.name, plan.inputs, plan.normalization):
         raise UsageError(f"{path} was written at scale {info.get('scale')!r} with inputs {info.get('inputs', 'total')!r}: "
@@ -360,6 +365,12 @@ def reproduce(target: str, scale: Scale, out: str | None = None, work: str | Non
     plan = Plan(scale, work or os.path.join("data", "reproduce", scale.name),
                 out or default_out(scale, normalization, inputs), command, workers, device, wandb, normalization, inputs)
     os.makedirs(plan.out, exist_ok=True)
+    if target == "collect":
+        from robomorph.reproduction.collect import collect_table1  # noqa: PLC0415
+
+        doc = collect_table1(plan, TESTS)
+        say("collect", f"written {os.path.join(plan.out, 'table1.md')} (.tex, .json)")
+        return {"collect": doc}
     steps = {"table1": make_table1, IMPROVED: make_improved, "table2": make_table2, "context": make_context_figure}
     chosen = ["table1", "table2", "context"] if target == "all" else [target]
     done = {name: steps[name](plan) for name in chosen}

@@ -22,19 +22,20 @@ decoder):
   (``scratch_ratio`` 1: the same budget as the fine-tuning, the fair comparison when B is
   this short); then the context figure's sweeps.
 
-``gpu`` (one GPU, 16 cores; about 15 minutes on an H100, estimated from measured step times
-and not yet run, docs/guide/reproducing.md): the paper's model at the paper's depths 10, 12 and 16, and the
+``gpu`` (one GPU, 16 cores; about 40 minutes on an H100, estimated from the parts measured
+there, docs/guide/reproducing.md): the paper's model at the paper's depths 10, 12 and 16, and the
 project's model beside it at 12 (the improved row), with the optimized training step
 (:mod:`robomorph.training.compiling`; 55 steps/s for 12 + 12 layers in bf16 on an H100):
 
-- data: 2048 multi-sine, 3 x 256 test, 2048 mixture, 512 + 256 spiral robots (about 2 minutes
+- data: 2048 multi-sine, 3 x 256 test, 2048 mixture, 512 + 256 spiral robots (about 2.5 minutes
   of generation on 16 cores);
 - table 1: 3000 steps per depth (batch 16: 48,000 windows, 23 per training robot);
 - table 2: pre-training 5000 steps, fine-tuning B = 1200 and scratch 1200 steps
   (``scratch_ratio`` 1, as ``small``: the paper's 3.6 would be most of the budget).
 
-The improved row trains on windows of varying length, so eagerly (13 steps/s; see
-:mod:`robomorph.training.compiling`): 4 of the about 9 minutes of training.
+In ``fit`` the paper's rows keep 32-50 steps/s after about 90 s of compilation per run. The
+improved row trains on windows of varying length, so eagerly (see
+:mod:`robomorph.training.compiling`), at 3 to 4 steps/s: about 15 of the 40 minutes.
 
 ``paper`` (a GPU): the paper's model (d_model 192, 12 heads, patch 1, batch 16, lr 6e-4, 10k warmup steps) at 10,
 12 and 16 layers on 40 000 training robots per store (the paper used millions; 40 000 x

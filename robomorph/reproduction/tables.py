@@ -89,10 +89,26 @@ def write_table1(out: str, rows: list[dict], info: dict) -> dict:
         extra = info.get(IMPROVED)
         lines.append(f"Rows marked *improved*: {DESCRIPTION}, same training store, depth and steps as the paper's "
                      "rows; leak-free." + (f" Added by `{extra['command']}` on {extra['date']}." if extra else ""))
+    lines += _partial_notes(info)
     write_text(os.path.join(out, "table1.md"), "\n".join(lines) + "\n")
     write_text(os.path.join(out, "table1.tex"), table1_tex(rows, info))
     write_json(os.path.join(out, "table1.json"), doc)
     return doc
+
+
+def _partial_notes(info: dict) -> list[str]:
+    """What a table written before its command finished, or collected from evaluations, lacks."""
+    notes = []
+    if info.get("pending"):
+        notes.append(f"The *{info['pending']}* rows are not here yet: the command was still training them when "
+                     "this table was written. Re-run it to add them (finished runs and evaluations are kept).")
+    collected = info.get("collected")
+    if collected:
+        lacking = f" Runs not scored there, so not in this table: {', '.join(collected['missing'])}." \
+            if collected["missing"] else ""
+        notes.append(f"Collected from the evaluations of the command above by `{collected['command']}` on "
+                     f"{collected['date']} (nothing trained or scored again).{lacking}")
+    return notes
 
 
 def table1_tex(rows: list[dict], info: dict) -> str:

@@ -317,3 +317,69 @@ def test_a_sigterm_mid_training_is_one_line_and_exit_code_143(table1_run, monkey
     err = capsys.readouterr().err.strip()
     assert err == ("stopped by SIGTERM at step 7: saved runs/x/checkpoints/last.ckpt; re-run the same command to "
                    "resume from there")
+
+
+def test_a_stop_while_the_improved_row_trains_leaves_a_table_of_the_papers_rows(table1_run, monkeypatch, capsys):
+    from robomorph.core.errors import StoppedBySignal
+
+    root, _ = table1_run
+
+    def stopped(*args, **kwargs):  # a lease or a scheduler ends the command while the improved model trains
+        raise StoppedBySignal("runs/improved", "runs/improved/checkpoints/last.ckpt", 5)
+
+    monkeypatch.setattr(pipeline, "improved_results", stopped)
+    argv = _argv("table1", root)
+    argv[argv.index("--out") + 1] = str(root / "out-stopped")
+    assert reproduce.main(argv) == 143
+    doc = json.load(open(root / "out-stopped" / "table1.json"))
+    assert [(r["n_layer"], r["model"], r["test"]) for r in doc["rows"]] == [r for r in ROWS if r[1] == "paper"]
+    assert doc["info"]["pending"] == "improved"
+    text = open(root / "out-stopped" / "table1.md").read()
+    assert "The *improved* rows are not here yet" in text and "Re-run it to add them" in text
+    # the finished table (the same paper rows) carries no such note
+    assert "not here yet" not in open(root / "out" / "table1.md").read()
+    assert "pending" not in json.load(open(root / "out" / "table1.json"))["info"]
+
+
+def _evaluations_only(work, dest, skip_run=None):
+    """Copies each run's evaluations (metrics.json alone: no checkpoints, no stores) as a machine
+    whose lease ended would send them back."""
+    for path in glob.glob(os.path.join(work, "runs", "*", "eval", "*", "metrics.json")):
+        rel = os.path.relpath(path, work)
+        if skip_run and rel.split(os.sep)[1] == skip_run:
+            continue
+        os.makedirs(os.path.dirname(os.path.join(dest, rel)), exist_ok=True)
+        with open(path) as src, open(os.path.join(dest, rel), "w") as out:
+            out.write(src.read())
+
+
+def test_collect_writes_table1_from_the_evaluations_alone(table1_run, tmp_path, capsys):
+    root, _ = table1_run
+    full = json.load(open(root / "out" / "table1.json"))
+    _evaluations_only(str(root / "work"), str(tmp_path / "work"))
+    argv = ["collect", "--scale", "ci", "--work", str(tmp_path / "work"), "--out", str(tmp_path / "out")]
+    assert reproduce.main(argv) == 0
+    doc = json.load(open(tmp_path / "out" / "table1.json"))
+    assert doc["rows"] == full["rows"]  # the same rows, numbers and order as the command that trained them
+    evaluation = json.load(open(glob.glob(str(root / "work" / "runs" / "table1-L1-*" / "eval" / "test0" /
+                                               "metrics.json"))[0]))["provenance"]
+    assert doc["info"]["command"] == evaluation["command"] and evaluation["machine"] in doc["info"]["machine"]
+    assert doc["info"]["collected"]["missing"] == []
+    assert "python -m robomorph.reproduce collect --scale ci" in open(tmp_path / "out" / "table1.md").read()
+
+    # a depth whose evaluations never came back is left out and named
+    _evaluations_only(str(root / "work"), str(tmp_path / "part"), skip_run=f"table1-L2-s{SCALES['ci'].train_steps}")
+    argv = ["collect", "--scale", "ci", "--work", str(tmp_path / "part"), "--out", str(tmp_path / "out2")]
+    assert reproduce.main(argv) == 0
+    doc = json.load(open(tmp_path / "out2" / "table1.json"))
+    assert {r["n_layer"] for r in doc["rows"] if r["model"] == "paper"} == {1, 3}
+    assert doc["info"]["collected"]["missing"] == ["2"]
+    assert "Runs not scored there, so not in this table: 2." in open(tmp_path / "out2" / "table1.md").read()
+
+    # nothing scored: one line naming the folder and what makes the evaluations
+    capsys.readouterr()
+    argv = ["collect", "--scale", "ci", "--work", str(tmp_path / "empty"), "--out", str(tmp_path / "out3")]
+    assert reproduce.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no Table 1 run of scale ci" in err and "reproduce table1 --scale ci" in err
+    assert not os.path.exists(tmp_path / "out3" / "table1.json")
