@@ -383,3 +383,29 @@ def test_collect_writes_table1_from_the_evaluations_alone(table1_run, tmp_path, 
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no Table 1 run of scale ci" in err and "reproduce table1 --scale ci" in err
     assert not os.path.exists(tmp_path / "out3" / "table1.json")
+
+
+def test_device_reproduce_packs_what_collect_needs(table1_run, tmp_path):
+    """tools/device_reproduce.sh, as one device call runs it: the reproduction under a time limit,
+    then every evaluation packed; collect then writes the same Table 1 from the pack alone."""
+    import subprocess
+    import sys
+    import tarfile
+
+    root, _ = table1_run
+    repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    out = tmp_path / "device_out"
+    argv = ["bash", "tools/device_reproduce.sh", "300", str(out), "table1", "--scale", "ci", "--work",
+            str(root / "work"), "--out", str(root / "out-device"), "--workers", "1"]
+    done = subprocess.run(argv, cwd=repo, env={**os.environ, "PYTHON": sys.executable}, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "device_reproduce: reproduce exited with 0" in open(out / "reproduce.log").read()
+    with tarfile.open(out / "evaluations.tgz") as pack:
+        names = pack.getnames()
+        assert not any(n.endswith((".ckpt", ".zarr")) for n in names)
+        pack.extractall(tmp_path / "back", filter="data")
+    work = tmp_path / "back" / os.path.relpath(root / "work", "/")
+    assert len(glob.glob(str(work / "runs" / "*" / "eval" / "test*" / "metrics.json"))) == 12
+    assert reproduce.main(["collect", "--scale", "ci", "--work", str(work), "--out", str(tmp_path / "table")]) == 0
+    assert json.load(open(tmp_path / "table" / "table1.json"))["rows"] == \
+        json.load(open(root / "out-device" / "table1.json"))["rows"]
