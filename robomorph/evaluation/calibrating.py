@@ -155,13 +155,23 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     if getattr(predictor, "physics", None):
         # A hybrid's std depends on how it identifies the robot: the calibration is that mode's.
         source["physics_mode"], source["observer"] = predictor.physics_mode, observing(predictor)
-    cal = fit(before.y, mean, std, method, source=source)
+    cal = fit(before.y, mean, std, method, source=source, end=_solved_as_a_whole(predictor))
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
     report = _report(ckpt, out, cal, w.dt, horizon, steps, before, after)
     ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
                                                      calibration_key(cal): cal})
     _write(ckpt_dict, out or ckpt)
     return report
+
+
+def _solved_as_a_whole(predictor) -> bool:
+    """Whether the predictor's horizon is one smoothing problem (mode ``smoothed``, or a blend of
+    it), whose last steps have no later torque to pin them: its errors grow fastest toward the
+    horizon's end, so its calibration's knots are dense there too
+    (:func:`robomorph.model.calibration.end_dense_knots`)."""
+    mode = getattr(predictor, "physics_mode", None) if getattr(predictor, "physics", None) else None
+    blend = getattr(getattr(predictor, "model", None), "blend", None)
+    return mode == "smoothed" or (mode == "blend" and getattr(blend, "physics_mode", None) == "smoothed")
 
 
 def _report(ckpt: str, out: str | None, cal, dt: float, horizon: int, steps: list[int], before, after) -> dict:

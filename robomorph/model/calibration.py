@@ -244,6 +244,19 @@ def interp_log_step(knots, values: np.ndarray, horizon: int) -> np.ndarray:
     return np.stack([np.interp(log_h, log_k, values[:, c]) for c in range(values.shape[1])], axis=1)
 
 
+def end_dense_knots(horizon: int, per_decade: int = KNOTS_PER_DECADE) -> np.ndarray:
+    """Knots as dense at the horizon's end as at its start: :func:`knot_steps` over the first half,
+    mirrored onto the second. For errors that change fastest near the end, as a smoother's do (its
+    last steps have no later torque to pin them), where log-spaced knots pool the last steps with
+    many earlier ones of smaller error. Horizons under 4 steps: :func:`knot_steps`."""
+    if horizon < 4:
+        return knot_steps(horizon, per_decade)
+    head = knot_steps(horizon, per_decade)
+    head = head[head <= horizon // 2]
+    tail = horizon + 1 - head[::-1]
+    return np.concatenate([head, tail[tail > head[-1]]])
+
+
 def step_bands(knots: np.ndarray, horizon: int) -> list[np.ndarray]:
     """The 0-based step indices pooled for each knot: steps nearer to it than to its
     neighbours in log step (the bands tile 1..horizon)."""
@@ -254,7 +267,7 @@ def step_bands(knots: np.ndarray, horizon: int) -> list[np.ndarray]:
 
 
 def fit(y: np.ndarray, mean: np.ndarray, std: np.ndarray, method: str = "nll",
-        knots: np.ndarray | None = None, source: dict | None = None) -> StdCalibration:
+        knots: np.ndarray | None = None, source: dict | None = None, end: bool = False) -> StdCalibration:
     """Fits the per-step, per-channel scales on windows whose truth is known.
 
     Args:
@@ -263,6 +276,8 @@ def fit(y: np.ndarray, mean: np.ndarray, std: np.ndarray, method: str = "nll",
         method: one of :data:`METHODS` (module docstring).
         knots: query steps to fit at (default :func:`knot_steps` of H).
         source: provenance stored with it.
+        end: knots as dense at the horizon's end as at its start (:func:`end_dense_knots`; ``knots``
+            must then be None). The knots are stored, so the calibration applies as any other.
     """
     if method not in METHODS:
         raise CalibrationError(f"unknown calibration method {method!r}; choose from {list(METHODS)}")
@@ -273,6 +288,10 @@ def fit(y: np.ndarray, mean: np.ndarray, std: np.ndarray, method: str = "nll",
     n, horizon, _ = y.shape
     if n < 2:
         raise CalibrationError(f"calibrating needs at least 2 windows with known outputs, got {n}")
+    if end and knots is not None:
+        raise CalibrationError("end-dense knots are placed by the fit: pass knots or end, not both")
+    if end:
+        knots = end_dense_knots(horizon)
     knots = knot_steps(horizon) if knots is None else np.asarray(knots, dtype=np.int64)
     if knots.max() > horizon:
         raise CalibrationError(f"calibration knot {int(knots.max())} lies beyond the horizon {horizon}")

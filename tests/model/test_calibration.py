@@ -178,3 +178,55 @@ def test_the_model_scales_its_std_and_leaves_the_mean_alone():
         m.set_calibration(StdCalibration((1,), ((1.0, 1.0),)))
     with pytest.raises(CalibrationError, match="no Gaussian head"):
         _model(False).set_calibration(cal)
+
+
+def test_end_dense_knots_mirror_the_first_half_onto_the_second():
+    from robomorph.model.calibration import end_dense_knots
+
+    knots = end_dense_knots(800)
+    head = knot_steps(800)[knot_steps(800) <= 400]
+    assert knots[0] == 1 and knots[-1] == 800 and (np.diff(knots) > 0).all()
+    assert list(knots[:len(head)]) == list(head) and list(knots[len(head):]) == list(801 - head[::-1])
+    assert list(end_dense_knots(3)) == list(knot_steps(3))  # too short to split: the plain knots
+
+
+def _end_heavy_errors(horizon, n=400, seed=0):
+    """Windows whose error spread quadruples over the last 50 steps of their horizon (a smoother's
+    end, with no later torque to pin it) while the predicted spread stays flat."""
+    rng = np.random.default_rng(seed)
+    to_end = horizon - np.arange(1, horizon + 1)
+    spread = 1.0 + 3.0 * np.exp(-to_end / 25.0)
+    err = rng.normal(size=(n, horizon, 2)) * spread[None, :, None]
+    return err, np.zeros_like(err), np.ones_like(err)
+
+
+def test_end_dense_knots_follow_errors_that_grow_toward_the_horizons_end():
+    y, mean, std = _end_heavy_errors(800)
+    plain, dense = fit(y, mean, std, "coverage"), fit(y, mean, std, "coverage", end=True)
+
+    def inside(cal, step, k):
+        return float(np.mean(np.abs(y - mean)[:, step - 1] < k * cal.scaled(std)[:, step - 1]))
+
+    # the plain knots' last band pools the last step with many earlier ones of smaller error
+    assert inside(plain, 800, 2) < TWO_SIGMA - 0.03
+    assert abs(inside(dense, 800, 2) - TWO_SIGMA) < 0.03 and abs(inside(dense, 800, 1) - ONE_SIGMA) < 0.05
+    assert abs(inside(dense, 400, 2) - TWO_SIGMA) < 0.03  # mid-horizon as before
+    back = StdCalibration.from_dict(dense.to_dict())  # its knots are stored: it applies as any other
+    np.testing.assert_allclose(back.scaled(std[:, :500]), dense.scaled(std[:, :500]))
+    with pytest.raises(CalibrationError, match="pass knots or end, not both"):
+        fit(y, mean, std, "coverage", knots=np.array([1, 10, 800]), end=True)
+
+
+def test_calibrate_places_end_dense_knots_for_a_horizon_solved_as_a_whole_only():
+    from types import SimpleNamespace
+
+    from robomorph.evaluation.calibrating import _solved_as_a_whole
+
+    def predictor(mode, blend_of=None, physics=True):
+        blend = None if blend_of is None else SimpleNamespace(physics_mode=blend_of)
+        return SimpleNamespace(physics={"x": 1} if physics else None, physics_mode=mode,
+                               model=SimpleNamespace(blend=blend))
+
+    assert _solved_as_a_whole(predictor("smoothed")) and _solved_as_a_whole(predictor("blend", "smoothed"))
+    assert not _solved_as_a_whole(predictor("blend", "forward"))  # a forward simulation's errors have no end
+    assert not _solved_as_a_whole(predictor("regression")) and not _solved_as_a_whole(predictor("none", physics=False))
