@@ -1,11 +1,17 @@
-"""Table 1 from the evaluations already in a work folder: no data, training or evaluation.
+"""The tables and the figure from the evaluations already in a work folder: no data, training or evaluation.
 
 For a reproduction cut short after some runs were scored (a GPU lease that ended before the
 improved row trained), or whose ``<work>/runs`` came back from another machine without their
-checkpoints and stores. The rows are the runs of this scale's budget (``table1-L<depth>-s<steps>``,
-``table1-improved-L<depth>-s<steps>``) scored on all three test stores; a depth with no such
-evaluations is left out and named. The header's provenance is the evaluations' own (the
-command that ran them, its commit, date and machine), with this command beside it.
+checkpoints and stores (``metrics.json`` files alone are enough). Each output is written from
+the runs of this scale's budgets, named as the pipeline names them:
+
+- Table 1: ``table1-L<depth>-s<steps>`` (and ``table1-improved-...``) scored on all three test
+  stores; a depth without them is left out and named under the table;
+- Table 2: the pre-trained, fine-tuned and scratch runs scored on ``spiral_test``, all three;
+- the context figure: Table 1's middle model scored with the sweeps (``test0-sweeps``).
+
+The headers' provenance is the evaluations' own (the command that ran them, its commit, date and
+machine), with this command beside it.
 """
 
 from __future__ import annotations
@@ -14,39 +20,80 @@ import datetime
 import os
 
 from robomorph.core.errors import MissingInputError
+from robomorph.core.names import REGIMES
 from robomorph.reproduction import skip
 from robomorph.reproduction.improved import IMPROVED
-from robomorph.reproduction.tables import table1_rows, write_table1
+from robomorph.reproduction.tables import REGIME_TITLES, table1_rows, table2_data, write_table1, write_table2
 
 
-def _scored(run_dir: str, tests: tuple[str, ...]) -> dict[str, dict] | None:
-    """``{test: metrics.json content}`` when ``run_dir`` holds an evaluation on every test store."""
-    paths = {t: os.path.join(run_dir, "eval", t, "metrics.json") for t in tests}
+def _scored(plan, run: str, tests) -> dict[str, dict] | None:
+    """``{test: metrics.json content}`` when ``run`` holds an evaluation on every test store."""
+    paths = {t: os.path.join(plan.path("runs"), plan.run_name(run), "eval", t, "metrics.json") for t in tests}
     if not all(os.path.isfile(p) for p in paths.values()):
         return None
     return {t: skip.read_json(p) for t, p in paths.items()}
 
 
-def collect_table1(plan, tests: tuple[str, ...]) -> dict:
-    """Writes ``<out>/table1.*`` from the Table 1 evaluations in ``<work>/runs``; returns its JSON.
+def _info(plan, evaluation: dict, missing: list[str]) -> dict:
+    """A header's provenance: the evaluation's (command, commit, date, machine) and this command's."""
+    first = evaluation["provenance"]
+    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    return {"scale": plan.scale.name, "command": first["command"], "normalization": plan.normalization,
+            "date": first["date"], "machine": f"{first['machine']}; commit {first['commit']}",
+            "budgets": plan.scale.budgets(), "inputs": plan.inputs,
+            "collected": {"command": plan.command, "date": now, "missing": missing}}
 
-    Raises MissingInputError (naming the folder and the command that makes them) when no depth
-    has been scored on every test store."""
-    s, runs = plan.scale, plan.path("runs")
-    paper = {d: _scored(os.path.join(runs, plan.run_name(f"table1-L{d}-s{s.train_steps}")), tests) for d in s.depths}
-    improved = _scored(os.path.join(runs, plan.run_name(f"table1-{IMPROVED}-L{s.transfer_depth}-s{s.train_steps}")),
-                       tests) if plan.normalization == "train_stats" else None
+
+def collect_table1(plan, tests: tuple[str, ...]) -> dict | None:
+    """Writes ``<out>/table1.*`` from the Table 1 evaluations in ``<work>/runs``; None when no depth was scored."""
+    s = plan.scale
+    paper = {d: _scored(plan, f"table1-L{d}-s{s.train_steps}", tests) for d in s.depths}
+    leak_free = plan.normalization == "train_stats"  # the improved row is measured leak-free only
+    improved = _scored(plan, f"table1-{IMPROVED}-L{s.transfer_depth}-s{s.train_steps}", tests) if leak_free else None
     found = {d: r for d, r in paper.items() if r is not None}
     if not found:
-        raise MissingInputError(f"{runs}: no Table 1 run of scale {s.name} ({s.train_steps} steps) was scored on "
-                                f"{', '.join(tests)}: run `python -m robomorph.reproduce table1 --scale {s.name}` first")
+        return None
     rows = table1_rows(found) + (table1_rows({s.transfer_depth: improved}, IMPROVED) if improved else [])
-    first = next(iter(next(iter(found.values())).values()))["provenance"]
-    missing = [str(d) for d in s.depths if paper[d] is None] + ([] if improved or plan.normalization != "train_stats"
-                                                                   else [f"{s.transfer_depth} ({IMPROVED})"])
-    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    info = {"scale": s.name, "command": first["command"], "normalization": plan.normalization,
-            "date": first["date"], "machine": f"{first['machine']}; commit {first['commit']}",
-            "budgets": s.budgets(), "inputs": plan.inputs,
-            "collected": {"command": plan.command, "date": now, "missing": missing}}
-    return write_table1(plan.out, rows, info)
+    missing = [str(d) for d in s.depths if paper[d] is None]
+    missing += [] if improved or not leak_free else [f"{s.transfer_depth} ({IMPROVED})"]
+    return write_table1(plan.out, rows, _info(plan, next(iter(next(iter(found.values())).values())), missing))
+
+
+def collect_table2(plan) -> dict | None:
+    """Writes ``<out>/table2.*`` when the three regimes were scored on the spiral; None otherwise."""
+    s, depth = plan.scale, plan.scale.transfer_depth
+    steps = {"zero_shot": 0, "finetune": s.finetune_steps, "scratch": s.scratch_steps}
+    runs = {"zero_shot": f"table2-pretrain-L{depth}-s{s.pretrain_steps}",
+            **{g: f"table2-{g}-L{depth}-s{steps[g]}" for g in ("finetune", "scratch")}}
+    results = {g: _scored(plan, runs[g], ("spiral_test",)) for g in REGIMES}
+    if any(r is None for r in results.values()):
+        return None
+    results = {g: r["spiral_test"] for g, r in results.items()}
+    titles = {g: REGIME_TITLES[g] + (f" ({steps[g]} steps)" if steps[g] else "") for g in REGIMES}
+    return write_table2(plan.out, table2_data(results), titles, _info(plan, results["zero_shot"], []))
+
+
+def collect_context(plan) -> dict | None:
+    """Writes ``<out>/context_horizon.*`` when Table 1's middle model was scored with the sweeps; None otherwise."""
+    from robomorph.reproduction.figures import write_context_figure  # noqa: PLC0415  (matplotlib only when drawing)
+
+    s = plan.scale
+    res = _scored(plan, f"table1-L{s.transfer_depth}-s{s.train_steps}", ("test0-sweeps",))
+    if res is None:
+        return None
+    res = res["test0-sweeps"]
+    return write_context_figure(plan.out, res["sweeps"], res["meta"], _info(plan, res, []))
+
+
+def collect(plan, tests: tuple[str, ...]) -> dict[str, dict]:
+    """Writes what the evaluations in ``<work>/runs`` allow; returns ``{output: its JSON}``.
+
+    Raises MissingInputError (naming the folder and the command that makes them) when they allow nothing."""
+    done = {name: doc for name, doc in (("table1", collect_table1(plan, tests)), ("table2", collect_table2(plan)),
+                                        ("context", collect_context(plan))) if doc is not None}
+    if not done:
+        s = plan.scale
+        raise MissingInputError(f"{plan.path('runs')}: no Table 1 run of scale {s.name} ({s.train_steps} steps) was "
+                                f"scored on {', '.join(tests)}, and no Table 2 or context evaluation is there: run "
+                                f"`python -m robomorph.reproduce table1 --scale {s.name}` first")
+    return done

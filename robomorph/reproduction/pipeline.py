@@ -20,7 +20,7 @@ Targets:
   the middle depth, same store and budget), added to an existing ``<out>/table1.*``;
   ``table1`` trains and adds it itself (leak-free runs only).
 - ``all``: table1, table2 and context in order, sharing data and models.
-- ``collect``: Table 1 from the evaluations already in ``--work``, training and scoring nothing
+- ``collect``: the tables and the figure from the evaluations already in ``--work``, training and scoring nothing
   (for a command cut short, or runs fetched back from another machine without their
   checkpoints; :mod:`robomorph.reproduction.collect`).
 - ``compare``: Table 1 under both normalizations side by side with the paper's figures,
@@ -366,11 +366,12 @@ def reproduce(target: str, scale: Scale, out: str | None = None, work: str | Non
                 out or default_out(scale, normalization, inputs), command, workers, device, wandb, normalization, inputs)
     os.makedirs(plan.out, exist_ok=True)
     if target == "collect":
-        from robomorph.reproduction.collect import collect_table1  # noqa: PLC0415
+        from robomorph.reproduction.collect import collect  # noqa: PLC0415
 
-        doc = collect_table1(plan, TESTS)
-        say("collect", f"written {os.path.join(plan.out, 'table1.md')} (.tex, .json)")
-        return {"collect": doc}
+        done = collect(plan, TESTS)
+        files = {"table1": "table1.md", "table2": "table2.md", "context": "context_horizon.png"}
+        say("collect", "written " + ", ".join(os.path.join(plan.out, files[name]) for name in done))
+        return done
     steps = {"table1": make_table1, IMPROVED: make_improved, "table2": make_table2, "context": make_context_figure}
     chosen = ["table1", "table2", "context"] if target == "all" else [target]
     done = {name: steps[name](plan) for name in chosen}

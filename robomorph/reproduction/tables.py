@@ -181,6 +181,7 @@ def write_table2(out: str, data: dict, titles: dict[str, str], info: dict) -> di
     if data.get("hold"):
         lines.append(f"For scale: the hold baseline (last context output held) scores R² {data['hold']['r2']:.3f}, "
                      f"FIT {data['hold']['fit']:.2f} (approach 2 mean).")
+    lines += _partial_notes(info)
     write_text(os.path.join(out, "table2.md"), "\n".join(lines) + "\n")
     write_text(os.path.join(out, "table2.tex"), table2_tex(data, titles, info))
     write_json(os.path.join(out, "table2.json"), doc)

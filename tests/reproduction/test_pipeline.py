@@ -405,7 +405,30 @@ def test_device_reproduce_packs_what_collect_needs(table1_run, tmp_path):
         assert not any(n.endswith((".ckpt", ".zarr")) for n in names)
         pack.extractall(tmp_path / "back", filter="data")
     work = tmp_path / "back" / os.path.relpath(root / "work", "/")
-    assert len(glob.glob(str(work / "runs" / "*" / "eval" / "test*" / "metrics.json"))) == 12
+    steps = SCALES["ci"].train_steps  # Table 1's runs: 3 depths and the improved model, 3 test stores each
+    assert len(glob.glob(str(work / "runs" / f"table1-*-s{steps}" / "eval" / "test[0-2]" / "metrics.json"))) == 12
     assert reproduce.main(["collect", "--scale", "ci", "--work", str(work), "--out", str(tmp_path / "table")]) == 0
     assert json.load(open(tmp_path / "table" / "table1.json"))["rows"] == \
         json.load(open(root / "out-device" / "table1.json"))["rows"]
+
+
+def test_collect_writes_table2_and_the_context_figure_from_the_evaluations_alone(table1_run, tmp_path):
+    root, _ = table1_run
+    assert reproduce.main(_argv("all", root)) == 0  # finished work is kept: only what is missing runs
+    _evaluations_only(str(root / "work"), str(tmp_path / "work"))
+    argv = ["collect", "--scale", "ci", "--work", str(tmp_path / "work"), "--out", str(tmp_path / "out")]
+    assert reproduce.main(argv) == 0
+    full, got = json.load(open(root / "out" / "table2.json")), json.load(open(tmp_path / "out" / "table2.json"))
+    assert got["rows"] == full["rows"] and got["titles"] == full["titles"] and got["regimes"] == full["regimes"]
+    assert "Collected from the evaluations" in open(tmp_path / "out" / "table2.md").read()
+    fig = json.load(open(tmp_path / "out" / "context_horizon.json"))
+    assert fig["sweeps"] == json.load(open(root / "out" / "context_horizon.json"))["sweeps"]
+    assert os.path.getsize(tmp_path / "out" / "context_horizon.png") > 10_000
+
+    # without the fine-tuned run's evaluation Table 2 is not written; Table 1 and the figure still are
+    _evaluations_only(str(root / "work"), str(tmp_path / "part"),
+                      skip_run=f"table2-finetune-L{SCALES['ci'].transfer_depth}-s{SCALES['ci'].finetune_steps}")
+    argv = ["collect", "--scale", "ci", "--work", str(tmp_path / "part"), "--out", str(tmp_path / "out2")]
+    assert reproduce.main(argv) == 0
+    assert not os.path.exists(tmp_path / "out2" / "table2.json")
+    assert os.path.isfile(tmp_path / "out2" / "table1.json") and os.path.isfile(tmp_path / "out2" / "context_horizon.png")
