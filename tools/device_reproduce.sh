@@ -10,7 +10,7 @@
 #
 # Back here: tar xzf evaluations.tgz -C some/folder, then
 #   python -m robomorph.reproduce collect --scale gpu --steps-factor 0.5 --work some/folder/data/reproduce/gpu
-# writes Table 1 from whatever was scored. Re-running the same command on the same machine
+# writes the tables and the figure from whatever was scored. Re-running the same command on the same machine
 # resumes where it stopped. The log is OUT/reproduce.log.
 set -uo pipefail
 if [ $# -lt 3 ]; then
@@ -23,7 +23,7 @@ mkdir -p "$out"
 python=${PYTHON:-python3}
 # The wheels only where the project's own packages are missing (a bare CUDA image).
 if ! "$python" -c "import mujoco, zarr, dm_control" 2>/dev/null && compgen -G ".devsite/*.whl" >/dev/null; then
-    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .devsite/*.whl \
+    "$python" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .devsite/*.whl \
         || { echo "device_reproduce: the wheels of .devsite/ did not install" >&2; exit 2; }
     export PYTHONPATH=/tmp/site${PYTHONPATH:+:$PYTHONPATH}
 fi

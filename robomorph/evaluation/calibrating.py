@@ -165,13 +165,13 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
 
 
 def _solved_as_a_whole(predictor) -> bool:
-    """Whether the predictor's horizon is one smoothing problem (mode ``smoothed``, or a blend of
-    it), whose last steps have no later torque to pin them: its errors grow fastest toward the
+    """Whether the predictor's horizon is one smoothing problem
+    (:func:`robomorph.model.hybrid.solves_whole_horizon`): its errors grow fastest toward the
     horizon's end, so its calibration's knots are dense there too
     (:func:`robomorph.model.calibration.end_dense_knots`)."""
-    mode = getattr(predictor, "physics_mode", None) if getattr(predictor, "physics", None) else None
-    blend = getattr(getattr(predictor, "model", None), "blend", None)
-    return mode == "smoothed" or (mode == "blend" and getattr(blend, "physics_mode", None) == "smoothed")
+    from robomorph.model.hybrid import solves_whole_horizon  # noqa: PLC0415  (MuJoCo only for a hybrid)
+
+    return bool(getattr(predictor, "physics", None)) and solves_whole_horizon(predictor.model, predictor.physics_mode)
 
 
 def _report(ckpt: str, out: str | None, cal, dt: float, horizon: int, steps: list[int], before, after) -> dict:

@@ -138,7 +138,7 @@ class Hybrid:
         qvel_start[rest] = 0.0
         anchor = q_ctx[:, 0] if anchor is None else np.asarray(anchor, dtype=np.float64).reshape(B, -1)
         params, z, z_std = self._identify(u_ctx[one], y_ctx[one], mode, anchor[one], qvel_start[one])
-        if mode == "smoothed" or (mode == "blend" and self.model.blend.physics_mode == "smoothed"):
+        if solves_whole_horizon(self.model, mode):
             return _smoothed(self, u_ctx, y_ctx, u_query, params, mode, return_std, calibration)
         mixture = self._mixture(mode, params, q_ctx[one], uc[one], qvel_start[one])
         if mixture is not None:
@@ -288,6 +288,13 @@ def _draw_spread(backbone, params: np.ndarray, z_std: np.ndarray, covs, mean: np
         pk[:, index] = (low + high) / 2 + np.clip(zk, -1, 1) * (high - low) / 2
         draws.append(horizon(pk))
     return np.sqrt(np.mean((np.stack(draws) - mean[None]) ** 2, axis=0))  # (K, B, H, n_y) -> (B, H, n_y)
+
+
+def solves_whole_horizon(model, mode: str) -> bool:
+    """Whether ``mode`` predicts the horizon as one smoothing problem (``smoothed``, or a blend of
+    it), whose last steps have no later torque to pin them, rather than simulating it forward."""
+    blend = getattr(model, "blend", None)
+    return mode == "smoothed" or (mode == "blend" and blend is not None and blend.physics_mode == "smoothed")
 
 
 def check_mode(model, mode: str) -> None:

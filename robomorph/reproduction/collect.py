@@ -23,7 +23,9 @@ from robomorph.core.errors import MissingInputError
 from robomorph.core.names import REGIMES
 from robomorph.reproduction import skip
 from robomorph.reproduction.improved import IMPROVED
-from robomorph.reproduction.tables import REGIME_TITLES, table1_rows, table2_data, write_table1, write_table2
+from robomorph.reproduction.runs import (SPIRAL_EVAL, SWEEPS_EVAL, improved_run, table1_run, table2_run,
+                                         table2_titles)
+from robomorph.reproduction.tables import table1_rows, table2_data, write_table1, write_table2
 
 
 def _scored(plan, run: str, tests) -> dict[str, dict] | None:
@@ -47,9 +49,9 @@ def _info(plan, evaluation: dict, missing: list[str]) -> dict:
 def collect_table1(plan, tests: tuple[str, ...]) -> dict | None:
     """Writes ``<out>/table1.*`` from the Table 1 evaluations in ``<work>/runs``; None when no depth was scored."""
     s = plan.scale
-    paper = {d: _scored(plan, f"table1-L{d}-s{s.train_steps}", tests) for d in s.depths}
+    paper = {d: _scored(plan, table1_run(s, d), tests) for d in s.depths}
     leak_free = plan.normalization == "train_stats"  # the improved row is measured leak-free only
-    improved = _scored(plan, f"table1-{IMPROVED}-L{s.transfer_depth}-s{s.train_steps}", tests) if leak_free else None
+    improved = _scored(plan, improved_run(s), tests) if leak_free else None
     found = {d: r for d, r in paper.items() if r is not None}
     if not found:
         return None
@@ -61,27 +63,21 @@ def collect_table1(plan, tests: tuple[str, ...]) -> dict | None:
 
 def collect_table2(plan) -> dict | None:
     """Writes ``<out>/table2.*`` when the three regimes were scored on the spiral; None otherwise."""
-    s, depth = plan.scale, plan.scale.transfer_depth
-    steps = {"zero_shot": 0, "finetune": s.finetune_steps, "scratch": s.scratch_steps}
-    runs = {"zero_shot": f"table2-pretrain-L{depth}-s{s.pretrain_steps}",
-            **{g: f"table2-{g}-L{depth}-s{steps[g]}" for g in ("finetune", "scratch")}}
-    results = {g: _scored(plan, runs[g], ("spiral_test",)) for g in REGIMES}
+    results = {g: _scored(plan, table2_run(plan.scale, g), (SPIRAL_EVAL,)) for g in REGIMES}
     if any(r is None for r in results.values()):
         return None
-    results = {g: r["spiral_test"] for g, r in results.items()}
-    titles = {g: REGIME_TITLES[g] + (f" ({steps[g]} steps)" if steps[g] else "") for g in REGIMES}
-    return write_table2(plan.out, table2_data(results), titles, _info(plan, results["zero_shot"], []))
+    results = {g: r[SPIRAL_EVAL] for g, r in results.items()}
+    return write_table2(plan.out, table2_data(results), table2_titles(plan.scale), _info(plan, results["zero_shot"], []))
 
 
 def collect_context(plan) -> dict | None:
     """Writes ``<out>/context_horizon.*`` when Table 1's middle model was scored with the sweeps; None otherwise."""
     from robomorph.reproduction.figures import write_context_figure  # noqa: PLC0415  (matplotlib only when drawing)
 
-    s = plan.scale
-    res = _scored(plan, f"table1-L{s.transfer_depth}-s{s.train_steps}", ("test0-sweeps",))
+    res = _scored(plan, table1_run(plan.scale, plan.scale.transfer_depth), (SWEEPS_EVAL,))
     if res is None:
         return None
-    res = res["test0-sweeps"]
+    res = res[SWEEPS_EVAL]
     return write_context_figure(plan.out, res["sweeps"], res["meta"], _info(plan, res, []))
 
 

@@ -60,13 +60,15 @@ import time
 from dataclasses import dataclass
 
 from robomorph.core.errors import MissingInputError, UsageError
-from robomorph.core.names import INPUTS, NORMALIZATIONS, REGIMES
+from robomorph.core.names import INPUTS, NORMALIZATIONS
 from robomorph.core.normalizations import leaks_query_statistics
 from robomorph.core.overrides import merge
 from robomorph.core.recipes import locate
 from robomorph.core.rundir import RunDir
 from robomorph.reproduction import skip
 from robomorph.reproduction.improved import IMPROVED, improved_overrides
+from robomorph.reproduction.runs import (SPIRAL_EVAL, SWEEPS_EVAL, improved_run, pretrain_run, table1_run,
+                                         table2_budgets, table2_run, table2_titles)
 from robomorph.reproduction.scales import Scale
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.transfer import regime_overrides
@@ -199,7 +201,7 @@ def scored(plan: Plan, target: str, ckpt: str, data: str, name: str, sweeps: boo
 def table1_ckpt(plan: Plan, depth: int, train_store: str, target: str = "table1") -> str:
     """Trains Table 1's model of ``depth`` layers on the multi-sine training store."""
     s = plan.scale
-    args = base_args(plan, depth, [train_store], f"table1-L{depth}-s{s.train_steps}", s.train_steps)
+    args = base_args(plan, depth, [train_store], table1_run(s, depth), s.train_steps)
     return trained_ckpt(plan, target, args, f"{depth}-layer model")
 
 
@@ -207,8 +209,7 @@ def improved_results(plan: Plan, train_store: str, tests: dict[str, str], target
     """Trains (or keeps) Table 1's improved model at the middle depth and scores it on every test store."""
     s, depth = plan.scale, plan.scale.transfer_depth
     over = improved_overrides(recipe_path("train_cpu"), s.context_len, s.horizon, s.patch)
-    args = merge(base_args(plan, depth, [train_store], f"table1-{IMPROVED}-L{depth}-s{s.train_steps}", s.train_steps),
-                 over)
+    args = merge(base_args(plan, depth, [train_store], improved_run(s), s.train_steps), over)
     ckpt = trained_ckpt(plan, target, args, f"improved {depth}-layer model")
     return {t: scored(plan, target, ckpt, path, t) for t, path in tests.items()}
 
@@ -268,24 +269,22 @@ def make_improved(plan: Plan) -> dict:
 
 def make_table2(plan: Plan) -> dict:
     """Table 2: zero-shot, fine-tuned and from-scratch models on the spiral; writes table2.md/.tex/.json."""
-    from robomorph.reproduction.tables import REGIME_TITLES, table2_data, write_table2  # noqa: PLC0415
+    from robomorph.reproduction.tables import table2_data, write_table2  # noqa: PLC0415
 
     s, depth = plan.scale, plan.scale.transfer_depth
     mixture, spiral = prepared_store(plan, "mixture_train", "table2"), prepared_store(plan, "spiral_train", "table2")
     test = prepared_store(plan, "spiral_test", "table2")
-    pre = base_args(plan, depth, [mixture], f"table2-pretrain-L{depth}-s{s.pretrain_steps}", s.pretrain_steps)
+    pre = base_args(plan, depth, [mixture], pretrain_run(s), s.pretrain_steps)
     pretrained = trained_ckpt(plan, "table2", pre, f"{depth}-layer model on the multi-sine + chirp mixture")
-    budgets = {"zero_shot": 0, "finetune": s.finetune_steps, "scratch": s.scratch_steps}
-    results, titles = {}, {}
-    for regime in REGIMES:
-        ckpt, steps = pretrained, budgets[regime]
+    results = {}
+    for regime, steps in table2_budgets(s).items():
+        ckpt = pretrained
         over = regime_overrides(regime, pretrained, steps, lr=s.finetune_lr if regime == "finetune" else None)
         if over is not None:
-            args = merge(base_args(plan, depth, [spiral], f"table2-{regime}-L{depth}-s{steps}", steps), over)
+            args = merge(base_args(plan, depth, [spiral], table2_run(s, regime), steps), over)
             ckpt = trained_ckpt(plan, "table2", args, f"{regime} on the spiral")
-        results[regime] = scored(plan, "table2", ckpt, test, "spiral_test")
-        titles[regime] = REGIME_TITLES[regime] + (f" ({steps} steps)" if steps else "")
-    doc = write_table2(plan.out, table2_data(results), titles, run_info(plan))
+        results[regime] = scored(plan, "table2", ckpt, test, SPIRAL_EVAL)
+    doc = write_table2(plan.out, table2_data(results), table2_titles(s), run_info(plan))
     say("table2", f"written {os.path.join(plan.out, 'table2.md')} (.tex, .json)")
     return doc
 
@@ -295,7 +294,7 @@ def make_context_figure(plan: Plan) -> dict:
     from robomorph.reproduction.figures import write_context_figure  # noqa: PLC0415
 
     ckpt = table1_ckpt(plan, plan.scale.transfer_depth, prepared_store(plan, "ms_train", "context"), "context")
-    res = scored(plan, "context", ckpt, prepared_store(plan, "ms_test0", "context"), "test0-sweeps", sweeps=True)
+    res = scored(plan, "context", ckpt, prepared_store(plan, "ms_test0", "context"), SWEEPS_EVAL, sweeps=True)
     doc = write_context_figure(plan.out, res["sweeps"], res["meta"], run_info(plan))
     say("context", f"written {os.path.join(plan.out, 'context_horizon.png')} (.json, .csv)")
     return doc
