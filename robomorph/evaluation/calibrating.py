@@ -35,7 +35,7 @@ from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.windows import (EvaluationError, Window, check_counts, check_patch, load_window, parse_offset,
                                           start_joints)
 from robomorph.model.calibration import (CALIBRATION_KEY, POWER_MIN_WINDOWS, CalibrationError, calibration_key,
-                                         calibrations_entry, fit, read_calibrations)
+                                         calibrations_entry, fit, outside_bands, read_calibrations, spread_skill)
 
 
 def _predictor(ckpt: str, device: str | None, need_std: bool = True):
@@ -144,7 +144,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     w, source = _fitting_windows(ckpt, predictor, sources, split, n, context_len, horizon, offset, seed,
                                  "calibration window")
     if getattr(predictor, "physics", None) and offset != "start":
-        w = _moving(w, offset)
+        w = moving_windows(w, offset)
         source["n"] = int(len(w.u))
     horizon = source["horizon"]
     steps = parse_horizons(horizons_spec, horizon, w.dt)
@@ -158,6 +158,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     cal = fit(before.y, mean, std, method, source=source, end=_solved_as_a_whole(predictor))
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
     report = _report(ckpt, out, cal, w.dt, horizon, steps, before, after)
+    report["skill"] = spread_skill(before.y, mean, std, steps)
     ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
                                                      calibration_key(cal): cal})
     _write(ckpt_dict, out or ckpt)
@@ -200,7 +201,7 @@ def _set_observer(predictor, ckpt_dict: dict, on: bool) -> None:
     record["observer"] = predictor.physics_observer = bool(on)
 
 
-def _moving(w: Window, offset) -> Window:
+def moving_windows(w: Window, offset) -> Window:
     """The windows that do not open their trajectory: what a hybrid's calibration from ``offset``
     (random or a step) is for. Those that drew the start are the other kind's."""
     rows = w.starts > 0
@@ -342,10 +343,11 @@ def report_text(report: dict) -> str:
     src = report["calibration"]["source"]
     secs = report.get("seconds") or [None] * len(report["steps"])
     b, a = report["before"], report["after"]
-    power = report.get("power")
+    power, skill = report.get("power"), report.get("skill")
     rows = [[s, "" if t is None else f"{t:.3g}", f"{report['scale'][i]:.3g}",
              *([f"{power[i]:.3g}"] if power else []), f"{b['1sigma'][i]:.1%}",
-             f"{a['1sigma'][i]:.1%}", f"{b['2sigma'][i]:.1%}", f"{a['2sigma'][i]:.1%}"]
+             f"{a['1sigma'][i]:.1%}", f"{b['2sigma'][i]:.1%}", f"{a['2sigma'][i]:.1%}",
+             *([f"{skill[i]:.2f}"] if skill else [])]
             for i, (s, t) in enumerate(zip(report["steps"], secs))]
     lines = [f"std calibration ({report['calibration']['method']}) fitted on {src['n']} windows of "
              f"{', '.join(src['data'])} ({'validation split' if src['split'] == 'val' else 'whole store'}), "
@@ -354,7 +356,11 @@ def report_text(report: dict) -> str:
              + (f", physics mode {src['physics_mode']}" if src.get("physics_mode") else "")
              + (" with the observer's start velocity" if src.get("observer") else ""),
              markdown_table(["step", "seconds", "scale (median over channels)", *(["power (median)"] if power else []),
-                             "±1σ before", "±1σ after", "±2σ before", "±2σ after"], rows)]
+                             "±1σ before", "±1σ after", "±2σ before", "±2σ after",
+                             *(["spread-error rank corr."] if skill else [])], rows)]
+    missed = outside_bands(a["1sigma"], a["2sigma"])
+    if missed:
+        lines.append(_tails_note(report, missed))
     if report["calibration"]["method"] == "power" and src["n"] < POWER_MIN_WINDOWS:
         lines.append(f"the spread's power stays 1 (a scale alone) on fewer than {POWER_MIN_WINDOWS} windows: "
                      "pass --data with a store of more held-out robots to fit it")
@@ -365,3 +371,16 @@ def report_text(report: dict) -> str:
                  "store with robomorph.evaluate)")
     lines.append(f"written: {report['out']}")
     return "\n".join(lines)
+
+
+def _tails_note(report: dict, missed: list[int]) -> str:
+    """Why the calibration windows themselves leave a band after the fit: heavy tails, and how well the
+    spread ranks the windows by their errors (:func:`robomorph.model.calibration.spread_skill`)."""
+    steps = ", ".join(str(report["steps"][i]) for i in missed)
+    skill = report.get("skill")
+    ranked = "" if not skill else (f"; the spread ranks the windows by their errors with a rank correlation of "
+                                   f"{min(skill[i] for i in missed):.2f}-{max(skill[i] for i in missed):.2f} "
+                                   "there, and a scale cannot move a window whose spread is too small for its error "
+                                   "past one whose spread is too large")
+    return (f"at step(s) {steps} the errors are heavier-tailed than a Gaussian's: no scale of this spread puts both "
+            f"±1σ and ±2σ within 68.3 ± 5 % / 95.4 ± 3 % of these windows{ranked}")

@@ -88,6 +88,7 @@ class Hybrid:
         self._regressor_gravity = False
         self._stiction = None
         self._held: np.ndarray | None = None  # (B, nj) of the last regression: joints that held still
+        self._covs: list[np.ndarray] = []  # of the last regression: each window's estimate covariance
         from robomorph.sim.smoother import SmootherConfig, new_report  # noqa: PLC0415
 
         self.smoother = SmootherConfig()  # how mode ``smoothed`` weighs physics and decoder
@@ -169,6 +170,12 @@ class Hybrid:
         # The parameters' uncertainty about the most likely member, and the friction's between members.
         std = np.sqrt(self._spread(mode, params, z, z_std, horizon(params), horizon, None) ** 2 + mix_var)
         return mean, std if calibration is None else calibration.scaled(std)
+
+    @property
+    def covariances(self) -> list[np.ndarray]:
+        """Each window's estimate covariance (n, n) in unit coordinates from the last regression (:meth:`identify`
+        or :meth:`predict` in a mode that regresses): what the std's parameter draws sample from."""
+        return list(self._covs)
 
     def _mixture(self, mode: str, params: np.ndarray, q_ctx: np.ndarray, uc: np.ndarray,
                  qvel_start: np.ndarray) -> list | None:

@@ -136,3 +136,17 @@ def test_the_command_prints_the_coverage_before_and_after(gaussian, tmp_path, si
     assert "power (median)" in done.stdout and "power stays 1 (a scale alone) on fewer than 128 windows" in done.stdout
     steps = [line.strip("|").split("|")[0].strip() for line in done.stdout.splitlines() if line.startswith("|")]
     assert steps[2:] == ["1", "10", str(CKPT_HORIZON)]  # after the header and the separator
+
+
+def test_the_report_ranks_the_spread_and_says_when_heavy_tails_leave_a_band():
+    from robomorph.evaluation.calibrating import report_text
+
+    base = {"ckpt": "m.ckpt", "out": "m.ckpt", "steps": [1, 60], "seconds": [0.0167, 1.0], "scale": [1.1, 1.3],
+            "power": [1.0, 0.75], "skill": [0.41, 0.12],
+            "calibration": {"method": "power", "source": {"n": 256, "data": ["cal.zarr"], "split": "whole",
+                                                          "context_len": 200, "horizon": 800}},
+            "before": {"1sigma": [0.6, 0.5], "2sigma": [0.9, 0.8]}}
+    inside = report_text({**base, "after": {"1sigma": [0.69, 0.71], "2sigma": [0.95, 0.94]}})
+    assert "spread-error rank corr." in inside and "| 0.12" in inside and "heavier-tailed" not in inside
+    tails = report_text({**base, "after": {"1sigma": [0.69, 0.74], "2sigma": [0.95, 0.91]}})
+    assert "at step(s) 60 the errors are heavier-tailed" in tails and "rank correlation of 0.12-0.12" in tails
