@@ -8,7 +8,7 @@ same windows:
 
 - the **skill** of each candidate spread: the rank correlation across windows between it and the
   joints' absolute error, at the reported steps (median over the joints;
-  :func:`robomorph.model.calibration.spread_skill`, what ``calibrate`` prints);
+  :func:`robomorph.evaluation.horizons.spread_skill`, what ``calibrate`` prints);
 - the joints' ±1σ / ±2σ coverage on the test windows after a ``power`` calibration fitted on the
   calibration windows, with the model's spread and with the spread times a candidate signal to a
   power (``q``), the largest miss in units of its tolerance (5 and 3 points; 1 or less: both goal
@@ -35,10 +35,10 @@ from common import print_provenance
 from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
 from robomorph.evaluation.calibrating import moving_windows
-from robomorph.evaluation.horizons import groups_for
+from robomorph.evaluation.horizons import groups_for, spread_skill
 from robomorph.evaluation.scoring import score_windows
 from robomorph.evaluation.windows import load_window, start_joints
-from robomorph.model.calibration import COVERAGE_TOLERANCE, ONE_SIGMA, TWO_SIGMA, fit, spread_skill
+from robomorph.model.calibration import COVERAGE_TOLERANCE, ONE_SIGMA, TWO_SIGMA, fit
 from robomorph.model.hybrid import solves_whole_horizon
 from robomorph.model.predictor import Predictor
 

@@ -35,7 +35,7 @@ from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.windows import (EvaluationError, Window, check_counts, check_patch, load_window, parse_offset,
                                           start_joints)
 from robomorph.model.calibration import (CALIBRATION_KEY, POWER_MIN_WINDOWS, CalibrationError, calibration_key,
-                                         calibrations_entry, fit, outside_bands, read_calibrations, spread_skill)
+                                         calibrations_entry, fit, outside_bands, read_calibrations)
 
 
 def _predictor(ckpt: str, device: str | None, need_std: bool = True):
@@ -158,7 +158,8 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     cal = fit(before.y, mean, std, method, source=source, end=_solved_as_a_whole(predictor))
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
     report = _report(ckpt, out, cal, w.dt, horizon, steps, before, after)
-    report["skill"] = spread_skill(before.y, mean, std, steps)
+    # Unchanged by the calibration: a positive scale and power keep every channel's ranking of the windows.
+    report["skill"] = before.result["horizons"]["skill"]["all"]
     ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
                                                      calibration_key(cal): cal})
     _write(ckpt_dict, out or ckpt)
@@ -347,7 +348,7 @@ def report_text(report: dict) -> str:
     rows = [[s, "" if t is None else f"{t:.3g}", f"{report['scale'][i]:.3g}",
              *([f"{power[i]:.3g}"] if power else []), f"{b['1sigma'][i]:.1%}",
              f"{a['1sigma'][i]:.1%}", f"{b['2sigma'][i]:.1%}", f"{a['2sigma'][i]:.1%}",
-             *([f"{skill[i]:.2f}"] if skill else [])]
+             *(["" if skill[i] is None else f"{skill[i]:.2f}"] if skill else [])]
             for i, (s, t) in enumerate(zip(report["steps"], secs))]
     lines = [f"std calibration ({report['calibration']['method']}) fitted on {src['n']} windows of "
              f"{', '.join(src['data'])} ({'validation split' if src['split'] == 'val' else 'whole store'}), "
@@ -375,12 +376,12 @@ def report_text(report: dict) -> str:
 
 def _tails_note(report: dict, missed: list[int]) -> str:
     """Why the calibration windows themselves leave a band after the fit: heavy tails, and how well the
-    spread ranks the windows by their errors (:func:`robomorph.model.calibration.spread_skill`)."""
+    spread ranks the windows by their errors (:func:`robomorph.evaluation.horizons.spread_skill`)."""
     steps = ", ".join(str(report["steps"][i]) for i in missed)
-    skill = report.get("skill")
+    skill = [v for i, v in enumerate(report.get("skill") or []) if i in missed and v is not None]
     ranked = "" if not skill else (f"; the spread ranks the windows by their errors with a rank correlation of "
-                                   f"{min(skill[i] for i in missed):.2f}-{max(skill[i] for i in missed):.2f} "
-                                   "there, and a scale cannot move a window whose spread is too small for its error "
-                                   "past one whose spread is too large")
+                                   f"{min(skill):.2f}-{max(skill):.2f} "
+                                   "there, and a scale common to all windows cannot widen only those whose spread is too "
+                                   "small for their errors")
     return (f"at step(s) {steps} the errors are heavier-tailed than a Gaussian's: no scale of this spread puts both "
             f"±1σ and ±2σ within 68.3 ± 5 % / 95.4 ± 3 % of these windows{ranked}")

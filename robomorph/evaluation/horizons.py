@@ -175,6 +175,32 @@ def coverage_miss(y: np.ndarray, mean: np.ndarray, std: np.ndarray,
     return {f"{s}sigma": float(np.abs(np.asarray(cover[f"{s}sigma"]) - IDEAL[s]).mean()) for s in SIGMAS}
 
 
+def spread_skill(y: np.ndarray, mean: np.ndarray, std: np.ndarray, steps) -> list[float | None]:
+    """At each 1-based step of ``steps``, how well the spread orders the windows by their errors: the
+    rank correlation across windows between ``std`` and ``|y - mean|`` (each (N, H, n_y)), the median
+    over the channels (1: the larger spread always has the larger error; 0: no better than one spread
+    for all windows; None where every channel's spread, or error, is the same in every window).
+
+    A calibration scales every window's spread at a step alike, so it cannot raise a low skill: the
+    windows whose spread was too small for their errors stay so and show as heavy tails, and then
+    no scale puts both ±1σ and ±2σ near a Gaussian's shares (the power of ``robomorph calibrate``'s
+    ``power`` method helps only as far as the spread's ranking is right)."""
+    def ranks(a: np.ndarray) -> np.ndarray:
+        return np.argsort(np.argsort(a, axis=0), axis=0).astype(np.float64)
+
+    out = []
+    for s in steps:
+        e, sd = np.abs(np.asarray(y)[:, s - 1] - np.asarray(mean)[:, s - 1]), np.asarray(std)[:, s - 1]
+        re, rs = ranks(e), ranks(sd)
+        re, rs = re - re.mean(0), rs - rs.mean(0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = (re * rs).sum(0) / np.sqrt((re ** 2).sum(0) * (rs ** 2).sum(0))
+        # A channel whose spread (or error) is the same in every window says nothing: left out.
+        corr = corr[np.isfinite(corr) & (sd.std(0) > 0) & (e.std(0) > 0)]
+        out.append(float(np.median(corr)) if len(corr) else None)  # None: JSON's "no figure" (NaN is not JSON)
+    return out
+
+
 def gaussian_nll(y: np.ndarray, mean: np.ndarray, std: np.ndarray, channels: tuple[int, ...] | None = None) -> float:
     """Mean Gaussian negative log-likelihood per value [nats] of ``y`` under ``N(mean, std²)``.
 
@@ -195,7 +221,8 @@ def horizon_report(y: np.ndarray, preds: dict[str, np.ndarray], y_names: list[st
         y: (N, H, n_y) true outputs; preds: source name -> (N, H, n_y) predictions.
         steps: 1-based steps (:func:`parse_horizons`).
         std: (N, H, n_y) the model's predicted standard deviation, when it gives one; then
-            ``calibration`` holds its ±1σ / ±2σ coverage per step (all channels, and per quantity).
+            ``calibration`` holds its ±1σ / ±2σ coverage per step (all channels, and per quantity),
+            and ``skill`` how well it ranks the trajectories by their errors (:func:`spread_skill`).
 
     With ``model`` among ``preds``, ``below`` says for every other source and quantity over
     which share of all H steps the model's error is below that source's (:func:`below`).
@@ -212,6 +239,9 @@ def horizon_report(y: np.ndarray, preds: dict[str, np.ndarray], y_names: list[st
     if std is not None:
         out["calibration"] = {"all": coverage(y, preds["model"], std, steps),
                               **{g.name: coverage(y, preds["model"], std, steps, g.channels) for g in groups}}
+        out["skill"] = {"all": spread_skill(y, preds["model"], std, steps),
+                        **{g.name: spread_skill(y[..., list(g.channels)], preds["model"][..., list(g.channels)],
+                                                std[..., list(g.channels)], steps) for g in groups}}
     return out
 
 
@@ -247,6 +277,8 @@ def horizon_markdown(h: dict, sources: tuple[str, ...] | None = None) -> str:
     for s in SIGMAS:
         if h.get("calibration"):
             rows.append([f"inside ±{s}σ [%]", "model", *(f"{100 * v:.1f}" for v in h["calibration"]["all"][f"{s}sigma"])])
+    if h.get("skill"):  # metrics.json files written before it have none
+        rows.append(["std-error rank corr.", "model", *("" if v is None else f"{v:.2f}" for v in h["skill"]["all"])])
     lines = [markdown_table(["quantity", "source", *cols], rows, align=["left", "left", *["right"] * len(cols)])]
     for src, by_q in h.get("below", {}).items():
         if src not in names:

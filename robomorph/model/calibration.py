@@ -348,32 +348,6 @@ def _two_level_scale(z: np.ndarray) -> tuple[float, float]:
     return float(grid[best]), float(miss[best])
 
 
-def spread_skill(y: np.ndarray, mean: np.ndarray, std: np.ndarray, steps) -> list[float]:
-    """At each 1-based step of ``steps``, how well the spread orders the windows by their errors: the
-    rank correlation across windows between ``std`` and ``|y - mean|`` (each (N, H, n_y)), the median
-    over the channels (1: the larger spread always has the larger error; 0: no better than one spread
-    for all windows).
-
-    A calibration scales every window's spread at a step alike, so it cannot raise a low skill: the
-    windows whose spread was too small for their errors stay so and show as heavy tails, and then
-    no scale puts both ±1σ and ±2σ near a Gaussian's shares (the power of ``power`` helps only as far
-    as the spread's ranking is right)."""
-    def ranks(a: np.ndarray) -> np.ndarray:
-        return np.argsort(np.argsort(a, axis=0), axis=0).astype(np.float64)
-
-    out = []
-    for s in steps:
-        e, sd = np.abs(np.asarray(y)[:, s - 1] - np.asarray(mean)[:, s - 1]), np.asarray(std)[:, s - 1]
-        re, rs = ranks(e), ranks(sd)
-        re, rs = re - re.mean(0), rs - rs.mean(0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            corr = (re * rs).sum(0) / np.sqrt((re ** 2).sum(0) * (rs ** 2).sum(0))
-        # A channel whose spread (or error) is the same in every window says nothing: left out.
-        corr = corr[np.isfinite(corr) & (sd.std(0) > 0)]
-        out.append(float(np.median(corr)) if len(corr) else float("nan"))
-    return out
-
-
 def outside_bands(one: list[float], two: list[float]) -> list[int]:
     """The indices of the steps whose ±1σ / ±2σ coverages (shares) leave the bands of
     :data:`COVERAGE_TOLERANCE` around a Gaussian's (68.3 ± 5 % and 95.4 ± 3 %)."""

@@ -151,3 +151,18 @@ def test_shares_read_100_percent_only_when_every_step_is_below():
     assert _percent(799 / 800) == "99.9"  # one step above hold is not "100 %"
     assert _percent(1 / 800) == "0.1"
     assert _percent(0.94) == "94"
+
+
+def test_the_report_ranks_the_std_per_quantity_and_the_table_shows_it():
+    from robomorph.evaluation.horizons import horizon_markdown, horizon_report
+
+    rng = np.random.default_rng(1)
+    n, h = 64, 4
+    names = [f"q{i}" for i in range(7)]
+    y = np.zeros((n, h, 7))
+    std = rng.uniform(0.01, 1.0, size=(n, h, 7))
+    mean = std * rng.choice([-1.0, 1.0], size=std.shape)  # each error exactly its std: a perfect ranking
+    rep = horizon_report(y, {"model": mean}, names, 1 / 60, [1, h], std)
+    assert rep["skill"]["all"] == pytest.approx([1.0, 1.0]) and rep["skill"]["joints"] == pytest.approx([1.0, 1.0])
+    assert "std-error rank corr." in horizon_markdown(rep)
+    assert "skill" not in horizon_report(y, {"model": mean}, names, 1 / 60, [1, h])  # no std, no skill
