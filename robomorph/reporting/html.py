@@ -238,6 +238,11 @@ def _horizon_rows(h: dict, width: int) -> list[Row]:
         if values is not None:
             cells = [Cell(f"inside ±{sigma[0]}σ [%] (ideal {ideal})", cls="name"), Cell("model", cls="name")]
             rows.append(Row(tuple(cells + [Cell(DASH if v is None else f"{100 * v:.1f}") for v in values])))
+    # How well the std ranks the trajectories by their errors (horizons.skill; absent in older metrics files).
+    values = _row_values(dig(h, "skill", "all"), width)
+    if values is not None and any(v is not None for v in values):
+        cells = [Cell("std-error rank corr. (1: ranks the errors)", cls="name"), Cell("model", cls="name")]
+        rows.append(Row(tuple(cells + [Cell(DASH if v is None else f"{v:.2f}") for v in values])))
     return rows
 
 

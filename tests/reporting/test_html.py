@@ -140,3 +140,17 @@ def test_the_true_physics_ceiling_never_counts_as_the_best_baseline():
 def test_a_page_is_a_whole_html_document_with_an_escaped_title():
     text = page("a < b", "<p>x</p>")
     assert text.lstrip().lower().startswith("<!doctype html>") and "<title>a &lt; b</title>" in text
+
+
+def test_horizon_table_shows_how_well_the_std_ranks_the_errors_where_it_can():
+    rng = np.random.default_rng(1)
+    y = np.zeros((32, 20, len(NAMES)))
+    std = rng.uniform(0.01, 1.0, size=y.shape)
+    model = std * rng.choice([-1.0, 1.0], size=y.shape)  # every error its own std: a perfect ranking
+    h = horizon_report(y, {"model": model, "hold": y + 0.2}, NAMES, 0.05, [1, 10, 20], std)
+    html = horizon_table({"horizons": h})
+    row = re.findall(r'std-error rank corr\. \(1: ranks the errors\)</td><td class="name">model</td>(.*?)</tr>', html)
+    assert len(row) == 1 and row[0].count("1.00") == 3
+    # A std that is the same everywhere ranks nothing, and a metrics file from before has no skill: no row.
+    assert "rank corr." not in horizon_table({"horizons": _horizons(True)})
+    assert "rank corr." not in horizon_table({"horizons": {k: v for k, v in h.items() if k != "skill"}})
