@@ -166,3 +166,21 @@ def test_the_report_ranks_the_std_per_quantity_and_the_table_shows_it():
     assert rep["skill"]["all"] == pytest.approx([1.0, 1.0]) and rep["skill"]["joints"] == pytest.approx([1.0, 1.0])
     assert "std-error rank corr." in horizon_markdown(rep)
     assert "skill" not in horizon_report(y, {"model": mean}, names, 1 / 60, [1, h])  # no std, no skill
+
+
+
+def test_the_table_gives_the_joints_coverage_beside_all_outputs_where_there_are_others():
+    from robomorph.evaluation.horizons import horizon_markdown, horizon_report
+
+    rng = np.random.default_rng(2)
+    names = ["ee_x", "ee_y", "ee_z", "ee_qx", "ee_qy", "ee_qz", "ee_qw"] + [f"q{i}" for i in range(7)]
+    y = rng.normal(size=(16, 5, len(names)))
+    std = np.ones_like(y)
+    mean = y.copy()
+    mean[..., 7:] += 3.0  # the joints miss by three stds, the end effector not at all
+    table = horizon_markdown(horizon_report(y, {"model": mean}, names, 1 / 60, [1, 5], std))
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in table.splitlines() if line.startswith("| inside")]
+    assert ["inside ±2σ [%], joints", "model", "0.0", "0.0"] in rows
+    assert any(r[0] == "inside ±2σ [%]" and r[2] != "0.0" for r in rows)
+    joints_only = horizon_markdown(horizon_report(y[..., 7:], {"model": mean[..., 7:]}, names[7:], 1 / 60, [1], std[..., 7:]))
+    assert ", joints" not in joints_only
