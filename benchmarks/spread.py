@@ -34,12 +34,11 @@ from common import print_provenance
 
 from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
-from robomorph.evaluation.calibrating import moving_windows
-from robomorph.evaluation.horizons import groups_for, spread_skill
+from robomorph.evaluation.calibrating import moving_windows, solved_as_a_whole
+from robomorph.evaluation.horizons import coverage, groups_for, spread_skill
 from robomorph.evaluation.scoring import score_windows
 from robomorph.evaluation.windows import load_window, start_joints
-from robomorph.model.calibration import COVERAGE_TOLERANCE, ONE_SIGMA, TWO_SIGMA, fit
-from robomorph.model.hybrid import solves_whole_horizon
+from robomorph.model.calibration import band_miss, fit
 from robomorph.model.predictor import Predictor
 
 POWERS = (0.5, 1.0)  # of a candidate signal multiplied into the spread
@@ -79,13 +78,9 @@ def _predict(pred: Predictor, w, steps, batch: int) -> tuple[np.ndarray, np.ndar
     return s.y, s.preds["model"], s.std, candidates(pred, w, batch)
 
 
-def _coverage(y, mean, std, joints, steps) -> tuple[list[float], list[float], float]:
-    z = np.abs(y - mean)[..., joints] / std[..., joints]
-    one = [float((z[:, s - 1] < 1).mean()) for s in steps]
-    two = [float((z[:, s - 1] < 2).mean()) for s in steps]
-    tol1, tol2 = COVERAGE_TOLERANCE
-    miss = max(max(abs(a - ONE_SIGMA) / tol1, abs(b - TWO_SIGMA) / tol2) for a, b in zip(one, two))
-    return one, two, miss
+def _spread(part: tuple, name: str, q: float, ref: np.ndarray) -> np.ndarray:
+    """A prediction's (``(y, mean, std, signals)``) spread, times its signal ``name`` over ``ref`` to the power ``q``."""
+    return part[2] if name == "spread" else part[2] * (part[3][name] / ref) ** q
 
 
 def main(argv=None) -> None:
@@ -109,20 +104,18 @@ def main(argv=None) -> None:
     steps = sorted({s for s in (1, 15, 60, 300, 800) if s <= cal_w.horizon} | {cal_w.horizon})
     joints = list(next(g for g in groups_for(cal_w.y_names) if g.name == "joints").channels)
     cal, test = _predict(pred, cal_w, steps, a.batch), _predict(pred, test_w, steps, a.batch)
-    end = bool(pred.physics) and solves_whole_horizon(pred.model, pred.physics_mode)
+    end = solved_as_a_whole(pred)
     rows = []
     for name in ("spread", *cal[3]):
         y, mean, std, signals = test
         skill = spread_skill(y[..., joints], mean[..., joints], np.broadcast_to(
             std if name == "spread" else signals[name], y.shape)[..., joints], steps)
+        ref = None if name == "spread" else np.median(cal[3][name], axis=0, keepdims=True)
         for q in (0.0,) if name == "spread" else POWERS:
-            def spread(part, q=q, name=name):
-                if name == "spread":
-                    return part[2]
-                signal = part[3][name]
-                return part[2] * (signal / np.median(cal[3][name], axis=0, keepdims=True)) ** q
-            c = fit(cal[0], cal[1], spread(cal), "power", end=end)
-            one, two, miss = _coverage(y, mean, c.scaled(spread(test)), joints, steps)
+            c = fit(cal[0], cal[1], _spread(cal, name, q, ref), "power", end=end)
+            cover = coverage(y, mean, c.scaled(_spread(test, name, q, ref)), steps, tuple(joints))
+            one, two = cover["1sigma"], cover["2sigma"]
+            miss = float(np.max(band_miss(one, two)))
             rows.append({"signal": name, "power": q, "steps": "/".join(map(str, steps)),
                          "skill": "/".join(f"{v:.2f}" for v in skill), "cover1sigma": "/".join(f"{v:.3f}" for v in one),
                          "cover2sigma": "/".join(f"{v:.3f}" for v in two), "largest_miss": round(miss, 2)})

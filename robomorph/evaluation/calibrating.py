@@ -155,18 +155,16 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     if getattr(predictor, "physics", None):
         # A hybrid's std depends on how it identifies the robot: the calibration is that mode's.
         source["physics_mode"], source["observer"] = predictor.physics_mode, observing(predictor)
-    cal = fit(before.y, mean, std, method, source=source, end=_solved_as_a_whole(predictor))
+    cal = fit(before.y, mean, std, method, source=source, end=solved_as_a_whole(predictor))
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
     report = _report(ckpt, out, cal, w.dt, horizon, steps, before, after)
-    # Unchanged by the calibration: a positive scale and power keep every channel's ranking of the windows.
-    report["skill"] = before.result["horizons"]["skill"]["all"]
     ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
                                                      calibration_key(cal): cal})
     _write(ckpt_dict, out or ckpt)
     return report
 
 
-def _solved_as_a_whole(predictor) -> bool:
+def solved_as_a_whole(predictor) -> bool:
     """Whether the predictor's horizon is one smoothing problem
     (:func:`robomorph.model.hybrid.solves_whole_horizon`): its errors grow fastest toward the
     horizon's end, so its calibration's knots are dense there too
@@ -186,7 +184,9 @@ def _report(ckpt: str, out: str | None, cal, dt: float, horizon: int, steps: lis
               "nll": {"before": before.result["calibration"]["nll"]["all"],
                       "after": after.result["calibration"]["nll"]["all"]},
               "scale": [float(np.median(factors[s - 1])) for s in steps],
-              "power": None if cal.power is None else [float(np.median(powers[s - 1])) for s in steps]}
+              "power": None if cal.power is None else [float(np.median(powers[s - 1])) for s in steps],
+              # Unchanged by the calibration: a positive scale and power keep each channel's ranking of the windows.
+              "skill": before.result["horizons"]["skill"]["all"]}
     cal.source["coverage"] = {"steps": steps, "before": report["before"], "after": report["after"]}
     return report
 

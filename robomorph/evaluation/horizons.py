@@ -276,10 +276,10 @@ def horizon_markdown(h: dict, sources: tuple[str, ...] | None = None) -> str:
         rows += [[label, src, *(f"{v:.4g}" for v in h["rms"][src][q])] for src in names]
     cal = h.get("calibration") or {}
     # All outputs, then the joints alone where there are others (goals are stated for the joints).
-    for part, suffix in (("all", ""), *((("joints", ", joints"),) if "joints" in cal and len(h["quantities"]) > 1 else ())):
-        for s in SIGMAS:
-            if part in cal:
-                rows.append([f"inside ±{s}σ [%]{suffix}", "model", *(f"{100 * v:.1f}" for v in cal[part][f"{s}sigma"])])
+    parts = [("all", "")] + ([("joints", ", joints")] if "joints" in cal and len(h["quantities"]) > 1 else [])
+    for part, suffix in parts if "all" in cal else []:
+        rows += [[f"inside ±{s}σ [%]{suffix}", "model", *(f"{100 * v:.1f}" for v in cal[part][f"{s}sigma"])]
+                 for s in SIGMAS]
     if h.get("skill"):  # metrics.json files written before it have none
         rows.append(["std-error rank corr.", "model", *("" if v is None else f"{v:.2f}" for v in h["skill"]["all"])])
     lines = [markdown_table(["quantity", "source", *cols], rows, align=["left", "left", *["right"] * len(cols)])]

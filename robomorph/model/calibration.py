@@ -342,15 +342,20 @@ def _two_level_scale(z: np.ndarray) -> tuple[float, float]:
     grid = np.geomspace(min(one, two), max(one, two), 64)
     zs = np.sort(z)
     cover = lambda k: np.searchsorted(zs, k * grid, side="right") / len(zs)  # noqa: E731
-    tol1, tol2 = COVERAGE_TOLERANCE
-    miss = np.maximum(np.abs(cover(1.0) - ONE_SIGMA) / tol1, np.abs(cover(2.0) - TWO_SIGMA) / tol2)
+    miss = band_miss(cover(1.0), cover(2.0))
     best = int(np.argmin(miss))
     return float(grid[best]), float(miss[best])
 
 
-def outside_bands(one: list[float], two: list[float]) -> list[int]:
-    """The indices of the steps whose ±1σ / ±2σ coverages (shares) leave the bands of
-    :data:`COVERAGE_TOLERANCE` around a Gaussian's (68.3 ± 5 % and 95.4 ± 3 %)."""
+def band_miss(one, two) -> np.ndarray:
+    """How far ±1σ / ±2σ coverages (shares, arrays or lists of one shape) are from a Gaussian's, the larger
+    of the two misses in units of its tolerance (:data:`COVERAGE_TOLERANCE`): 1 or less is inside both bands
+    (68.3 ± 5 % and 95.4 ± 3 %)."""
     tol1, tol2 = COVERAGE_TOLERANCE
-    return [i for i, (a, b) in enumerate(zip(one, two))
-            if abs(a - ONE_SIGMA) > tol1 + 1e-9 or abs(b - TWO_SIGMA) > tol2 + 1e-9]
+    return np.maximum(np.abs(np.asarray(one, dtype=np.float64) - ONE_SIGMA) / tol1,
+                      np.abs(np.asarray(two, dtype=np.float64) - TWO_SIGMA) / tol2)
+
+
+def outside_bands(one: list[float], two: list[float]) -> list[int]:
+    """The indices of the steps whose ±1σ / ±2σ coverages (shares) leave the bands (:func:`band_miss` over 1)."""
+    return [int(i) for i in np.flatnonzero(band_miss(one, two) > 1.0 + 1e-9)]

@@ -13,6 +13,7 @@ from robomorph.evaluation.horizons import (
     horizon_report,
     parse_horizons,
     quaternion_angle,
+    spread_skill,
 )
 
 PANDA = ["ee_x", "ee_y", "ee_z", "ee_qx", "ee_qy", "ee_qz", "ee_qw"] + [f"q{i}" for i in range(7)]
@@ -154,8 +155,6 @@ def test_shares_read_100_percent_only_when_every_step_is_below():
 
 
 def test_the_report_ranks_the_std_per_quantity_and_the_table_shows_it():
-    from robomorph.evaluation.horizons import horizon_markdown, horizon_report
-
     rng = np.random.default_rng(1)
     n, h = 64, 4
     names = [f"q{i}" for i in range(7)]
@@ -170,10 +169,8 @@ def test_the_report_ranks_the_std_per_quantity_and_the_table_shows_it():
 
 
 def test_the_table_gives_the_joints_coverage_beside_all_outputs_where_there_are_others():
-    from robomorph.evaluation.horizons import horizon_markdown, horizon_report
-
     rng = np.random.default_rng(2)
-    names = ["ee_x", "ee_y", "ee_z", "ee_qx", "ee_qy", "ee_qz", "ee_qw"] + [f"q{i}" for i in range(7)]
+    names = PANDA
     y = rng.normal(size=(16, 5, len(names)))
     std = np.ones_like(y)
     mean = y.copy()
@@ -184,3 +181,17 @@ def test_the_table_gives_the_joints_coverage_beside_all_outputs_where_there_are_
     assert any(r[0] == "inside ±2σ [%]" and r[2] != "0.0" for r in rows)
     joints_only = horizon_markdown(horizon_report(y[..., 7:], {"model": mean[..., 7:]}, names[7:], 1 / 60, [1], std[..., 7:]))
     assert ", joints" not in joints_only
+
+
+def test_spread_skill_is_one_for_a_spread_that_orders_the_errors_and_near_zero_for_one_that_does_not():
+    rng = np.random.default_rng(0)
+    n, h = 400, 5
+    scale = rng.uniform(0.1, 10.0, size=(n, 1, 2)) * np.ones((1, h, 2))
+    y = np.zeros((n, h, 2))
+    mean = scale * 0.7  # the error grows with the spread, window by window
+    assert spread_skill(y, mean, scale, [1, h]) == pytest.approx([1.0, 1.0])
+    shuffled = scale[rng.permutation(n)]
+    assert np.all(np.abs(spread_skill(y, mean, shuffled, [1, 3, h])) < 0.15)
+    # A spread that is the same in every window ranks nothing: no figure rather than a made-up one.
+    assert spread_skill(y, mean, np.ones_like(scale), [1]) == [None]
+

@@ -217,34 +217,19 @@ def test_end_dense_knots_follow_errors_that_grow_toward_the_horizons_end():
         fit(y, mean, std, "coverage", knots=np.array([1, 10, 800]), end=True)
 
 
-def test_calibrate_places_end_dense_knots_for_a_horizon_solved_as_a_whole_only():
+def test_calibrate_places_end_dense_knots_for_a_horizonsolved_as_a_whole_only():
     from types import SimpleNamespace
 
-    from robomorph.evaluation.calibrating import _solved_as_a_whole
+    from robomorph.evaluation.calibrating import solved_as_a_whole
 
     def predictor(mode, blend_of=None, physics=True):
         blend = None if blend_of is None else SimpleNamespace(physics_mode=blend_of)
         return SimpleNamespace(physics={"x": 1} if physics else None, physics_mode=mode,
                                model=SimpleNamespace(blend=blend))
 
-    assert _solved_as_a_whole(predictor("smoothed")) and _solved_as_a_whole(predictor("blend", "smoothed"))
-    assert not _solved_as_a_whole(predictor("blend", "forward"))  # a forward simulation's errors have no end
-    assert not _solved_as_a_whole(predictor("regression")) and not _solved_as_a_whole(predictor("none", physics=False))
-
-
-def test_spread_skill_is_one_for_a_spread_that_orders_the_errors_and_near_zero_for_one_that_does_not():
-    from robomorph.evaluation.horizons import spread_skill
-
-    rng = np.random.default_rng(0)
-    n, h = 400, 5
-    scale = rng.uniform(0.1, 10.0, size=(n, 1, 2)) * np.ones((1, h, 2))
-    y = np.zeros((n, h, 2))
-    mean = scale * 0.7  # the error grows with the spread, window by window
-    assert spread_skill(y, mean, scale, [1, h]) == pytest.approx([1.0, 1.0])
-    shuffled = scale[rng.permutation(n)]
-    assert np.all(np.abs(spread_skill(y, mean, shuffled, [1, 3, h])) < 0.15)
-    # A spread that is the same in every window ranks nothing: no figure rather than a made-up one.
-    assert spread_skill(y, mean, np.ones_like(scale), [1]) == [None]
+    assert solved_as_a_whole(predictor("smoothed")) and solved_as_a_whole(predictor("blend", "smoothed"))
+    assert not solved_as_a_whole(predictor("blend", "forward"))  # a forward simulation's errors have no end
+    assert not solved_as_a_whole(predictor("regression")) and not solved_as_a_whole(predictor("none", physics=False))
 
 
 def test_outside_bands_names_the_steps_that_leave_68_plus_minus_5_or_95_plus_minus_3():
