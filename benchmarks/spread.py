@@ -34,7 +34,7 @@ from common import print_provenance
 
 from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
-from robomorph.evaluation.calibrating import moving_windows, solved_as_a_whole
+from robomorph.evaluation.calibrating import dense_at_end, moving_windows
 from robomorph.evaluation.horizons import coverage, groups_for, spread_skill
 from robomorph.evaluation.scoring import score_windows
 from robomorph.evaluation.windows import load_window, start_joints
@@ -104,7 +104,7 @@ def main(argv=None) -> None:
     steps = sorted({s for s in (1, 15, 60, 300, 800) if s <= cal_w.horizon} | {cal_w.horizon})
     joints = list(next(g for g in groups_for(cal_w.y_names) if g.name == "joints").channels)
     cal, test = _predict(pred, cal_w, steps, a.batch), _predict(pred, test_w, steps, a.batch)
-    end = solved_as_a_whole(pred)
+    end = dense_at_end(pred)
     rows = []
     for name in ("spread", *cal[3]):
         y, mean, std, signals = test

@@ -155,7 +155,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     if getattr(predictor, "physics", None):
         # A hybrid's std depends on how it identifies the robot: the calibration is that mode's.
         source["physics_mode"], source["observer"] = predictor.physics_mode, observing(predictor)
-    cal = fit(before.y, mean, std, method, source=source, end=solved_as_a_whole(predictor))
+    cal = fit(before.y, mean, std, method, source=source, end=dense_at_end(predictor))
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
     report = _report(ckpt, out, cal, w.dt, horizon, steps, before, after)
     ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
@@ -164,14 +164,17 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     return report
 
 
-def solved_as_a_whole(predictor) -> bool:
-    """Whether the predictor's horizon is one smoothing problem
-    (:func:`robomorph.model.hybrid.solves_whole_horizon`): its errors grow fastest toward the
-    horizon's end, so its calibration's knots are dense there too
-    (:func:`robomorph.model.calibration.end_dense_knots`)."""
-    from robomorph.model.hybrid import solves_whole_horizon  # noqa: PLC0415  (MuJoCo only for a hybrid)
-
-    return bool(getattr(predictor, "physics", None)) and solves_whole_horizon(predictor.model, predictor.physics_mode)
+def dense_at_end(predictor) -> bool:
+    """Whether a calibration of ``predictor`` places its knots as dense at the horizon's end as at its start
+    (:func:`robomorph.model.calibration.end_dense_knots`): every hybrid prediction. Log-spaced knots give the
+    last one a band on its left only (the last 17 % of the horizon), whose errors are smaller than the last
+    step's wherever they grow along the horizon, and the scale is then held flat to the end. A smoothed
+    horizon's errors grow fastest there (its last steps have no later torque to pin them); a forward
+    simulation's keep growing. Measured on the command formulation's hybrid (``regression+obs``, windows
+    from random offsets, ``power`` fitted on 768 robots): the joints' ±2σ coverage at the last step rose from
+    91.5 to 92.8 % on the calibration windows and from 91.9 to 92.7 % on 256 others, the earlier steps
+    within 0.5 points (``results/benchmarks/README.md``, ``hybrid_observer_std``)."""
+    return bool(getattr(predictor, "physics", None))
 
 
 def _report(ckpt: str, out: str | None, cal, dt: float, horizon: int, steps: list[int], before, after) -> dict:

@@ -217,19 +217,33 @@ def test_end_dense_knots_follow_errors_that_grow_toward_the_horizons_end():
         fit(y, mean, std, "coverage", knots=np.array([1, 10, 800]), end=True)
 
 
-def test_calibrate_places_end_dense_knots_for_a_horizonsolved_as_a_whole_only():
+def test_calibrate_places_end_dense_knots_for_every_hybrid_prediction_only():
     from types import SimpleNamespace
 
-    from robomorph.evaluation.calibrating import solved_as_a_whole
+    from robomorph.evaluation.calibrating import dense_at_end
 
-    def predictor(mode, blend_of=None, physics=True):
-        blend = None if blend_of is None else SimpleNamespace(physics_mode=blend_of)
-        return SimpleNamespace(physics={"x": 1} if physics else None, physics_mode=mode,
-                               model=SimpleNamespace(blend=blend))
+    def predictor(mode, physics=True):
+        return SimpleNamespace(physics={"x": 1} if physics else None, physics_mode=mode)
 
-    assert solved_as_a_whole(predictor("smoothed")) and solved_as_a_whole(predictor("blend", "smoothed"))
-    assert not solved_as_a_whole(predictor("blend", "forward"))  # a forward simulation's errors have no end
-    assert not solved_as_a_whole(predictor("regression")) and not solved_as_a_whole(predictor("none", physics=False))
+    assert dense_at_end(predictor("smoothed")) and dense_at_end(predictor("blend"))
+    assert dense_at_end(predictor("regression")) and dense_at_end(predictor("refined"))
+    assert not dense_at_end(predictor("none", physics=False))  # the black-box decoder keeps log-spaced knots
+
+
+def test_end_dense_knots_follow_errors_that_keep_growing_to_the_horizons_end():
+    """A forward simulation's errors grow along the whole horizon: log-spaced knots fit the last one on the
+    band to its left and hold it flat, which leaves the last step short at +-2 sigma."""
+    rng = np.random.default_rng(3)
+    horizon = 600
+    err = rng.standard_t(5, size=(2000, horizon, 1)) * np.arange(1, horizon + 1)[None, :, None] ** 1.5
+    y, mean, std = err, np.zeros_like(err), np.ones_like(err)
+    plain, dense = fit(y, mean, std, "power"), fit(y, mean, std, "power", end=True)
+
+    def inside(cal, k):
+        return float(np.mean(np.abs(y[:, -1]) < k * cal.scaled(std)[:, -1]))
+
+    assert inside(plain, 2) < TWO_SIGMA - 0.03  # outside the goal band
+    assert abs(inside(dense, 2) - TWO_SIGMA) < 0.03 and abs(inside(dense, 1) - ONE_SIGMA) < 0.05
 
 
 def test_outside_bands_names_the_steps_that_leave_68_plus_minus_5_or_95_plus_minus_3():
