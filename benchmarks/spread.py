@@ -10,7 +10,8 @@ same windows:
   joints' absolute error, at the reported steps (median over the joints;
   :func:`robomorph.evaluation.horizons.spread_skill`, what ``calibrate`` prints);
 - the joints' ±1σ / ±2σ coverage on the test windows after a ``power`` calibration fitted on the
-  calibration windows, with the model's spread and with the spread times a candidate signal to a
+  calibration windows (``--knots``: log-spaced, as dense at the horizon's end as at its start, or both
+  side by side), with the model's spread and with the spread times a candidate signal to a
   power (``q``), the largest miss in units of its tolerance (5 and 3 points; 1 or less: both goal
   bands met).
 
@@ -89,6 +90,9 @@ def main(argv=None) -> None:
     p.add_argument("--cal", required=True, help="held-out store the calibrations are fitted on")
     p.add_argument("--test", required=True, help="held-out store they are scored on (other robots)")
     p.add_argument("--n", type=int, default=256, help="windows of each store")
+    p.add_argument("--n-test", type=int, default=None, help="windows of the test store (default: --n)")
+    p.add_argument("--knots", default=None, help="comma-separated knot layouts to fit the model's own spread on: "
+                   "log (log-spaced) and end (as dense at the horizon's end as at its start); default: calibrate's")
     p.add_argument("--offset", default="start", help="start, random or a step, as in evaluate")
     p.add_argument("--horizon", type=int, default=None, help="default: the training horizon (600 off the start)")
     p.add_argument("--physics", default=None, help="a hybrid's physics mode (default: its default)")
@@ -96,36 +100,40 @@ def main(argv=None) -> None:
     p.add_argument("--md", default="results/benchmarks/spread.md")
     p.add_argument("--csv", default=None, help="default: --md with .csv")
     a = p.parse_args(argv)
+    if a.knots and set(a.knots.split(",")) - {"log", "end"}:
+        p.error(f"--knots takes log and end, got {a.knots!r}")
     prov = provenance()
     print_provenance()
     pred = Predictor.from_checkpoint(a.ckpt, device="cpu")
     pred.use_physics(a.physics)
-    cal_w, test_w = _windows(pred, a.cal, a.n, a.offset, a.horizon), _windows(pred, a.test, a.n, a.offset, a.horizon)
+    cal_w, test_w = _windows(pred, a.cal, a.n, a.offset, a.horizon), _windows(pred, a.test, a.n_test or a.n, a.offset,
+                                                                              a.horizon)
     steps = sorted({s for s in (1, 15, 60, 300, 800) if s <= cal_w.horizon} | {cal_w.horizon})
     joints = list(next(g for g in groups_for(cal_w.y_names) if g.name == "joints").channels)
     cal, test = _predict(pred, cal_w, steps, a.batch), _predict(pred, test_w, steps, a.batch)
     end = dense_at_end(pred)
+    layouts = a.knots.split(",") if a.knots else ["end" if end else "log"]
     rows = []
     for name in ("spread", *cal[3]):
         y, mean, std, signals = test
         skill = spread_skill(y[..., joints], mean[..., joints], np.broadcast_to(
             std if name == "spread" else signals[name], y.shape)[..., joints], steps)
         ref = None if name == "spread" else np.median(cal[3][name], axis=0, keepdims=True)
-        for q in (0.0,) if name == "spread" else POWERS:
-            c = fit(cal[0], cal[1], _spread(cal, name, q, ref), "power", end=end)
+        for q, knots in [(0.0, k) for k in layouts] if name == "spread" else [(q, layouts[0]) for q in POWERS]:
+            c = fit(cal[0], cal[1], _spread(cal, name, q, ref), "power", end=knots == "end")
             cover = coverage(y, mean, c.scaled(_spread(test, name, q, ref)), steps, tuple(joints))
             one, two = cover["1sigma"], cover["2sigma"]
             miss = float(np.max(band_miss(one, two)))
-            rows.append({"signal": name, "power": q, "steps": "/".join(map(str, steps)),
+            rows.append({"signal": name, "power": q, "knots": knots, "steps": "/".join(map(str, steps)),
                          "skill": "/".join(f"{v:.2f}" for v in skill), "cover1sigma": "/".join(f"{v:.3f}" for v in one),
                          "cover2sigma": "/".join(f"{v:.3f}" for v in two), "largest_miss": round(miss, 2)})
             print(rows[-1], file=sys.stderr, flush=True)
     csv = a.csv or a.md.rsplit(".", 1)[0] + ".csv"
     write_rows(csv, rows, prov)
     table = markdown_table(
-        ["calibrated spread", "skill at the steps (rank corr. with the error)", "±1σ [%]", "±2σ [%]",
+        ["calibrated spread", "knots", "skill at the steps (rank corr. with the error)", "±1σ [%]", "±2σ [%]",
          "largest miss [tolerances]"],
-        [[r["signal"] if r["signal"] == "spread" else f"spread × {r['signal']}^{r['power']:g}", r["skill"],
+        [[r["signal"] if r["signal"] == "spread" else f"spread × {r['signal']}^{r['power']:g}", r["knots"], r["skill"],
           " / ".join(f"{100 * float(v):.1f}" for v in r["cover1sigma"].split("/")),
           " / ".join(f"{100 * float(v):.1f}" for v in r["cover2sigma"].split("/")), r["largest_miss"]] for r in rows])
     text = (f"# Which spread tells the windows that will miss ({a.ckpt}, physics mode {pred.physics_mode})\n\n"
