@@ -170,10 +170,10 @@ def dense_at_end(predictor) -> bool:
     last one a band on its left only (the last 17 % of the horizon), whose errors are smaller than the last
     step's wherever they grow along the horizon, and the scale is then held flat to the end. A smoothed
     horizon's errors grow fastest there (its last steps have no later torque to pin them); a forward
-    simulation's keep growing. Measured on the command formulation's hybrid (``regression+obs``, windows
-    from random offsets, ``power`` fitted on 768 robots): the joints' ±2σ coverage at the last step rose from
-    91.5 to 92.8 % on the calibration windows and from 91.9 to 92.7 % on 256 others, the earlier steps
-    within 0.5 points (``results/benchmarks/README.md``, ``hybrid_observer_std``)."""
+    simulation's keep growing. Measured on the command formulation's hybrid (``regression+obs``, ``power``
+    fitted on 768 robots, scored on 1,024 others): the joints' ±2σ coverage at the last step rose from 92.0 to
+    92.8 % from random offsets and from 91.6 to 91.9 % from the start, the earlier steps within 0.3 points
+    (``results/benchmarks/spread_knots_{random,start}.md``)."""
     return bool(getattr(predictor, "physics", None))
 
 
