@@ -167,7 +167,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
 def dense_at_end(predictor) -> bool:
     """Whether a calibration of ``predictor`` places its knots as dense at the horizon's end as at its start
     (:func:`robomorph.model.calibration.end_dense_knots`): every hybrid prediction. Log-spaced knots give the
-    last one a band on its left only (the last 17 % of the horizon), whose errors are smaller than the last
+    last one a band on its left only (about the last sixth of the horizon), whose errors are smaller than the last
     step's wherever they grow along the horizon, and the scale is then held flat to the end. A smoothed
     horizon's errors grow fastest there (its last steps have no later torque to pin them); a forward
     simulation's keep growing. Measured on the command formulation's hybrid (``regression+obs``, ``power``

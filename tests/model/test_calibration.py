@@ -200,17 +200,20 @@ def _end_heavy_errors(horizon, n=400, seed=0):
     return err, np.zeros_like(err), np.ones_like(err)
 
 
+def _inside(y, mean, std, cal, step, k):
+    """The share of the windows' values at 1-based ``step`` inside ±k of ``cal``'s calibrated std."""
+    return float(np.mean(np.abs(y - mean)[:, step - 1] < k * cal.scaled(std)[:, step - 1]))
+
+
 def test_end_dense_knots_follow_errors_that_grow_toward_the_horizons_end():
     y, mean, std = _end_heavy_errors(800)
     plain, dense = fit(y, mean, std, "coverage"), fit(y, mean, std, "coverage", end=True)
 
-    def inside(cal, step, k):
-        return float(np.mean(np.abs(y - mean)[:, step - 1] < k * cal.scaled(std)[:, step - 1]))
-
     # the plain knots' last band pools the last step with many earlier ones of smaller error
-    assert inside(plain, 800, 2) < TWO_SIGMA - 0.03
-    assert abs(inside(dense, 800, 2) - TWO_SIGMA) < 0.03 and abs(inside(dense, 800, 1) - ONE_SIGMA) < 0.05
-    assert abs(inside(dense, 400, 2) - TWO_SIGMA) < 0.03  # mid-horizon as before
+    assert _inside(y, mean, std, plain, 800, 2) < TWO_SIGMA - 0.03
+    assert abs(_inside(y, mean, std, dense, 800, 2) - TWO_SIGMA) < 0.03
+    assert abs(_inside(y, mean, std, dense, 800, 1) - ONE_SIGMA) < 0.05
+    assert abs(_inside(y, mean, std, dense, 400, 2) - TWO_SIGMA) < 0.03  # mid-horizon as before
     back = StdCalibration.from_dict(dense.to_dict())  # its knots are stored: it applies as any other
     np.testing.assert_allclose(back.scaled(std[:, :500]), dense.scaled(std[:, :500]))
     with pytest.raises(CalibrationError, match="pass knots or end, not both"):
@@ -222,11 +225,12 @@ def test_calibrate_places_end_dense_knots_for_every_hybrid_prediction_only():
 
     from robomorph.evaluation.calibrating import dense_at_end
 
+    from robomorph.model.hybrid import MODES
+
     def predictor(mode, physics=True):
         return SimpleNamespace(physics={"x": 1} if physics else None, physics_mode=mode)
 
-    assert dense_at_end(predictor("smoothed")) and dense_at_end(predictor("blend"))
-    assert dense_at_end(predictor("regression")) and dense_at_end(predictor("refined"))
+    assert all(dense_at_end(predictor(mode)) for mode in MODES)  # smoothed or simulated forward alike
     assert not dense_at_end(predictor("none", physics=False))  # the black-box decoder keeps log-spaced knots
 
 
@@ -239,11 +243,9 @@ def test_end_dense_knots_follow_errors_that_keep_growing_to_the_horizons_end():
     y, mean, std = err, np.zeros_like(err), np.ones_like(err)
     plain, dense = fit(y, mean, std, "power"), fit(y, mean, std, "power", end=True)
 
-    def inside(cal, k):
-        return float(np.mean(np.abs(y[:, -1]) < k * cal.scaled(std)[:, -1]))
-
-    assert inside(plain, 2) < TWO_SIGMA - 0.03  # outside the goal band
-    assert abs(inside(dense, 2) - TWO_SIGMA) < 0.03 and abs(inside(dense, 1) - ONE_SIGMA) < 0.05
+    assert _inside(y, mean, std, plain, horizon, 2) < TWO_SIGMA - 0.03  # outside the goal band
+    assert abs(_inside(y, mean, std, dense, horizon, 2) - TWO_SIGMA) < 0.03
+    assert abs(_inside(y, mean, std, dense, horizon, 1) - ONE_SIGMA) < 0.05
 
 
 def test_outside_bands_names_the_steps_that_leave_68_plus_minus_5_or_95_plus_minus_3():
