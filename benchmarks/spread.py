@@ -18,7 +18,12 @@ same windows:
 The candidates (where the model has them): ``spread`` (the model's own std, uncalibrated);
 ``decoder`` (a hybrid's black-box decoder's std, per step and channel); ``identification``
 (the trace of the regression's estimate covariance, one number per window: how well the
-context pins the robot down).
+context pins the robot down); ``gap`` (a blend's distance from its decoder, ``w |physics -
+decoder|`` per step and channel: where the two members disagree, one of them is far off).
+A candidate enters the spread as a factor (``spread × signal^q``), the gap as a term instead (it
+is 0 wherever the blend's weight is): ``spread ⊕ b·gap``, the root of the sum of squares, the gap
+scaled by ``b`` times the ratio of the medians of the spread and the gap on the calibration
+windows at each step and channel (``b = 1``: the two terms weigh alike in a typical window).
 
     python benchmarks/spread.py --ckpt data/quality/blend/best.ckpt --cal data/demo/ms_cal256.zarr \\
         --test data/demo/ms_test256.zarr --n 256 --md results/benchmarks/spread_total.md
@@ -27,6 +32,7 @@ context pins the robot down).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
 import numpy as np
@@ -43,6 +49,7 @@ from robomorph.model.calibration import band_miss, fit
 from robomorph.model.predictor import Predictor
 
 POWERS = (0.5, 1.0)  # of a candidate signal multiplied into the spread
+TERMS = (0.5, 1.0, 2.0)  # weights b of the gap added to the spread (in units of their medians' ratio)
 
 
 def _windows(pred: Predictor, store: str, n: int, offset: str, horizon: int | None):
@@ -53,14 +60,16 @@ def _windows(pred: Predictor, store: str, n: int, offset: str, horizon: int | No
 
 
 @torch.no_grad()
-def candidates(pred: Predictor, w, batch: int) -> dict:
-    """name -> (N, H, n_y) or (N, 1, 1) per-window signals beside the model's spread."""
+def candidates(pred: Predictor, w, batch: int, mean: np.ndarray) -> dict:
+    """name -> (N, H, n_y) or (N, 1, 1) per-window signals beside the model's spread (``mean``: its prediction)."""
     u_ctx, y_ctx, u_q, _ = w.split()
     out = {}
     if pred.physics and getattr(pred.model, "gaussian", False):
-        stds = [pred.model.forward_dist_raw(*(torch.as_tensor(a[i:i + batch]) for a in (u_ctx, y_ctx, u_q)))[1]
-                for i in range(0, len(u_ctx), batch)]
-        out["decoder"] = torch.cat(stds).double().numpy()
+        parts = [pred.model.forward_dist_raw(*(torch.as_tensor(a[i:i + batch]) for a in (u_ctx, y_ctx, u_q)))
+                 for i in range(0, len(u_ctx), batch)]
+        out["decoder"] = torch.cat([s for _, s in parts]).double().numpy()
+        if pred.physics_mode == "blend":
+            out["gap"] = np.abs(mean - torch.cat([m for m, _ in parts]).double().numpy())
     if pred.physics:
         hybrid, anchor, traces = pred.hybrid(), start_joints(w), []
         for i in range(0, len(u_ctx), batch):
@@ -76,12 +85,25 @@ def _predict(pred: Predictor, w, steps, batch: int) -> tuple[np.ndarray, np.ndar
         s = score_windows(pred, w, (), steps, batch_size=batch)
     if s.std is None:
         raise SystemExit(f"error: the model predicts no standard deviation (physics mode {pred.physics_mode!r})")
-    return s.y, s.preds["model"], s.std, candidates(pred, w, batch)
+    return s.y, s.preds["model"], s.std, candidates(pred, w, batch, s.preds["model"])
 
 
-def _spread(part: tuple, name: str, q: float, ref: np.ndarray) -> np.ndarray:
-    """A prediction's (``(y, mean, std, signals)``) spread, times its signal ``name`` over ``ref`` to the power ``q``."""
-    return part[2] if name == "spread" else part[2] * (part[3][name] / ref) ** q
+def _spread(part: tuple, name: str, q: float, ref: np.ndarray, kind: str = "factor") -> np.ndarray:
+    """A prediction's (``(y, mean, std, signals)``) spread, times its signal ``name`` over ``ref`` to the power ``q``
+    (``kind`` factor), or with ``q * ref`` times the signal added in quadrature (``kind`` term)."""
+    if name == "spread":
+        return part[2]
+    if kind == "term":
+        return np.sqrt(part[2] ** 2 + (q * ref * part[3][name]) ** 2)
+    return part[2] * (part[3][name] / ref) ** q
+
+
+def _label(row: dict) -> str:
+    if row["signal"] == "spread":
+        return "spread"
+    if row["kind"] == "term":
+        return f"spread ⊕ {row['power']:g}·{row['signal']}"
+    return f"spread × {row['signal']}^{row['power']:g}"
 
 
 def main(argv=None) -> None:
@@ -106,6 +128,9 @@ def main(argv=None) -> None:
     print_provenance()
     pred = Predictor.from_checkpoint(a.ckpt, device="cpu")
     pred.use_physics(a.physics)
+    if getattr(getattr(pred.model, "blend", None), "gap_scale", None) is not None:
+        # The blend's own gap term is what the ``gap`` rows rebuild (b = 1: robomorph's default); ``spread``: without it.
+        pred.model.blend = dataclasses.replace(pred.model.blend, gap_scale=None)
     cal_w, test_w = _windows(pred, a.cal, a.n, a.offset, a.horizon), _windows(pred, a.test, a.n_test or a.n, a.offset,
                                                                               a.horizon)
     steps = sorted({s for s in (1, 15, 60, 300, 800) if s <= cal_w.horizon} | {cal_w.horizon})
@@ -115,16 +140,23 @@ def main(argv=None) -> None:
     layouts = a.knots.split(",") if a.knots else ["end" if end else "log"]
     rows = []
     for name in ("spread", *cal[3]):
-        y, mean, std, signals = test
-        skill = spread_skill(y[..., joints], mean[..., joints], np.broadcast_to(
-            std if name == "spread" else signals[name], y.shape)[..., joints], steps)
+        y, mean = test[:2]
         ref = None if name == "spread" else np.median(cal[3][name], axis=0, keepdims=True)
-        for q, knots in [(0.0, k) for k in layouts] if name == "spread" else [(q, layouts[0]) for q in POWERS]:
-            c = fit(cal[0], cal[1], _spread(cal, name, q, ref), "power", end=knots == "end")
-            cover = coverage(y, mean, c.scaled(_spread(test, name, q, ref)), steps, tuple(joints))
+        if name == "spread":
+            variants = [(0.0, k, "factor") for k in layouts]
+        elif name == "gap":  # a term only: the gap is 0 where the weight is; b times the medians' ratio
+            ref = np.median(cal[2], axis=0, keepdims=True) / np.where(ref > 0, ref, np.inf)
+            variants = [(b, layouts[0], "term") for b in TERMS]
+        else:
+            variants = [(q, layouts[0], "factor") for q in POWERS]
+        for q, knots, kind in variants:
+            spread = _spread(test, name, q, ref, kind)
+            skill = spread_skill(y[..., joints], mean[..., joints], np.broadcast_to(spread, y.shape)[..., joints], steps)
+            c = fit(cal[0], cal[1], _spread(cal, name, q, ref, kind), "power", end=knots == "end")
+            cover = coverage(y, mean, c.scaled(spread), steps, tuple(joints))
             one, two = cover["1sigma"], cover["2sigma"]
             miss = float(np.max(band_miss(one, two)))
-            rows.append({"signal": name, "power": q, "knots": knots, "steps": "/".join(map(str, steps)),
+            rows.append({"signal": name, "power": q, "kind": kind, "knots": knots, "steps": "/".join(map(str, steps)),
                          "skill": "/".join(f"{v:.2f}" for v in skill), "cover1sigma": "/".join(f"{v:.3f}" for v in one),
                          "cover2sigma": "/".join(f"{v:.3f}" for v in two), "largest_miss": round(miss, 2)})
             print(rows[-1], file=sys.stderr, flush=True)
@@ -133,14 +165,14 @@ def main(argv=None) -> None:
     table = markdown_table(
         ["calibrated spread", "knots", "skill at the steps (rank corr. with the error)", "±1σ [%]", "±2σ [%]",
          "largest miss [tolerances]"],
-        [[r["signal"] if r["signal"] == "spread" else f"spread × {r['signal']}^{r['power']:g}", r["knots"], r["skill"],
+        [[_label(r), r["knots"], r["skill"],
           " / ".join(f"{100 * float(v):.1f}" for v in r["cover1sigma"].split("/")),
           " / ".join(f"{100 * float(v):.1f}" for v in r["cover2sigma"].split("/")), r["largest_miss"]] for r in rows])
     text = (f"# Which spread tells the windows that will miss ({a.ckpt}, physics mode {pred.physics_mode})\n\n"
             f"Calibrated (`power`) on {len(cal_w.u)} windows of {a.cal}, scored on {len(test_w.u)} of {a.test}, "
             f"windows from offset `{a.offset}`, joints at steps {', '.join(map(str, steps))}. Skill: the rank "
             "correlation across the test windows between the signal and the joints' absolute error (median over the "
-            "joints; for a product, the signal's own). Largest miss: of 68.3 % at ±1σ and 95.4 % at ±2σ, in units of "
+            "joints) of the spread as combined. Largest miss: of 68.3 % at ±1σ and 95.4 % at ±2σ, in units of "
             "5 and 3 points (1 or less: both goal bands met at every step).\n\n" + table)
     write_markdown(a.md, text, prov)
     print(table)
