@@ -29,13 +29,7 @@ the best mean R^2 (approach 1). A blend of the smoothed physics has none (see :f
 
 The blend's standard deviation, for independent errors, is
 ``sqrt(w^2 std_physics^2 + (1 - w)^2 std_decoder^2)``; ``robomorph calibrate`` then rescales it
-by horizon as it does any other std. Both members' spreads rank the windows by their errors ever
-less well along the horizon, so one scale per step cannot put 68 % inside ±1σ and 95 % inside
-±2σ at once. Where the two members *disagree*, one of them is far off; so a blend fitted since
-the gap term adds, in quadrature, the window's distance from its decoder, ``|y - decoder| = w
-|physics - decoder|``, scaled per step band and channel by :data:`GAP_WEIGHT` times the ratio
-of the medians of the independent-errors std and that distance on the fitting windows (the two
-terms weigh alike in a typical window when the weight is 1).
+by horizon as it does any other std.
 """
 
 from __future__ import annotations
@@ -54,8 +48,6 @@ BLEND_KEY = "robomorph_physics_blend"
 GATES = (3.0, 5.0, 10.0, 20.0, 50.0, float("inf"))
 # The physics predictions a blend can weigh against the decoder (the hybrid's modes of those names).
 PHYSICS_MODES = ("smoothed", "regression")
-# The gap term's weight (module docstring), chosen in ``benchmarks/spread.py`` (``spread ⊕ b·gap``).
-GAP_WEIGHT = 1.0
 
 
 class BlendError(RoboMorphError, ValueError):
@@ -77,8 +69,6 @@ class HorizonBlend:
             horizon smoothed against the decoder (:mod:`robomorph.sim.smoother`), or
             ``regression``, its simulation forward from the context (blends fitted before there
             was a choice).
-        gap_scale: (K, n_y) the factor of the window's distance from its decoder added to the
-            std in quadrature (module docstring); None: none (blends fitted before it).
         source: where it was fitted (store, windows, errors before and after); for readers.
         physics: the physics backbone's record (:func:`robomorph.sim.backbone.parameter_layout`)
             when the model was trained without one (a black-box model of simulated stores);
@@ -92,7 +82,6 @@ class HorizonBlend:
     decoder_rms: tuple[tuple[float, ...], ...] | None = None
     gate: float = float("inf")
     physics_mode: str = "regression"
-    gap_scale: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
         if self.physics_mode not in PHYSICS_MODES:
@@ -103,13 +92,10 @@ class HorizonBlend:
             raise BlendError("blend weights must lie in [0, 1]")
         if not self.gate > 0:
             raise BlendError(f"the blend's gate must be > 0, got {self.gate}")
-        for name in ("decoder_rms", "gap_scale"):
-            table = getattr(self, name)
-            if table is None:
-                continue
-            table = np.asarray(table, dtype=np.float64)
-            if table.shape != weight.shape or not (np.isfinite(table).all() and (table >= 0).all()):
-                raise BlendError(f"the blend's {name} must be finite, >= 0 and shaped as its weights {weight.shape}")
+        if self.decoder_rms is not None:
+            rms = np.asarray(self.decoder_rms, dtype=np.float64)
+            if rms.shape != weight.shape or not (np.isfinite(rms).all() and (rms >= 0).all()):
+                raise BlendError(f"the blend's decoder_rms must be finite, >= 0 and shaped as its weights {weight.shape}")
 
     @property
     def n_y(self) -> int:
@@ -141,32 +127,13 @@ class HorizonBlend:
         if physics_std is None or decoder_std is None:
             return mean, None
         sp = np.where(ok & np.isfinite(physics_std), physics_std, 0.0)
-        var = (w * sp) ** 2 + ((1 - w) * np.asarray(decoder_std, dtype=np.float64)) ** 2
-        if self.gap_scale is not None:
-            scale = interp_log_step(self.knots, np.asarray(self.gap_scale, dtype=np.float64), physics.shape[-2])
-            var = var + (scale[None] * (mean - decoder)) ** 2
-        return mean, np.sqrt(var)
-
-    def with_gap_scale(self, physics: np.ndarray, decoder: np.ndarray, physics_std: np.ndarray,
-                       decoder_std: np.ndarray, weight: float = GAP_WEIGHT) -> "HorizonBlend":
-        """This blend with its gap term fitted on windows (arrays as :meth:`combine`'s; module docstring)."""
-        plain = dataclasses.replace(self, gap_scale=None)
-        mean, std = plain.combine(physics, decoder, physics_std, decoder_std)
-        gap = np.abs(mean - np.asarray(decoder, dtype=np.float64))
-        rows = []
-        for band in step_bands(np.asarray(self.knots), physics.shape[-2]):
-            typical_std = np.median(std[:, band].reshape(-1, self.n_y), axis=0)
-            typical_gap = np.median(gap[:, band].reshape(-1, self.n_y), axis=0)
-            ratio = np.where(typical_gap > 0, typical_std / np.where(typical_gap > 0, typical_gap, 1.0), 0.0)
-            rows.append(tuple(float(v) for v in weight * ratio))
-        return dataclasses.replace(self, gap_scale=tuple(rows))
+        return mean, np.sqrt((w * sp) ** 2 + ((1 - w) * np.asarray(decoder_std, dtype=np.float64)) ** 2)
 
     def to_dict(self) -> dict:
         return {"knots": [int(k) for k in self.knots], "weight": [[float(v) for v in r] for r in self.weight],
                 "source": dict(self.source), "physics": self.physics, "gate": float(self.gate),
                 "decoder_rms": None if self.decoder_rms is None else [[float(v) for v in r] for r in self.decoder_rms],
-                "physics_mode": self.physics_mode,
-                "gap_scale": None if self.gap_scale is None else [[float(v) for v in r] for r in self.gap_scale]}
+                "physics_mode": self.physics_mode}
 
     @classmethod
     def from_dict(cls, doc: dict) -> "HorizonBlend":
@@ -175,9 +142,7 @@ class HorizonBlend:
                        dict(doc.get("source") or {}), doc.get("physics"),
                        None if doc.get("decoder_rms") is None else tuple(tuple(float(v) for v in r)
                                                                         for r in doc["decoder_rms"]),
-                       float(doc.get("gate", float("inf"))), str(doc.get("physics_mode", "regression")),
-                       None if doc.get("gap_scale") is None else tuple(tuple(float(v) for v in r)
-                                                                       for r in doc["gap_scale"]))
+                       float(doc.get("gate", float("inf"))), str(doc.get("physics_mode", "regression")))
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, BlendError):
                 raise

@@ -70,40 +70,10 @@ def test_the_blends_std_is_that_of_independent_errors():
     np.testing.assert_allclose(std, np.sqrt((0.25 * 2) ** 2 + (0.75 * 1) ** 2))
 
 
-def test_the_gap_term_widens_the_windows_whose_members_disagree_and_leaves_the_mean():
-    rng = np.random.default_rng(3)
-    n, horizon = 200, 30
-    physics, decoder = rng.normal(size=(n, horizon, 2)), rng.normal(size=(n, horizon, 2))
-    sp, sd = np.full(physics.shape, 0.5), np.full(physics.shape, 2.0)
-    plain = HorizonBlend((1,), ((0.8, 0.0),))  # one knot: one band, one scale
-    gapped = plain.with_gap_scale(physics, decoder, sp, sd, weight=1.0)
-    mean, std = gapped.combine(physics, decoder, sp, sd)
-    mean0, std0 = plain.combine(physics, decoder, sp, sd)
-    np.testing.assert_array_equal(mean, mean0)
-    independent = np.sqrt((0.8 * 0.5) ** 2 + (0.2 * 2.0) ** 2)
-    np.testing.assert_allclose(std0[..., 0], independent)
-    gap = np.abs(physics - decoder)[..., 0]
-    extra = np.sqrt(std[..., 0] ** 2 - independent ** 2)
-    # The term is proportional to the disagreement, and as large as the std in a typical window.
-    np.testing.assert_allclose(extra, extra.ravel()[0] / gap.ravel()[0] * gap, rtol=1e-6, atol=1e-9)
-    assert np.median(extra) == pytest.approx(independent, rel=1e-6)
-    # A channel the decoder alone predicts (weight 0) has no gap, and keeps its std.
-    np.testing.assert_allclose(std[..., 1], 2.0)
-    half = plain.with_gap_scale(physics, decoder, sp, sd, weight=0.5)
-    np.testing.assert_allclose(np.asarray(half.gap_scale), 0.5 * np.asarray(gapped.gap_scale))
-
-
 def test_round_trip_and_refusals():
     blend = HorizonBlend((1, 5, 30), ((1.0, 0.9), (0.5, 0.4), (0.0, 0.1)), {"n": 4}, {"names": ["a"]},
                          ((0.1, 0.2), (0.3, 0.4), (0.5, 0.6)), 10.0)
     assert HorizonBlend.from_dict(blend.to_dict()) == blend
-    gapped = HorizonBlend(blend.knots, blend.weight, physics_mode="smoothed", gap_scale=((0.5, 1.0),) * 3)
-    assert HorizonBlend.from_dict(gapped.to_dict()) == gapped
-    older = gapped.to_dict()
-    del older["gap_scale"]  # a blend fitted before the gap term
-    assert HorizonBlend.from_dict(older).gap_scale is None
-    with pytest.raises(BlendError, match="gap_scale"):
-        HorizonBlend((1,), ((1.0,),), gap_scale=((-0.1,),))
     with pytest.raises(BlendError, match="decoder_rms"):
         HorizonBlend((1,), ((1.0,),), decoder_rms=((0.1, 0.2),))
     with pytest.raises(BlendError, match=r"\[0, 1\]"):
@@ -188,7 +158,6 @@ def test_a_gaussian_models_blend_has_a_std_that_calibrate_then_rescales_in_blend
 
     out, heldout, _ = gaussian_blended
     pred = Predictor.from_checkpoint(out)
-    assert pred.model.blend.gap_scale is not None  # fitted with the members' stds
     ds = open_store(total_store)
     u, y = ds.read("u")[:3], ds.read("y")[:3]
     c = CKPT_CONTEXT
