@@ -135,15 +135,14 @@ def main(argv=None) -> None:
     steps = sorted({s for s in (1, 15, 60, 300, 800) if s <= cal_w.horizon} | {cal_w.horizon})
     joints = list(next(g for g in groups_for(cal_w.y_names) if g.name == "joints").channels)
     cal, test = _predict(pred, cal_w, steps, a.batch), _predict(pred, test_w, steps, a.batch)
-    end = dense_at_end(pred)
-    layouts = a.knots.split(",") if a.knots else ["end" if end else "log"]
+    layouts = a.knots.split(",") if a.knots else ["end" if dense_at_end(pred) else "log"]
     rows = []
     for name in ("spread", *cal[3]):
         y, mean = test[:2]
         ref = None if name == "spread" else np.median(cal[3][name], axis=0, keepdims=True)
         if name == "spread":
             variants = [(0.0, k, "factor") for k in layouts]
-        elif name == "gap":  # a term only: the gap is 0 where the weight is; b times the medians' ratio
+        elif name == "gap":  # a term only (the gap is 0 where the weight is 0): b times the medians' ratio
             ref = np.median(cal[2], axis=0, keepdims=True) / np.where(ref > 0, ref, np.inf)
             variants = [(b, layouts[0], "term") for b in TERMS]
         else:

@@ -224,7 +224,6 @@ def test_calibrate_places_end_dense_knots_for_every_hybrid_prediction_only():
     from types import SimpleNamespace
 
     from robomorph.evaluation.calibrating import dense_at_end
-
     from robomorph.model.hybrid import MODES
 
     def predictor(mode, physics=True):
