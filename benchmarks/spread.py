@@ -82,12 +82,12 @@ def candidates(pred: Predictor, w, batch: int, mean: np.ndarray) -> dict:
     return out
 
 
-def _predict(pred: Predictor, w, steps, batch: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+def _predict(pred: Predictor, w, steps, batch: int, others: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     with pred.raw_std():
         s = score_windows(pred, w, (), steps, batch_size=batch)
     if s.std is None:
         raise SystemExit(f"error: the model predicts no standard deviation (physics mode {pred.physics_mode!r})")
-    return s.y, s.preds["model"], s.std, candidates(pred, w, batch, s.preds["model"])
+    return s.y, s.preds["model"], s.std, candidates(pred, w, batch, s.preds["model"]) if others else {}
 
 
 def _spread(part: tuple, name: str, q: float, ref: np.ndarray, kind: str = "factor") -> np.ndarray:
@@ -117,6 +117,9 @@ def main(argv=None) -> None:
     p.add_argument("--n-test", type=int, default=None, help="windows of the test store (default: --n)")
     p.add_argument("--knots", default=None, help="comma-separated knot layouts to fit the model's own spread on: "
                    "log (log-spaced) and end (as dense at the horizon's end as at its start); default: calibrate's")
+    p.add_argument("--points", default=None, help="comma-separated robots a hybrid's spread is taken over, side by "
+                   "side (columns, draws; robomorph.model.hybrid_std), its own spread alone; default: its own points "
+                   "and the candidates")
     p.add_argument("--offset", default="start", help="start, random or a step, as in evaluate")
     p.add_argument("--horizon", type=int, default=None, help="default: the training horizon (600 off the start)")
     p.add_argument("--physics", default=None, help="a hybrid's physics mode (default: its default)")
@@ -134,36 +137,42 @@ def main(argv=None) -> None:
                                                                               a.horizon)
     steps = sorted({s for s in (1, 15, 60, 300, 800) if s <= cal_w.horizon} | {cal_w.horizon})
     joints = list(next(g for g in groups_for(cal_w.y_names) if g.name == "joints").channels)
-    cal, test = _predict(pred, cal_w, steps, a.batch), _predict(pred, test_w, steps, a.batch)
+    points = a.points.split(",") if a.points else [None]
     layouts = a.knots.split(",") if a.knots else ["end" if dense_at_end(pred) else "log"]
-    rows = []
+    rows, spreads = [], {}
+    for p in points:  # the model's own spread over each kind of points; the candidates beside the first's
+        pred.physics_points = p
+        spreads[p] = tuple(_predict(pred, w, steps, a.batch, others=not a.points) for w in (cal_w, test_w))
+    cal, test = spreads[points[0]]
     for name in ("spread", *cal[3]):
         y, mean = test[:2]
         ref = None if name == "spread" else np.median(cal[3][name], axis=0, keepdims=True)
         if name == "spread":
-            variants = [(0.0, k, "factor") for k in layouts]
+            variants = [(0.0, k, "factor", p) for p in points for k in layouts]
         elif name == "gap":  # a term only (the gap is 0 where the weight is 0): b times the medians' ratio
             ref = np.median(cal[2], axis=0, keepdims=True) / np.where(ref > 0, ref, np.inf)
-            variants = [(b, layouts[0], "term") for b in TERMS]
+            variants = [(b, layouts[0], "term", points[0]) for b in TERMS]
         else:
-            variants = [(q, layouts[0], "factor") for q in POWERS]
-        for q, knots, kind in variants:
-            spread = _spread(test, name, q, ref, kind)
+            variants = [(q, layouts[0], "factor", points[0]) for q in POWERS]
+        for q, knots, kind, p in variants:
+            cal_p, test_p = spreads[p]
+            spread = _spread(test_p, name, q, ref, kind)
             skill = spread_skill(y[..., joints], mean[..., joints], np.broadcast_to(spread, y.shape)[..., joints], steps)
-            c = fit(cal[0], cal[1], _spread(cal, name, q, ref, kind), "power", end=knots == "end")
+            c = fit(cal_p[0], cal_p[1], _spread(cal_p, name, q, ref, kind), "power", end=knots == "end")
             cover = coverage(y, mean, c.scaled(spread), steps, tuple(joints))
             one, two = cover["1sigma"], cover["2sigma"]
             miss = float(np.max(band_miss(one, two)))
-            rows.append({"signal": name, "power": q, "kind": kind, "knots": knots, "steps": "/".join(map(str, steps)),
+            rows.append({"signal": name, "power": q, "kind": kind, "knots": knots, "points": p or "",
+                         "steps": "/".join(map(str, steps)),
                          "skill": "/".join(f"{v:.2f}" for v in skill), "cover1sigma": "/".join(f"{v:.3f}" for v in one),
                          "cover2sigma": "/".join(f"{v:.3f}" for v in two), "largest_miss": round(miss, 2)})
             print(rows[-1], file=sys.stderr, flush=True)
     csv = a.csv or a.md.rsplit(".", 1)[0] + ".csv"
     write_rows(csv, rows, prov)
     table = markdown_table(
-        ["calibrated spread", "knots", "skill at the steps (rank corr. with the error)", "±1σ [%]", "±2σ [%]",
-         "largest miss [tolerances]"],
-        [[_label(r), r["knots"], r["skill"],
+        ["calibrated spread", "points", "knots", "skill at the steps (rank corr. with the error)", "±1σ [%]",
+         "±2σ [%]", "largest miss [tolerances]"],
+        [[_label(r), r["points"] or "own", r["knots"], r["skill"],
           " / ".join(f"{100 * float(v):.1f}" for v in r["cover1sigma"].split("/")),
           " / ".join(f"{100 * float(v):.1f}" for v in r["cover2sigma"].split("/")), r["largest_miss"]] for r in rows])
     text = (f"# Which spread tells the windows that will miss ({a.ckpt}, physics mode {pred.physics_mode})\n\n"

@@ -38,6 +38,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a command-formulation hybrid: start its horizons from the observer's velocity (the simulated "
                         "context's end velocity corrected by its position residual; on by default for models trained "
                         "since 2026-11-26) or not, recorded in the checkpoint; each setting keeps its own calibrations")
+    p.add_argument("--points", choices=("columns", "draws"),
+                   help="a hybrid whose std is a spread of robots around its estimate: one per column of the "
+                        "estimate's covariance (deterministic; the default for a model not calibrated before) or "
+                        "random draws (what calibrations before 2026-11-27 were fitted on); default: as stored")
     p.add_argument("--remove", action="store_true", help="drop the stored calibrations instead")
     p.add_argument("--blend", action="store_true",
                    help="fit the per-step weights of the model's physics prediction against its decoder's instead "
@@ -50,8 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run(a: argparse.Namespace) -> int:
-    if a.observer and (a.remove or a.blend):
-        raise CalibrationError("--observer sets what a calibration is fitted on: drop --remove and --blend with it")
+    for name in ("observer", "points"):
+        if getattr(a, name) and (a.remove or a.blend):
+            raise CalibrationError(f"--{name} sets what a calibration is fitted on: drop --remove and --blend with it")
     if a.remove:
         had = calibrating.remove(a.ckpt, a.out, a.physics)
         what = "std calibration" + (f" of physics mode {a.physics}" if a.physics else "")
@@ -65,7 +70,7 @@ def run(a: argparse.Namespace) -> int:
         return 0
     report = calibrating.calibrate(a.ckpt, a.data, a.out, a.n, a.context_len, a.horizon, a.offset, a.seed, a.method,
                                    a.batch_size, a.device, a.horizons, a.physics,
-                                   None if a.observer is None else a.observer == "on")
+                                   None if a.observer is None else a.observer == "on", a.points)
     print(calibrating.report_text(report))
     return 0
 

@@ -109,7 +109,8 @@ def _fitting_windows(ckpt: str, predictor, sources, split: str, n, context_len, 
 def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,
               context_len: int | None = None, horizon: int | None = None, offset: str | int = "start",
               seed: int = 0, method: str = "power", batch_size: int = 64, device: str | None = None,
-              horizons_spec: str | None = None, physics: str | None = None, observer: bool | None = None) -> dict:
+              horizons_spec: str | None = None, physics: str | None = None, observer: bool | None = None,
+              points: str | None = None) -> dict:
     """Fits the calibration and writes the checkpoint with it to ``out`` (default: in place).
 
     Args:
@@ -125,18 +126,20 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
             trajectory (``offset`` random or a step), each applied to its own kind.
         observer: a command-formulation hybrid's observer (:attr:`Predictor.physics_observer`) set in the
             checkpoint's record before fitting (None: as recorded); its calibrations are kept apart.
+        points: a hybrid's std's robots, ``columns`` or ``draws`` (:func:`robomorph.model.hybrid_std.spread_points`).
 
     Returns:
         A report: the calibration's provenance, and the ±1σ/±2σ coverage of the calibration
         windows before and after at the reported steps.
     """
     from robomorph.model.files import read_model  # noqa: PLC0415  (a checkpoint or a model folder)
-    from robomorph.model.predictor import observing  # noqa: PLC0415
+    from robomorph.model.hybrid_std import drawn_points, observing  # noqa: PLC0415
 
     check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     offset = parse_offset(offset)
     predictor = _predictor(ckpt, device)
     predictor.use_physics(physics)
+    predictor.physics_points = points
     ckpt_dict = read_model(ckpt)
     if observer is not None:
         _set_observer(predictor, ckpt_dict, observer)
@@ -150,12 +153,13 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     steps = parse_horizons(horizons_spec, horizon, w.dt)
     with predictor.raw_std():
         before = score_windows(predictor, w, (), steps, batch_size=batch_size)
+        points = drawn_points(predictor)  # the spread fitted on (the stored calibrations' or the one chosen)
     mean, std = before.preds["model"], before.std
     source["normalization"] = predictor.normalization
     if getattr(predictor, "physics", None):
         # A hybrid's std depends on how it identifies the robot: the calibration is that mode's.
         source["physics_mode"], source["observer"] = predictor.physics_mode, observing(predictor)
-    cal = fit(before.y, mean, std, method, source=source, end=dense_at_end(predictor))
+    cal = fit(before.y, mean, std, method, source=source, end=dense_at_end(predictor), points=points)
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
     report = _report(ckpt, out, cal, w.dt, horizon, steps, before, after)
     ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),

@@ -62,6 +62,8 @@ from robomorph.core.errors import RoboMorphError
 # Checkpoint entry holding the calibration (a dict of plain lists and strings).
 CALIBRATION_KEY = "robomorph_std_calibration"
 METHODS = ("nll", "quantile", "coverage", "power")
+# The robots a hybrid's std is the spread of (robomorph.model.hybrid_std): what a calibration scales.
+POINTS = ("columns", "draws")
 # The powers of the spread that ``power`` chooses from (1: the spread as predicted).
 POWERS = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5)
 # Fewer calibration windows than this: ``power`` keeps the spread's power at 1 (``coverage``'s
@@ -104,6 +106,8 @@ class StdCalibration:
             windows before and after; shown to readers, not used in computing.
         power, reference: (K, n_y) each, ``power`` only: the spread's power ``p`` and the
             median spread ``r`` it is taken about (``s * r * (std / r) ** p``); None: ``p`` = 1.
+        points: a hybrid's: the robots its std was the spread of (:data:`POINTS`,
+            :mod:`robomorph.model.hybrid_std`); None: no draws (a decoder, a smoother), or ``draws`` before the choice.
     """
 
     knots: tuple[int, ...]
@@ -112,8 +116,11 @@ class StdCalibration:
     source: dict = dataclasses.field(default_factory=dict)
     power: tuple[tuple[float, ...], ...] | None = None
     reference: tuple[tuple[float, ...], ...] | None = None
+    points: str | None = None
 
     def __post_init__(self) -> None:
+        if self.points is not None and self.points not in POINTS:
+            raise CalibrationError(f"unknown spread points {self.points!r}; choose from {list(POINTS)}")
         scale = np.asarray(self.scale, dtype=np.float64)
         check_knot_table(self.knots, scale, "calibration", "scale", CalibrationError)
         if not (np.isfinite(scale).all() and (scale > 0).all()):
@@ -171,6 +178,8 @@ class StdCalibration:
         if self.power is not None:
             doc["power"] = [[float(v) for v in row] for row in self.power]
             doc["reference"] = [[float(v) for v in row] for row in self.reference]
+        if self.points is not None:
+            doc["points"] = self.points
         return doc
 
     @classmethod
@@ -178,7 +187,7 @@ class StdCalibration:
         try:
             table = lambda key: None if doc.get(key) is None else tuple(tuple(float(v) for v in r) for r in doc[key])  # noqa: E731
             return cls(tuple(int(k) for k in doc["knots"]), table("scale"), str(doc.get("method", "nll")),
-                       dict(doc.get("source") or {}), table("power"), table("reference"))
+                       dict(doc.get("source") or {}), table("power"), table("reference"), doc.get("points"))
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, CalibrationError):
                 raise
@@ -267,7 +276,8 @@ def step_bands(knots: np.ndarray, horizon: int) -> list[np.ndarray]:
 
 
 def fit(y: np.ndarray, mean: np.ndarray, std: np.ndarray, method: str = "nll",
-        knots: np.ndarray | None = None, source: dict | None = None, end: bool = False) -> StdCalibration:
+        knots: np.ndarray | None = None, source: dict | None = None, end: bool = False,
+        points: str | None = None) -> StdCalibration:
     """Fits the per-step, per-channel scales on windows whose truth is known.
 
     Args:
@@ -278,6 +288,7 @@ def fit(y: np.ndarray, mean: np.ndarray, std: np.ndarray, method: str = "nll",
         source: provenance stored with it.
         end: knots as dense at the horizon's end as at its start (:func:`end_dense_knots`; ``knots``
             must then be None). The knots are stored, so the calibration applies as any other.
+        points: the robots ``std`` was the spread of (a hybrid's; recorded, see :class:`StdCalibration`).
     """
     if method not in METHODS:
         raise CalibrationError(f"unknown calibration method {method!r}; choose from {list(METHODS)}")
@@ -316,7 +327,7 @@ def fit(y: np.ndarray, mean: np.ndarray, std: np.ndarray, method: str = "nll",
         rows.append(np.where(np.isfinite(s) & (s > 0), s, 1.0))
     table = lambda t: tuple(tuple(float(v) for v in r) for r in t) if t else None  # noqa: E731
     return StdCalibration(tuple(int(k) for k in knots), table(rows), method, dict(source or {}), table(powers),
-                          table(refs))
+                          table(refs), points)
 
 
 def _power_and_scale(err: np.ndarray, std: np.ndarray, powers=POWERS) -> tuple[float, float, float]:

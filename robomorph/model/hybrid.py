@@ -80,6 +80,7 @@ class Hybrid:
         self.model, self.physics, self.inputs = model, physics, inputs
         self.samples, self.refine_iters, self.seed = int(samples), int(refine_iters), int(seed)
         self.iterations, self.members = int(iterations), int(members)
+        self.points = "columns"  # behind the std: one robot per column of the estimate's covariance, or random draws
         if self.members < 1:
             raise HybridError(f"the friction mixture needs members >= 1, got {members}")
         self.backbone = PhysicsBackbone(physics, inputs)
@@ -235,7 +236,7 @@ class Hybrid:
                 horizon, calibration) -> np.ndarray:
         """The std (B, H, n_y): the horizons of robots drawn around the estimate, about ``mean``."""
         covs = None if mode == "learned" else self._covs
-        std = _draw_spread(self.backbone, params, z_std, covs, mean, horizon, self.samples, self.seed)
+        std = _draw_spread(self.backbone, params, z_std, covs, mean, horizon, self.samples, self.seed, self.points)
         return std if calibration is None else calibration.scaled(std)
 
     def _refine(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray) -> np.ndarray:
@@ -278,23 +279,31 @@ def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
 
 
 def _draw_spread(backbone, params: np.ndarray, z_std: np.ndarray, covs, mean: np.ndarray, horizon, samples: int,
-                 seed: int) -> np.ndarray:
-    """(B, H, n_y) RMS of ``samples`` horizons about ``mean``, of robots drawn around ``params``: from
-    the head's Gaussian (``covs`` None: std ``z_std``) or the regression's covariances, in unit coordinates."""
-    rng = np.random.default_rng(seed)
+                 seed: int, points: str = "draws") -> np.ndarray:
+    """(B, H, n_y) spread of the horizons of robots around ``params``, from the head's Gaussian (``covs``
+    None: std ``z_std``) or the regression's covariances, in unit coordinates, about ``mean`` (the
+    horizon of ``params`` itself).
+
+    ``points``: ``draws``, the RMS of ``samples`` random robots; ``columns``, one robot per column of the
+    covariance's Cholesky factor, their squared distances summed (the linearized propagation, exact
+    for a horizon linear in the parameters: no sampling noise, one horizon per parameter)."""
     index, low, high = backbone.index, backbone.low, backbone.high
     center = (params[:, index] - (low + high) / 2) / ((high - low) / 2)
     if covs is None:
         chol = z_std[:, :, None] * np.eye(center.shape[1])[None]
     else:
         chol = np.stack([np.linalg.cholesky(c + 1e-12 * np.eye(len(c))) for c in covs])
-    draws = []
-    for _ in range(samples):
-        zk = center + np.einsum("bij,bj->bi", chol, rng.standard_normal(center.shape))
+    if points == "columns":
+        steps = [chol[:, :, i] for i in range(center.shape[1])]
+    else:
+        rng = np.random.default_rng(seed)
+        steps = [np.einsum("bij,bj->bi", chol, rng.standard_normal(center.shape)) for _ in range(samples)]
+    total = np.zeros_like(mean)
+    for step in steps:
         pk = params.copy()
-        pk[:, index] = (low + high) / 2 + np.clip(zk, -1, 1) * (high - low) / 2
-        draws.append(horizon(pk))
-    return np.sqrt(np.mean((np.stack(draws) - mean[None]) ** 2, axis=0))  # (K, B, H, n_y) -> (B, H, n_y)
+        pk[:, index] = (low + high) / 2 + np.clip(center + step, -1, 1) * (high - low) / 2
+        total += (horizon(pk) - mean) ** 2
+    return np.sqrt(total if points == "columns" else total / len(steps))
 
 
 def solves_whole_horizon(model, mode: str) -> bool:

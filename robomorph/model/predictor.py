@@ -25,9 +25,9 @@ import torch
 from robomorph.core.errors import DeviceError, RoboMorphError
 from robomorph.core.inputs import check_model_inputs
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
-from robomorph.model.calibration import mode_key
 from robomorph.model.channels import arm_columns, pad, select
 from robomorph.model.checkpoint import CheckpointError, TrainedModel, load_trained
+from robomorph.model.hybrid_std import calibrated_rows, kind_calibrations, spread_points
 
 
 class PredictionError(RoboMorphError, ValueError):
@@ -119,7 +119,9 @@ class Predictor:
             ``refined``, ``blend`` (:data:`robomorph.model.hybrid.MODES`) or ``none`` (its
             decoder). Default: ``regression`` for commands; for total torques ``blend`` when
             the model has one, else ``none``.
-        physics_samples: parameter draws behind the hybrid's standard deviation.
+        physics_samples: parameter draws behind the hybrid's standard deviation (``physics_points`` draws).
+        physics_points: the robots it is the spread of, ``columns`` or ``draws`` (:mod:`robomorph.model.hybrid_std`;
+            None: those its stored calibration was fitted on, else ``columns``).
         physics_members: robots of the friction mixture over the joints that held still in the context
             (:mod:`robomorph.sim.stiction`; command formulation); 1: the estimate alone (cheaper).
         physics_substeps: physics steps per sample of the hybrid's horizons after their first second (None:
@@ -141,7 +143,7 @@ class Predictor:
         # Checkpoints written before the command formulation were all trained on total torque.
         self.inputs: str = (data_info or {}).get("inputs", "total")
         self.physics, self.physics_mode = _backbone(model, data_info, self.inputs)
-        self.physics_samples, self.physics_members = 8, 9
+        self.physics_samples, self.physics_members, self.physics_points = 8, 9, None
         self.physics_substeps: int | None = None
         self.physics_observer: bool = bool((self.physics or {}).get("observer", False))  # checkpoints before it: off
         self.physics_candidates, self.channels = "exact", None
@@ -158,6 +160,7 @@ class Predictor:
             raise PredictionError("this model has no physics backbone (it was trained with --model.physics none)")
         self._hybrid = self._hybrid or Hybrid(self.model, self.physics, self.inputs)
         self._hybrid.samples, self._hybrid.members = self.physics_samples, self.physics_members
+        self._hybrid.points = spread_points(self)
         bb = self._hybrid.backbone
         bb.coarse, bb.observe, bb.candidates = self.physics_substeps, self.physics_observer, self.physics_candidates
         return self._hybrid
@@ -170,7 +173,7 @@ class Predictor:
     def calibration(self):
         """The stored std calibration of this physics mode (a hybrid's std depends on how the robot
         is identified), from windows that open their trajectory where there is one, or None."""
-        return _kind_calibrations(self)[0]
+        return kind_calibrations(self)[0]
 
     def use_physics(self, mode: str | None, option: str = "--physics") -> None:
         """Predicts in physics mode ``mode`` (None: the default); refuses one it cannot predict in."""
@@ -180,12 +183,14 @@ class Predictor:
     def raw_std(self) -> Iterator["Predictor"]:
         """Within the block, ``simulate`` returns the Gaussian head's own standard deviation,
         without the stored calibration (what calibrating is fitted on)."""
-        kept = self.model.calibrations
+        kept, points = self.model.calibrations, self.physics_points
+        # The spread the stored calibrations scale (or the one chosen): what a calibration fitted here records.
+        self.physics_points = points or (spread_points(self) if self.physics else None)
         self.model.calibrations = {}
         try:
             yield self
         finally:
-            self.model.calibrations = kept
+            self.model.calibrations, self.physics_points = kept, points
 
     @property
     def leaks_query_statistics(self) -> bool:
@@ -208,21 +213,6 @@ class Predictor:
             CheckpointError: the folder is missing, incomplete, altered, or of another format.
         """
         return cls.from_checkpoint(path, device)
-
-    def _check_range(self, u_ctx: torch.Tensor, u_query: torch.Tensor) -> None:
-        """Refuses torques far outside the training range (wrong units, most often)."""
-        if self.max_input_std is None or u_ctx.numel() == 0 or u_query.numel() == 0:
-            return  # empty arrays: the network's own checks name them
-        stats = self.model.normalizer
-        z = torch.cat([((u - stats.u_mean) / stats.u_std).abs().amax(dim=(0, 1)) for u in (u_ctx, u_query)])
-        z = torch.nan_to_num(z.view(2, -1), nan=0.0).amax(0)  # (n_u,) the furthest sample (absent channels: NaN)
-        worst = int(torch.argmax(z))
-        if float(z[worst]) > self.max_input_std:
-            names = (self.data_info or {}).get("u_names") or [f"u{i}" for i in range(self.n_u)]
-            raise PredictionError(
-                f"the inputs reach {float(z[worst]):.3g} training standard deviations (channel {names[worst]!r}), "
-                f"far outside the training range (refused above {self.max_input_std:g}); check their units and "
-                "scale (the checkpoint expects the training data's), or set Predictor.max_input_std")
 
     def _check_output(self, y: torch.Tensor, inputs: list[torch.Tensor]) -> None:
         """Refuses non-finite predictions instead of handing them on without a word."""
@@ -276,7 +266,7 @@ class Predictor:
             raise CheckpointError("this model has no Gaussian head, so it predicts no standard deviation; "
                                   "train one with --model.gaussian true --model.loss nll, or drop return_std")
         tensors, single, cols = _arm_batch(self, (u_ctx, y_ctx, u_query))
-        self._check_range(tensors[0], tensors[2])
+        _check_range(self, tensors[0], tensors[2])
         if hybrid and y_query_stats is not None:
             raise NormalizationError("a hybrid model uses no query statistics: drop y_query_stats")
         stats = None if hybrid else _query_stats(self, y_query_stats, len(tensors[0]))
@@ -285,7 +275,7 @@ class Predictor:
                 mean, std = self.hybrid().predict(*tensors, at_rest=at_rest, mode=self.physics_mode, anchor=anchor,
                                                   return_std=return_std)
                 mean, std = (None if t is None else torch.as_tensor(t) for t in (mean, std))
-                std = None if std is None else _calibrated_rows(self, std, at_rest)
+                std = None if std is None else calibrated_rows(self, std, at_rest)
             else:
                 mean, std = self.model.forward_dist_raw(*tensors, stats)
                 std = std if std is None or self.calibration is None else self.calibration.apply(std)
@@ -296,34 +286,6 @@ class Predictor:
         mean, std = select(mean, cols), select(std, cols)
         self._check_output(mean, tensors)
         return _outputs(u_query, [t[0] if single else t for t in (mean, std) if t is not None], return_std)
-
-
-def _kind_calibrations(predictor: "Predictor") -> tuple:
-    """(for windows that open their trajectory, for the others): the mode's calibrations, each
-    standing in for the other where only one was fitted; (None, None) without any."""
-    mode = mode_key(predictor.physics_mode if predictor.physics else "none", observing(predictor))
-    start, moving = predictor.model.calibrations.get(mode), predictor.model.calibrations.get(f"{mode}/moving")
-    return start or moving, moving or start
-
-
-def observing(predictor: "Predictor") -> bool:
-    """True when the predictions start the horizon from the observer's velocity (commands' simulated contexts)."""
-    return bool(predictor.physics and predictor.physics_observer and predictor.inputs == "command")
-
-
-def _calibrated_rows(predictor: "Predictor", std: torch.Tensor, at_rest) -> torch.Tensor:
-    """A hybrid's std (B, H, n_y) recalibrated row by row: rows whose window opens its trajectory
-    (``at_rest``) by the calibration fitted on such windows, the others by the other kind's."""
-    start, moving = _kind_calibrations(predictor)
-    if start is None:
-        return std
-    rest = np.broadcast_to(np.asarray(False if at_rest is None else at_rest, dtype=bool), (std.shape[0],))
-    raw = std.detach().cpu().numpy()
-    out = np.empty_like(raw)
-    for rows, cal in ((rest, start), (~rest, moving)):  # each row by its own kind's, once
-        if rows.any():
-            out[rows] = cal.scaled(raw[rows])
-    return torch.as_tensor(out, dtype=std.dtype, device=std.device)
 
 
 def _checked_mode(physics: dict | None, mode: str | None, option: str) -> str | None:
@@ -349,6 +311,22 @@ def _backbone(model: TrainedModel, data_info: dict | None, inputs: str) -> tuple
     # Total torques pay gravity at the recorded state: the simulation diverges within seconds,
     # so a total-torque model predicts with its decoder, or with the fitted blend of the two.
     return physics, "regression" if inputs == "command" else ("blend" if blend else "none")
+
+
+def _check_range(self: "Predictor", u_ctx: torch.Tensor, u_query: torch.Tensor) -> None:
+    """Refuses torques far outside the training range (wrong units, most often)."""
+    if self.max_input_std is None or u_ctx.numel() == 0 or u_query.numel() == 0:
+        return  # empty arrays: the network's own checks name them
+    stats = self.model.normalizer
+    z = torch.cat([((u - stats.u_mean) / stats.u_std).abs().amax(dim=(0, 1)) for u in (u_ctx, u_query)])
+    z = torch.nan_to_num(z.view(2, -1), nan=0.0).amax(0)  # (n_u,) the furthest sample (absent channels: NaN)
+    worst = int(torch.argmax(z))
+    if float(z[worst]) > self.max_input_std:
+        names = (self.data_info or {}).get("u_names") or [f"u{i}" for i in range(self.n_u)]
+        raise PredictionError(
+            f"the inputs reach {float(z[worst]):.3g} training standard deviations (channel {names[worst]!r}), "
+            f"far outside the training range (refused above {self.max_input_std:g}); check their units and "
+            "scale (the checkpoint expects the training data's), or set Predictor.max_input_std")
 
 
 def _arm_batch(self: "Predictor", arrays) -> tuple[list[torch.Tensor], bool, tuple | None]:

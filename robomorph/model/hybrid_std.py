@@ -1,0 +1,82 @@
+"""A hybrid's standard deviation: which robots it is the spread of, and which stored calibration scales which rows.
+
+A hybrid's std is the spread of the horizons of robots around its estimate (the regression's covariance, or the
+parameter head's Gaussian). :data:`POINTS` names how those robots are chosen:
+
+- ``columns`` (the default since it was measured): one robot per column of the covariance's Cholesky factor, the
+  squared distances from the estimate's horizon summed: the linearized propagation, deterministic, the same
+  whatever else is in the batch, one horizon per identified parameter (29 on the Panda);
+- ``draws``: the RMS over :attr:`Predictor.physics_samples` random robots (8), what every calibration written
+  before ``columns`` was fitted on. Eight draws leave a sampling noise of about a quarter of the std (sd 0.25 of
+  the log ratio to 128 draws, 32 windows) and a window's draws depended on its row in the batch.
+
+A calibration scales the spread it was fitted on, so it records its points (``StdCalibration.points``; None:
+``draws``, fitted before the choice) and a prediction uses them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from robomorph.model.calibration import POINTS, CalibrationError, mode_key
+
+
+def observing(predictor) -> bool:
+    """True when the predictions start the horizon from the observer's velocity (commands' simulated contexts)."""
+    return bool(predictor.physics and predictor.physics_observer and predictor.inputs == "command")
+
+
+def kind_calibrations(predictor) -> tuple:
+    """(for windows that open their trajectory, for the others): the mode's calibrations, each
+    standing in for the other where only one was fitted; (None, None) without any."""
+    mode = mode_key(predictor.physics_mode if predictor.physics else "none", observing(predictor))
+    start, moving = predictor.model.calibrations.get(mode), predictor.model.calibrations.get(f"{mode}/moving")
+    return start or moving, moving or start
+
+
+def spread_points(predictor) -> str:
+    """The points (:data:`POINTS`) behind a hybrid's std: :attr:`Predictor.physics_points` where set, else
+    those its mode's stored calibrations were fitted on, else ``columns``.
+
+    Raises: CalibrationError: an unknown name, a choice other than the stored calibrations', or calibrations of
+    the two window kinds fitted on different points (the std would be scaled as another spread)."""
+    chosen = predictor.physics_points
+    if chosen is not None and chosen not in POINTS:
+        raise CalibrationError(f"physics_points {chosen!r}: choose one of {', '.join(POINTS)}")
+    cals = {c.points or "draws": c for c in kind_calibrations(predictor) if c is not None}
+    if len(cals) > 1:
+        raise CalibrationError("this model's two std calibrations (windows from the start, and the others) were "
+                               f"fitted on different spreads ({' and '.join(sorted(cals))}): calibrate both kinds "
+                               "with one --points (robomorph calibrate --offset start, then --offset random)")
+    fitted = next(iter(cals), None)
+    if chosen is not None and fitted is not None and chosen != fitted:
+        raise CalibrationError(f"the stored std calibration was fitted on the spread of {fitted!r}, not "
+                               f"{chosen!r}: leave physics_points unset, or calibrate again with --points {chosen}")
+    return chosen or fitted or "columns"
+
+
+def drawn_points(predictor) -> str | None:
+    """What a calibration of ``predictor``'s current std records: its points where its mode draws robots
+    (every hybrid mode but a smoothed horizon's), None for a decoder's std or the smoother's covariance."""
+    from robomorph.model.hybrid import solves_whole_horizon  # noqa: PLC0415  (torch only here)
+
+    if not predictor.physics or predictor.physics_mode == "none" \
+            or solves_whole_horizon(predictor.model, predictor.physics_mode):
+        return None
+    return spread_points(predictor)
+
+
+def calibrated_rows(predictor, std: torch.Tensor, at_rest) -> torch.Tensor:
+    """A hybrid's std (B, H, n_y) recalibrated row by row: rows whose window opens its trajectory
+    (``at_rest``) by the calibration fitted on such windows, the others by the other kind's."""
+    start, moving = kind_calibrations(predictor)
+    if start is None:
+        return std
+    rest = np.broadcast_to(np.asarray(False if at_rest is None else at_rest, dtype=bool), (std.shape[0],))
+    raw = std.detach().cpu().numpy()
+    out = np.empty_like(raw)
+    for rows, cal in ((rest, start), (~rest, moving)):  # each row by its own kind's, once
+        if rows.any():
+            out[rows] = cal.scaled(raw[rows])
+    return torch.as_tensor(out, dtype=std.dtype, device=std.device)
