@@ -160,16 +160,17 @@ def _write_files(out: str, result: dict) -> None:
 
 def _physics(predictor) -> dict:
     """``{"physics": how a hybrid predicted}`` (mode, observer, friction-mixture members and whether the mode
-    uses the mixture, physics steps per sample after the first second; None: the default), else {} (a
-    black-box model, or its decoder)."""
+    uses the mixture, physics steps per sample after the first second, None: the default; the robots its std
+    is the spread of, None: none drawn), else {} (a black-box model, or its decoder)."""
     if not getattr(predictor, "physics", None) or predictor.physics_mode == "none":
         return {}
     from robomorph.model.hybrid import MIXED_MODES  # noqa: PLC0415
-    from robomorph.model.hybrid_std import observing  # noqa: PLC0415
+    from robomorph.model.hybrid_std import drawn_points, observing  # noqa: PLC0415
 
     mixture = predictor.inputs == "command" and predictor.physics_mode in MIXED_MODES and predictor.physics_members > 1
     return {"physics": {"mode": predictor.physics_mode, "observer": observing(predictor), "mixture": mixture,
-                        "members": predictor.physics_members, "substeps": predictor.physics_substeps}}
+                        "members": predictor.physics_members, "substeps": predictor.physics_substeps,
+                        "points": drawn_points(predictor)}}
 
 
 def _smoothing(predictor) -> dict:

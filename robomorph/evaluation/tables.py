@@ -10,6 +10,9 @@ from robomorph.core.results import markdown_table, provenance_markdown, write_ro
 from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
 from robomorph.evaluation.horizons import horizon_markdown
 
+# A hybrid's std points (robomorph.model.hybrid_std) in a table's note.
+POINTS_TEXT = {"columns": "one robot per column of the estimate's covariance", "draws": "random parameter draws"}
+
 
 def _sources(result: dict):
     yield "model", {"approach1": result["approach1"], "approach2": result["approach2"]}
@@ -106,7 +109,8 @@ def table_markdown(result: dict) -> str:
     if phys := meta.get("physics"):
         lines += ["", f"Model predicted on its physics backbone: mode `{phys['mode']}`"
                   + (", horizons from the observer's start velocity" if phys.get("observer") else "")
-                  + (f", friction mixture of {phys['members']} robots" if phys.get("mixture") else "") + "."]
+                  + (f", friction mixture of {phys['members']} robots" if phys.get("mixture") else "")
+                  + (f", std over {POINTS_TEXT[phys['points']]}" if phys.get("points") in POINTS_TEXT else "") + "."]
     if note := smoothing_note(meta.get("smoothing")):
         lines += ["", f"**Model: {note}.**"]
     if "horizons" in result:

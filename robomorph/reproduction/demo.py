@@ -6,8 +6,8 @@
    formulation by default: the hybrid model (``physics: auto`` in ``train_cpu.yaml``),
    whose predictions simulate the robot identified from the context
    (:mod:`robomorph.model.hybrid`); ``--inputs total`` trains on the paper's total torque.
-3. Recalibrates the model's predicted standard deviation (a hybrid's: the spread over
-   parameter draws, for windows from the start and for windows of a moving robot) by horizon
+3. Recalibrates the model's predicted standard deviation (a hybrid's: the spread over robots
+   around the identified one, for windows from the start and for windows of a moving robot) by horizon
    on the training run's validation robots (``robomorph.calibrate``), then evaluates the model on held-out robots it never saw
    (context alone), beside the baselines, with the horizon and context sweeps, and prints
    the per-channel table.
