@@ -114,7 +114,7 @@ class Hybrid:
     def predict(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, at_rest=None,
                 mode: str = "regression", return_std: bool = False, calibration=None, anchor=None
                 ) -> tuple[np.ndarray, np.ndarray | None]:
-        """(B, H, n_y) mean prediction and, with ``return_std``, the std over parameter draws.
+        """(B, H, n_y) mean prediction and, with ``return_std``, the std over robots around the estimate (:attr:`points`).
 
         Args:
             at_rest: bool or (B,) bools: the context opens its trajectory (the robot starts at rest); default False.

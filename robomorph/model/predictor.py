@@ -149,7 +149,7 @@ class Predictor:
         self.physics_candidates, self.channels = "exact", None
         self._hybrid = None
         if self.physics:
-            self.has_std = True  # the spread over parameter draws
+            self.has_std = True  # the spread over robots around the estimate
 
     def hybrid(self):
         """The :class:`robomorph.model.hybrid.Hybrid` of this model (built on first use); a
@@ -242,7 +242,7 @@ class Predictor:
                 given, a mismatch with the training formulation is refused.
             return_std: also return the predicted standard deviation (models trained with
                 ``gaussian: true`` only), recalibrated by horizon when the checkpoint carries a calibration
-                (a hybrid's: the spread over :attr:`physics_samples` parameter draws, by window kind).
+                (a hybrid's: the spread over robots around its estimate, :attr:`physics_points`, by window kind).
             at_rest, anchor: hybrid models only: bool or (B,) bools, the context opens its trajectory (default
                 False); (B, 7) where each robot started (its springs' rest pose; default: the first context sample).
 
