@@ -32,6 +32,7 @@ from robomorph.core.atomic import check_replaceable
 from robomorph.evaluation import training_data
 from robomorph.evaluation.horizons import error_curve, groups_for, parse_horizons
 from robomorph.evaluation.scoring import Predictions, score_windows
+from robomorph.evaluation.tables import POINTS_TEXT
 from robomorph.evaluation.windows import (EvaluationError, Window, check_counts, check_patch, load_window, parse_offset,
                                           start_joints)
 from robomorph.model.calibration import (CALIBRATION_KEY, POWER_MIN_WINDOWS, CalibrationError, calibration_key,
@@ -362,7 +363,8 @@ def report_text(report: dict) -> str:
              f"context {src['context_len']}, horizon {src['horizon']}"
              + ("" if src.get("offset", "start") == "start" else f", windows from offset {src['offset']}")
              + (f", physics mode {src['physics_mode']}" if src.get("physics_mode") else "")
-             + (" with the observer's start velocity" if src.get("observer") else ""),
+             + (" with the observer's start velocity" if src.get("observer") else "")
+             + (f", std over {POINTS_TEXT[p]}" if (p := report["calibration"].get("points")) in POINTS_TEXT else ""),
              markdown_table(["step", "seconds", "scale (median over channels)", *(["power (median)"] if power else []),
                              "±1σ before", "±1σ after", "±2σ before", "±2σ after",
                              *(["spread-error rank corr."] if skill else [])], rows)]

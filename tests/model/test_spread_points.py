@@ -56,7 +56,7 @@ def test_the_columns_std_of_a_window_does_not_depend_on_its_batch(hybrid_ckpt, c
 
 
 def test_calibrations_record_their_points_and_old_ones_scale_the_draws(hybrid_ckpt, command_store, simulated_store,
-                                                                     tmp_path):
+                                                                     tmp_path, capsys):
     """calibrate records the points it fitted on (columns on a model never calibrated); a calibration without
     them (written before the choice) is applied to the random draws it was fitted on, exactly as before."""
     from robomorph.calibrate import main
@@ -68,6 +68,7 @@ def test_calibrations_record_their_points_and_old_ones_scale_the_draws(hybrid_ck
     out = str(tmp_path / "cal.ckpt")
     heldout = simulated_store(robots=4, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=8)
     assert main(["--ckpt", hybrid_ckpt, "--out", out, "--data", heldout, "--n", "4"]) == 0
+    assert "std over one robot per column of the estimate's covariance" in capsys.readouterr().out
     p = Predictor.from_checkpoint(out)
     assert p.calibration.points == "columns" and p.hybrid().points == "columns"
     ckpt = torch.load(out, weights_only=False, map_location="cpu")
