@@ -35,12 +35,18 @@ def kind_calibrations(predictor) -> tuple:
     return start or moving, moving or start
 
 
-def spread_points(predictor) -> str:
+def spread_points(predictor, strict: bool = True) -> str:
     """The points (:data:`POINTS`) behind a hybrid's std: :attr:`Predictor.physics_points` where set, else
-    those its mode's stored calibrations were fitted on, else ``columns``.
+    those its mode's stored calibrations were fitted on, else ``columns``. ``strict`` False: the choice (or
+    ``columns``) instead of the errors below, for predictions that ask for no std.
 
     Raises: CalibrationError: an unknown name, a choice other than the stored calibrations', or calibrations of
     the two window kinds fitted on different points (the std would be scaled as another spread)."""
+    if not strict:
+        try:
+            return spread_points(predictor)
+        except CalibrationError:
+            return predictor.physics_points if predictor.physics_points in POINTS else "columns"
     chosen = predictor.physics_points
     if chosen is not None and chosen not in POINTS:
         raise CalibrationError(f"physics_points {chosen!r}: choose one of {', '.join(POINTS)}")

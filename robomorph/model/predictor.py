@@ -151,16 +151,17 @@ class Predictor:
         if self.physics:
             self.has_std = True  # the spread over robots around the estimate
 
-    def hybrid(self):
+    def hybrid(self, strict: bool = False):
         """The :class:`robomorph.model.hybrid.Hybrid` of this model (built on first use); a
-        :class:`PredictionError` for a model without a physics backbone."""
+        :class:`PredictionError` for a model without a physics backbone. ``strict``: its std's points checked
+        against the stored calibrations (:func:`robomorph.model.hybrid_std.spread_points`; a mean needs none)."""
         from robomorph.model.hybrid import Hybrid  # noqa: PLC0415  (MuJoCo only when used)
 
         if not self.physics:
             raise PredictionError("this model has no physics backbone (it was trained with --model.physics none)")
         self._hybrid = self._hybrid or Hybrid(self.model, self.physics, self.inputs)
         self._hybrid.samples, self._hybrid.members = self.physics_samples, self.physics_members
-        self._hybrid.points = spread_points(self)
+        self._hybrid.points = spread_points(self, strict)
         bb = self._hybrid.backbone
         bb.coarse, bb.observe, bb.candidates = self.physics_substeps, self.physics_observer, self.physics_candidates
         return self._hybrid
@@ -272,8 +273,8 @@ class Predictor:
         stats = None if hybrid else _query_stats(self, y_query_stats, len(tensors[0]))
         try:
             if hybrid:
-                mean, std = self.hybrid().predict(*tensors, at_rest=at_rest, mode=self.physics_mode, anchor=anchor,
-                                                  return_std=return_std)
+                mean, std = self.hybrid(strict=return_std).predict(*tensors, at_rest=at_rest, mode=self.physics_mode,
+                                                                   anchor=anchor, return_std=return_std)
                 mean, std = (None if t is None else torch.as_tensor(t) for t in (mean, std))
                 std = None if std is None else calibrated_rows(self, std, at_rest)
             else:

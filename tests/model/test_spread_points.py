@@ -89,9 +89,11 @@ def test_calibrations_record_their_points_and_old_ones_scale_the_draws(hybrid_ck
     np.testing.assert_allclose(std, old.calibration.scaled(raw).astype(np.float32), rtol=1e-6)
 
 
-def test_a_choice_other_than_the_calibrations_is_refused_in_one_line(hybrid_ckpt, simulated_store, tmp_path):
-    """Asking for the other points than the stored calibration's, or an unknown name, is a CalibrationError that
-    says what to do; a calibration of the other window kind on other points is refused the same way."""
+def test_a_choice_other_than_the_calibrations_is_refused_in_one_line(hybrid_ckpt, command_store, simulated_store,
+                                                                    tmp_path):
+    """Asking a std of other points than the stored calibration's, or of an unknown name, is a CalibrationError
+    that says what to do; a calibration of the other window kind on other points is refused the same way. A mean
+    alone predicts as ever."""
     from robomorph.calibrate import main
     from robomorph.model.calibration import CalibrationError
     from robomorph.model.predictor import Predictor
@@ -101,16 +103,20 @@ def test_a_choice_other_than_the_calibrations_is_refused_in_one_line(hybrid_ckpt
     assert main(["--ckpt", hybrid_ckpt, "--out", out, "--data", heldout, "--n", "4", "--points", "draws"]) == 0
     p = Predictor.from_checkpoint(out)
     assert p.calibration.points == "draws" and p.hybrid().points == "draws"
+    uc, yc, uq, *_ = _windows(command_store, n=2)
     p.physics_points = "columns"
     with pytest.raises(CalibrationError, match="--points columns"):
-        p.hybrid()
+        p.simulate(uc, yc, uq, at_rest=True, return_std=True)
     p.physics_points = "sigma"
     with pytest.raises(CalibrationError, match="choose one of"):
-        p.hybrid()
+        p.simulate(uc, yc, uq, at_rest=True, return_std=True)
     assert main(["--ckpt", out, "--data", heldout, "--n", "4", "--points", "columns", "--offset", "random"]) == 0
     mixed = Predictor.from_checkpoint(out)
     with pytest.raises(CalibrationError, match="different spreads"):
-        mixed.hybrid()
+        mixed.simulate(uc, yc, uq, at_rest=True, return_std=True)
+    # A prediction without a std needs no points: it is the same as the model's before the calibrations.
+    np.testing.assert_array_equal(mixed.simulate(uc, yc, uq, at_rest=True),
+                                  Predictor.from_checkpoint(hybrid_ckpt).simulate(uc, yc, uq, at_rest=True))
 
 
 def test_points_are_not_a_removals_option(hybrid_ckpt, capsys):
