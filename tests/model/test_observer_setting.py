@@ -4,6 +4,7 @@ predate it, switched by ``calibrate --observer``, each setting with its own std 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from tests.conftest import CKPT_CONTEXT, CKPT_HORIZON
@@ -57,12 +58,14 @@ def test_calibrate_observer_records_the_setting_and_each_keeps_its_calibrations(
     assert Predictor.from_checkpoint(out).model.calibrations == {}
 
 
-def test_observer_is_not_a_removals_option(hybrid_ckpt, capsys):
-    """--observer sets what a fit is fitted on: with --remove it is refused in one line, nothing written."""
+@pytest.mark.parametrize("option", [["--observer", "on"], ["--points", "columns"]])
+def test_what_a_fit_is_fitted_on_is_not_a_removals_option(hybrid_ckpt, capsys, option):
+    """--observer and --points set what a fit is fitted on: with --remove each is refused in one line, nothing
+    written."""
     from robomorph.calibrate import main
 
     before = open(hybrid_ckpt, "rb").read()
-    assert main(["--ckpt", hybrid_ckpt, "--observer", "on", "--remove"]) == 2
+    assert main(["--ckpt", hybrid_ckpt, *option, "--remove"]) == 2
     err = capsys.readouterr().err.strip()
     assert "drop --remove" in err and len(err.splitlines()) == 1 and "Traceback" not in err
     assert open(hybrid_ckpt, "rb").read() == before

@@ -119,16 +119,6 @@ def test_a_choice_other_than_the_calibrations_is_refused_in_one_line(hybrid_ckpt
                                   Predictor.from_checkpoint(hybrid_ckpt).simulate(uc, yc, uq, at_rest=True))
 
 
-def test_points_are_not_a_removals_option(hybrid_ckpt, capsys):
-    from robomorph.calibrate import main
-
-    before = open(hybrid_ckpt, "rb").read()
-    assert main(["--ckpt", hybrid_ckpt, "--points", "columns", "--remove"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert "drop --remove" in err and len(err.splitlines()) == 1 and "Traceback" not in err
-    assert open(hybrid_ckpt, "rb").read() == before
-
-
 def test_calibration_points_round_trip_and_unknown_ones_are_refused():
     from robomorph.model.calibration import CalibrationError, StdCalibration
 
