@@ -118,8 +118,8 @@ def main(argv=None) -> None:
     p.add_argument("--knots", default=None, help="comma-separated knot layouts to fit the model's own spread on: "
                    "log (log-spaced) and end (as dense at the horizon's end as at its start); default: calibrate's")
     p.add_argument("--points", default=None, help="comma-separated robots a hybrid's spread is taken over, side by "
-                   "side (columns, draws; robomorph.model.hybrid_std), its own spread alone; default: its own points "
-                   "and the candidates")
+                   "side (POINTS[+springs]: columns or draws, robomorph.model.hybrid_std; +springs: the regression "
+                   "fits the joints' springs too), its own spread alone; default: its own points and the candidates")
     p.add_argument("--offset", default="start", help="start, random or a step, as in evaluate")
     p.add_argument("--horizon", type=int, default=None, help="default: the training horizon (600 off the start)")
     p.add_argument("--physics", default=None, help="a hybrid's physics mode (default: its default)")
@@ -141,7 +141,9 @@ def main(argv=None) -> None:
     layouts = a.knots.split(",") if a.knots else ["end" if dense_at_end(pred) else "log"]
     rows, spreads = [], {}
     for p in points:  # the model's own spread over each kind of points; the candidates beside the first's
-        pred.physics_points = p
+        if p is not None:  # POINTS[+springs]: the regression fits the joints' springs too
+            pred.physics_points, _, extra = p.partition("+")
+            pred.physics_springs = extra == "springs"
         spreads[p] = tuple(_predict(pred, w, steps, a.batch, others=not a.points) for w in (cal_w, test_w))
     cal, test = spreads[points[0]]
     for name in ("spread", *cal[3]):

@@ -111,7 +111,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
               context_len: int | None = None, horizon: int | None = None, offset: str | int = "start",
               seed: int = 0, method: str = "power", batch_size: int = 64, device: str | None = None,
               horizons_spec: str | None = None, physics: str | None = None, observer: bool | None = None,
-              points: str | None = None) -> dict:
+              points: str | None = None, springs: bool | None = None) -> dict:
     """Fits the calibration and writes the checkpoint with it to ``out`` (default: in place).
 
     Args:
@@ -125,8 +125,9 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
             its own calibration, so calibrating one leaves the others' in place. A hybrid keeps one
             per window kind too: windows from the start, and windows that do not open their
             trajectory (``offset`` random or a step), each applied to its own kind.
-        observer: a command-formulation hybrid's observer (:attr:`Predictor.physics_observer`) set in the
-            checkpoint's record before fitting (None: as recorded); its calibrations are kept apart.
+        observer, springs: a command-formulation hybrid's observer and regression of the joints' springs
+            (:attr:`Predictor.physics_observer`, ``physics_springs``) set in the checkpoint's record before fitting
+            (None: as recorded); the calibrations of each setting are kept apart.
         points: a hybrid's std's robots, ``columns`` or ``draws`` (:func:`robomorph.model.hybrid_std.spread_points`).
 
     Returns:
@@ -134,7 +135,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
         windows before and after at the reported steps.
     """
     from robomorph.model.files import read_model  # noqa: PLC0415  (a checkpoint or a model folder)
-    from robomorph.model.hybrid_std import drawn_points, observing  # noqa: PLC0415
+    from robomorph.model.hybrid_std import drawn_points, observing, springing  # noqa: PLC0415
 
     check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     offset = parse_offset(offset)
@@ -142,8 +143,9 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     predictor.use_physics(physics)
     predictor.physics_points = points
     ckpt_dict = read_model(ckpt)
-    if observer is not None:
-        _set_observer(predictor, ckpt_dict, observer)
+    for name, on in (("observer", observer), ("springs", springs)):
+        if on is not None:
+            _set_record(predictor, ckpt_dict, name, on)
     sources, split = _sources(ckpt_dict, data)
     w, source = _fitting_windows(ckpt, predictor, sources, split, n, context_len, horizon, offset, seed,
                                  "calibration window")
@@ -160,6 +162,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     if getattr(predictor, "physics", None):
         # A hybrid's std depends on how it identifies the robot: the calibration is that mode's.
         source["physics_mode"], source["observer"] = predictor.physics_mode, observing(predictor)
+        source["springs"] = springing(predictor)
     cal = fit(before.y, mean, std, method, source=source, end=dense_at_end(predictor), points=points)
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
     report = _report(ckpt, out, cal, w.dt, horizon, steps, before, after)
@@ -199,15 +202,15 @@ def _report(ckpt: str, out: str | None, cal, dt: float, horizon: int, steps: lis
     return report
 
 
-def _set_observer(predictor, ckpt_dict: dict, on: bool) -> None:
-    """Records the observer's setting in the model's physics record (refused where it cannot apply)."""
+def _set_record(predictor, ckpt_dict: dict, name: str, on: bool) -> None:
+    """Records the observer's or the springs' setting in the model's physics record (refused where it cannot apply)."""
     from robomorph.model.files import DATA_INFO_KEY  # noqa: PLC0415
 
     record = (ckpt_dict.get(DATA_INFO_KEY) or {}).get("physics") if predictor.model.config.n_params else None
     if not record or predictor.inputs != "command":
-        raise CalibrationError("--observer needs a command-formulation model trained with --model.physics amortized "
-                               "(it corrects the simulated context, which total torques do not use)")
-    record["observer"] = predictor.physics_observer = bool(on)
+        raise CalibrationError(f"--{name} needs a command-formulation model trained with --model.physics amortized")
+    record[name] = bool(on)
+    setattr(predictor, f"physics_{name}", bool(on))
 
 
 def moving_windows(w: Window, offset) -> Window:
@@ -364,6 +367,7 @@ def report_text(report: dict) -> str:
              + ("" if src.get("offset", "start") == "start" else f", windows from offset {src['offset']}")
              + (f", physics mode {src['physics_mode']}" if src.get("physics_mode") else "")
              + (" with the observer's start velocity" if src.get("observer") else "")
+             + (", the springs fitted" if src.get("springs") else "")
              + (f", std over {POINTS_TEXT[p]}" if (p := report["calibration"].get("points")) in POINTS_TEXT else ""),
              markdown_table(["step", "seconds", "scale (median over channels)", *(["power (median)"] if power else []),
                              "±1σ before", "±1σ after", "±2σ before", "±2σ after",

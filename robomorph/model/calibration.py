@@ -200,16 +200,20 @@ def calibration_key(calibration: StdCalibration) -> str:
     fitted on windows that do not open their trajectory (``calibrate --offset random``). A hybrid
     knows which windows open theirs (``at_rest``) and applies each kind's to its own; a black-box
     model has one calibration whatever its windows."""
-    mode = mode_key(str(calibration.source.get("physics_mode", "none")), bool(calibration.source.get("observer")))
+    src = calibration.source
+    mode = mode_key(str(src.get("physics_mode", "none")), bool(src.get("observer")), bool(src.get("springs")))
     start = calibration.source.get("offset", "start") in ("start", 0)
     return mode if mode == "none" or start else f"{mode}/moving"
 
 
-def mode_key(mode: str, observer: bool) -> str:
+def mode_key(mode: str, observer: bool, springs: bool = False) -> str:
     """A physics mode's calibration key: ``+obs`` when its horizons start from the observer's velocity
-    (:func:`robomorph.sim.backbone.observed_velocity`), whose spread near the start is another (none:
-    the decoder's std, which no observer touches)."""
-    return f"{mode}+obs" if observer and mode != "none" else mode
+    (:func:`robomorph.sim.backbone.observed_velocity`), whose spread near the start is another, ``+springs``
+    when its regression fits the joints' springs, whose spread late in the horizon is another (none:
+    the decoder's std, which neither touches)."""
+    if mode == "none":
+        return mode
+    return mode + ("+obs" if observer else "") + ("+springs" if springs else "")
 
 
 def read_calibrations(entry: dict | None) -> dict[str, StdCalibration]:

@@ -86,10 +86,14 @@ class Hybrid:
         self.backbone = PhysicsBackbone(physics, inputs)
         self._identifier = None
         self._regressor = None
-        self._regressor_gravity = False
+        self._regressor_kinds: tuple[str, ...] = ()
+        # Whether the regression also fits the joints' springs (robomorph.sim.identify.SPRING_KINDS), whose
+        # uncertainty the std then carries too: the record's (commands; records before it: off).
+        self.springs = bool(physics.get("springs", False)) and inputs == "command"
         self._stiction = None
         self._held: np.ndarray | None = None  # (B, nj) of the last regression: joints that held still
         self._covs: list[np.ndarray] = []  # of the last regression: each window's estimate covariance
+        self._cov_space: tuple = ()  # the entries those cover: their indices in a parameter vector, their bounds
         from robomorph.sim.smoother import SmootherConfig, new_report  # noqa: PLC0415
 
         self.smoother = SmootherConfig()  # how mode ``smoothed`` weighs physics and decoder
@@ -236,7 +240,8 @@ class Hybrid:
                 horizon, calibration) -> np.ndarray:
         """The std (B, H, n_y): the horizons of robots drawn around the estimate, about ``mean``."""
         covs = None if mode == "learned" else self._covs
-        std = _draw_spread(self.backbone, params, z_std, covs, mean, horizon, self.samples, self.seed, self.points)
+        space = (self.backbone.index, self.backbone.low, self.backbone.high) if covs is None else self._cov_space
+        std = _draw_spread(space, params, z_std, covs, mean, horizon, self.samples, self.seed, self.points)
         return std if calibration is None else calibration.scaled(std)
 
     def _refine(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray) -> np.ndarray:
@@ -253,41 +258,47 @@ def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
              anchor: np.ndarray | None = None) -> np.ndarray:
     """The catalogue robot's identified entries solved for, window by window (springs
     anchored at ``anchor``, default the first context sample)."""
-    from robomorph.sim.identify import GRAVITY_KINDS, ParameterSpace  # noqa: PLC0415
+    from robomorph.sim.identify import GRAVITY_KINDS, KINDS, SPRING_KINDS, ParameterSpace  # noqa: PLC0415
     from robomorph.sim.regressor import RegressorIdentifier  # noqa: PLC0415
 
     # Total torques pay gravity in the torque: the centres of mass are solved for as well (a
     # centimetre moves it by ~0.1 N m), except under the head's prior, which does not name them.
     gravity = hybrid.inputs == "total" and prior is None
-    if hybrid._regressor is None or hybrid._regressor_gravity != gravity:
+    kinds = (GRAVITY_KINDS if gravity else KINDS) + (SPRING_KINDS if hybrid.springs and prior is None else ())
+    if hybrid._regressor is None or hybrid._regressor_kinds != kinds:
         ident = hybrid.backbone.ident
-        space = ParameterSpace.of(ident.randomizer, hybrid.backbone.recipe.randomization, GRAVITY_KINDS) \
-            if gravity else ident.space
+        space = ParameterSpace.of(ident.randomizer, hybrid.backbone.recipe.randomization, kinds) \
+            if kinds != KINDS else ident.space
         hybrid._regressor = RegressorIdentifier(hybrid.backbone.recipe, space, ident.randomizer, hybrid.inputs,
                                                 iterations=hybrid.iterations)
-        hybrid._regressor_gravity = gravity
+        hybrid._regressor_kinds = kinds
     hybrid._regressor.iterations = hybrid.iterations
     base = np.stack([hybrid.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
     out, hybrid._covs, held = [], [], []
-    n = len(hybrid.backbone.index)  # the layout's entries come first; the draws of the std move those
+    # The layout's entries come first; the std's robots move those, and the springs where they were fitted
+    # (the centres of mass of total torques stay at the estimate).
+    n = len(hybrid.backbone.index)
+    space = hybrid._regressor.space
+    keep = np.r_[np.arange(n), np.flatnonzero([k.startswith(SPRING_KINDS) for k in space.names])]
+    hybrid._cov_space = (space.index[keep], space.low[keep], space.high[keep])
     for b in range(len(params)):
         out.append(hybrid._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))
-        hybrid._covs.append(hybrid._regressor.last_cov[:n, :n])
+        hybrid._covs.append(hybrid._regressor.last_cov[np.ix_(keep, keep)])
         held.append(hybrid._regressor.last_held)
     hybrid._held = np.stack(held)
     return np.stack(out)
 
 
-def _draw_spread(backbone, params: np.ndarray, z_std: np.ndarray, covs, mean: np.ndarray, horizon, samples: int,
+def _draw_spread(space: tuple, params: np.ndarray, z_std: np.ndarray, covs, mean: np.ndarray, horizon, samples: int,
                  seed: int, points: str = "draws") -> np.ndarray:
     """(B, H, n_y) spread of the horizons of robots around ``params``, from the head's Gaussian (``covs``
     None: std ``z_std``) or the regression's covariances, in unit coordinates, about ``mean`` (the
-    horizon of ``params`` itself).
+    horizon of ``params`` itself). ``space``: the moved entries' indices in ``params`` and their bounds.
 
     ``points``: ``draws``, the RMS of ``samples`` random robots; ``columns``, one robot per column of the
     covariance's Cholesky factor, their squared distances summed (the linearized propagation, exact
     for a horizon linear in the parameters: no sampling noise, one horizon per parameter)."""
-    index, low, high = backbone.index, backbone.low, backbone.high
+    index, low, high = space
     center = (params[:, index] - (low + high) / 2) / ((high - low) / 2)
     if covs is None:
         chol = z_std[:, :, None] * np.eye(center.shape[1])[None]

@@ -27,10 +27,17 @@ def observing(predictor) -> bool:
     return bool(predictor.physics and predictor.physics_observer and predictor.inputs == "command")
 
 
+def springing(predictor) -> bool:
+    """True when the regression fits the joints' springs too (:attr:`Predictor.physics_springs`: commands, in the
+    modes whose robot it identifies without the parameter head's prior)."""
+    return bool(predictor.physics and predictor.physics_springs and predictor.inputs == "command"
+                and predictor.physics_mode not in ("learned", "fused", "none"))
+
+
 def kind_calibrations(predictor) -> tuple:
     """(for windows that open their trajectory, for the others): the mode's calibrations, each
     standing in for the other where only one was fitted; (None, None) without any."""
-    mode = mode_key(predictor.physics_mode if predictor.physics else "none", observing(predictor))
+    mode = mode_key(predictor.physics_mode if predictor.physics else "none", observing(predictor), springing(predictor))
     start, moving = predictor.model.calibrations.get(mode), predictor.model.calibrations.get(f"{mode}/moving")
     return start or moving, moving or start
 

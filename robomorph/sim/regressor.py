@@ -113,6 +113,8 @@ class RegressorIdentifier:
         self._half = (space.high - space.low) / 2
         self._mid = (space.high + space.low) / 2
         self._friction = _friction_entries(space, randomizer)
+        # Where each joint's spring is anchored in a parameter vector (its stiffness column's reference).
+        self._qinit = randomizer.split(np.arange(len(randomizer.names), dtype=np.float64))["qinit"].astype(np.int64)
 
     def fit(self, base: np.ndarray, q: np.ndarray, torque: np.ndarray, prior_mean: np.ndarray | None = None,
             prior_std: np.ndarray | None = None) -> np.ndarray:
@@ -223,6 +225,10 @@ class RegressorIdentifier:
                 cols[:, j, c] = v[:, j] + h * a[:, j]
             elif kind == "armature":
                 cols[:, j, c] = a[:, j]  # the armature adds to the inertia's diagonal: exact
+            elif kind == "stiffness":
+                # The spring pulls toward where the robot started; position-dependent, so outside the
+                # implicit integration's velocity terms: exact.
+                cols[:, j, c] = qs[:, j] - params[self._qinit[j]]
             elif kind == "frictionloss":
                 friction.append((c, k, j))
             elif self.randomizer.names[k].startswith("com_"):  # total torques (see COM_STEP)

@@ -44,16 +44,16 @@ def test_calibrate_observer_records_the_setting_and_each_keeps_its_calibrations(
     common = ["--data", heldout, "--n", "4", "--physics", "regression"]
     assert main(["--ckpt", hybrid_ckpt, "--out", out, *common, "--observer", "off"]) == 0
     off = Predictor.from_checkpoint(out)
-    assert off.physics_observer is False and set(off.model.calibrations) == {"regression"}
+    assert off.physics_observer is False and set(off.model.calibrations) == {"regression+springs"}
     assert "observer's start velocity" not in capsys.readouterr().out
     assert main(["--ckpt", out, *common, "--observer", "on"]) == 0
     assert "with the observer's start velocity" in capsys.readouterr().out
     p = Predictor.from_checkpoint(out)
     cals = p.model.calibrations
-    assert p.physics_observer is True and set(cals) == {"regression", "regression+obs"}
-    assert p.calibration is cals["regression+obs"] and cals["regression+obs"].scale != cals["regression"].scale
+    assert p.physics_observer is True and set(cals) == {"regression+springs", "regression+obs+springs"}
+    assert p.calibration is cals["regression+obs+springs"] and cals["regression+obs+springs"].scale != cals["regression+springs"].scale
     p.physics_observer = False
-    assert p.calibration is cals["regression"]
+    assert p.calibration is cals["regression+springs"]
     assert main(["--ckpt", out, "--remove", "--physics", "regression"]) == 0
     assert Predictor.from_checkpoint(out).model.calibrations == {}
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import types
 
 import numpy as np
 import pytest
@@ -12,9 +11,9 @@ from tests.conftest import CKPT_CONTEXT, CKPT_HORIZON
 from tests.model.test_hybrid import _windows, command_store, hybrid_ckpt  # noqa: F401  (fixtures)
 
 
-def _backbone(n: int):
-    """What the spread reads of a backbone: where the identified entries sit and their ranges."""
-    return types.SimpleNamespace(index=np.arange(n), low=-np.ones(n), high=np.ones(n))
+def _space(n: int):
+    """What the spread moves: where the identified entries sit in a parameter vector, and their ranges."""
+    return np.arange(n), -np.ones(n), np.ones(n)
 
 
 def test_columns_are_the_linearized_propagation_of_the_covariance():
@@ -33,10 +32,10 @@ def test_columns_are_the_linearized_propagation_of_the_covariance():
         return (p @ a).reshape(len(p), horizon, n_y)
 
     mean = linear(params)
-    cols = _draw_spread(_backbone(n), params, None, covs, mean, linear, 8, 0, "columns")
+    cols = _draw_spread(_space(n), params, None, covs, mean, linear, 8, 0, "columns")
     exact = np.stack([np.sqrt(np.einsum("ik,ij,jk->k", a, c, a)).reshape(horizon, n_y) for c in covs])
     np.testing.assert_allclose(cols, exact, rtol=1e-7)  # the factor's 1e-12 jitter
-    draws = _draw_spread(_backbone(n), params, None, covs, mean, linear, 8, 0, "draws")
+    draws = _draw_spread(_space(n), params, None, covs, mean, linear, 8, 0, "draws")
     assert np.abs(np.log(draws / exact)).max() > 0.05  # eight draws miss it: the comparison can fail
 
 

@@ -200,3 +200,35 @@ def test_a_wrist_that_slid_below_the_estimates_friction_is_found_where_held_ones
         else:
             assert reg.last_held[6]
             np.testing.assert_array_equal(fit, stuck)
+
+
+# Robots whose only deviation from the catalogue is in their joint springs, made stiff enough for a short
+# context to show them (the recipe's springs are 0.01-0.05 N m/rad, which only the long horizons feel).
+SPRINGS_ONLY = {**DAMPING_ONLY, "damping": [7.5, 7.5], "stiffness": [1.0, 5.0]}
+
+
+def test_the_springs_columns_are_mujocos_inverse_dynamics_and_their_fit_recovers_them(simulated_store):
+    """With the springs among the fitted kinds, their analytic columns (the distance from where the robot started)
+    equal a pass of MuJoCo's inverse dynamics per stiffness, and on robots that differ from the catalogue only
+    there the regression finds them; the covariance covers them."""
+    ds = open_store(simulated_store(robots=3, steps=CONTEXT, seed=6, randomization=SPRINGS_ONLY))
+    recipe = from_dict(Recipe, ds.attrs["config"], "store config")
+    rz = Randomizer(lean_model(recipe.substeps, recipe.dt, True), recipe.randomization)
+    space = ParameterSpace.of(rz, recipe.randomization, ("damping", "stiffness"))
+    reg, exact = (RegressorIdentifier(recipe, space, rz, "command", exact_columns=e) for e in (False, True))
+    sim = NominalPhysics(ds.attrs, "command")
+    y, u, params = ds.read("y").astype(np.float64), ds.read("u_cmd").astype(np.float64), ds.read("params")
+    springs = [c for c, n in enumerate(space.names) if n.startswith("stiffness")]
+    q = y[0, :, 7:]
+    v, a = (q[2:] - q[:-2]) / (2 * reg.dt), (q[2:] - 2 * q[1:-1] + q[:-2]) / reg.dt ** 2
+    base = sim.params(q[0])
+    tau0 = reg._inverse(base, q[1:-1], v, a)[0]
+    fast, slow = (r._columns(base, q[1:-1], v, a, tau0)[:, :, springs] for r in (reg, exact))
+    assert np.abs(slow).max() > 0.05  # the joints moved away from where they started
+    np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-6 * np.abs(slow).max())
+    for b in range(len(y)):
+        base = sim.params(y[b, 0, 7:])
+        est = reg.fit(base, y[b, :, 7:], u[b])
+        truth = params[b, space.index[springs]]
+        assert np.abs(est[space.index[springs]] - truth).mean() < 0.2 * np.abs(base[space.index[springs]] - truth).mean()
+        assert reg.last_cov.shape == (len(space), len(space)) and np.all(np.diag(reg.last_cov)[springs] > 0)
