@@ -134,18 +134,11 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
         A report: the calibration's provenance, and the ±1σ/±2σ coverage of the calibration
         windows before and after at the reported steps.
     """
-    from robomorph.model.files import read_model  # noqa: PLC0415  (a checkpoint or a model folder)
     from robomorph.model.hybrid_std import drawn_points, observing, springing  # noqa: PLC0415
 
     check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     offset = parse_offset(offset)
-    predictor = _predictor(ckpt, device)
-    predictor.use_physics(physics)
-    predictor.physics_points = points
-    ckpt_dict = read_model(ckpt)
-    for name, on in (("observer", observer), ("springs", springs)):
-        if on is not None:
-            _set_record(predictor, ckpt_dict, name, on)
+    predictor, ckpt_dict = _calibrated_predictor(ckpt, device, physics, points, observer, springs)
     sources, split = _sources(ckpt_dict, data)
     w, source = _fitting_windows(ckpt, predictor, sources, split, n, context_len, horizon, offset, seed,
                                  "calibration window")
@@ -174,14 +167,13 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
 
 def dense_at_end(predictor) -> bool:
     """Whether a calibration of ``predictor`` places its knots as dense at the horizon's end as at its start
-    (:func:`robomorph.model.calibration.end_dense_knots`): every hybrid prediction. Log-spaced knots give the
-    last one a band on its left only (about the last sixth of the horizon), whose errors are smaller than the last
-    step's wherever they grow along the horizon, and the scale is then held flat to the end. A smoothed
-    horizon's errors grow fastest there (its last steps have no later torque to pin them); a forward
-    simulation's keep growing. Measured on the command formulation's hybrid (``regression+obs``, ``power``
-    fitted on 768 robots, scored on 1,024 others): the joints' ±2σ coverage at the last step rose from 92.0 to
-    92.8 % from random offsets and from 91.6 to 91.9 % from the start, the earlier steps within 0.3 points
-    (``results/benchmarks/spread_knots_{random,start}.md``)."""
+    (:func:`robomorph.model.calibration.end_dense_knots`): every hybrid prediction. Log-spaced knots give the last
+    one a band on its left only (the last sixth of the horizon), whose errors are smaller than the last step's
+    wherever they grow, the scale then held flat to the end. A smoothed horizon's errors grow fastest there (no
+    later torque pins its last steps); a forward simulation's keep growing. Measured on the command hybrid
+    (``regression+obs``, ``power`` fitted on 768 robots, scored on 1,024 others): the joints' ±2σ coverage at the
+    last step rose from 92.0 to 92.8 % from random offsets and from 91.6 to 91.9 % from the start, the earlier
+    steps within 0.3 points (``results/benchmarks/spread_knots_{random,start}.md``)."""
     return bool(getattr(predictor, "physics", None))
 
 
@@ -202,15 +194,24 @@ def _report(ckpt: str, out: str | None, cal, dt: float, horizon: int, steps: lis
     return report
 
 
-def _set_record(predictor, ckpt_dict: dict, name: str, on: bool) -> None:
-    """Records the observer's or the springs' setting in the model's physics record (refused where it cannot apply)."""
-    from robomorph.model.files import DATA_INFO_KEY  # noqa: PLC0415
+def _calibrated_predictor(ckpt: str, device, physics, points, observer, springs) -> tuple:
+    """The predictor to calibrate, set up as asked: the observer's and the springs' settings written into the
+    physics record of the checkpoint read (refused where they cannot apply)."""
+    from robomorph.model.files import DATA_INFO_KEY, read_model  # noqa: PLC0415  (a checkpoint or a model folder)
 
+    predictor = _predictor(ckpt, device)
+    predictor.use_physics(physics)
+    predictor.physics_points = points
+    ckpt_dict = read_model(ckpt)
     record = (ckpt_dict.get(DATA_INFO_KEY) or {}).get("physics") if predictor.model.config.n_params else None
-    if not record or predictor.inputs != "command":
-        raise CalibrationError(f"--{name} needs a command-formulation model trained with --model.physics amortized")
-    record[name] = bool(on)
-    setattr(predictor, f"physics_{name}", bool(on))
+    for name, on in (("observer", observer), ("springs", springs)):
+        if on is None:
+            continue
+        if not record or predictor.inputs != "command":
+            raise CalibrationError(f"--{name} needs a command-formulation model trained with --model.physics amortized")
+        record[name] = bool(on)
+        setattr(predictor, f"physics_{name}", bool(on))
+    return predictor, ckpt_dict
 
 
 def moving_windows(w: Window, offset) -> Window:
@@ -393,8 +394,7 @@ def _tails_note(report: dict, missed: list[int]) -> str:
     steps = ", ".join(str(report["steps"][i]) for i in missed)
     skill = [v for i, v in enumerate(report.get("skill") or []) if i in missed and v is not None]
     ranked = "" if not skill else (f"; the spread ranks the windows by their errors with a rank correlation of "
-                                   f"{min(skill):.2f}-{max(skill):.2f} "
-                                   "there, and a scale common to all windows cannot widen only those whose spread is too "
-                                   "small for their errors")
+                                   f"{min(skill):.2f}-{max(skill):.2f} there, and a scale common to all windows "
+                                   "cannot widen only those whose spread is too small for their errors")
     return (f"at step(s) {steps} the errors are heavier-tailed than a Gaussian's: no scale of this spread puts both "
             f"±1σ and ±2σ within 68.3 ± 5 % / 95.4 ± 3 % of these windows{ranked}")

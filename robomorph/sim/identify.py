@@ -6,19 +6,16 @@
     ident.close()
 
 What is fitted (``IdentifyConfig.kinds``): a mass per link (the inertia scales with it, as
-:class:`robomorph.sim.randomize.Randomizer` applies it), and damping, armature and friction
-loss per joint; the centres of mass and the joint springs stay at the catalogue's values
-(a centimetre of centre-of-mass offset and a 0.01-0.05 N m/rad spring barely move a joint
-over a few seconds, and the inertias were found unidentifiable from joint data alone). Each
-parameter is bounded by the recipe's randomization range, so a parameter whose range is
-collapsed is known exactly and not fitted.
+:class:`robomorph.sim.randomize.Randomizer` applies it), and damping, armature and friction loss per
+joint; the centres of mass and the joint springs stay at the catalogue's (they barely move a joint
+over a few seconds; the inertias were found unidentifiable from joint data alone). Each parameter
+is bounded by the recipe's range, so one whose range is collapsed is known exactly and not fitted.
 
-Method: bounded nonlinear least squares (scipy's trust-region reflective) of the simulated
-joint positions against the context's, plus a pull toward the catalogue values (a weak
-Tikhonov term in units of each parameter's half-range) that settles the directions the
-context cannot see. The context is simulated open loop with ``mujoco.rollout`` from its
-first sample; a Jacobian is forward differences with all its perturbed rollouts in one
-threaded call, and the fit stops once the cost or the step stops changing.
+Method: bounded nonlinear least squares (scipy's trust-region reflective) of the simulated joint
+positions against the context's, plus a pull toward the catalogue values (a weak Tikhonov term in
+units of each parameter's half-range) that settles the directions the context cannot see. The
+context is simulated open loop with ``mujoco.rollout`` from its first sample; a Jacobian is forward
+differences, all its perturbed rollouts in one threaded call; the fit stops once it stops changing.
 
 Formulations: the gravity compensation a formulation adds at each frame start
 (``robomorph.evaluation.physics.NominalPhysics``) is evaluated here at the *recorded* state
@@ -48,15 +45,12 @@ from robomorph.sim.open_loop import ThreadedRollout
 from robomorph.sim.randomize import RandomizationConfig, Randomizer
 
 KINDS = ("mass", "damping", "armature", "frictionloss")
-# The centres of mass (3 coordinates per link) as well: what the regressor fits for total torques,
-# where gravity is paid in the recorded torque and a centimetre moves it by about 0.1 N m. Kept out
-# of KINDS, the default of every fit and parameter head (checkpoints record that layout).
+# The centres of mass (3 coordinates per link) as well: what the regressor fits for total torques, where gravity
+# is paid in the recorded torque (a centimetre: ~0.1 N m). Not in KINDS, every fit's and head's default layout.
 GRAVITY_KINDS = KINDS + ("com",)
-# The joint springs toward where the robot started (``stiffness``): a torque linear in each joint's
-# stiffness, tiny in the context (0.01-0.05 N m/rad over tenths of a radian) but, held at the
-# catalogue's middle, the largest error left in a commanded arm's slow drift (measured on 64 held-out
-# robots, the true robot but its springs: 1.6 mrad RMS at 13.3 s, against 0.7 for its centres of mass
-# and 0.08 for the true robot). What the regressor may fit beside any of the above.
+# The joint springs (toward where the robot started): tiny in a context, but at the catalogue's value the largest
+# error left in a commanded arm's slow drift (the true robot but its springs, 64 held-out robots: 1.6 mrad RMS at
+# 13.3 s; its centres of mass 0.7, itself 0.08). The regressor fits them beside the kinds above (linear in them).
 SPRING_KINDS = ("stiffness",)
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -75,8 +69,7 @@ class IdentifyConfig:
             the data term is the joint RMS error in units of ``sigma``, so moving a parameter
             across its whole half-range costs as much as ``prior * sigma`` of RMS error.
         sigma: joint-position error [rad] that costs 1.
-        max_iters: most cost evaluations (scipy's ``max_nfev``); each accepted step adds one
-            Jacobian.
+        max_iters: most cost evaluations (scipy's ``max_nfev``); each accepted step adds one Jacobian.
         tol: early stop: relative change of the cost (``ftol``) or of the step (``xtol``).
         fd_step: finite-difference step, as a fraction of each parameter's half-range.
         nthread: rollout threads (0: one per core, at most one per Jacobian column).
