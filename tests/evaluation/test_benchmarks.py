@@ -185,3 +185,13 @@ def test_candidates_benchmark_is_exact_for_the_reference_and_linear_without_fric
         assert err[(0.5, b, "tangent-linear, dry friction corrected")] < 0.7 * err[(0.5, b, "tangent-linear")]
     done = run("candidates.py", "--test", store, "--context", 60, ok=False)
     assert done.returncode == 2 and "fewer than --context + 60" in done.stderr
+
+
+def test_nuisance_sets_each_kind_back_to_the_catalogue_in_turn(tmp_path, simulated_store):
+    """benchmarks/nuisance.py: the true robot, then each kind at the catalogue's; a randomized kind costs error."""
+    store = simulated_store(robots=2, steps=60, seed=6)
+    run("nuisance.py", "--data", store, "--n", 2, "--context-len", 20, "--horizon", 30, "--md", tmp_path / "n.md")
+    rows = read_rows(str(tmp_path / "n.csv"))
+    assert [r["at_catalogue"] for r in rows] == ["none", "mass", "com", "damping", "stiffness", "armature",
+                                                 "frictionloss"]
+    assert float(rows[3]["step_15"]) > 10 * float(rows[0]["step_15"])  # the damping's range moves the arm
