@@ -143,6 +143,8 @@ def main(argv=None) -> None:
     for p in points:  # the model's own spread over each kind of points; the candidates beside the first's
         if p is not None:  # POINTS[+springs]: the regression fits the joints' springs too
             pred.physics_points, _, extra = p.partition("+")
+            if extra not in ("", "springs"):
+                raise SystemExit(f"error: --points takes POINTS or POINTS+springs, got {p!r}")
             pred.physics_springs = extra == "springs"
         spreads[p] = tuple(_predict(pred, w, steps, a.batch, others=not a.points) for w in (cal_w, test_w))
     cal, test = spreads[points[0]]

@@ -113,8 +113,6 @@ class RegressorIdentifier:
         self._half = (space.high - space.low) / 2
         self._mid = (space.high + space.low) / 2
         self._friction = _friction_entries(space, randomizer)
-        # Where each joint's spring is anchored in a parameter vector (its stiffness column's reference).
-        self._qinit = randomizer.split(np.arange(len(randomizer.names), dtype=np.float64))["qinit"].astype(np.int64)
 
     def fit(self, base: np.ndarray, q: np.ndarray, torque: np.ndarray, prior_mean: np.ndarray | None = None,
             prior_std: np.ndarray | None = None) -> np.ndarray:
@@ -228,7 +226,7 @@ class RegressorIdentifier:
             elif kind == "stiffness":
                 # The spring pulls toward where the robot started; position-dependent, so outside the
                 # implicit integration's velocity terms: exact.
-                cols[:, j, c] = qs[:, j] - params[self._qinit[j]]
+                cols[:, j, c] = qs[:, j] - self.randomizer.split(params)["qinit"][j]
             elif kind == "frictionloss":
                 friction.append((c, k, j))
             elif self.randomizer.names[k].startswith("com_"):  # total torques (see COM_STEP)
