@@ -9,12 +9,14 @@ token-reduction option; on a GPU, the same in bf16.
 
 On a GPU it then times what ``fit`` runs for the paper's model (batch 16, context 200 +
 horizon 800, 12 + 12 layers, d_model 192, patch 1): the Lightning step as it was (eager,
-unfused AdamW), eager with the fused AdamW, and optimized (``--model.compile auto``: the step
-compiled with CUDA graphs, fused AdamW; see robomorph.training.compiling), each in bf16 and
-fp32, in steps/s after warm-up steps that include the compilation.
+unfused AdamW), eager with the fused AdamW, optimized (``--model.compile auto``: the step
+compiled with CUDA graphs, fused AdamW; see robomorph.training.compiling) and regional (each
+transformer block compiled), each in bf16 and fp32, in steps/s after warm-up steps that include
+the compilation, and how long those first steps took.
 
     python benchmarks/train.py [--steps 30] [--threads 2]
-    python benchmarks/train.py --paper-only   # on a GPU: the paper model's six runs alone
+    python benchmarks/train.py --paper-only   # on a GPU: the paper model's runs alone
+    python benchmarks/train.py --paper-only --variants before,regional
 
 The last line is ``lightning_vs_plain_ratio=<float>`` on a CPU (Lightning time / plain time;
 goal <= 1.05) and ``gpu_speedup=<float>`` on a GPU (optimized bf16 steps/s over the step as it
@@ -133,35 +135,53 @@ def compare(cfg: dict, steps: int, batch: int, ctx: int, hor: int, device: str, 
 PAPER = {"d_model": 192, "n_head": 12, "n_layer": 12, "patch": 1}
 
 
-def paper_speed(args) -> float:
-    """Steps/s of the paper's model under ``fit``'s Lightning step on this GPU: the step as it was
-    (eager, unfused AdamW), eager with the fused AdamW, and optimized, each in bf16 and fp32;
-    returns optimized bf16 over the step as it was in bf16 (printed as gpu_speedup)."""
+VARIANTS = {"before": "eager, unfused AdamW (the step as it was)", "off": "eager, fused AdamW",
+            "auto": "optimized (compiled step, CUDA graphs, fused AdamW)",
+            "regional": "regional (each block compiled, no CUDA graphs, fused AdamW)"}
+
+
+def paper_speed(args) -> float | None:
+    """Steps/s of the paper's model under ``fit``'s Lightning step on this GPU, for each of
+    ``args.variants`` (:data:`VARIANTS`) in bf16 and fp32, and the seconds its first steps took
+    (the compilation, where there is one); returns optimized bf16 over the step as it was in
+    bf16 (printed as gpu_speedup), None when either was not run."""
     warmup = 8  # compilation and the CUDA graphs' recording happen in the first steps
     batches = make_batches(warmup + args.paper_steps, args.batch, args.context, args.horizon)
     stats = _stats(batches[:4])
     batches = [{k: v.pin_memory() for k, v in b.items()} for b in batches]  # as fit's loader pins them
     rates = {}
-    names = {"before": "eager, unfused AdamW (the step as it was)", "off": "eager, fused AdamW",
-             "auto": "optimized (compiled step, CUDA graphs, fused AdamW)"}
     for bf16 in (True, False):  # bf16 first: the speed-up is read from it
-        for variant, name in names.items():
+        for variant in args.variants:
             torch._dynamo.reset()
             optim.FUSED_ON_GPU = variant != "before"
             try:
-                module = _module(PAPER, stats, "cuda", "auto" if variant == "auto" else "off")
+                module = _module(PAPER, stats, "cuda", variant if variant in ("auto", "regional") else "off")
+                start = time.perf_counter()
                 seconds = lightning_loop(module, batches, "cuda", bf16, warmup=warmup)
+                first = time.perf_counter() - start - seconds
             finally:
                 optim.FUSED_ON_GPU = True
             rates[variant, bf16] = args.paper_steps / seconds
-            print(f"paper model {'bf16' if bf16 else 'fp32'} {name}: {rates[variant, bf16]:.2f} steps/s "
-                  f"({1e3 / rates[variant, bf16]:.1f} ms/step), peak memory "
+            print(f"paper model {'bf16' if bf16 else 'fp32'} {VARIANTS[variant]}: {rates[variant, bf16]:.2f} steps/s "
+                  f"({1e3 / rates[variant, bf16]:.1f} ms/step), first {warmup} steps {first:.1f} s, peak memory "
                   f"{torch.cuda.max_memory_allocated() / 2**30:.2f} GiB", flush=True)
             torch.cuda.reset_peak_memory_stats()
             del module
             torch.cuda.empty_cache()
-    print(f"paper_steps_per_s_optimized_bf16={rates['auto', True]:.2f} (goal >= 28)")
+    for variant in ("auto", "regional"):
+        if (variant, True) in rates:
+            print(f"paper_steps_per_s_{variant}_bf16={rates[variant, True]:.2f} (goal >= 28)")
+    if ("auto", True) not in rates or ("before", True) not in rates:
+        return None
     return rates["auto", True] / rates["before", True]
+
+
+def _variants(text: str) -> list[str]:
+    names = [v.strip() for v in text.split(",") if v.strip()]
+    unknown = [v for v in names if v not in VARIANTS]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"unknown variant(s) {unknown}: choose from {', '.join(VARIANTS)}")
+    return names
 
 
 def main() -> None:
@@ -172,7 +192,9 @@ def main() -> None:
     p.add_argument("--context", type=int, default=200)
     p.add_argument("--horizon", type=int, default=800)
     p.add_argument("--paper-steps", type=int, default=40, help="timed steps of each paper-model run on a GPU")
-    p.add_argument("--paper-only", action="store_true", help="on a GPU, only the paper model's six runs")
+    p.add_argument("--paper-only", action="store_true", help="on a GPU, only the paper model's runs")
+    p.add_argument("--variants", type=_variants, default=list(VARIANTS),
+                   help=f"the paper model's runs on a GPU, comma-separated from {', '.join(VARIANTS)} (default: all)")
     args = p.parse_args()
     print_provenance()
     torch.set_num_threads(args.threads)
@@ -180,7 +202,7 @@ def main() -> None:
     if device == "cuda":
         print(f"gpu={torch.cuda.get_device_name()} torch={torch.__version__}", flush=True)
     if args.paper_only and device == "cuda":
-        print(f"gpu_speedup={paper_speed(args):.2f}")
+        _print_speedup(paper_speed(args))
         return
     default = {"d_model": 128, "n_head": 4, "n_layer": 4, "patch": 10}
     configs = {
@@ -201,7 +223,11 @@ def main() -> None:
                 ratio = light / plain
     print(f"lightning_vs_plain_ratio={ratio:.3f}")
     if device == "cuda":
-        print(f"gpu_speedup={paper_speed(args):.2f}")
+        _print_speedup(paper_speed(args))
+
+
+def _print_speedup(speedup: float | None) -> None:
+    print("gpu_speedup=" + ("n/a (run the variants before and auto)" if speedup is None else f"{speedup:.2f}"))
 
 
 if __name__ == "__main__":

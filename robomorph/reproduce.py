@@ -10,7 +10,7 @@ import os
 import sys
 
 from robomorph.core.errors import SIGTERM_EXIT, StoppedBySignal, run_command
-from robomorph.core.names import INPUTS, NORMALIZATIONS
+from robomorph.core.names import COMPILE_MODES, INPUTS, NORMALIZATIONS
 from robomorph.reproduction import pipeline
 from robomorph.reproduction.scales import SCALES
 
@@ -23,6 +23,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--work", help="stores, runs and evaluations (default data/reproduce/<scale>)")
     p.add_argument("--scratch-ratio", type=float, help="scratch budget / fine-tuning budget (default: the scale's)")
     p.add_argument("--steps-factor", type=float, default=1.0, help="multiply every training budget (e.g. 0.1)")
+    p.add_argument("--compile", choices=COMPILE_MODES,
+                   help="every run's --model.compile (default: the scale's; robomorph.training.compiling)")
     p.add_argument("--workers", type=int, help="generation threads/processes (default: all cores)")
     p.add_argument("--device", help="evaluation device: cpu, cuda, ... (default: cuda when available)")
     p.add_argument("--wandb", choices=("offline", "online", "disabled"), default=os.environ.get("WANDB_MODE", "offline"))
@@ -38,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace, argv: list[str]) -> int:
-    scale = SCALES[args.scale].scaled(args.steps_factor, args.scratch_ratio)
+    scale = SCALES[args.scale].scaled(args.steps_factor, args.scratch_ratio, args.compile)
     command = " ".join(["python -m robomorph.reproduce", *argv])  # recorded in the tables' headers
     try:
         pipeline.reproduce(args.target, scale, args.out, args.work, command, args.workers, args.device, args.wandb,

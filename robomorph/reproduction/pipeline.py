@@ -148,7 +148,7 @@ def base_args(plan: Plan, depth: int, stores: list[str], run: str, steps: int) -
                  "normalization": plan.normalization, "seed": 0, "inputs": plan.inputs},
         "model": {"d_model": s.d_model, "n_head": s.n_head, "n_layer": depth, "patch": s.patch, "lr": s.lr,
                   "warmup_steps": s.warmup_steps, "max_context": s.context_len, "max_horizon": s.horizon,
-                  "loss": "huber"},
+                  "loss": "huber", "compile": s.compile},
         "trainer": {"max_steps": steps, "val_check_interval": min(s.val_every, steps), "accelerator": s.accelerator,
                     "devices": 1, "max_time": s.max_time, "enable_progress_bar": sys.stderr.isatty(),
                     "enable_model_summary": False},

@@ -22,20 +22,17 @@ decoder):
   (``scratch_ratio`` 1: the same budget as the fine-tuning, the fair comparison when B is
   this short); then the context figure's sweeps.
 
-``gpu`` (one GPU, 16 cores; about 40 minutes on an H100, estimated from the parts measured
-there, docs/guide/reproducing.md): the paper's model at the paper's depths 10, 12 and 16, and the
-project's model beside it at 12 (the improved row), with the optimized training step
-(:mod:`robomorph.training.compiling`; 55 steps/s for 12 + 12 layers in bf16 on an H100):
+``gpu`` (one GPU, 16 cores; sized to finish within about 10 minutes on an H100, data
+generation included, so that one command of a 15-minute lease runs it; measured there:
+docs/guide/reproducing.md): the paper's model at the paper's depths 10, 12 and 16, and the
+project's model beside it at 12 (the improved row). Every run compiles each transformer block
+(``compile="regional"``, :mod:`robomorph.training.compiling`): compiling the whole step with
+CUDA graphs took about 90 seconds per run there, most of a run this short.
 
-- data: 2048 multi-sine, 3 x 256 test, 2048 mixture, 512 + 256 spiral robots (about 2.5 minutes
-  of generation on 16 cores);
-- table 1: 3000 steps per depth (batch 16: 48,000 windows, 23 per training robot);
-- table 2: pre-training 5000 steps, fine-tuning B = 1200 and scratch 1200 steps
+- data: 1024 multi-sine, 3 x 128 test, 1024 mixture, 256 + 128 spiral robots;
+- table 1: 1000 steps per depth (batch 16: 16,000 windows, 16 per training robot);
+- table 2: pre-training 1500 steps, fine-tuning B = 400 and scratch 400 steps
   (``scratch_ratio`` 1, as ``small``: the paper's 3.6 would be most of the budget).
-
-In ``fit`` the paper's rows keep 32-50 steps/s after about 90 s of compilation per run. The
-improved row trains on windows of varying length, so eagerly (see
-:mod:`robomorph.training.compiling`), at 3 to 4 steps/s: about 15 of the 40 minutes.
 
 ``paper`` (a GPU): the paper's model (d_model 192, 12 heads, patch 1, batch 16, lr 6e-4, 10k warmup steps) at 10,
 12 and 16 layers on 40 000 training robots per store (the paper used millions; 40 000 x
@@ -53,6 +50,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from robomorph.core.config import ConfigError
+from robomorph.core.names import COMPILE_MODES
 
 
 @dataclass(frozen=True)
@@ -80,6 +78,7 @@ class Scale:
         val_fraction, val_subset: validation split of each training store, and its cap.
         max_time: optional wall-clock cap per run (``DD:HH:MM:SS``).
         accelerator: Lightning accelerator.
+        compile: every run's ``--model.compile`` (:data:`robomorph.core.names.COMPILE_MODES`).
         eval_n: evaluate the first n trajectories of each test store (None: all).
         sweep_horizon, sweep_context: the context figure's sweeps (``a:b:s`` or ``a,b,c``).
         samples: sample-trajectory plots per evaluation.
@@ -112,6 +111,7 @@ class Scale:
     val_subset: int = 200
     max_time: str | None = None
     accelerator: str = "auto"
+    compile: str = "auto"
     eval_n: int | None = None
     samples: int = 2
 
@@ -127,6 +127,8 @@ class Scale:
         for field in ("train_steps", "pretrain_steps", "finetune_steps", "batch_size", "val_every"):
             if getattr(self, field) < 1:
                 raise ConfigError(f"{self.name}: {field} must be >= 1, got {getattr(self, field)}")
+        if self.compile not in COMPILE_MODES:
+            raise ConfigError(f"{self.name}: compile must be one of {', '.join(COMPILE_MODES)}, got {self.compile!r}")
         if not self.scratch_ratio > 0:
             raise ConfigError(f"{self.name}: scratch_ratio must be > 0, got {self.scratch_ratio}")
         if not 0 < self.val_fraction < 1:
@@ -141,8 +143,10 @@ class Scale:
     def scratch_steps(self) -> int:
         return max(1, round(self.scratch_ratio * self.finetune_steps))
 
-    def scaled(self, steps_factor: float = 1.0, scratch_ratio: float | None = None) -> "Scale":
-        """A copy with every training budget times ``steps_factor`` and, optionally, another scratch ratio."""
+    def scaled(self, steps_factor: float = 1.0, scratch_ratio: float | None = None,
+               compile: str | None = None) -> "Scale":
+        """A copy with every training budget times ``steps_factor`` and, optionally, another
+        scratch ratio and ``--model.compile``."""
         if not steps_factor > 0:
             raise ConfigError(f"steps_factor must be > 0, got {steps_factor}")
 
@@ -152,13 +156,14 @@ class Scale:
         return dataclasses.replace(
             self, train_steps=f(self.train_steps), pretrain_steps=f(self.pretrain_steps),
             finetune_steps=f(self.finetune_steps),
-            scratch_ratio=self.scratch_ratio if scratch_ratio is None else scratch_ratio)
+            scratch_ratio=self.scratch_ratio if scratch_ratio is None else scratch_ratio,
+            compile=self.compile if compile is None else compile)
 
     def budgets(self) -> dict[str, int | str | None]:
         """The training budgets in steps, for table headers."""
         return {"table1_steps_per_depth": self.train_steps, "pretrain_steps": self.pretrain_steps,
                 "finetune_steps": self.finetune_steps, "scratch_steps": self.scratch_steps,
-                "batch_size": self.batch_size, "max_time": self.max_time}
+                "batch_size": self.batch_size, "max_time": self.max_time, "compile": self.compile}
 
 
 SCALES: dict[str, Scale] = {
@@ -174,10 +179,11 @@ SCALES: dict[str, Scale] = {
         warmup_steps=300, train_steps=4000, pretrain_steps=8000, finetune_steps=2000, scratch_ratio=1.0,
         sweep_horizon="100:800:100", sweep_context="20:200:20"),
     "gpu": Scale(
-        name="gpu", steps=1000, train_robots=2048, test_robots=256, mixture_robots=2048, spiral_robots=512,
+        name="gpu", steps=1000, train_robots=1024, test_robots=128, mixture_robots=1024, spiral_robots=256,
         context_len=200, horizon=800, d_model=192, n_head=12, patch=1, depths=(10, 12, 16), batch_size=16, lr=6e-4,
-        warmup_steps=300, train_steps=3000, pretrain_steps=5000, finetune_steps=1200, scratch_ratio=1.0,
-        sweep_horizon="100:800:100", sweep_context="20:200:20", val_every=500, val_fraction=0.05, val_subset=200),
+        warmup_steps=300, train_steps=1000, pretrain_steps=1500, finetune_steps=400, scratch_ratio=1.0,
+        sweep_horizon="100:800:100", sweep_context="20:200:20", val_every=500, val_fraction=0.05, val_subset=200,
+        compile="regional"),
     "paper": Scale(
         name="paper", steps=1000, train_robots=40_000, test_robots=1000, mixture_robots=40_000, spiral_robots=10_000,
         context_len=200, horizon=800, d_model=192, n_head=12, patch=1, depths=(10, 12, 16), batch_size=16, lr=6e-4,
