@@ -87,12 +87,11 @@ def _losses_of_a_run(compile: str, precision: str, steps: int = 8) -> tuple[list
     return seen.values, moved
 
 
-@pytest.mark.parametrize("compile", ["reduce-overhead", "regional"])  # what auto picks for fixed / varying windows
 @pytest.mark.parametrize(("precision", "rtol"), [("32-true", 1e-3), ("bf16-mixed", 3e-2)])
-def test_compiled_and_eager_training_agree_from_the_same_seed(precision, rtol, compile):
+def test_compiled_and_eager_training_agree_from_the_same_seed(precision, rtol):
     torch._dynamo.reset()
     eager, eager_w = _losses_of_a_run("off", precision)
-    graphed, graphed_w = _losses_of_a_run(compile, precision)
+    graphed, graphed_w = _losses_of_a_run("reduce-overhead", precision)  # what auto picks on a GPU
     assert len(eager) == len(graphed) == 8 and np.isfinite(graphed).all()
     np.testing.assert_allclose(graphed, eager, rtol=rtol)
     assert float(eager_w.abs().max()) > 1e-3  # it trained: what is compared moved
@@ -128,10 +127,8 @@ def test_fit_with_windows_of_varying_length_compiles_once_for_all_lengths(store,
     counters.clear()
     result = fit(args, callbacks=[seen])
     assert result.global_step == 12 and len(seen.lengths) > 2 and np.isfinite(seen.loss)
-    assert not seen.step.graphed  # no CUDA graphs recorded per length
-    if compile == "auto":  # each block compiled: one graph per block kind, training and validation
-        assert seen.step.mode == "regional"
-        assert 1 <= counters["stats"]["unique_graphs"] <= 4
+    if compile == "auto":  # eager: no CUDA graphs recorded per length
+        assert seen.step is None
         return
-    assert seen.step.mode == "default"
+    assert seen.step.mode == "default" and not seen.step.graphed
     assert 1 <= counters["stats"]["unique_graphs"] < len(seen.lengths)  # not one compilation per length

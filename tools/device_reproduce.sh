@@ -34,10 +34,15 @@ args=("$@")
 for i in "${!args[@]}"; do
     case "${args[$i]}" in --work|--out) places="$places ${args[$((i + 1))]:-}" ;; esac
 done
-# Progress bars and font warnings would bury the log's lines.
-timeout -s TERM "$seconds" "$python" -m robomorph reproduce "$@" --wandb disabled 2>&1 \
-    | tr '\r' '\n' | grep --line-buffered -v -E "findfont|batch/s\]|window/s\]|^ *$" | tee "$out/reproduce.log"
-status=${PIPESTATUS[0]}
+# Into a file, not a pipe: the compiler's worker processes outlive a stopped run and would
+# hold a pipe open, so that the command never returned (an H100 lease lost that way,
+# 2026-11-27). KILL a minute after TERM, for a step that does not stop. Progress bars and font
+# warnings are filtered out afterwards.
+timeout -k 60 -s TERM "$seconds" "$python" -m robomorph reproduce "$@" --wandb disabled >"$out/reproduce.raw" 2>&1 </dev/null
+status=$?
+tr '\r' '\n' <"$out/reproduce.raw" | grep -v -E "findfont|batch/s\]|window/s\]|^ *$" >"$out/reproduce.log"
+rm -f "$out/reproduce.raw"
+tail -n 40 "$out/reproduce.log"
 echo "device_reproduce: reproduce exited with $status" | tee -a "$out/reproduce.log"
 # shellcheck disable=SC2086  # the places are separate words
 find $places -type f \( -name metrics.json -o -name '*.csv' -o -name 'table*.md' \

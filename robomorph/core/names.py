@@ -38,7 +38,7 @@ NORMALIZATIONS = ("train_stats", "paper_window")
 # arm's gravity compensation (a store's u_cmd).
 INPUTS = ("total", "command")
 # How a training step runs (--model.compile, reproduce --compile): robomorph.training.compiling.
-COMPILE_MODES = ("auto", "off", "regional", "default", "reduce-overhead", "max-autotune")
+COMPILE_MODES = ("auto", "off", "default", "reduce-overhead", "max-autotune")
 
 # Which parameters a fine-tuned model keeps fixed, and the transfer regimes of Table 2.
 FREEZE_MODES = ("none", "encoder", "all_but_head")

@@ -22,12 +22,12 @@ decoder):
   (``scratch_ratio`` 1: the same budget as the fine-tuning, the fair comparison when B is
   this short); then the context figure's sweeps.
 
-``gpu`` (one GPU, 16 cores; sized to finish within about 10 minutes on an H100, data
-generation included, so that one command of a 15-minute lease runs it; measured there:
-docs/guide/reproducing.md): the paper's model at the paper's depths 10, 12 and 16, and the
-project's model beside it at 12 (the improved row). Every run compiles each transformer block
-(``compile="regional"``, :mod:`robomorph.training.compiling`): compiling the whole step with
-CUDA graphs took about 90 seconds per run there, most of a run this short.
+``gpu`` (one GPU, 16 cores): the paper's model at the paper's depths 10, 12 and 16, and the
+project's model beside it at 12 (the improved row), with the optimized training step
+(:mod:`robomorph.training.compiling`), sized towards the 15 minutes of one H100 machine:
+about 19 minutes, estimated from the parts measured there (docs/guide/reproducing.md), of
+which about 9 are the six compilations of the step (about 90 seconds each) and 5 the improved
+row's 1000 eager steps; not yet run end to end at these budgets.
 
 - data: 1024 multi-sine, 3 x 128 test, 1024 mixture, 256 + 128 spiral robots;
 - table 1: 1000 steps per depth (batch 16: 16,000 windows, 16 per training robot);
@@ -182,8 +182,7 @@ SCALES: dict[str, Scale] = {
         name="gpu", steps=1000, train_robots=1024, test_robots=128, mixture_robots=1024, spiral_robots=256,
         context_len=200, horizon=800, d_model=192, n_head=12, patch=1, depths=(10, 12, 16), batch_size=16, lr=6e-4,
         warmup_steps=300, train_steps=1000, pretrain_steps=1500, finetune_steps=400, scratch_ratio=1.0,
-        sweep_horizon="100:800:100", sweep_context="20:200:20", val_every=500, val_fraction=0.05, val_subset=200,
-        compile="regional"),
+        sweep_horizon="100:800:100", sweep_context="20:200:20", val_every=500, val_fraction=0.05, val_subset=200),
     "paper": Scale(
         name="paper", steps=1000, train_robots=40_000, test_robots=1000, mixture_robots=40_000, spiral_robots=10_000,
         context_len=200, horizon=800, d_model=192, n_head=12, patch=1, depths=(10, 12, 16), batch_size=16, lr=6e-4,

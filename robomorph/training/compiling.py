@@ -14,18 +14,12 @@ make the host's share of a step small enough for bf16 to pay.
   there, otherwise ``off``. The CPU path stays eager, as it was (on a CPU the compiled step
   needs a C++ compiler, and its speed there has not been measured). Where the training
   windows vary in length (``--data.context_min``, ``--data.horizon_min``, as in
-  ``train_cpu.yaml``), ``auto`` picks ``regional`` on a CUDA device: CUDA graphs would be
-  recorded again for every length (hundreds of them, each holding memory).
-- ``regional``: each transformer block compiled in place (``torch.compile``'s default mode,
-  for symbolic lengths where the windows vary), the rest of the step eager, no CUDA graphs.
-  The blocks of one kind share one compiled graph, so compiling takes the time of one encoder
-  and one decoder block whatever the depth (the whole step's compilation grows with the
-  depth: about 90 seconds for the paper's 12 + 12 layers on an H100), and later runs in the
-  same process (a reproduction's) reuse it. The right choice for short runs, where
-  compilation would be most of the time.
+  ``train_cpu.yaml``), ``auto`` stays eager too: CUDA graphs would be recorded again for
+  every length (hundreds of them, each holding memory), and the compiled step for symbolic
+  lengths (what ``default`` then compiles) has not yet been timed on a GPU.
 - ``off``: eager, as before.
-- ``default``, ``reduce-overhead``, ``max-autotune``: ``torch.compile``'s modes for the whole
-  step, on any device; for windows of varying length, compiled once for symbolic lengths.
+- ``default``, ``reduce-overhead``, ``max-autotune``: ``torch.compile``'s modes, on any device;
+  for windows of varying length, compiled once for symbolic lengths.
 
 Only the training step is compiled. Validation, test and prediction stay eager: their
 batch shapes differ from training's, and each new shape would be another compilation.
@@ -40,8 +34,6 @@ import torch
 from robomorph.core.names import COMPILE_MODES
 from robomorph.training.losses import ModelOptionError
 
-# How many compiled versions of a block (kind, mode, shapes) regional compilation keeps.
-REGIONAL_VERSIONS = 64
 # The modes whose compiled step replays CUDA graphs (reduce-overhead's and max-autotune's).
 _GRAPHED = ("reduce-overhead", "max-autotune")
 
@@ -66,49 +58,21 @@ def resolve_compile(mode: str, device_type: str, varying: bool = False) -> str |
     ``varying``: the training windows' lengths vary from batch to batch."""
     check_compile(mode)
     if mode == "auto":
-        if device_type != "cuda" or not has_triton():
-            return None
-        return "regional" if varying else "reduce-overhead"
+        return "reduce-overhead" if device_type == "cuda" and not varying and has_triton() else None
     return None if mode == "off" else mode
-
-
-def transformer_blocks(net: torch.nn.Module) -> list[torch.nn.Module]:
-    """The encoder and decoder blocks of ``net``: the regions ``regional`` compiles."""
-    from robomorph.model.blocks import DecoderBlock, EncoderBlock  # noqa: PLC0415
-
-    return [m for m in net.modules() if isinstance(m, (EncoderBlock, DecoderBlock))]
 
 
 class CompiledStep:
     """``fn`` compiled in ``mode`` (for symbolic shapes where ``dynamic``), called as ``fn`` is.
-
-    In ``regional`` mode ``fn`` itself stays eager and each module of ``regions`` is compiled
-    in place (``nn.Module.compile``: its state dict keeps its keys, so checkpoints do not change).
 
     With CUDA graphs, every call is marked as a new step (the graphs' memory of the last
     call may then be reused), and the outputs are cloned out of that memory: the loss
     Lightning keeps for logging would otherwise be overwritten by the next replay.
     """
 
-    def __init__(self, fn: Callable, mode: str, backend: str | Callable = "inductor", dynamic: bool = False,
-                 regions: list[torch.nn.Module] | None = None) -> None:
+    def __init__(self, fn: Callable, mode: str, backend: str | Callable = "inductor", dynamic: bool = False) -> None:
         self.mode = mode
         self.graphed = mode in _GRAPHED and backend == "inductor"
-        if mode == "regional":
-            if not regions:
-                raise ValueError("regional compilation needs the modules to compile (regions)")
-            # Every block's compiled code hangs on one function (nn.Module's call), whatever the
-            # block's kind, mode (training, validation) or run of a reproduction in this process:
-            # more versions than torch's default limit of 8 would silently fall back to eager.
-            config = torch._dynamo.config
-            limit = "recompile_limit" if hasattr(config, "recompile_limit") else "cache_size_limit"
-            setattr(config, limit, max(getattr(config, limit), REGIONAL_VERSIONS))
-            for region in regions:
-                # dynamic=None where the lengths are fixed: a later batch of another size (the
-                # last, smaller one) is compiled once more, for symbolic sizes, not per size.
-                region.compile(backend=backend, dynamic=True if dynamic else None)
-            self._fn = fn
-            return
         # dynamic: one compilation for symbolic window lengths rather than one per length.
         self._fn = torch.compile(fn, mode=None if mode == "default" else mode, backend=backend, dynamic=dynamic)
 

@@ -97,9 +97,9 @@ class MetaModule(Steps, L.LightningModule):
         channel_mask: some training stores lack some of the run's channels (arms with fewer
             joints): the network reads which are absent and the loss skips them
             (:class:`robomorph.model.architecture.ModelConfig`); linked from the datamodule.
-        compile: how the training step runs: ``auto``, ``off``, ``regional`` (each block
-            compiled) or a ``torch.compile`` mode for the whole step; see
-            :mod:`robomorph.training.compiling`.
+        compile: how the training step runs: ``auto`` (compiled with CUDA graphs on a CUDA
+            device, eager on a CPU), ``off``, or a ``torch.compile`` mode (``default``,
+            ``reduce-overhead``, ``max-autotune``); see :mod:`robomorph.training.compiling`.
             It changes the speed of training, not the model or its checkpoint.
     """
 

@@ -14,7 +14,7 @@ from robomorph.core import metrics
 from robomorph.core.names import LR, TEST_FIT, TEST_LOSS, TEST_R2, TRAIN_LOSS, VAL_FIT, VAL_LOSS, VAL_R2
 from robomorph.model.checkpoint import predict_normalized_dist
 from robomorph.model.normalization import query_stats
-from robomorph.training.compiling import CompiledStep, resolve_compile, transformer_blocks
+from robomorph.training.compiling import CompiledStep, resolve_compile
 from robomorph.training.losses import elementwise_loss, horizon_weights, masked_loss, whole_patches
 from robomorph.training.physics import TRAIN_PARAM_RMSE, param_loss
 
@@ -67,8 +67,7 @@ class Steps:
             mode = resolve_compile(self.hparams.get("compile", "off"), self.device.type, varying)
             if mode is None:
                 return self._train_loss
-            step = CompiledStep(self._train_loss, mode, dynamic=varying,
-                                regions=transformer_blocks(self.net) if mode == "regional" else None)
+            step = CompiledStep(self._train_loss, mode, dynamic=varying)
             fn = self.__dict__["_compiled_step"] = step  # a plain attribute: not in the state dict
         return fn
 

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from robomorph.data.statistics import Stats
-from robomorph.training.compiling import CompiledStep, resolve_compile, transformer_blocks
+from robomorph.training.compiling import CompiledStep, resolve_compile
 from robomorph.training.losses import ModelOptionError
 from robomorph.training.module import MetaModule
 from robomorph.training.optim import optimizers
@@ -40,9 +40,8 @@ def test_auto_compiles_on_a_gpu_only_and_off_means_eager(monkeypatch):
     assert resolve_compile("default", "cpu") == "default"  # asked for: on any device
     monkeypatch.setattr("robomorph.training.compiling.has_triton", lambda: True)
     assert resolve_compile("auto", "cuda") == "reduce-overhead"
-    # windows of varying length: no CUDA graphs recorded per length, the blocks compiled instead
-    assert resolve_compile("auto", "cuda", varying=True) == "regional"
-    assert resolve_compile("regional", "cpu") == "regional"
+    # windows of varying length: no CUDA graphs recorded per length; eager unless a mode is asked for
+    assert resolve_compile("auto", "cuda", varying=True) is None
     assert resolve_compile("default", "cuda", varying=True) == "default"
     monkeypatch.setattr("robomorph.training.compiling.has_triton", lambda: False)
     assert resolve_compile("auto", "cuda") is None  # no GPU compiler: eager rather than an error
@@ -88,54 +87,6 @@ def test_windows_of_varying_length_compile_once_and_match_eager():
         batch = _batch(seed, context, horizon)
         torch.testing.assert_close(step(batch)[0], eager._train_loss(batch)[0], rtol=1e-6, atol=1e-7)
     assert counter.frame_count == 1  # not once per length
-
-
-def test_regional_compiles_the_blocks_in_place_with_the_eager_loss_gradients_and_state_dict():
-    """With the real code generator (inductor, here for the CPU): the step's loss and gradients are
-    the eager ones, and the state dict keeps its keys, so checkpoints load into an eager model."""
-    torch._dynamo.reset()
-    options = {"gaussian": True, "loss": "nll", "anchor": True, "n_init": 2}
-    eager, compiled = _module(**options), _module(**options)
-    step = CompiledStep(compiled._train_loss, "regional", regions=transformer_blocks(compiled.net))
-    blocks = transformer_blocks(compiled.net)
-    assert len(blocks) == 4 and all(b._compiled_call_impl is not None for b in blocks)
-    batch = _batch(context=12, horizon=10)
-    for m, fn in ((eager, eager._train_loss), (compiled, step)):
-        loss, _ = fn(batch)
-        loss.backward()
-        m.loss = loss.detach()
-    torch.testing.assert_close(compiled.loss, eager.loss, rtol=1e-5, atol=1e-6)
-    for (name, p), q in zip(eager.net.named_parameters(), compiled.net.parameters()):
-        torch.testing.assert_close(q.grad, p.grad, rtol=1e-4, atol=1e-6, msg=name)
-    assert list(compiled.state_dict()) == list(eager.state_dict())
-    fresh = _module(**options)
-    fresh.load_state_dict(compiled.state_dict())
-    with torch.no_grad():
-        torch.testing.assert_close(fresh._train_loss(batch)[0], compiled._train_loss(batch)[0], rtol=1e-5, atol=1e-6)
-
-
-@pytest.mark.parametrize("n_layer", [1, 3])
-def test_regional_compiles_one_graph_per_block_kind_whatever_the_depth_and_lengths(n_layer):
-    """What makes regional compilation quick: every encoder block shares one graph, every
-    decoder block another, for all window lengths; a second model (the next run of a
-    reproduction, in the same process) compiles nothing more."""
-    from torch._dynamo.testing import CompileCounter
-
-    torch._dynamo.reset()
-    counter = CompileCounter()
-    for _ in range(2):
-        eager, compiled = _module(n_layer=n_layer), _module(n_layer=n_layer)
-        step = CompiledStep(compiled._train_loss, "regional", backend=counter, dynamic=True,
-                            regions=transformer_blocks(compiled.net))
-        for seed, (context, horizon) in enumerate([(12, 10), (8, 16), (16, 6)]):
-            batch = _batch(seed, context, horizon)
-            torch.testing.assert_close(step(batch)[0], eager._train_loss(batch)[0], rtol=1e-6, atol=1e-7)
-    assert counter.frame_count == 2  # one encoder block graph, one decoder block graph
-
-
-def test_regional_needs_its_regions():
-    with pytest.raises(ValueError, match="regions"):
-        CompiledStep(lambda b: b, "regional")
 
 
 def test_the_cpu_optimizer_is_not_the_fused_kernel():
