@@ -100,6 +100,26 @@ def _spread(part: tuple, name: str, q: float, ref: np.ndarray, kind: str = "fact
     return part[2] * (part[3][name] / ref) ** q
 
 
+def _load_cache(path: str, key: str) -> dict:
+    """The predictions ``--cache`` holds for these windows (``{points: (cal, test)}``), or none."""
+    try:
+        f = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        return {}
+    if str(f["key"]) != key:
+        print(f"spread: {path} holds other windows; predicting again", file=sys.stderr)
+        return {}
+    names = [str(n) for n in f["points"]]
+    return {n: tuple((f[f"{n}/{part}/y"], f[f"{n}/{part}/mean"], f[f"{n}/{part}/std"], {}) for part in ("cal", "test"))
+            for n in names}
+
+
+def _save_cache(path: str, key: str, spreads: dict) -> None:
+    arrays = {f"{n}/{part}/{what}": v[i] for n, pair in spreads.items() for part, v in zip(("cal", "test"), pair)
+              for i, what in enumerate(("y", "mean", "std"))}
+    np.savez(path, key=np.array(key), points=np.array(list(spreads)), **arrays)
+
+
 def _label(row: dict) -> str:
     if row["signal"] == "spread":
         return "spread"
@@ -124,6 +144,8 @@ def main(argv=None) -> None:
     p.add_argument("--horizon", type=int, default=None, help="default: the training horizon (600 off the start)")
     p.add_argument("--physics", default=None, help="a hybrid's physics mode (default: its default)")
     p.add_argument("--batch", type=int, default=16)
+    p.add_argument("--cache", default=None, help="with --points: an .npz the predictions are kept in and read back "
+                   "from for the same windows, so that calibrations can be compared again without predicting")
     p.add_argument("--md", default="results/benchmarks/spread.md")
     p.add_argument("--csv", default=None, help="default: --md with .csv")
     a = p.parse_args(argv)
@@ -140,13 +162,20 @@ def main(argv=None) -> None:
     points = a.points.split(",") if a.points else [None]
     layouts = a.knots.split(",") if a.knots else ["end" if dense_at_end(pred) else "log"]
     rows, spreads = [], {}
+    key = repr((a.ckpt, a.cal, a.test, len(cal_w.u), len(test_w.u), a.offset, cal_w.horizon, a.physics))
+    cached = _load_cache(a.cache, key) if a.cache and a.points else {}
     for p in points:  # the model's own spread over each kind of points; the candidates beside the first's
+        if p in cached:
+            spreads[p] = cached[p]
+            continue
         if p is not None:  # POINTS[+springs]: the regression fits the joints' springs too
             pred.physics_points, _, extra = p.partition("+")
             if extra not in ("", "springs"):
                 raise SystemExit(f"error: --points takes POINTS or POINTS+springs, got {p!r}")
             pred.physics_springs = extra == "springs"
         spreads[p] = tuple(_predict(pred, w, steps, a.batch, others=not a.points) for w in (cal_w, test_w))
+    if a.cache and a.points:
+        _save_cache(a.cache, key, spreads)
     cal, test = spreads[points[0]]
     for name in ("spread", *cal[3]):
         y, mean = test[:2]
