@@ -195,3 +195,23 @@ def test_nuisance_sets_each_kind_back_to_the_catalogue_in_turn(tmp_path, simulat
     assert [r["at_catalogue"] for r in rows] == ["none", "mass", "com", "damping", "stiffness", "armature",
                                                  "frictionloss"]
     assert float(rows[3]["step_15"]) > 10 * float(rows[0]["step_15"])  # the damping's range moves the arm
+
+
+def test_spread_benchmark_reads_its_cache_back_for_the_same_windows_only(tmp_path, simulated_store):
+    from robomorph.training.fitting import fit
+    from tests.conftest import tiny_fit_args
+
+    cal, test = simulated_store(robots=6, steps=90, seed=8), simulated_store(robots=6, steps=90, seed=9)
+    args = tiny_fit_args(cal, tmp_path / "runs", "hyb", steps=2, data={"inputs": "command"},
+                         model={"physics": "amortized"})
+    ckpt = fit(args).best_ckpt
+    cache = tmp_path / "pred.npz"
+    common = ["--ckpt", ckpt, "--cal", cal, "--test", test, "--n", 4, "--points", "columns", "--cache", cache]
+    first = run("spread.py", *common, "--md", tmp_path / "a.md")
+    assert cache.exists() and "predicting again" not in first.stderr
+    again = run("spread.py", *common, "--md", tmp_path / "b.md")
+    assert "model:" not in again.stderr  # read back: no prediction ran
+    body = lambda p: p.read_text().split("\n", 2)[2]  # noqa: E731  (past the provenance line)
+    assert body(tmp_path / "a.md") == body(tmp_path / "b.md")
+    other = run("spread.py", *common[:6], "--n", 3, "--points", "columns", "--cache", cache, "--md", tmp_path / "c.md")
+    assert "holds other windows; predicting again" in other.stderr
