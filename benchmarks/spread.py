@@ -176,9 +176,8 @@ def main(argv=None) -> None:
         spreads[p] = tuple(_predict(pred, w, steps, a.batch, others=not a.points) for w in (cal_w, test_w))
     if a.cache and a.points:
         _save_cache(a.cache, key, spreads)
-    cal, test = spreads[points[0]]
+    cal = spreads[points[0]][0]
     for name in ("spread", *cal[3]):
-        y, mean = test[:2]
         ref = None if name == "spread" else np.median(cal[3][name], axis=0, keepdims=True)
         if name == "spread":
             variants = [(0.0, k, "factor", p) for p in points for k in layouts]
@@ -189,6 +188,7 @@ def main(argv=None) -> None:
             variants = [(q, layouts[0], "factor", points[0]) for q in POWERS]
         for q, knots, kind, p in variants:
             cal_p, test_p = spreads[p]
+            y, mean = test_p[:2]  # each variant's own mean: the springs move it, not only the spread
             spread = _spread(test_p, name, q, ref, kind)
             skill = spread_skill(y[..., joints], mean[..., joints], np.broadcast_to(spread, y.shape)[..., joints], steps)
             c = fit(cal_p[0], cal_p[1], _spread(cal_p, name, q, ref, kind), "power", end=knots == "end")

@@ -215,3 +215,10 @@ def test_spread_benchmark_reads_its_cache_back_for_the_same_windows_only(tmp_pat
     assert body(tmp_path / "a.md") == body(tmp_path / "b.md")
     other = run("spread.py", *common[:6], "--n", 3, "--points", "columns", "--cache", cache, "--md", tmp_path / "c.md")
     assert "holds other windows; predicting again" in other.stderr
+    # Side by side, each variant is scored with its own mean (the springs move it): as when run alone.
+    both = tmp_path / "both.csv"
+    run("spread.py", *common[:8], "--points", "columns,columns+springs", "--md", tmp_path / "d.md", "--csv", both)
+    alone = tmp_path / "alone.csv"
+    run("spread.py", *common[:8], "--points", "columns+springs", "--md", tmp_path / "e.md", "--csv", alone)
+    strip = lambda r: {k: v for k, v in r.items() if k != "points"}  # noqa: E731
+    assert strip(read_rows(str(both))[1]) == strip(read_rows(str(alone))[0])
