@@ -35,6 +35,7 @@ coverage's largest miss grew (1.53-1.59 tolerances against 1.46), so the blend h
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 import numpy as np
@@ -162,7 +163,9 @@ def main(argv=None) -> None:
     points = a.points.split(",") if a.points else [None]
     layouts = a.knots.split(",") if a.knots else ["end" if dense_at_end(pred) else "log"]
     rows, spreads = [], {}
-    key = repr((a.ckpt, a.cal, a.test, len(cal_w.u), len(test_w.u), a.offset, cal_w.horizon, a.physics))
+    # The same windows whatever folder the command runs from: the files' real paths.
+    real = [os.path.realpath(f) for f in (a.ckpt, a.cal, a.test)]
+    key = repr((*real, len(cal_w.u), len(test_w.u), a.offset, cal_w.horizon, a.physics))
     cached = _load_cache(a.cache, key) if a.cache and a.points else {}
     for p in points:  # the model's own spread over each kind of points; the candidates beside the first's
         if p in cached:
