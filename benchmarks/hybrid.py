@@ -10,9 +10,11 @@ offsets (seed 0). Printed and written: joint RMS error [mrad] at steps 1, 15, 60
 (the first step, 0.25 s, 1 s, 5 s, 13.3 s; step k is k dt after the last context sample),
 R^2 (approach 1, all channels), the joints' ±1σ/±2σ coverage at the reported steps (mean, lowest
 and highest), and the cost per window (wall clock on this machine, all its cores). With
-``identified_physics`` among the baselines, a second table compares window by window: at each
-reported step, the share of windows where a source's joint error is below identified physics'
-and the median of the ratio of the two errors (an RMS over windows can be decided by a few).
+``identified_physics`` among the baselines (or the one ``--paired`` names), a second table compares
+window by window: at each reported step, the share of windows where a source's joint error is below
+its error and the median of the ratio of the two errors (an RMS over windows can be decided by a
+few). ``identified_physics+springs``: identified physics fitting the joints' springs too, as the
+command hybrid's regression does (``MODE+springs``).
 
     python benchmarks/hybrid.py --ckpt data/hyb/runs/amort40/checkpoints/best.ckpt \\
         --test data/demo/ms_heldout.zarr --n 16 --csv results/benchmarks/hybrid.csv
@@ -35,8 +37,20 @@ from robomorph.evaluation.windows import load_window
 from robomorph.model.predictor import Predictor
 
 STEPS = (1, 15, 60, 300, 800)
-# The baseline the window-by-window table compares against.
+# The baseline the window-by-window table compares against (default of --paired).
 PAIRED = "identified_physics"
+# identified_physics fitting the joints' springs too (their stiffness: robomorph.sim.identify.SPRING_KINDS),
+# as the command hybrid's regression does: the engineer's baseline given the same parameters.
+SPRUNG = "identified_physics+springs"
+
+
+def _sprung(w) -> tuple[np.ndarray, dict]:
+    """:data:`SPRUNG`'s predictions on the windows ``w`` and its notes (the cost per window)."""
+    from robomorph.evaluation.identified import predict_windows  # noqa: PLC0415
+    from robomorph.evaluation.sources import nominal_params  # noqa: PLC0415
+    from robomorph.sim.identify import KINDS, SPRING_KINDS, IdentifyConfig  # noqa: PLC0415
+
+    return predict_windows(w, IdentifyConfig(kinds=KINDS + SPRING_KINDS), anchors=nominal_params)
 
 
 def _window_errors(scores, source: str) -> np.ndarray:
@@ -134,7 +148,10 @@ def main(argv=None) -> int:
                         "MODE+obs starts the horizon from the observer's velocity (Predictor.physics_observer); "
                         "MODE+springs fits the joints' springs too (Predictor.physics_springs); "
                         "MODE+tangent simulates the latency's candidates tangent-linear (Predictor.physics_candidates)")
-    p.add_argument("--baselines", default="hold,nominal_physics,identified_physics")
+    p.add_argument("--baselines", default="hold,nominal_physics,identified_physics",
+                   help=f"comma-separated baselines of evaluate, and {SPRUNG} (identified physics fitting the "
+                        "joints' springs too)")
+    p.add_argument("--paired", default=PAIRED, help="the baseline the window-by-window table compares against")
     p.add_argument("--offsets", default="start,random")
     p.add_argument("--black-box", action="store_true", help="also score the checkpoint's black-box decoder")
     p.add_argument("--compare", action="append", default=[], metavar="NAME=CKPT",
@@ -161,14 +178,16 @@ def main(argv=None) -> int:
         w = load_window(args.test, info["context_len"], horizon, args.n, info, base.n_u, base.n_y, offset, 0,
                         base.inputs)
         baselines = tuple(b for b in args.baselines.split(",") if b)
-        t0 = time.perf_counter()
-        scores = score_windows(None, w, baselines)
-        ref = _window_errors(scores, PAIRED) if PAIRED in scores.preds else None
+        others, notes = {}, {}
+        if SPRUNG in baselines:
+            others[SPRUNG], notes[SPRUNG] = _sprung(w)
+        scores = score_windows(None, w, tuple(b for b in baselines if b != SPRUNG), others=others)
+        notes = {**scores.result["meta"]["baseline_notes"], **notes}
+        ref = _window_errors(scores, args.paired) if args.paired in scores.preds else None
         for b in baselines:
             if b in scores.preds:
-                note = scores.result["meta"]["baseline_notes"].get(b, {})
-                rows.append(_paired(_row(b, offset, scores, b, note.get("seconds_per_window"), False),
-                                    _window_errors(scores, b), None if b == PAIRED else ref))
+                rows.append(_paired(_row(b, offset, scores, b, notes.get(b, {}).get("seconds_per_window"), False),
+                                    _window_errors(scores, b), None if b == args.paired else ref))
         sources = [(m, args.ckpt, m) for m in args.modes.split(",") if m]  # "mode@k": k regression solves
         if args.black_box:
             sources.append(("black_box", args.ckpt, "none"))
@@ -191,8 +210,8 @@ def main(argv=None) -> int:
                            floatfmt=".4g")
     paired = [r for r in rows if not np.isnan(r["below_ref1"])]
     if paired:
-        table += ("\n\nWindow by window against identified physics, at steps " + ", ".join(map(str, STEPS))
-                  + ": the share of windows where the source's joint error is below identified physics' [%], "
+        table += (f"\n\nWindow by window against {args.paired}, at steps " + ", ".join(map(str, STEPS))
+                  + f": the share of windows where the source's joint error is below {args.paired}'s [%], "
                   "and the median ratio of the two errors.\n\n")
         table += markdown_table(["source", "windows"] + [f"below at {k} [%]" for k in STEPS] + [f"ratio at {k}" for k in STEPS],
                                 [[r["source"], r["windows"]] + [100 * r[f"below_ref{k}"] for k in STEPS]

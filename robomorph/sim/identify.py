@@ -64,7 +64,7 @@ class IdentifyConfig:
     """How the parameters are fitted.
 
     Attributes:
-        kinds: parameter kinds to fit, from :data:`KINDS`.
+        kinds: parameter kinds to fit, from :data:`KINDS` and :data:`SPRING_KINDS`.
         prior: weight of the pull toward the catalogue value, per half-range of a parameter;
             the data term is the joint RMS error in units of ``sigma``, so moving a parameter
             across its whole half-range costs as much as ``prior * sigma`` of RMS error.
@@ -84,9 +84,9 @@ class IdentifyConfig:
     nthread: int = 0
 
     def __post_init__(self):
-        bad = [k for k in self.kinds if k not in KINDS]
+        bad = [k for k in self.kinds if k not in KINDS + SPRING_KINDS]
         if bad or not self.kinds:
-            raise IdentificationError(f"identify kinds must be a non-empty subset of {KINDS}, got {self.kinds}")
+            raise IdentificationError(f"identify kinds must be a non-empty subset of {KINDS + SPRING_KINDS}, got {self.kinds}")
         if not (self.prior >= 0 and self.sigma > 0 and self.tol > 0 and 0 < self.fd_step < 1):
             raise IdentificationError("identify needs prior >= 0, sigma > 0, tol > 0 and 0 < fd_step < 1")
         if self.max_iters < 1 or self.nthread < 0:

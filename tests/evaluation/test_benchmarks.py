@@ -130,19 +130,22 @@ def test_hybrid_benchmark_scores_modes_and_baselines_on_the_same_windows(tmp_pat
     ckpt = fit(args).best_ckpt
     csv, lat = tmp_path / "hybrid.csv", tmp_path / "latency.csv"
     done = run("hybrid.py", "--ckpt", ckpt, "--test", store, "--n", 2, "--offsets", "start",
-               "--modes", "learned,regression,regression~1/2", "--baselines", "hold,identified_physics", "--csv", csv,
+               "--modes", "learned,regression,regression~1/2", "--baselines",
+               "hold,identified_physics,identified_physics+springs", "--csv", csv,
                "--md", tmp_path / "h.md",
                "--latency", "--repeats", 1, "--latency-csv", lat, "--std")
     assert done.stdout.startswith("*Produced by `benchmarks/hybrid.py")
     rows = read_rows(str(csv))
-    assert [r["source"] for r in rows] == ["hold", "identified_physics", "learned", "regression", "regression~1/2"]
+    assert [r["source"] for r in rows] == ["hold", "identified_physics", "identified_physics+springs", "learned",
+                                           "regression", "regression~1/2"]
+    assert float(rows[2]["s_per_window"]) > 0  # its own cost, as identified physics' (it fits 7 more parameters)
     assert all(float(r["step1"]) > 0 for r in rows)
     # Window by window against identified physics: shares in [0, 1] and positive ratios for all but itself.
     below = [float(r["below_ref1"]) for r in rows]
     assert np.isnan(below[1]) and all(0.0 <= b <= 1.0 for i, b in enumerate(below) if i != 1)
     assert all(float(r["ratio_ref1"]) > 0 for i, r in enumerate(rows) if i != 1)
-    assert "Window by window against identified physics" in (tmp_path / "h.md").read_text()
-    rows = [rows[0]] + rows[2:]
+    assert "Window by window against identified_physics" in (tmp_path / "h.md").read_text()
+    rows = [rows[0]] + rows[3:]
     # Coverage at the reported steps: the mean lies within the lowest and highest step's (none for hold).
     cover = [[float(r[f"cover1{k}"]) for k in ("_min", "", "_max")] for r in rows]
     assert np.isnan(cover[0]).all() and all(lo <= mean <= hi for lo, mean, hi in cover[1:])

@@ -59,6 +59,22 @@ def test_recovers_the_damping_of_robots_that_differ_only_there(damping_store, in
             assert fit.rollouts >= fit.iterations * len(ident.space)  # each Jacobian: one rollout per column
 
 
+def test_recovers_the_springs_of_robots_that_differ_only_there(simulated_store):
+    """The joints' springs (their stiffness, toward where the robot started) fitted when the kinds name
+    them, as the command hybrid's regression fits them (the SPRINGS_ONLY robots of test_regressor.py)."""
+    springs_only = {**DAMPING_ONLY, "damping": [7.5, 7.5], "stiffness": [1.0, 5.0]}
+    ds = open_store(simulated_store(robots=2, steps=CONTEXT + 60, seed=6, randomization=springs_only))
+    q, u, params = _context(ds)
+    sim = NominalPhysics(ds.attrs, "command")
+    with Identifier(_recipe(ds), "command", IdentifyConfig(kinds=("damping", "stiffness"))) as ident:
+        assert ident.space.names == tuple(f"stiffness_q{j}" for j in range(7))  # the damping's range is collapsed
+        for b in range(len(q)):
+            fit = ident.fit(sim.params(q[b, 0]), q[b], u[b], np.zeros(7))  # anchored where the robot started
+            truth = params[b, ident.space.index]
+            assert np.abs(fit.values - truth).mean() < 0.2 * np.abs(3.0 - truth).mean()  # N m/rad
+            assert fit.rms < 0.05 * fit.rms_start
+
+
 def test_a_fit_is_deterministic(damping_store):
     q, u, _ = _context(damping_store)
     base = NominalPhysics(damping_store.attrs, "command").params(q[0, 0])
@@ -106,7 +122,7 @@ def test_parameter_space_bounds_by_the_randomization_ranges(nominal_model):
 
 def test_bad_settings_are_refused():
     with pytest.raises(IdentificationError, match="kinds"):
-        IdentifyConfig(kinds=("stiffness",))
+        IdentifyConfig(kinds=("com",))  # the regressor's alone
     with pytest.raises(IdentificationError, match="fd_step"):
         IdentifyConfig(fd_step=0.0)
 
