@@ -210,6 +210,7 @@ class RegressorIdentifier:
         cols = np.zeros((len(qs), self._nj, len(index))) if previous is None else previous.copy()
         h = self.model.opt.timestep
         friction = []  # (column, parameter, joint) of the friction losses, bumped together below
+        anchor = self.randomizer.split(params)["qinit"]  # where each joint's spring pulls toward
         for c, k in enumerate(index):
             kind, _, joint = self.randomizer.names[k].rpartition("_q")
             j = int(joint) if joint.isdigit() else -1
@@ -226,7 +227,7 @@ class RegressorIdentifier:
             elif kind == "stiffness":
                 # The spring pulls toward where the robot started; position-dependent, so outside the
                 # implicit integration's velocity terms: exact.
-                cols[:, j, c] = qs[:, j] - self.randomizer.split(params)["qinit"][j]
+                cols[:, j, c] = qs[:, j] - anchor[j]
             elif kind == "frictionloss":
                 friction.append((c, k, j))
             elif self.randomizer.names[k].startswith("com_"):  # total torques (see COM_STEP)
