@@ -13,8 +13,8 @@ and highest), and the cost per window (wall clock on this machine, all its cores
 ``identified_physics`` among the baselines (or the one ``--paired`` names), a second table compares
 window by window: at each reported step, the share of windows where a source's joint error is below
 its error and the median of the ratio of the two errors (an RMS over windows can be decided by a
-few). ``identified_physics+springs``: identified physics fitting the joints' springs too, as the
-command hybrid's regression does (``MODE+springs``).
+few). ``identified_physics_springs`` (a baseline of evaluate): identified physics fitting the joints'
+springs too, as the command hybrid's regression does (``MODE+springs``).
 
     python benchmarks/hybrid.py --ckpt data/hyb/runs/amort40/checkpoints/best.ckpt \\
         --test data/demo/ms_heldout.zarr --n 16 --csv results/benchmarks/hybrid.csv
@@ -39,19 +39,6 @@ from robomorph.model.predictor import Predictor
 STEPS = (1, 15, 60, 300, 800)
 # The baseline the window-by-window table compares against (default of --paired).
 PAIRED = "identified_physics"
-# identified_physics fitting the joints' springs too (their stiffness: robomorph.sim.identify.SPRING_KINDS),
-# as the command hybrid's regression does: the engineer's baseline given the same parameters.
-SPRUNG = "identified_physics+springs"
-
-
-def _sprung(w) -> tuple[np.ndarray, dict]:
-    """:data:`SPRUNG`'s predictions on the windows ``w`` and its notes (the cost per window)."""
-    from robomorph.evaluation.identified import predict_windows  # noqa: PLC0415
-    from robomorph.evaluation.sources import nominal_params  # noqa: PLC0415
-    from robomorph.sim.identify import KINDS, SPRING_KINDS, IdentifyConfig  # noqa: PLC0415
-
-    return predict_windows(w, IdentifyConfig(kinds=KINDS + SPRING_KINDS), anchors=nominal_params)
-
 
 def _window_errors(scores, source: str) -> np.ndarray:
     """(N, len(STEPS)) each window's joint RMS error [mrad] at the reported steps (nan beyond the horizon)."""
@@ -149,8 +136,8 @@ def main(argv=None) -> int:
                         "MODE+springs fits the joints' springs too (Predictor.physics_springs); "
                         "MODE+tangent simulates the latency's candidates tangent-linear (Predictor.physics_candidates)")
     p.add_argument("--baselines", default="hold,nominal_physics,identified_physics",
-                   help=f"comma-separated baselines of evaluate, and {SPRUNG} (identified physics fitting the "
-                        "joints' springs too)")
+                   help="comma-separated baselines of evaluate (identified_physics_springs: identified physics "
+                        "fitting the joints' springs too)")
     p.add_argument("--paired", default=PAIRED, help="the baseline the window-by-window table compares against")
     p.add_argument("--offsets", default="start,random")
     p.add_argument("--black-box", action="store_true", help="also score the checkpoint's black-box decoder")
@@ -178,11 +165,8 @@ def main(argv=None) -> int:
         w = load_window(args.test, info["context_len"], horizon, args.n, info, base.n_u, base.n_y, offset, 0,
                         base.inputs)
         baselines = tuple(b for b in args.baselines.split(",") if b)
-        others, notes = {}, {}
-        if SPRUNG in baselines:
-            others[SPRUNG], notes[SPRUNG] = _sprung(w)
-        scores = score_windows(None, w, tuple(b for b in baselines if b != SPRUNG), others=others)
-        notes = {**scores.result["meta"]["baseline_notes"], **notes}
+        scores = score_windows(None, w, baselines)
+        notes = scores.result["meta"]["baseline_notes"]
         ref = _window_errors(scores, args.paired) if args.paired in scores.preds else None
         for b in baselines:
             if b in scores.preds:

@@ -24,7 +24,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n", type=int, help="evaluate only the first N trajectories")
     p.add_argument("--baselines", default=",".join(BASELINES),
                    help=f"comma list from {BASELINES + OPT_IN + CEILINGS}, or 'none' (identified_physics fits "
-                        "each window's parameters: seconds per window; true_physics reads the hidden "
+                        "each window's parameters: seconds per window; identified_physics_springs its joints' "
+                        "springs too; true_physics reads the hidden "
                         "parameters: a predictability ceiling, not a competitor)")
     p.add_argument("--sweep-horizon", help="horizons to sweep, e.g. 200:800:50 or 100,400,800")
     p.add_argument("--sweep-context", help="context lengths to sweep, e.g. 20:200:20")

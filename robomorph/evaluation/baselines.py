@@ -17,6 +17,9 @@ gets: the context ``u_ctx (B, Tc, n_u)``, ``y_ctx (B, Tc, n_y)`` and the query i
   within the randomization ranges, then that robot simulated like ``nominal_physics``
   (:mod:`robomorph.evaluation.identified`). Each window is a fit of seconds, so it runs only
   when named.
+- ``identified_physics_springs`` (opt-in): the same fit with the joints' springs (their
+  stiffness) fitted too, as the command hybrid's regression fits them: the engineer's
+  baseline given the same parameters as the hybrid. Slower (one more column per joint).
 - ``true_physics`` (opt-in): ``nominal_physics`` with each robot's *true* stored parameters, which
   no predictor gets: how far the dynamics themselves stay predictable from the estimated
   state. Driven by the total torque, tiny state errors grow tenfold about every 57 steps
@@ -32,7 +35,7 @@ import numpy as np
 
 BASELINES = ("hold", "arx", "arx_train", "nominal_physics")
 # Competitors run only when named (--baselines): each window costs a fit of its own.
-OPT_IN = ("identified_physics",)
+OPT_IN = ("identified_physics", "identified_physics_springs")
 # Not a competitor (it reads the parameters the model never sees) but the ceiling of
 # physics itself: each robot's own parameters, from the same estimated state. Opt-in.
 CEILINGS = ("true_physics",)

@@ -25,9 +25,18 @@ import numpy as np
 
 from robomorph.core.velocity import estimate_velocity
 from robomorph.evaluation.physics import NominalPhysics
-from robomorph.sim.identify import Fit, IdentifyConfig
+from robomorph.sim.identify import KINDS, SPRING_KINDS, Fit, IdentifyConfig
 
 NAME = "identified_physics"
+# The same fit with the joints' springs too (their stiffness), as the command hybrid's regression fits them.
+SPRUNG = "identified_physics_springs"
+
+
+def config_of(name: str) -> IdentifyConfig:
+    """The fit a baseline named :data:`NAME` or :data:`SPRUNG` runs."""
+    if name not in (NAME, SPRUNG):
+        raise ValueError(f"not an identified-physics baseline: {name!r}")
+    return IdentifyConfig(kinds=KINDS + SPRING_KINDS) if name == SPRUNG else IdentifyConfig()
 
 
 class IdentifiedPhysics:

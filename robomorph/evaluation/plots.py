@@ -20,6 +20,7 @@ _STYLE = {"model": dict(color="C0", lw=1.4), "hold": dict(color="C7", ls=":"),
           "arx": dict(color="C2", ls="--", lw=1.0), "arx_train": dict(color="C1", ls="--", lw=1.0),
           "nominal_physics": dict(color="C3", ls="-.", lw=1.0),
           "identified_physics": dict(color="C5", ls="-.", lw=1.0),
+          "identified_physics_springs": dict(color="C6", ls="-.", lw=1.0),
           "true_physics": dict(color="C4", ls=(0, (1, 1)), lw=1.0)}
 
 

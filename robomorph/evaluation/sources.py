@@ -119,12 +119,12 @@ def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]
                     notes[name]["trajectories"] = arx.trajectories
             except ValueError as exc:  # too short a context, or no training data to read
                 skipped[name] = str(exc)
-        elif name == "identified_physics":
-            from robomorph.evaluation.identified import predict_windows  # noqa: PLC0415
+        elif name in ("identified_physics", "identified_physics_springs"):
+            from robomorph.evaluation.identified import config_of, predict_windows  # noqa: PLC0415
             from robomorph.evaluation.physics import NotApplicable  # noqa: PLC0415
 
-            try:
-                preds[name], notes[name] = predict_windows(w, anchors=nominal_params)  # notes: the cost per window
+            try:  # notes: the cost per window
+                preds[name], notes[name] = predict_windows(w, config_of(name), anchors=nominal_params)
             except NotApplicable as exc:
                 skipped[name] = str(exc)
         else:  # nominal_physics, true_physics

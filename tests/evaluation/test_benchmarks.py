@@ -131,12 +131,12 @@ def test_hybrid_benchmark_scores_modes_and_baselines_on_the_same_windows(tmp_pat
     csv, lat = tmp_path / "hybrid.csv", tmp_path / "latency.csv"
     done = run("hybrid.py", "--ckpt", ckpt, "--test", store, "--n", 2, "--offsets", "start",
                "--modes", "learned,regression,regression~1/2", "--baselines",
-               "hold,identified_physics,identified_physics+springs", "--csv", csv,
+               "hold,identified_physics,identified_physics_springs", "--csv", csv,
                "--md", tmp_path / "h.md",
                "--latency", "--repeats", 1, "--latency-csv", lat, "--std")
     assert done.stdout.startswith("*Produced by `benchmarks/hybrid.py")
     rows = read_rows(str(csv))
-    assert [r["source"] for r in rows] == ["hold", "identified_physics", "identified_physics+springs", "learned",
+    assert [r["source"] for r in rows] == ["hold", "identified_physics", "identified_physics_springs", "learned",
                                            "regression", "regression~1/2"]
     assert float(rows[2]["s_per_window"]) > 0  # its own cost, as identified physics' (it fits 7 more parameters)
     assert all(float(r["step1"]) > 0 for r in rows)

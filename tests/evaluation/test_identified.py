@@ -61,11 +61,26 @@ def test_identified_physics_is_deterministic(damping_store, damping_scores):
     np.testing.assert_array_equal(again, s.preds["identified_physics"])
 
 
+def test_the_springs_baseline_fits_them_through_the_scoring_path(simulated_store):
+    """``identified_physics_springs``: the same fit with the joints' stiffness too; on robots whose springs are far
+    from the catalogue's (and that differ nowhere else) it fits them and beats the fit without them late on."""
+    springs_only = {**DAMPING_ONLY, "damping": [7.5, 7.5], "stiffness": [1.0, 5.0]}
+    store = simulated_store(robots=2, steps=CONTEXT + HORIZON, seed=6, randomization=springs_only)
+    w = load_window(store, CONTEXT, HORIZON, None, None, 7, 14, inputs="command")
+    s = score_windows(None, w, ("identified_physics", "identified_physics_springs"), [1, 60])
+    notes = s.result["meta"]["baseline_notes"]
+    assert [p for p in notes["identified_physics_springs"]["parameters"] if p.startswith("stiffness")] \
+        == [f"stiffness_q{j}" for j in range(7)]
+    assert not any(p.startswith("stiffness") for p in notes["identified_physics"]["parameters"])
+    assert s.at("identified_physics_springs", "joints", 60) < 0.5 * s.at("identified_physics", "joints", 60)
+
+
 def test_the_name_is_accepted_but_never_run_by_default():
     from robomorph.evaluation.baselines import BASELINES
 
-    check_baselines(["identified_physics"])
+    check_baselines(["identified_physics", "identified_physics_springs"])
     assert "identified_physics" not in BASELINES  # each window is a fit: only when named
+    assert "identified_physics_springs" not in BASELINES
 
 
 def test_real_logs_are_refused_with_one_line(damping_store, tmp_path):
