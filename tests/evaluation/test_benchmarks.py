@@ -218,6 +218,10 @@ def test_spread_benchmark_reads_its_cache_back_for_the_same_windows_only(tmp_pat
     assert body(tmp_path / "a.md") == body(tmp_path / "b.md")
     other = run("spread.py", *common[:6], "--n", 3, "--points", "columns", "--cache", cache, "--md", tmp_path / "c.md")
     assert "holds other windows; predicting again" in other.stderr
+    # The single robot (the fast setting) is other predictions: not read from the mixture's cache.
+    single = run("spread.py", *common, "--members", 1, "--md", tmp_path / "s.md")
+    assert "holds other windows; predicting again" in single.stderr
+    assert "physics mode regression, 1 friction member)" in (tmp_path / "s.md").read_text()
     # Side by side, each variant is scored with its own mean (the springs move it): as when run alone.
     both = tmp_path / "both.csv"
     run("spread.py", *common[:8], "--points", "columns,columns+springs", "--md", tmp_path / "d.md", "--csv", both)
