@@ -72,15 +72,16 @@ def _row(name: str, offset: str, scores, source: str, seconds: float | None, std
 
 
 def configure(pred: Predictor, spec: str) -> str:
-    """Sets ``pred`` up as ``MODE[@K][~M][/S][+obs][+springs][+tangent]`` says (K regression solves, default 3; M
-    members of the friction mixture, default 9; S physics steps per sample after the first second, default
-    :func:`robomorph.sim.backbone.coarse_substeps`; the joints' springs fitted; a planner's candidates
-    tangent-linear); returns MODE."""
+    """Sets ``pred`` up as ``MODE[@K][~M][/S][+obs][+springs][+debias][+tangent]`` says (K regression solves, default
+    3; M members of the friction mixture, default 9; S physics steps per sample after the first second, default
+    :func:`robomorph.sim.backbone.coarse_substeps`; the joints' springs fitted; the regression's bias taken off; a
+    planner's candidates tangent-linear); returns MODE."""
     spec, *plus = spec.split("+")
-    if set(plus) - {"obs", "springs", "tangent"}:
+    if set(plus) - {"obs", "springs", "debias", "tangent"}:
         raise SystemExit(f"error: a mode's suffixes after '+' can be 'obs' (the observer's velocity), 'springs' (the "
-                         f"joints' springs fitted) and 'tangent' (tangent-linear candidates), got {'+'.join(plus)!r}")
-    pred.physics_observer, pred.physics_springs = "obs" in plus, "springs" in plus
+                         f"joints' springs fitted), 'debias' (the regression's bias taken off) and 'tangent' "
+                         f"(tangent-linear candidates), got {'+'.join(plus)!r}")
+    pred.physics_observer, pred.physics_springs, pred.physics_debias = "obs" in plus, "springs" in plus, "debias" in plus
     pred.physics_candidates = "tangent" if "tangent" in plus else "exact"
     spec, _, substeps = spec.partition("/")
     mode, _, members = spec.partition("~")
@@ -133,7 +134,8 @@ def main(argv=None) -> int:
                         "simulates the horizon after its first second at S physics steps per sample (default: "
                         "a 240th of a second, 4 for the Panda recipe's 8; /8 re-enacts the generator throughout); "
                         "MODE+obs starts the horizon from the observer's velocity (Predictor.physics_observer); "
-                        "MODE+springs fits the joints' springs too (Predictor.physics_springs); "
+                        "MODE+springs fits the joints' springs too (Predictor.physics_springs); MODE+debias takes the "
+                        "regression's bias off (Predictor.physics_debias); "
                         "MODE+tangent simulates the latency's candidates tangent-linear (Predictor.physics_candidates)")
     p.add_argument("--baselines", default="hold,nominal_physics,identified_physics",
                    help="comma-separated baselines of evaluate (identified_physics_springs: identified physics "

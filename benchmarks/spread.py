@@ -139,8 +139,9 @@ def main(argv=None) -> None:
     p.add_argument("--knots", default=None, help="comma-separated knot layouts to fit the model's own spread on: "
                    "log (log-spaced) and end (as dense at the horizon's end as at its start); default: calibrate's")
     p.add_argument("--points", default=None, help="comma-separated robots a hybrid's spread is taken over, side by "
-                   "side (POINTS[+springs]: columns or draws, robomorph.model.hybrid_std; +springs: the regression "
-                   "fits the joints' springs too), its own spread alone; default: its own points and the candidates")
+                   "side (POINTS[+springs][+debias]: columns or draws, robomorph.model.hybrid_std; +springs: the "
+                   "regression fits the joints' springs too; +debias: its bias taken off, robomorph.model.debias), "
+                   "its own spread alone; default: its own points and the candidates")
     p.add_argument("--offset", default="start", help="start, random or a step, as in evaluate")
     p.add_argument("--horizon", type=int, default=None, help="default: the training horizon (600 off the start)")
     p.add_argument("--physics", default=None, help="a hybrid's physics mode (default: its default)")
@@ -177,11 +178,11 @@ def main(argv=None) -> None:
         if p in cached:
             spreads[p] = cached[p]
             continue
-        if p is not None:  # POINTS[+springs]: the regression fits the joints' springs too
-            pred.physics_points, _, extra = p.partition("+")
-            if extra not in ("", "springs"):
-                raise SystemExit(f"error: --points takes POINTS or POINTS+springs, got {p!r}")
-            pred.physics_springs = extra == "springs"
+        if p is not None:  # POINTS[+springs][+debias]: the regression fits the joints' springs too; its bias taken off
+            pred.physics_points, *extra = p.split("+")
+            if set(extra) - {"springs", "debias"}:
+                raise SystemExit(f"error: --points takes POINTS[+springs][+debias], got {p!r}")
+            pred.physics_springs, pred.physics_debias = "springs" in extra, "debias" in extra
         spreads[p] = tuple(_predict(pred, w, steps, a.batch, others=not a.points) for w in (cal_w, test_w))
     if a.cache and a.points:
         _save_cache(a.cache, key, spreads)

@@ -42,6 +42,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a command-formulation hybrid: its regression fits the joints' springs too (on by default "
                         "for models trained since 2026-11-27; the std then carries their uncertainty) or not, "
                         "recorded in the checkpoint; each setting keeps its own calibrations")
+    p.add_argument("--debias", choices=("on", "off"),
+                   help="a command-formulation hybrid: its regression's bias, measured on the estimate's simulated "
+                        "context, taken off (on by default for models trained since 2026-11-27) or not, recorded in "
+                        "the checkpoint; each setting keeps its own calibrations")
     p.add_argument("--points", choices=("columns", "draws"),
                    help="a hybrid whose std is a spread of robots around its estimate: one per column of the "
                         "estimate's covariance (deterministic; the default for a model not calibrated before) or "
@@ -58,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run(a: argparse.Namespace) -> int:
-    for name in ("observer", "springs", "points"):
+    for name in ("observer", "springs", "debias", "points"):
         if getattr(a, name) and (a.remove or a.blend):
             raise CalibrationError(f"--{name} sets what a calibration is fitted on: drop --remove and --blend with it")
     if a.remove:
@@ -75,7 +79,8 @@ def run(a: argparse.Namespace) -> int:
     report = calibrating.calibrate(a.ckpt, a.data, a.out, a.n, a.context_len, a.horizon, a.offset, a.seed, a.method,
                                    a.batch_size, a.device, a.horizons, a.physics,
                                    None if a.observer is None else a.observer == "on", a.points,
-                                   None if a.springs is None else a.springs == "on")
+                                   None if a.springs is None else a.springs == "on",
+                                   None if a.debias is None else a.debias == "on")
     print(calibrating.report_text(report))
     return 0
 

@@ -111,7 +111,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
               context_len: int | None = None, horizon: int | None = None, offset: str | int = "start",
               seed: int = 0, method: str = "power", batch_size: int = 64, device: str | None = None,
               horizons_spec: str | None = None, physics: str | None = None, observer: bool | None = None,
-              points: str | None = None, springs: bool | None = None) -> dict:
+              points: str | None = None, springs: bool | None = None, debias: bool | None = None) -> dict:
     """Fits the calibration and writes the checkpoint with it to ``out`` (default: in place).
 
     Args:
@@ -125,20 +125,20 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
             its own calibration, so calibrating one leaves the others' in place. A hybrid keeps one
             per window kind too: windows from the start, and windows that do not open their
             trajectory (``offset`` random or a step), each applied to its own kind.
-        observer, springs: a command-formulation hybrid's observer and regression of the joints' springs
-            (:attr:`Predictor.physics_observer`, ``physics_springs``) set in the checkpoint's record before fitting
-            (None: as recorded); the calibrations of each setting are kept apart.
+        observer, springs, debias: a command-formulation hybrid's observer, regression of the joints' springs and
+            debiased regression (:attr:`Predictor.physics_observer`, ``physics_springs``, ``physics_debias``) set in
+            the checkpoint's record before fitting (None: as recorded); each setting's calibrations are kept apart.
         points: a hybrid's std's robots, ``columns`` or ``draws`` (:func:`robomorph.model.hybrid_std.spread_points`).
 
     Returns:
         A report: the calibration's provenance, and the ±1σ/±2σ coverage of the calibration
         windows before and after at the reported steps.
     """
-    from robomorph.model.hybrid_std import drawn_points, observing, springing  # noqa: PLC0415
+    from robomorph.model.hybrid_std import debiasing, drawn_points, observing, springing  # noqa: PLC0415
 
     check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     offset = parse_offset(offset)
-    predictor, ckpt_dict = _calibrated_predictor(ckpt, device, physics, points, observer, springs)
+    predictor, ckpt_dict = _calibrated_predictor(ckpt, device, physics, points, observer, springs, debias)
     sources, split = _sources(ckpt_dict, data)
     w, source = _fitting_windows(ckpt, predictor, sources, split, n, context_len, horizon, offset, seed,
                                  "calibration window")
@@ -155,7 +155,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
     if getattr(predictor, "physics", None):
         # A hybrid's std depends on how it identifies the robot: the calibration is that mode's.
         source["physics_mode"], source["observer"] = predictor.physics_mode, observing(predictor)
-        source["springs"] = springing(predictor)
+        source["springs"], source["debias"] = springing(predictor), debiasing(predictor)
     cal = fit(before.y, mean, std, method, source=source, end=dense_at_end(predictor), points=points)
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
     report = _report(ckpt, out, cal, w.dt, horizon, steps, before, after)
@@ -194,9 +194,9 @@ def _report(ckpt: str, out: str | None, cal, dt: float, horizon: int, steps: lis
     return report
 
 
-def _calibrated_predictor(ckpt: str, device, physics, points, observer, springs) -> tuple:
-    """The predictor to calibrate, set up as asked: the observer's and the springs' settings written into the
-    physics record of the checkpoint read (refused where they cannot apply)."""
+def _calibrated_predictor(ckpt: str, device, physics, points, observer, springs, debias) -> tuple:
+    """The predictor to calibrate, set up as asked: the observer's, the springs' and the debiasing's settings written
+    into the physics record of the checkpoint read (refused where they cannot apply)."""
     from robomorph.model.files import DATA_INFO_KEY, read_model  # noqa: PLC0415  (a checkpoint or a model folder)
 
     predictor = _predictor(ckpt, device)
@@ -204,7 +204,7 @@ def _calibrated_predictor(ckpt: str, device, physics, points, observer, springs)
     predictor.physics_points = points
     ckpt_dict = read_model(ckpt)
     record = (ckpt_dict.get(DATA_INFO_KEY) or {}).get("physics") if predictor.model.config.n_params else None
-    for name, on in (("observer", observer), ("springs", springs)):
+    for name, on in (("observer", observer), ("springs", springs), ("debias", debias)):
         if on is None:
             continue
         if not record or predictor.inputs != "command":
@@ -368,7 +368,7 @@ def report_text(report: dict) -> str:
              + ("" if src.get("offset", "start") == "start" else f", windows from offset {src['offset']}")
              + (f", physics mode {src['physics_mode']}" if src.get("physics_mode") else "")
              + (" with the observer's start velocity" if src.get("observer") else "")
-             + (", the springs fitted" if src.get("springs") else "")
+             + (", the springs fitted" if src.get("springs") else "") + (", its bias taken off" if src.get("debias") else "")
              + (f", std over {POINTS_TEXT[p]}" if (p := report["calibration"].get("points")) in POINTS_TEXT else ""),
              markdown_table(["step", "seconds", "scale (median over channels)", *(["power (median)"] if power else []),
                              "±1σ before", "±1σ after", "±2σ before", "±2σ after",

@@ -165,11 +165,11 @@ def _physics(predictor) -> dict:
     if not getattr(predictor, "physics", None) or predictor.physics_mode == "none":
         return {}
     from robomorph.model.hybrid import MIXED_MODES  # noqa: PLC0415
-    from robomorph.model.hybrid_std import drawn_points, observing, springing  # noqa: PLC0415
+    from robomorph.model.hybrid_std import debiasing, drawn_points, observing, springing  # noqa: PLC0415
 
     mixture = predictor.inputs == "command" and predictor.physics_mode in MIXED_MODES and predictor.physics_members > 1
     return {"physics": {"mode": predictor.physics_mode, "observer": observing(predictor), "springs": springing(predictor),
-                        "mixture": mixture,
+                        "debias": debiasing(predictor), "mixture": mixture,
                         "members": predictor.physics_members, "substeps": predictor.physics_substeps,
                         "points": drawn_points(predictor)}}
 

@@ -110,6 +110,7 @@ def table_markdown(result: dict) -> str:
         lines += ["", f"Model predicted on its physics backbone: mode `{phys['mode']}`"
                   + (", horizons from the observer's start velocity" if phys.get("observer") else "")
                   + (", the joints' springs identified" if phys.get("springs") else "")
+                  + (", the regression's bias taken off" if phys.get("debias") else "")
                   + (f", friction mixture of {phys['members']} robots" if phys.get("mixture") else "")
                   + (f", std over {POINTS_TEXT[phys['points']]}" if phys.get("points") in POINTS_TEXT else "") + "."]
     if note := smoothing_note(meta.get("smoothing")):

@@ -201,19 +201,21 @@ def calibration_key(calibration: StdCalibration) -> str:
     knows which windows open theirs (``at_rest``) and applies each kind's to its own; a black-box
     model has one calibration whatever its windows."""
     src = calibration.source
-    mode = mode_key(str(src.get("physics_mode", "none")), bool(src.get("observer")), bool(src.get("springs")))
+    mode = mode_key(str(src.get("physics_mode", "none")), bool(src.get("observer")), bool(src.get("springs")),
+                    bool(src.get("debias")))
     start = calibration.source.get("offset", "start") in ("start", 0)
     return mode if mode == "none" or start else f"{mode}/moving"
 
 
-def mode_key(mode: str, observer: bool, springs: bool = False) -> str:
+def mode_key(mode: str, observer: bool, springs: bool = False, debias: bool = False) -> str:
     """A physics mode's calibration key: ``+obs`` when its horizons start from the observer's velocity
     (:func:`robomorph.sim.backbone.observed_velocity`), whose spread near the start is another, ``+springs``
-    when its regression fits the joints' springs, whose spread late in the horizon is another (none:
-    the decoder's std, which neither touches)."""
+    when its regression fits the joints' springs, whose spread late in the horizon is another, ``+debias`` when
+    the regression's bias is taken off (:mod:`robomorph.model.debias`), whose errors are others (none: the
+    decoder's std, which none of them touches)."""
     if mode == "none":
         return mode
-    return mode + ("+obs" if observer else "") + ("+springs" if springs else "")
+    return mode + ("+obs" if observer else "") + ("+springs" if springs else "") + ("+debias" if debias else "")
 
 
 def read_calibrations(entry: dict | None) -> dict[str, StdCalibration]:

@@ -90,10 +90,14 @@ class Hybrid:
         # Whether the regression also fits the joints' springs (robomorph.sim.identify.SPRING_KINDS), whose
         # uncertainty the std then carries too: the record's (commands; records before it: off).
         self.springs = bool(physics.get("springs", False)) and inputs == "command"
+        # Whether the regression's bias is measured on the estimate's simulated context and taken off
+        # (robomorph.model.debias): the record's likewise (commands; records before it: off).
+        self.debias = bool(physics.get("debias", False)) and inputs == "command"
         self._stiction = None
         self._held: np.ndarray | None = None  # (B, nj) of the last regression: joints that held still
         self._covs: list[np.ndarray] = []  # of the last regression: each window's estimate covariance
         self._cov_space: tuple = ()  # the entries those cover: their indices in a parameter vector, their bounds
+        self._fits: list = []  # of the last regression: each window's solve (robomorph.model.debias reads them)
         from robomorph.sim.smoother import SmootherConfig, new_report  # noqa: PLC0415
 
         self.smoother = SmootherConfig()  # how mode ``smoothed`` weighs physics and decoder
@@ -232,6 +236,10 @@ class Hybrid:
         if mode != "learned":
             prior = (z, z_std) if mode == "fused" else None
             params = _regress(self, params, q_ctx, uc, prior, anchor)
+            if self.debias and prior is None and self.inputs == "command":
+                from robomorph.model.debias import debiased  # noqa: PLC0415
+
+                params = debiased(self, params, q_ctx, uc, qvel_start)
         if mode == "refined":
             params = self._refine(params, q_ctx, uc, qvel_start)
         return params, z, z_std
@@ -274,7 +282,7 @@ def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
         hybrid._regressor_kinds = kinds
     hybrid._regressor.iterations = hybrid.iterations
     base = np.stack([hybrid.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
-    out, hybrid._covs, held = [], [], []
+    out, hybrid._covs, held, hybrid._fits = [], [], [], []
     # The layout's entries come first; the std's robots move those, and the springs where they were fitted
     # (the centres of mass of total torques stay at the estimate).
     n = len(hybrid.backbone.index)
@@ -285,6 +293,7 @@ def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
         out.append(hybrid._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))
         hybrid._covs.append(hybrid._regressor.last_cov[np.ix_(keep, keep)])
         held.append(hybrid._regressor.last_held)
+        hybrid._fits.append(hybrid._regressor.last_fit)
     hybrid._held = np.stack(held)
     return np.stack(out)
 

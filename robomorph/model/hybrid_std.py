@@ -34,10 +34,18 @@ def springing(predictor) -> bool:
                 and predictor.physics_mode not in ("learned", "fused", "none"))
 
 
+def debiasing(predictor) -> bool:
+    """True when the regression's bias is taken off (:attr:`Predictor.physics_debias`, :mod:`robomorph.model.debias`:
+    commands, in the modes whose robot the regression identifies without the parameter head's prior)."""
+    return bool(predictor.physics and predictor.physics_debias and predictor.inputs == "command"
+                and predictor.physics_mode not in ("learned", "fused", "none"))
+
+
 def kind_calibrations(predictor) -> tuple:
     """(for windows that open their trajectory, for the others): the mode's calibrations, each
     standing in for the other where only one was fitted; (None, None) without any."""
-    mode = mode_key(predictor.physics_mode if predictor.physics else "none", observing(predictor), springing(predictor))
+    mode = mode_key(predictor.physics_mode if predictor.physics else "none", observing(predictor), springing(predictor),
+                    debiasing(predictor))
     start, moving = predictor.model.calibrations.get(mode), predictor.model.calibrations.get(f"{mode}/moving")
     return start or moving, moving or start
 

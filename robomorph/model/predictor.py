@@ -27,7 +27,7 @@ from robomorph.core.inputs import check_model_inputs
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
 from robomorph.model.channels import arm_columns, pad, select
 from robomorph.model.checkpoint import CheckpointError, TrainedModel, load_trained
-from robomorph.model.hybrid_std import calibrated_rows, kind_calibrations, spread_points, springing
+from robomorph.model.hybrid_std import calibrated_rows, debiasing, kind_calibrations, spread_points, springing
 
 
 class PredictionError(RoboMorphError, ValueError):
@@ -128,6 +128,8 @@ class Predictor:
             :func:`robomorph.sim.backbone.coarse_substeps`, 4 of the Panda's 8; 8 re-enacts the generator throughout).
         physics_observer: commands: horizons from :func:`robomorph.sim.backbone.observed_velocity` (default: the record's).
         physics_springs: commands: the regression fits the joints' springs too (default: the record's; off before it).
+        physics_debias: commands: the regression's bias, measured on the estimate's simulated context, taken off
+            (:mod:`robomorph.model.debias`; default: the record's; off before it).
         physics_candidates: many horizons on one context: ``exact``, or ``tangent`` (:mod:`robomorph.sim.tangent`).
         channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside, its
             outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
@@ -148,6 +150,7 @@ class Predictor:
         self.physics_substeps: int | None = None
         self.physics_observer: bool = bool((self.physics or {}).get("observer", False))  # checkpoints before it: off
         self.physics_springs: bool = bool((self.physics or {}).get("springs", False))  # the same
+        self.physics_debias: bool = bool((self.physics or {}).get("debias", False))  # the same
         self.physics_candidates, self.channels = "exact", None
         self._hybrid = None
         if self.physics:
@@ -164,6 +167,7 @@ class Predictor:
         self._hybrid = self._hybrid or Hybrid(self.model, self.physics, self.inputs)
         self._hybrid.samples, self._hybrid.members = self.physics_samples, self.physics_members
         self._hybrid.points, self._hybrid.springs = spread_points(self, strict), springing(self)
+        self._hybrid.debias = debiasing(self)
         bb = self._hybrid.backbone
         bb.coarse, bb.observe, bb.candidates = self.physics_substeps, self.physics_observer, self.physics_candidates
         return self._hybrid

@@ -127,19 +127,14 @@ class RegressorIdentifier:
                 then the posterior mode, the data weighted by their residual variance.
                 Default: the weak pull toward ``base`` (``prior``).
         """
-        dt = self.dt
-        q = np.asarray(q, dtype=np.float64)
-        torque = np.asarray(torque, dtype=np.float64)
-        v = (q[2:] - q[:-2]) / (2 * dt)
-        a = (q[2:] - 2 * q[1:-1] + q[:-2]) / dt ** 2
-        data = (q[1:-1], v, a, (torque[:-2] + torque[1:-1]) / 2)  # a second difference spans two frames' torques
+        data = self._data(q, torque)
         base = np.asarray(base, dtype=np.float64)
         z_base = self._unit(base)
         fit = self._solves(base, z_base, data, self.iterations)
         self.last_held = _held(self._friction, fit.cols, self._nj)
         if prior_mean is None and self.last_held.any():
             fit = self._slipped(fit, z_base, data)
-        params = fit.params
+        params, self.last_fit = fit.params, fit
         n = len(fit.b_z)
         # The estimate's covariance in unit coordinates (Gauss-Markov, the residual's variance):
         # what the draws behind the hybrid's standard deviation sample from.
@@ -155,6 +150,24 @@ class RegressorIdentifier:
             params[self.space.index] = self._mid + _bounded_lstsq(hess, fit.atb / s2 + w ** 2 * mu) * self._half
             self.last_cov = np.linalg.inv(hess)
         return params
+
+    def _data(self, q: np.ndarray, torque: np.ndarray) -> tuple:
+        """(positions, velocities, accelerations, torques) at the context's inner samples: central differences."""
+        q, torque, dt = np.asarray(q, dtype=np.float64), np.asarray(torque, dtype=np.float64), self.dt
+        v = (q[2:] - q[:-2]) / (2 * dt)
+        a = (q[2:] - 2 * q[1:-1] + q[:-2]) / dt ** 2
+        return q[1:-1], v, a, (torque[:-2] + torque[1:-1]) / 2  # a second difference spans two frames' torques
+
+    def shift(self, fit: "_Fit", q: np.ndarray, torque: np.ndarray) -> np.ndarray:
+        """(n,) in unit coordinates: how far the estimate of ``fit`` (a :attr:`last_fit`) moves when its joints are
+        ``q`` (T, 7) instead (the same torques), the solve linearized there with that fit's regressor: one
+        inverse-dynamics pass instead of a fit's several (:mod:`robomorph.model.debias`)."""
+        qs, v, a, tau = self._data(q, torque)
+        resid = (tau - self._inverse(fit.params, qs, v, a)[0]).ravel() / self.sigma
+        A_z = fit.cols.reshape(-1, len(self.space.index)) * (self._half / self.sigma)[None, :]
+        n, pull = len(resid), self.prior ** 2
+        z = self._unit(fit.params)  # the solve's normal equations with these torques' residual, less its own at z
+        return np.linalg.solve(fit.gram / n + pull * np.eye(len(z)), A_z.T @ resid / n - pull * (z - fit.z_base))
 
     def _unit(self, params: np.ndarray) -> np.ndarray:
         return (params[self.space.index] - self._mid) / self._half
@@ -181,7 +194,7 @@ class RegressorIdentifier:
             x, b_z, gram, atb = _solve(A_z, (tau - tau0).ravel() / self.sigma, z_lin, z_base, self.prior)
             params[index] = self._mid + x * self._half
             z_lin = x
-        return _Fit(params, cols, b_z, gram, atb, np.einsum("ij,j->i", A_z, x) - b_z)
+        return _Fit(params, cols, b_z, gram, atb, np.einsum("ij,j->i", A_z, x) - b_z, z_base)
 
     def _slipped(self, fit: "_Fit", z_base: np.ndarray, data: tuple) -> "_Fit":
         """The fit again, the friction losses of the joints that held at its estimate started at
@@ -282,6 +295,7 @@ class _Fit(NamedTuple):
     gram: np.ndarray
     atb: np.ndarray
     err: np.ndarray
+    z_base: np.ndarray  # where the solves were pulled toward (unit coordinates)
 
 
 def _friction_entries(space, randomizer) -> list[tuple[int, int]]:

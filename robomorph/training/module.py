@@ -195,9 +195,10 @@ class MetaModule(Steps, L.LightningModule):
         if self._physics_on:
             # The observer's start velocity (robomorph.sim.backbone.observed_velocity): on for models trained
             # since it was measured (first step 2.5x lower); older records lack it and predict as before. The
-            # regression's springs (robomorph.sim.identify.SPRING_KINDS) likewise, since 2026-11-27.
+            # regression's springs (robomorph.sim.identify.SPRING_KINDS) likewise, since 2026-11-27, and its
+            # debiasing (robomorph.model.debias), since the same day.
             self.data_info = {**self.data_info, "physics": {**self._layout, "mode": "amortized", "observer": True,
-                                                            "springs": True}}
+                                                            "springs": True, "debias": True}}
         if stage == "fit" and self.hparams.init_ckpt and not self.resuming and not getattr(self, "_transferred", False):
             start_from(self, self.hparams.init_ckpt)
             self._transferred = True

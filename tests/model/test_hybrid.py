@@ -252,7 +252,7 @@ def test_held_joints_predict_the_weighted_mean_of_the_friction_mixture(hybrid_ck
 
     uc, yc, uq, _, _, _ = _windows(command_store, n=4)
     p = Predictor.from_checkpoint(hybrid_ckpt)
-    p.physics_mode = "regression"
+    p.physics_mode, p.physics_debias = "regression", False  # the regression's own estimate (debiased: test_debias.py)
     mean = p.simulate(uc, yc, uq, at_rest=True)
     hyb = p.hybrid()
     _, std = hyb.predict(*(torch.as_tensor(a) for a in (uc, yc, uq)), at_rest=True, return_std=True)  # uncalibrated
@@ -320,7 +320,7 @@ def test_each_physics_mode_keeps_its_own_std_calibration(hybrid_ckpt, simulated_
     assert main(["--ckpt", out, *common, "--physics", "learned"]) == 0
     assert "physics mode learned" in capsys.readouterr().out
     p = Predictor.from_checkpoint(out)
-    assert set(p.model.calibrations) == {"regression+obs+springs", "learned+obs"}  # fitted with the observer on
+    assert set(p.model.calibrations) == {"regression+obs+springs+debias", "learned+obs"}  # fitted with the observer on
     scales = {}
     for mode in ("regression", "learned", "fused"):
         p.use_physics(mode)
@@ -329,7 +329,7 @@ def test_each_physics_mode_keeps_its_own_std_calibration(hybrid_ckpt, simulated_
     assert Predictor.from_checkpoint(hybrid_ckpt).calibration is None  # --out left the original alone
     assert main(["--ckpt", out, "--remove", "--physics", "learned"]) == 0
     kept = Predictor.from_checkpoint(out)
-    assert set(kept.model.calibrations) == {"regression+obs+springs"} and kept.calibration.scale == scales["regression"]
+    assert set(kept.model.calibrations) == {"regression+obs+springs+debias"} and kept.calibration.scale == scales["regression"]
     assert main(["--ckpt", out, "--remove", "--physics", "learned"]) == 0
     assert "no std calibration of physics mode learned" in capsys.readouterr().out
 
@@ -350,8 +350,8 @@ def test_windows_that_open_their_trajectory_and_the_others_each_get_their_kinds_
     only_start = Predictor.from_checkpoint(out)
     assert main(["--ckpt", out, *common, "--offset", "random", "--seed", "1"]) == 0
     p = Predictor.from_checkpoint(out)
-    assert set(p.model.calibrations) == {"regression+obs+springs", "regression+obs+springs/moving"}
-    start, moving = p.model.calibrations["regression+obs+springs"], p.model.calibrations["regression+obs+springs/moving"]
+    assert set(p.model.calibrations) == {"regression+obs+springs+debias", "regression+obs+springs+debias/moving"}
+    start, moving = p.model.calibrations["regression+obs+springs+debias"], p.model.calibrations["regression+obs+springs+debias/moving"]
     assert start.scale != moving.scale and p.calibration is start
     uc, yc, uq, *_ = _windows(heldout, n=2)
     rest = np.array([True, False])
@@ -384,6 +384,6 @@ def test_the_demo_calibrates_a_hybrid_for_start_windows_and_for_a_moving_robot(h
     shutil.copy(hybrid_ckpt, ckpt)
     assert calibrate_std(ckpt) is True
     cals = Predictor.from_checkpoint(ckpt).model.calibrations
-    assert set(cals) == {"regression+obs+springs", "regression+obs+springs/moving"}
-    assert cals["regression+obs+springs/moving"].source["offset"] == "random"
+    assert set(cals) == {"regression+obs+springs+debias", "regression+obs+springs+debias/moving"}
+    assert cals["regression+obs+springs+debias/moving"].source["offset"] == "random"
     assert "windows from offset random" in capsys.readouterr().out
