@@ -150,8 +150,9 @@ def test_limits_are_measured_on_real_code(tmp_path):
 @pytest.mark.parametrize("module", sorted(m for m in MODULES if _room(m) == "model") + ["robomorph.predictor"])
 def test_inference_needs_only_model_and_core(module):
     # A deployed model ships robomorph/model/ and robomorph/core/ alone; the hybrid model's
-    # physics backbone (robomorph.model.hybrid, imported only when a hybrid predicts) needs
-    # robomorph/sim/ and MuJoCo as well.
-    allowed = ("model", "core", "sim") if module == "robomorph.model.hybrid" else ("model", "core")
+    # physics backbone (robomorph.model.hybrid and its debiasing, imported only when a hybrid
+    # predicts) needs robomorph/sim/ and MuJoCo as well.
+    backbone = ("robomorph.model.hybrid", "robomorph.model.debias")
+    allowed = ("model", "core", "sim") if module in backbone else ("model", "core")
     outside = sorted(m for m in _internal(MODULES[module]) if _room(m) not in allowed)
     assert not outside, f"{module} imports {outside}"

@@ -38,6 +38,8 @@ def debiased(hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, q
         q_ctx, u_ctx: (B, Tc, nj) the recorded contexts' joints and torques (this formulation's).
         qvel_start: (B, nj) the joint velocity at each context's first sample (0 where it opens its trajectory).
     """
+    from robomorph.sim.regressor import shift  # noqa: PLC0415  (MuJoCo only when used)
+
     nj, reg = q_ctx.shape[2], hybrid._regressor
     index, low, high = reg.space.index, reg.space.low, reg.space.high
     out = params.copy()
@@ -47,6 +49,6 @@ def debiased(hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, q
         for b in np.flatnonzero(np.all(np.isfinite(q_sim), axis=(1, 2))):  # a diverged context: left as it was
             # The regression on the simulated context finds its robot plus the bias there; the next estimate is the
             # first less that bias: out - (what it finds - the first estimate).
-            moved = reg.shift(hybrid._fits[b], q_sim[b], u_ctx[b]) * reg._half
+            moved = shift(reg, hybrid._fits[b], q_sim[b], u_ctx[b]) * reg._half
             out[b, index] = np.clip(out[b, index] - moved, low, high)
     return out

@@ -87,12 +87,9 @@ class Hybrid:
         self._identifier = None
         self._regressor = None
         self._regressor_kinds: tuple[str, ...] = ()
-        # Whether the regression also fits the joints' springs (robomorph.sim.identify.SPRING_KINDS), whose
-        # uncertainty the std then carries too: the record's (commands; records before it: off).
-        self.springs = bool(physics.get("springs", False)) and inputs == "command"
-        # Whether the regression's bias is measured on the estimate's simulated context and taken off
-        # (robomorph.model.debias): the record's likewise (commands; records before it: off).
-        self.debias = bool(physics.get("debias", False)) and inputs == "command"
+        # Whether the regression fits the joints' springs too (robomorph.sim.identify.SPRING_KINDS; the std then carries
+        # them) and has its bias taken off (robomorph.model.debias): the record's (commands; records before them: off).
+        self.springs, self.debias = (bool(physics.get(k, False)) and inputs == "command" for k in ("springs", "debias"))
         self._stiction = None
         self._held: np.ndarray | None = None  # (B, nj) of the last regression: joints that held still
         self._covs: list[np.ndarray] = []  # of the last regression: each window's estimate covariance
@@ -235,11 +232,7 @@ class Hybrid:
         self._held = None
         if mode != "learned":
             prior = (z, z_std) if mode == "fused" else None
-            params = _regress(self, params, q_ctx, uc, prior, anchor)
-            if self.debias and prior is None and self.inputs == "command":
-                from robomorph.model.debias import debiased  # noqa: PLC0415
-
-                params = debiased(self, params, q_ctx, uc, qvel_start)
+            params = _regress(self, params, q_ctx, uc, prior, anchor, qvel_start)
         if mode == "refined":
             params = self._refine(params, q_ctx, uc, qvel_start)
         return params, z, z_std
@@ -263,9 +256,10 @@ class Hybrid:
 
 
 def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, prior=None,
-             anchor: np.ndarray | None = None) -> np.ndarray:
-    """The catalogue robot's identified entries solved for, window by window (springs
-    anchored at ``anchor``, default the first context sample)."""
+             anchor: np.ndarray | None = None, qvel_start: np.ndarray | None = None) -> np.ndarray:
+    """The catalogue robot's identified entries solved for, window by window (springs anchored at ``anchor``, default
+    the first context sample), debiased where the hybrid says so (commands, no prior; ``qvel_start``: (B, 7) the
+    velocity at each context's first sample, where its simulation starts)."""
     from robomorph.sim.identify import GRAVITY_KINDS, KINDS, SPRING_KINDS, ParameterSpace  # noqa: PLC0415
     from robomorph.sim.regressor import RegressorIdentifier  # noqa: PLC0415
 
@@ -295,6 +289,10 @@ def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
         held.append(hybrid._regressor.last_held)
         hybrid._fits.append(hybrid._regressor.last_fit)
     hybrid._held = np.stack(held)
+    if hybrid.debias and prior is None and hybrid.inputs == "command" and qvel_start is not None:
+        from robomorph.model.debias import debiased  # noqa: PLC0415
+
+        return debiased(hybrid, np.stack(out), q_ctx, u_ctx, qvel_start)
     return np.stack(out)
 
 

@@ -127,7 +127,7 @@ class RegressorIdentifier:
                 then the posterior mode, the data weighted by their residual variance.
                 Default: the weak pull toward ``base`` (``prior``).
         """
-        data = self._data(q, torque)
+        data = _differences(q, torque, self.dt)
         base = np.asarray(base, dtype=np.float64)
         z_base = self._unit(base)
         fit = self._solves(base, z_base, data, self.iterations)
@@ -150,24 +150,6 @@ class RegressorIdentifier:
             params[self.space.index] = self._mid + _bounded_lstsq(hess, fit.atb / s2 + w ** 2 * mu) * self._half
             self.last_cov = np.linalg.inv(hess)
         return params
-
-    def _data(self, q: np.ndarray, torque: np.ndarray) -> tuple:
-        """(positions, velocities, accelerations, torques) at the context's inner samples: central differences."""
-        q, torque, dt = np.asarray(q, dtype=np.float64), np.asarray(torque, dtype=np.float64), self.dt
-        v = (q[2:] - q[:-2]) / (2 * dt)
-        a = (q[2:] - 2 * q[1:-1] + q[:-2]) / dt ** 2
-        return q[1:-1], v, a, (torque[:-2] + torque[1:-1]) / 2  # a second difference spans two frames' torques
-
-    def shift(self, fit: "_Fit", q: np.ndarray, torque: np.ndarray) -> np.ndarray:
-        """(n,) in unit coordinates: how far the estimate of ``fit`` (a :attr:`last_fit`) moves when its joints are
-        ``q`` (T, 7) instead (the same torques), the solve linearized there with that fit's regressor: one
-        inverse-dynamics pass instead of a fit's several (:mod:`robomorph.model.debias`)."""
-        qs, v, a, tau = self._data(q, torque)
-        resid = (tau - self._inverse(fit.params, qs, v, a)[0]).ravel() / self.sigma
-        A_z = fit.cols.reshape(-1, len(self.space.index)) * (self._half / self.sigma)[None, :]
-        n, pull = len(resid), self.prior ** 2
-        z = self._unit(fit.params)  # the solve's normal equations with these torques' residual, less its own at z
-        return np.linalg.solve(fit.gram / n + pull * np.eye(len(z)), A_z.T @ resid / n - pull * (z - fit.z_base))
 
     def _unit(self, params: np.ndarray) -> np.ndarray:
         return (params[self.space.index] - self._mid) / self._half
@@ -276,6 +258,26 @@ class RegressorIdentifier:
         self.randomizer.apply(self.model, params)  # then its inverse dynamics, many states per call
         self._stacked.load(self.model)
         return self._stacked.run(q, v, a, self._carried, bodies, friction)
+
+
+def _differences(q: np.ndarray, torque: np.ndarray, dt: float) -> tuple:
+    """(positions, velocities, accelerations, torques) at a context's inner samples: central differences."""
+    q, torque = np.asarray(q, dtype=np.float64), np.asarray(torque, dtype=np.float64)
+    v = (q[2:] - q[:-2]) / (2 * dt)
+    a = (q[2:] - 2 * q[1:-1] + q[:-2]) / dt ** 2
+    return q[1:-1], v, a, (torque[:-2] + torque[1:-1]) / 2  # a second difference spans two frames' torques
+
+
+def shift(reg: RegressorIdentifier, fit: "_Fit", q: np.ndarray, torque: np.ndarray) -> np.ndarray:
+    """(n,) in unit coordinates: how far the estimate of ``fit`` (a :attr:`RegressorIdentifier.last_fit` of ``reg``)
+    moves when its joints are ``q`` (T, 7) instead (the same torques), the solve linearized there with that fit's
+    regressor: one inverse-dynamics pass instead of a fit's several (:mod:`robomorph.model.debias`)."""
+    qs, v, a, tau = _differences(q, torque, reg.dt)
+    resid = (tau - reg._inverse(fit.params, qs, v, a)[0]).ravel() / reg.sigma
+    A_z = fit.cols.reshape(-1, len(reg.space.index)) * (reg._half / reg.sigma)[None, :]
+    n, pull = len(resid), reg.prior ** 2
+    z = reg._unit(fit.params)  # the solve's normal equations with these torques' residual, less its own at z
+    return np.linalg.solve(fit.gram / n + pull * np.eye(len(z)), A_z.T @ resid / n - pull * (z - fit.z_base))
 
 
 def _bumped(ident: RegressorIdentifier, params: np.ndarray, k: int, step: float, states: tuple,

@@ -194,9 +194,8 @@ class MetaModule(Steps, L.LightningModule):
                                                          dm, stage)
         if self._physics_on:
             # The observer's start velocity (robomorph.sim.backbone.observed_velocity): on for models trained
-            # since it was measured (first step 2.5x lower); older records lack it and predict as before. The
-            # regression's springs (robomorph.sim.identify.SPRING_KINDS) likewise, since 2026-11-27, and its
-            # debiasing (robomorph.model.debias), since the same day.
+            # since it was measured (first step 2.5x lower); older records lack it and predict as before. The regression's
+            # springs (robomorph.sim.identify.SPRING_KINDS) and its debiasing (robomorph.model.debias): since 2026-11-27.
             self.data_info = {**self.data_info, "physics": {**self._layout, "mode": "amortized", "observer": True,
                                                             "springs": True, "debias": True}}
         if stage == "fit" and self.hparams.init_ckpt and not self.resuming and not getattr(self, "_transferred", False):

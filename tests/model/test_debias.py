@@ -47,9 +47,10 @@ def test_the_debiased_estimate_is_nearer_each_robots_truth(hybrid_ckpt, long_sto
 
 
 def test_the_shift_is_the_refit_to_first_order_and_none_on_the_fits_own_data(hybrid_ckpt, long_store):
-    """RegressorIdentifier.shift: on the very joints the fit read, the estimate stays (to the last solve's
+    """robomorph.sim.regressor.shift: on the very joints the fit read, the estimate stays (to the last solve's
     linearization); on another robot's simulated context, it is the fit run again there, to first order."""
     from robomorph.model.predictor import Predictor
+    from robomorph.sim.regressor import shift
 
     u, y, _ = long_store
     p = Predictor.from_checkpoint(hybrid_ckpt)
@@ -58,12 +59,12 @@ def test_the_shift_is_the_refit_to_first_order_and_none_on_the_fits_own_data(hyb
     est = hyb.identify(torch.as_tensor(u[:1, :CONTEXT]), torch.as_tensor(y[:1, :CONTEXT]), "regression", at_rest=True)
     reg, fit = hyb._regressor, hyb._fits[0]
     q, torque = y[0, :CONTEXT, 7:14].astype(np.float64), u[0, :CONTEXT].astype(np.float64)
-    assert np.abs(reg.shift(fit, q, torque)).max() < 1e-3  # unit coordinates: a thousandth of a half-range
+    assert np.abs(shift(reg, fit, q, torque)).max() < 1e-3  # unit coordinates: a thousandth of a half-range
     sim = hyb.backbone.frame_states(est, q[None, :1][:, 0], np.zeros((1, 7)), torque[None, :-1], fine=True)[0, :, 1:8]
     assert np.abs(sim - q).max() > 1e-4  # another context (the estimate's robot is not the truth)
     refit = reg.fit(hyb.backbone.catalogue(q[0]), sim, torque)
     moved = (refit[reg.space.index] - est[0, reg.space.index]) / reg._half
-    shift = reg.shift(fit, sim, torque)
+    shift = shift(reg, fit, sim, torque)
     # The friction losses' columns are re-taken where a refit lands, not here: first order, not equal (measured on
     # this robot: 23 % of the refit's move apart, the same direction to a cosine above 0.98 over its first entries).
     apart = np.linalg.norm(shift - moved) / np.linalg.norm(moved)
