@@ -34,14 +34,15 @@ import numpy as np
 ROUNDS = 1
 
 
-def debiased(hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray) -> np.ndarray:
+def debiased(hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray,
+             fits: list) -> np.ndarray:
     """(B, P) the estimates ``params`` less the bias the regression shows on their own robots' simulated contexts.
 
     Args:
-        hybrid: the :class:`robomorph.model.hybrid.Hybrid` whose regression gave ``params`` (its ``_fits``: each
-            window's solve).
+        hybrid: the :class:`robomorph.model.hybrid.Hybrid` whose regression gave ``params``.
         q_ctx, u_ctx: (B, Tc, nj) the recorded contexts' joints and torques (this formulation's).
         qvel_start: (B, nj) the joint velocity at each context's first sample (0 where it opens its trajectory).
+        fits: each window's solve (:attr:`robomorph.sim.regressor.RegressorIdentifier.last_fit`).
     """
     from robomorph.sim.regressor import shift  # noqa: PLC0415  (MuJoCo only when used)
 
@@ -54,6 +55,6 @@ def debiased(hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, q
         for b in np.flatnonzero(np.all(np.isfinite(q_sim), axis=(1, 2))):  # a diverged context: left as it was
             # The regression on the simulated context finds its robot plus the bias there; the next estimate is the
             # first less that bias: out - (what it finds - the first estimate).
-            moved = shift(reg, hybrid._fits[b], q_sim[b], u_ctx[b]) * reg._half
+            moved = shift(reg, fits[b], q_sim[b], u_ctx[b]) * reg._half
             out[b, index] = np.clip(out[b, index] - moved, low, high)
     return out

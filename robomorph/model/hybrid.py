@@ -94,7 +94,6 @@ class Hybrid:
         self._held: np.ndarray | None = None  # (B, nj) of the last regression: joints that held still
         self._covs: list[np.ndarray] = []  # of the last regression: each window's estimate covariance
         self._cov_space: tuple = ()  # the entries those cover: their indices in a parameter vector, their bounds
-        self._fits: list = []  # of the last regression: each window's solve (robomorph.model.debias reads them)
         from robomorph.sim.smoother import SmootherConfig, new_report  # noqa: PLC0415
 
         self.smoother = SmootherConfig()  # how mode ``smoothed`` weighs physics and decoder
@@ -276,7 +275,9 @@ def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
         hybrid._regressor_kinds = kinds
     hybrid._regressor.iterations = hybrid.iterations
     base = np.stack([hybrid.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
-    out, hybrid._covs, held, hybrid._fits = [], [], [], []
+    out, hybrid._covs, held = [], [], []
+    debias = hybrid.debias and prior is None and qvel_start is not None  # (commands only: Hybrid.debias)
+    fits = []  # each window's solve, which the debiasing moves (robomorph.model.debias); kept only for it
     # The layout's entries come first; the std's robots move those, and the springs where they were fitted
     # (the centres of mass of total torques stay at the estimate).
     n = len(hybrid.backbone.index)
@@ -287,12 +288,13 @@ def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
         out.append(hybrid._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))
         hybrid._covs.append(hybrid._regressor.last_cov[np.ix_(keep, keep)])
         held.append(hybrid._regressor.last_held)
-        hybrid._fits.append(hybrid._regressor.last_fit)
+        if debias:
+            fits.append(hybrid._regressor.last_fit)
     hybrid._held = np.stack(held)
-    if hybrid.debias and prior is None and hybrid.inputs == "command" and qvel_start is not None:
+    if debias:
         from robomorph.model.debias import debiased  # noqa: PLC0415
 
-        return debiased(hybrid, np.stack(out), q_ctx, u_ctx, qvel_start)
+        return debiased(hybrid, np.stack(out), q_ctx, u_ctx, qvel_start, fits)
     return np.stack(out)
 
 

@@ -28,16 +28,19 @@ def observing(predictor) -> bool:
 
 
 def springing(predictor) -> bool:
-    """True when the regression fits the joints' springs too (:attr:`Predictor.physics_springs`: commands, in the
-    modes whose robot it identifies without the parameter head's prior)."""
-    return bool(predictor.physics and predictor.physics_springs and predictor.inputs == "command"
-                and predictor.physics_mode not in ("learned", "fused", "none"))
+    """True when the regression fits the joints' springs too (:attr:`Predictor.physics_springs`)."""
+    return _regression_setting(predictor, predictor.physics_springs)
 
 
 def debiasing(predictor) -> bool:
-    """True when the regression's bias is taken off (:attr:`Predictor.physics_debias`, :mod:`robomorph.model.debias`:
-    commands, in the modes whose robot the regression identifies without the parameter head's prior)."""
-    return bool(predictor.physics and predictor.physics_debias and predictor.inputs == "command"
+    """True when the regression's bias is taken off (:attr:`Predictor.physics_debias`, :mod:`robomorph.model.debias`)."""
+    return _regression_setting(predictor, predictor.physics_debias)
+
+
+def _regression_setting(predictor, on: bool) -> bool:
+    """A setting of the regression in effect: asked for, commands, and a mode whose robot the regression identifies
+    without the parameter head's prior."""
+    return bool(predictor.physics and on and predictor.inputs == "command"
                 and predictor.physics_mode not in ("learned", "fused", "none"))
 
 

@@ -57,7 +57,8 @@ def test_the_shift_is_the_refit_to_first_order_and_none_on_the_fits_own_data(hyb
     p.physics_members, p.physics_debias = 1, False
     hyb = p.hybrid()
     est = hyb.identify(torch.as_tensor(u[:1, :CONTEXT]), torch.as_tensor(y[:1, :CONTEXT]), "regression", at_rest=True)
-    reg, fit = hyb._regressor, hyb._fits[0]
+    reg = hyb._regressor
+    fit = reg.last_fit  # the one window's solve
     q, torque = y[0, :CONTEXT, 7:14].astype(np.float64), u[0, :CONTEXT].astype(np.float64)
     assert np.abs(shift(reg, fit, q, torque)).max() < 1e-3  # unit coordinates: a thousandth of a half-range
     sim = hyb.backbone.frame_states(est, q[None, :1][:, 0], np.zeros((1, 7)), torque[None, :-1], fine=True)[0, :, 1:8]
