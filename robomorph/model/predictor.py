@@ -325,8 +325,11 @@ def _check_range(self: "Predictor", u_ctx: torch.Tensor, u_query: torch.Tensor) 
     if self.max_input_std is None or u_ctx.numel() == 0 or u_query.numel() == 0:
         return  # empty arrays: the network's own checks name them
     stats = self.model.normalizer
-    z = torch.cat([((u - stats.u_mean) / stats.u_std).abs().amax(dim=(0, 1)) for u in (u_ctx, u_query)])
-    z = torch.nan_to_num(z.view(2, -1), nan=0.0).amax(0)  # (n_u,) the furthest sample (absent channels: NaN)
+    # The furthest sample per channel from each channel's extremes (a planner's batch is large: no array-wide ops).
+    ends = [torch.aminmax(u.reshape(-1, u.shape[-1]), dim=0) for u in (u_ctx, u_query)]
+    z = torch.stack([torch.maximum((hi - stats.u_mean).abs(), (lo - stats.u_mean).abs()) / stats.u_std
+                     for lo, hi in ends])
+    z = torch.nan_to_num(z, nan=0.0).amax(0)  # (n_u,) the furthest sample (absent channels: NaN)
     worst = int(torch.argmax(z))
     if float(z[worst]) > self.max_input_std:
         names = (self.data_info or {}).get("u_names") or [f"u{i}" for i in range(self.n_u)]

@@ -91,8 +91,16 @@ class SiteKinematics:
                 hinge = (qadr, pending.T @ model.jnt_pos[adr], float(model.qpos0[qadr]))
                 fixed = fixed @ pending
             self._chain.append((offset, fixed, hinge))
-        self._site_pos = pending.T @ model.site_pos[self.site]
-        self._site_rot = pending.T @ _quat2mat(model.site_quat[self.site])
+        # The links between hinges compose to one offset and rotation each (what is fixed needs no row-wise
+        # product): steps of (offset, rotation, hinge) and a last (offset, rotation) to the site.
+        offset, rot, self._steps = np.zeros(3), np.eye(3), []
+        for link_offset, fixed, hinge in self._chain:
+            offset, rot = offset + rot @ link_offset, rot @ fixed
+            if hinge is not None:
+                self._steps.append((offset, rot, hinge))
+                offset, rot = np.zeros(3), np.eye(3)
+        self._tail = (offset + rot @ (pending.T @ model.site_pos[self.site]),
+                      rot @ pending.T @ _quat2mat(model.site_quat[self.site]))
         self._data = None
 
     def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -103,27 +111,24 @@ class SiteKinematics:
             return self._per_row(q)
         lead, angles = q.shape[:-1], q.reshape(-1, q.shape[-1]).T
         # Rotation (3, 3, N) and position (3, N): the rows last, so that each product with a
-        # constant matrix is a few contiguous vector operations.
+        # constant matrix is a few contiguous vector operations. Before the first hinge both are constants.
         n = angles.shape[1]
-        pos, rot = np.zeros((3, n)), np.broadcast_to(np.eye(3)[..., None], (3, 3, n))
-        for offset, fixed, hinge in self._chain:
+        pos, rot = np.zeros((3, 1)), np.eye(3)[..., None]
+        for offset, fixed, (qadr, anchor, ref) in self._steps:
             pos = pos + np.einsum("ijn,j->in", rot, offset)
             rot = np.einsum("ijn,jk->ikn", rot, fixed)
-            if hinge is None:
-                continue
-            qadr, anchor, ref = hinge
             c, s = np.cos(angles[qadr] - ref), np.sin(angles[qadr] - ref)
             if anchor[:2].any():  # a turn about the anchor, not the frame's origin, moves the origin
-                shift = np.stack([anchor[0] * (1 - c) + anchor[1] * s, anchor[1] * (1 - c) - anchor[0] * s,
-                                  np.zeros(n)])
-                pos = pos + np.einsum("ijn,jn->in", rot, shift)
+                pos = pos + rot[:, 0] * (anchor[0] * (1 - c) + anchor[1] * s) \
+                    + rot[:, 1] * (anchor[1] * (1 - c) - anchor[0] * s)
             turned = np.empty((3, 3, n))
             turned[:, 0] = c * rot[:, 0] + s * rot[:, 1]
             turned[:, 1] = c * rot[:, 1] - s * rot[:, 0]
             turned[:, 2] = rot[:, 2]
             rot = turned
-        pos = pos + np.einsum("ijn,j->in", rot, self._site_pos)
-        quat = _mat2quat(np.einsum("ijn,jk->ikn", rot, self._site_rot))
+        offset, fixed = self._tail
+        pos = np.broadcast_to(pos + np.einsum("ijn,j->in", rot, offset), (3, n))
+        quat = _mat2quat(np.broadcast_to(np.einsum("ijn,jk->ikn", rot, fixed), (3, 3, n)))
         return pos.T.reshape(lead + (3,)), quat.reshape(lead + (4,))
 
     def _per_row(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

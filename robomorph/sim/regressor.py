@@ -268,11 +268,17 @@ def _differences(q: np.ndarray, torque: np.ndarray, dt: float) -> tuple:
     return q[1:-1], v, a, (torque[:-2] + torque[1:-1]) / 2  # a second difference spans two frames' torques
 
 
-def shift(reg: RegressorIdentifier, fit: "_Fit", q: np.ndarray, torque: np.ndarray) -> np.ndarray:
+def shift(reg: RegressorIdentifier, fit: "_Fit", q, torque) -> np.ndarray:
     """(n,) in unit coordinates: how far the estimate of ``fit`` (a :attr:`RegressorIdentifier.last_fit` of ``reg``)
     moves when its joints are ``q`` (T, 7) instead (the same torques), the solve linearized there with that fit's
-    regressor: one inverse-dynamics pass instead of a fit's several (:mod:`robomorph.model.debias`)."""
-    qs, v, a, tau = _differences(q, torque, reg.dt)
+    regressor: one inverse-dynamics pass instead of a fit's several (:mod:`robomorph.model.debias`).
+
+    ``q`` and ``torque`` may also be lists of pieces of the context that overlap by two samples (each piece its
+    own trajectory): each piece's differences give the inner samples it holds whole, in order."""
+    pieces = [_differences(qp, tp, reg.dt) for qp, tp in zip(*((q, torque) if isinstance(q, list) else ([q], [torque])))]
+    qs, v, a, tau = (np.concatenate(parts) for parts in zip(*pieces))
+    if len(qs) != len(fit.cols):
+        raise ValueError(f"shift: the pieces hold {len(qs)} inner samples, the fit read {len(fit.cols)}")
     resid = (tau - reg._inverse(fit.params, qs, v, a)[0]).ravel() / reg.sigma
     A_z = fit.cols.reshape(-1, len(reg.space.index)) * (reg._half / reg.sigma)[None, :]
     n, pull = len(resid), reg.prior ** 2

@@ -111,21 +111,29 @@ def candidate_joints(bb, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarra
     held = np.clip(np.einsum("fij,fj->fi", vel_inv, mean[1:, nj:] - end0[:, nj:]), -bound, bound)
     sliding = np.abs(held) >= SLIDING * bound
     diag = np.einsum("fjj->fj", vel)
-    both = np.concatenate([jac, jac0], axis=1).transpose(0, 2, 1)  # (F, nx + nj, 2 nx): one product a frame
+    # One product a frame gives the linear response and the friction torque it implies (its velocity change less
+    # the frictionless one's, through vel_inv): (F, nx + nj, nx + nj).
+    implied_map = np.einsum("fij,fjk->fki", vel_inv, (jac - jac0)[:, nj:])
+    both = np.concatenate([jac.transpose(0, 2, 1), implied_map], axis=2)
+    push = jac0[:, :, nx:].transpose(0, 2, 1)  # (F, nj, nx): a torque change's effect on the frame's end
+    low, high = -bound, bound
     xu = np.zeros((k, nx + nj))  # the deviation of state and torque from the mean's
     du = torque - ref
     out = np.empty((k, frames + 1, nj))
     out[:, 0] = mean[0, :nj]
     for t in range(frames):
         xu[:, nx:] = du[:, t]
-        lin, lin0 = np.split(xu @ both[t], 2, axis=1)
-        implied = held[t] + (lin - lin0)[:, nj:] @ vel_inv[t].T  # the friction torque the linearization gives
-        tau = np.clip(implied, -bound, bound)
-        v_end = mean[t + 1, nj:] + lin[:, nj:] + (tau - implied) @ vel[t].T
+        step = xu @ both[t]
+        lin, implied = step[:, :nx], step[:, nx:] + held[t]  # the friction torque the linearization gives
+        tau = np.minimum(np.maximum(implied, low), high)
+        moved = (tau - implied) @ push[t]
+        v_end = mean[t + 1, nj:] + lin[:, nj:] + moved[:, nj:]
         # Friction opposes the motion: a sliding joint's torque has the sign opposite to its velocity, so
         # an end velocity of the torque's sign crossed zero: the joint is stopped instead (within the bound).
         crossed = sliding[t] & (np.sign(v_end) == np.sign(held[t])) & (v_end != 0)
-        tau = np.clip(np.where(crossed, tau - v_end / diag[t], tau), -bound, bound)
-        xu[:, :nx] = lin + (tau - implied) @ jac0[t, :, nx:].T
+        if crossed.any():
+            stopped = np.minimum(np.maximum(np.where(crossed, tau - v_end / diag[t], tau), low), high)
+            moved += (stopped - tau) @ push[t]
+        xu[:, :nx] = lin + moved
         out[:, t + 1] = mean[t + 1, :nj] + xu[:, :nj]
     return out

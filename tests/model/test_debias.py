@@ -72,3 +72,28 @@ def test_the_shift_is_the_refit_to_first_order_and_none_on_the_fits_own_data(hyb
     assert apart < 0.35, apart
     cosine = shift @ moved / (np.linalg.norm(shift) * np.linalg.norm(moved))
     assert cosine > 0.95, cosine
+
+
+def test_the_shift_of_a_context_in_two_overlapping_pieces_is_the_shift_of_the_whole(hybrid_ckpt, long_store):
+    """The debiasing simulates a context in two pieces side by side (one context's simulation is sequential): cut
+    from one trajectory with two samples in common, the pieces give the whole's differences, so the same shift; a
+    piece too short for the fit's samples is refused."""
+    from robomorph.model.predictor import Predictor
+    from robomorph.sim.regressor import shift
+
+    u, y, _ = long_store
+    p = Predictor.from_checkpoint(hybrid_ckpt)
+    p.physics_members, p.physics_debias = 1, False
+    hyb = p.hybrid()
+    est = hyb.identify(torch.as_tensor(u[:1, :CONTEXT]), torch.as_tensor(y[:1, :CONTEXT]), "regression", at_rest=True)
+    reg, fit = hyb._regressor, hyb._regressor.last_fit
+    torque = u[0, :CONTEXT].astype(np.float64)
+    q = hyb.backbone.frame_states(est, y[:1, 0, 7:14].astype(np.float64), np.zeros((1, 7)), torque[None, :-1],
+                                  fine=True)[0, :, 1:8]
+    cut = 87
+    whole = shift(reg, fit, q, torque)
+    pieces = shift(reg, fit, [q[:cut + 2], q[cut:]], [torque[:cut + 2], torque[cut:]])
+    np.testing.assert_allclose(pieces, whole, rtol=1e-9, atol=1e-12)
+    assert np.abs(whole).max() > 1e-3  # a simulated context moves the estimate (the check above is not vacuous)
+    with pytest.raises(ValueError, match="inner samples"):
+        shift(reg, fit, [q[:cut + 2], q[cut + 1:]], [torque[:cut + 2], torque[cut + 1:]])
