@@ -103,19 +103,23 @@ def latency(args, prov: dict) -> None:
     c, h = pred.data_info["context_len"], pred.data_info["horizon"]
     rng = np.random.default_rng(0)
     cands = u[0, c:c + 60][None] + rng.normal(0, 0.2, size=(256, 60, u.shape[2])).astype(np.float32)
-    rows = []
-    for spec in [m for m in args.modes.split(",") if m] + ["none"]:
+    calls = [(spec, what, call) for spec in [m for m in args.modes.split(",") if m] + ["none"]
+             for what, call in (("one trajectory (200 + 800)", lambda: pred.simulate(u[0, :c], y[0, :c], u[0, c:c + h])),
+                                ("256 candidates x 60 steps, one context",
+                                 lambda: pred.simulate(np.repeat(u[:, :c], 256, 0), np.repeat(y[:, :c], 256, 0), cands)))]
+    for spec, _, call in calls:
         configure(pred, spec)
-        for what, call in (("one trajectory (200 + 800)", lambda: pred.simulate(u[0, :c], y[0, :c], u[0, c:c + h])),
-                           ("256 candidates x 60 steps, one context",
-                            lambda: pred.simulate(np.repeat(u[:, :c], 256, 0), np.repeat(y[:, :c], 256, 0), cands))):
-            call()  # warm-up (builds the simulators)
-            times = []
-            for _ in range(args.repeats):
-                t0 = time.perf_counter()
-                call()
-                times.append(time.perf_counter() - t0)
-            rows.append({"mode": spec, "call": what, "ms_median": 1e3 * float(np.median(times))})
+        call()  # warm-up (builds the simulators)
+    # Round by round, every call once: a burst of load on a shared machine then slows one round of all of them
+    # alike, which the median leaves out, rather than every repeat of one mode.
+    times = {(spec, what): [] for spec, what, _ in calls}
+    for _ in range(args.repeats):
+        for spec, what, call in calls:
+            configure(pred, spec)
+            t0 = time.perf_counter()
+            call()
+            times[spec, what].append(time.perf_counter() - t0)
+    rows = [{"mode": spec, "call": what, "ms_median": 1e3 * float(np.median(ts))} for (spec, what), ts in times.items()]
     print(markdown_table(["mode", "call", "ms (median)"], [[r["mode"], r["call"], r["ms_median"]] for r in rows]))
     if args.latency_csv:
         write_rows(args.latency_csv, rows, prov)
