@@ -46,10 +46,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a command-formulation hybrid: its regression's bias, measured on the estimate's simulated "
                         "context, taken off (on by default for models trained since 2026-11-27) or not, recorded in "
                         "the checkpoint; each setting keeps its own calibrations")
-    p.add_argument("--points", choices=("columns", "draws"),
+    p.add_argument("--points", choices=("columns", "draws", "observed"),
                    help="a hybrid whose std is a spread of robots around its estimate: one per column of the "
-                        "estimate's covariance (deterministic; the default for a model not calibrated before) or "
-                        "random draws (what calibrations before 2026-11-27 were fitted on); default: as stored")
+                        "estimate's covariance (deterministic), those and the start velocity moved joint by joint "
+                        "by the observer's correction (observed: the default for a command model not calibrated "
+                        "before), or random draws (what calibrations before 2026-11-27 were fitted on); default: "
+                        "as stored")
     p.add_argument("--remove", action="store_true", help="drop the stored calibrations instead")
     p.add_argument("--blend", action="store_true",
                    help="fit the per-step weights of the model's physics prediction against its decoder's instead "

@@ -11,7 +11,8 @@ from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
 from robomorph.evaluation.horizons import horizon_markdown
 
 # A hybrid's std points (robomorph.model.hybrid_std) in a table's note.
-POINTS_TEXT = {"columns": "one robot per column of the estimate's covariance", "draws": "random parameter draws"}
+POINTS_TEXT = {"columns": "one robot per column of the estimate's covariance", "draws": "random parameter draws",
+               "observed": "one robot per column of the estimate's covariance and the observer's start velocity"}
 
 
 def _sources(result: dict):

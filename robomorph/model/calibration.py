@@ -63,7 +63,7 @@ from robomorph.core.errors import RoboMorphError
 CALIBRATION_KEY = "robomorph_std_calibration"
 METHODS = ("nll", "quantile", "coverage", "power")
 # The robots a hybrid's std is the spread of (robomorph.model.hybrid_std): what a calibration scales.
-POINTS = ("columns", "draws")
+POINTS = ("columns", "draws", "observed")
 # The powers of the spread that ``power`` chooses from (1: the spread as predicted).
 POWERS = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5)
 # Fewer calibration windows than this: ``power`` keeps the spread's power at 1 (``coverage``'s

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from robomorph.core.errors import RoboMorphError
+from robomorph.model.hybrid_spread import draw_spread
 
 MODES = ("learned", "regression", "fused", "refined", "blend", "smoothed")
 # The modes that read the parameter head (a model trained with --model.physics amortized).
@@ -80,10 +81,11 @@ class Hybrid:
         self.model, self.physics, self.inputs = model, physics, inputs
         self.samples, self.refine_iters, self.seed = int(samples), int(refine_iters), int(seed)
         self.iterations, self.members = int(iterations), int(members)
-        self.points = "columns"  # behind the std: one robot per column of the estimate's covariance, or random draws
         if self.members < 1:
             raise HybridError(f"the friction mixture needs members >= 1, got {members}")
         self.backbone = PhysicsBackbone(physics, inputs)
+        # Behind the std (robomorph.model.hybrid_std): the covariance's columns, and the observer's start where it is.
+        self.points = "observed" if self.backbone.observe and inputs == "command" else "columns"
         self._identifier = None
         self._regressor = None
         self._regressor_kinds: tuple[str, ...] = ()
@@ -153,9 +155,9 @@ class Hybrid:
             if shared:
                 mixture = mixture * B  # the one context's members, for every candidate row
 
-        def horizon(p: np.ndarray) -> np.ndarray:
-            """(B, H, n_y) of the robots ``p`` (one per row, or one for all on a shared context)."""
-            qvel_end = self.backbone.context_velocity(p, q_ctx[one], uc[one], qvel_start[one])
+        def horizon(p: np.ndarray, kick: tuple[int, float] | None = None) -> np.ndarray:
+            """(B, H, n_y) of robots ``p`` (a row each, or one for all on a shared context); ``kick``: the std's."""
+            qvel_end = self.backbone.context_velocity(p, q_ctx[one], uc[one], qvel_start[one], kick)
             if shared:
                 p, qvel_end = np.repeat(p, B, axis=0), np.repeat(qvel_end, B, axis=0)
             return self.backbone.simulate(p, q_ctx, uc, uq, qvel_start, quat_last, qvel_end)
@@ -241,7 +243,7 @@ class Hybrid:
         """The std (B, H, n_y): the horizons of robots drawn around the estimate, about ``mean``."""
         covs = None if mode == "learned" else self._covs
         space = (self.backbone.index, self.backbone.low, self.backbone.high) if covs is None else self._cov_space
-        std = _draw_spread(space, params, z_std, covs, mean, horizon, self.samples, self.seed, self.points)
+        std = draw_spread(space, params, z_std, covs, mean, horizon, self.samples, self.seed, self.points)
         return std if calibration is None else calibration.scaled(std)
 
     def _refine(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray) -> np.ndarray:
@@ -296,34 +298,6 @@ def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
 
         return debiased(hybrid, np.stack(out), q_ctx, u_ctx, qvel_start, fits)
     return np.stack(out)
-
-
-def _draw_spread(space: tuple, params: np.ndarray, z_std: np.ndarray, covs, mean: np.ndarray, horizon, samples: int,
-                 seed: int, points: str = "draws") -> np.ndarray:
-    """(B, H, n_y) spread of the horizons of robots around ``params``, from the head's Gaussian (``covs``
-    None: std ``z_std``) or the regression's covariances, in unit coordinates, about ``mean`` (the
-    horizon of ``params`` itself). ``space``: the moved entries' indices in ``params`` and their bounds.
-
-    ``points``: ``draws``, the RMS of ``samples`` random robots; ``columns``, one robot per column of the
-    covariance's Cholesky factor, their squared distances summed (the linearized propagation, exact
-    for a horizon linear in the parameters: no sampling noise, one horizon per parameter)."""
-    index, low, high = space
-    center = (params[:, index] - (low + high) / 2) / ((high - low) / 2)
-    if covs is None:
-        chol = z_std[:, :, None] * np.eye(center.shape[1])[None]
-    else:
-        chol = np.stack([np.linalg.cholesky(c + 1e-12 * np.eye(len(c))) for c in covs])
-    if points == "columns":
-        steps = [chol[:, :, i] for i in range(center.shape[1])]
-    else:
-        rng = np.random.default_rng(seed)
-        steps = [np.einsum("bij,bj->bi", chol, rng.standard_normal(center.shape)) for _ in range(samples)]
-    total = np.zeros_like(mean)
-    for step in steps:
-        pk = params.copy()
-        pk[:, index] = (low + high) / 2 + np.clip(center + step, -1, 1) * (high - low) / 2
-        total += (horizon(pk) - mean) ** 2
-    return np.sqrt(total if points == "columns" else total / len(steps))
 
 
 def solves_whole_horizon(model, mode: str) -> bool:

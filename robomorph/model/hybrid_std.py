@@ -3,12 +3,19 @@
 A hybrid's std is the spread of the horizons of robots around its estimate (the regression's covariance, or the
 parameter head's Gaussian). :data:`POINTS` names how those robots are chosen:
 
-- ``columns`` (the default since it was measured): one robot per column of the covariance's Cholesky factor, the
+- ``columns`` (the default without the observer): one robot per column of the covariance's Cholesky factor, the
   squared distances from the estimate's horizon summed: the linearized propagation, deterministic, the same
   whatever else is in the batch, one horizon per identified parameter (29 on the Panda);
 - ``draws``: the RMS over :attr:`Predictor.physics_samples` random robots (8), what every calibration written
   before ``columns`` was fitted on. Eight draws leave a sampling noise of about a quarter of the std (sd 0.25 of
-  the log ratio to 128 draws, 32 windows) and a window's draws depended on its row in the batch.
+  the log ratio to 128 draws, 32 windows) and a window's draws depended on its row in the batch;
+- ``observed`` (the default with the observer, since 2026-11-27): ``columns``, and beside the parameters the start's
+  velocity: one horizon per joint whose start velocity is moved by
+  :data:`robomorph.model.hybrid_spread.OBSERVED_SIZE` times what the observer corrected there
+  (:func:`robomorph.sim.backbone.observed_velocity`: how far the estimate's simulated context had drifted from the
+  recorded joints), in quadrature (:func:`robomorph.model.hybrid_spread.observed_spread`). The parameters' spread
+  does not cover the state's error, which is most of the first steps' (the skill at step 1 fell to 0.45-0.48 once
+  the regression's bias was taken off). Without the observer (total torques) it is ``columns``.
 
 A calibration scales the spread it was fitted on, so it records its points (``StdCalibration.points``; None:
 ``draws``, fitted before the choice) and a prediction uses them.
@@ -55,8 +62,8 @@ def kind_calibrations(predictor) -> tuple:
 
 def spread_points(predictor, strict: bool = True) -> str:
     """The points (:data:`POINTS`) behind a hybrid's std: :attr:`Predictor.physics_points` where set, else
-    those its mode's stored calibrations were fitted on, else ``columns``. ``strict`` False: the choice (or
-    ``columns``) instead of the errors below, for predictions that ask for no std.
+    those its mode's stored calibrations were fitted on, else :func:`default_points`. ``strict`` False: the choice
+    (or the default) instead of the errors below, for predictions that ask for no std.
 
     Raises: CalibrationError: an unknown name, a choice other than the stored calibrations', or calibrations of
     the two window kinds fitted on different points (the std would be scaled as another spread)."""
@@ -64,7 +71,7 @@ def spread_points(predictor, strict: bool = True) -> str:
         try:
             return spread_points(predictor)
         except CalibrationError:
-            return predictor.physics_points if predictor.physics_points in POINTS else "columns"
+            return predictor.physics_points if predictor.physics_points in POINTS else default_points(predictor)
     chosen = predictor.physics_points
     if chosen is not None and chosen not in POINTS:
         raise CalibrationError(f"physics_points {chosen!r}: choose one of {', '.join(POINTS)}")
@@ -77,7 +84,13 @@ def spread_points(predictor, strict: bool = True) -> str:
     if chosen is not None and fitted is not None and chosen != fitted:
         raise CalibrationError(f"the stored std calibration was fitted on the spread of {fitted!r}, not "
                                f"{chosen!r}: leave physics_points unset, or calibrate again with --points {chosen}")
-    return chosen or fitted or "columns"
+    return chosen or fitted or default_points(predictor)
+
+
+def default_points(predictor) -> str:
+    """The points of a std no calibration was fitted on yet: ``observed`` where the horizon starts from the
+    observer's velocity, else ``columns`` (what ``observed`` would be there)."""
+    return "observed" if observing(predictor) else "columns"
 
 
 def drawn_points(predictor) -> str | None:

@@ -198,13 +198,13 @@ class PhysicsBackbone:
         return out
 
     def context_velocity(self, params: np.ndarray, q_ctx: np.ndarray, torque_ctx: np.ndarray,
-                         qvel_start: np.ndarray) -> np.ndarray:
+                         qvel_start: np.ndarray, kick: tuple[int, float] | None = None) -> np.ndarray:
         """(N, 7) joint velocity at each context's last sample, from which the horizon starts.
 
         Commands: each robot simulated over its context from the first sample (its velocity
         ``qvel_start``), which follows the context's dynamics better than a finite difference;
         total torques: the finite-difference estimate (the context simulation drifts with g(q)
-        in the torque, as ``identified_physics`` found)."""
+        in the torque, as ``identified_physics`` found). ``kick``: :func:`observed_velocity`'s."""
         from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
         from robomorph.sim.identify import _Problem  # noqa: PLC0415
 
@@ -217,14 +217,14 @@ class PhysicsBackbone:
             states = self.frame_states(params, q_ctx[:, s0], v0,
                                        np.asarray(torque_ctx, dtype=np.float64)[:, s0:-1], fine=True)
             end = states[:, -1, 1 + nj:1 + 2 * nj]  # state: time, qpos, qvel
-            return observed_velocity(end, q_ctx[:, s0:] - states[..., 1:1 + nj], self.dt) if self.observe else end
+            return observed_velocity(end, q_ctx[:, s0:] - states[..., 1:1 + nj], self.dt, kick) if self.observe else end
         out = np.empty((len(params), q_ctx.shape[2]))
         for b in range(len(params)):
             problem = _Problem(self.ident, params[b], q_ctx[b], torque_ctx[b], np.asarray(qvel_start[b]))
             z = self.ident.space.to_unit(params[b][self.ident.space.index])
             residual = -problem.joint_error(z[None]).reshape(1, -1, q_ctx.shape[2])  # rows 1.. of the context
             out[b] = problem._qvel_end[z.tobytes()][:q_ctx.shape[2]]
-            out[b] = observed_velocity(out[b:b + 1], residual, self.dt)[0] if self.observe else out[b]
+            out[b] = observed_velocity(out[b:b + 1], residual, self.dt, kick)[0] if self.observe else out[b]
         return out
 
     def simulate(self, params: np.ndarray, q_ctx: np.ndarray, torque_ctx: np.ndarray, torque_query: np.ndarray,
@@ -346,16 +346,24 @@ def _context_start(q_ctx: np.ndarray, qvel_start: np.ndarray, observe: bool, dt:
     return s, (q_ctx[:, s - 2] - 8 * q_ctx[:, s - 1] + 8 * q_ctx[:, s + 1] - q_ctx[:, s + 2]) / (12 * dt)
 
 
-def observed_velocity(qvel_end: np.ndarray, residual: np.ndarray, dt: float) -> np.ndarray:
+def observed_velocity(qvel_end: np.ndarray, residual: np.ndarray, dt: float,
+                      kick: tuple[int, float] | None = None) -> np.ndarray:
     """(N, 7) a simulated context's end velocity corrected as an observer would: plus the velocity, at the last
     sample, of ``residual`` (N, T, 7), the recorded joint positions less the simulated ones (a cubic through the
     last samples). The simulation's velocity drifts over a context; the recorded positions show by how much.
+    ``kick``: (joint, size), that joint's velocity moved further by ``size`` times the correction there (the std's
+    ``observed`` points, :func:`robomorph.model.hybrid_spread.observed_spread`: its size says how far the
+    simulated context had drifted, and so how uncertain the start is).
     Measured on 256 held-out robots (``results/benchmarks/hybrid_observer.md``, single robot): the first step's
     joint error 0.0150 -> 0.0054 mrad from the start, 0.0164 -> 0.0066 from random offsets; 0.25 s 6-11 % lower;
     1 s and later within 1 %."""
     from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
 
-    return np.asarray(qvel_end, dtype=np.float64) + estimate_velocity(np.asarray(residual, dtype=np.float64), dt)
+    added = estimate_velocity(np.asarray(residual, dtype=np.float64), dt)
+    out = np.asarray(qvel_end, dtype=np.float64) + added
+    if kick is not None:
+        out[:, kick[0]] += kick[1] * np.abs(added[:, kick[0]])
+    return out
 
 
 def frame_torques(torque_ctx: np.ndarray, torque_query: np.ndarray) -> np.ndarray:

@@ -233,8 +233,8 @@ def test_evaluate_physics_modes_and_refusal(hybrid_ckpt, tiny_checkpoint, comman
     assert "calibration" in res["horizons"]  # the hybrid gives a std (parameter draws)
     assert res["meta"]["physics"]["mode"] == "learned" and res["meta"]["physics"]["observer"] is True
     assert ("mode `learned`, horizons from the observer's start velocity, std over one robot per column of the "
-            "estimate's covariance.") in (out / "table.md").read_text()
-    assert res["meta"]["physics"]["points"] == "columns"  # no stored calibration: the default
+            "estimate's covariance and the observer's start velocity.") in (out / "table.md").read_text()
+    assert res["meta"]["physics"]["points"] == "observed"  # no stored calibration: the default with the observer
     assert res["meta"]["physics"]["mixture"] is False  # the parameter head's estimate: no friction mixture
     capsys.readouterr()
     assert main(["--ckpt", tiny_checkpoint, "--data", command_store, "--n", "2", "--physics", "regression",
