@@ -120,8 +120,9 @@ class Predictor:
             decoder). Default: ``regression`` for commands; for total torques ``blend`` when
             the model has one, else ``none``.
         physics_samples: parameter draws behind the hybrid's standard deviation (``physics_points`` draws).
-        physics_points: the robots it is the spread of, ``columns`` or ``draws`` (:mod:`robomorph.model.hybrid_std`;
-            None: those its stored calibration was fitted on, else ``columns``).
+        physics_points: the robots it is the spread of, ``columns``, ``observed`` (and the start velocity) or
+            ``draws`` (:mod:`robomorph.model.hybrid_std`; None: those its stored calibration was fitted on, else
+            ``observed`` with the observer, ``columns`` without).
         physics_members: robots of the friction mixture over the joints that held still in the context
             (:mod:`robomorph.sim.stiction`; command formulation); 1: the estimate alone (cheaper).
         physics_substeps: physics steps per sample of the hybrid's horizons after their first second (None:
