@@ -189,7 +189,7 @@ def main(argv=None) -> int:
             std = args.std and mode not in (None, "none")
             if not std and pred.physics:
                 pred.has_std = False  # the mean alone: the cost of a prediction without draws
-            score_windows(pred, _first(w), ())  # warm-up: builds the simulators (once a run), which is not a window's cost
+            score_windows(pred, w.rows(slice(0, 2)), ())  # warm-up: builds the simulators (once a run), which is not a window's cost
             t0 = time.perf_counter()
             s = score_windows(pred, w, ())
             rows.append(_paired(_row(name, offset, s, MODEL, (time.perf_counter() - t0) / len(w.u), std),
@@ -220,14 +220,6 @@ def main(argv=None) -> int:
         write_rows(args.csv, rows, prov)
         print(f"written: {args.csv}")
     return 0
-
-
-def _first(w, n: int = 2):
-    """The first ``n`` windows of ``w``."""
-    from dataclasses import replace  # noqa: PLC0415
-
-    return replace(w, u=w.u[:n], y=w.y[:n], params=w.params[:n], starts=w.starts[:n],
-                   y_first=None if w.y_first is None else w.y_first[:n])
 
 
 def _coverage(row: dict, key: str) -> str:

@@ -222,8 +222,7 @@ def moving_windows(w: Window, offset) -> Window:
         raise CalibrationError(f"--offset {offset}: {int(rows.sum())} of {len(rows)} windows start after their "
                                f"trajectory's first step (context {w.context_len} + horizon {w.horizon} steps leave "
                                "little room): shorten --horizon, or give a store of longer trajectories")
-    return replace(w, u=w.u[rows], y=w.y[rows], params=w.params[rows] if len(w.params) == len(rows) else w.params,
-                   starts=w.starts[rows], y_first=None if w.y_first is None else w.y_first[rows])
+    return w.rows(rows)
 
 
 def blend(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,

@@ -42,6 +42,14 @@ class Window:
         c, h, c0 = context_len or self.context_len, horizon or self.horizon, self.context_len
         return self.u[:, c0 - c:c0], self.y[:, c0 - c:c0], self.u[:, c0:c0 + h], self.y[:, c0:c0 + h]
 
+    def rows(self, index) -> "Window":
+        """The windows ``index`` (a mask, indices or a slice) selects, every per-window array alike."""
+        def pick(a):
+            return a[index] if a is not None and len(a) == len(self.u) else a
+
+        return replace(self, u=self.u[index], y=self.y[index], params=pick(self.params), starts=pick(self.starts),
+                       y_first=pick(self.y_first))
+
     def cut(self, context_len: int | None = None, horizon: int | None = None) -> "Window":
         """The same windows with a shorter context (its last ``context_len`` steps) and/or a
         shorter horizon (its first ``horizon`` steps): the query still starts at the same sample."""

@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.model.hybrid_spread import draw_spread
+from robomorph.model.hybrid_spread import default_points, draw_spread
 
 MODES = ("learned", "regression", "fused", "refined", "blend", "smoothed")
 # The modes that read the parameter head (a model trained with --model.physics amortized).
@@ -85,7 +85,7 @@ class Hybrid:
             raise HybridError(f"the friction mixture needs members >= 1, got {members}")
         self.backbone = PhysicsBackbone(physics, inputs)
         # Behind the std (robomorph.model.hybrid_std): the covariance's columns, and the observer's start where it is.
-        self.points = "observed" if self.backbone.observe and inputs == "command" else "columns"
+        self.points = default_points(self.backbone.observe and inputs == "command")
         self._identifier = None
         self._regressor = None
         self._regressor_kinds: tuple[str, ...] = ()

@@ -15,6 +15,13 @@ import numpy as np
 OBSERVED_SIZE = 0.5
 
 
+
+def default_points(observed: bool) -> str:
+    """The points of a std no calibration was fitted on yet: ``observed`` where the horizon starts from the
+    observer's velocity, else ``columns`` (what ``observed`` would be there)."""
+    return "observed" if observed else "columns"
+
+
 def draw_spread(space: tuple, params: np.ndarray, z_std: np.ndarray, covs, mean: np.ndarray, horizon, samples: int,
                  seed: int, points: str = "draws") -> np.ndarray:
     """(B, H, n_y) spread of the horizons of robots around ``params``, from the head's Gaussian (``covs``

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from robomorph.model import hybrid_spread
 from robomorph.model.calibration import POINTS, CalibrationError, mode_key
 
 
@@ -88,9 +89,8 @@ def spread_points(predictor, strict: bool = True) -> str:
 
 
 def default_points(predictor) -> str:
-    """The points of a std no calibration was fitted on yet: ``observed`` where the horizon starts from the
-    observer's velocity, else ``columns`` (what ``observed`` would be there)."""
-    return "observed" if observing(predictor) else "columns"
+    """The points of a std no calibration was fitted on yet (:func:`robomorph.model.hybrid_spread.default_points`)."""
+    return hybrid_spread.default_points(observing(predictor))
 
 
 def drawn_points(predictor) -> str | None:

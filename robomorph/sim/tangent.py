@@ -116,7 +116,6 @@ def candidate_joints(bb, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarra
     implied_map = np.einsum("fij,fjk->fki", vel_inv, (jac - jac0)[:, nj:])
     both = np.concatenate([jac.transpose(0, 2, 1), implied_map], axis=2)
     push = jac0[:, :, nx:].transpose(0, 2, 1)  # (F, nj, nx): a torque change's effect on the frame's end
-    low, high = -bound, bound
     xu = np.zeros((k, nx + nj))  # the deviation of state and torque from the mean's
     du = torque - ref
     out = np.empty((k, frames + 1, nj))
@@ -125,14 +124,14 @@ def candidate_joints(bb, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarra
         xu[:, nx:] = du[:, t]
         step = xu @ both[t]
         lin, implied = step[:, :nx], step[:, nx:] + held[t]  # the friction torque the linearization gives
-        tau = np.minimum(np.maximum(implied, low), high)
+        tau = np.minimum(np.maximum(implied, -bound), bound)
         moved = (tau - implied) @ push[t]
         v_end = mean[t + 1, nj:] + lin[:, nj:] + moved[:, nj:]
         # Friction opposes the motion: a sliding joint's torque has the sign opposite to its velocity, so
         # an end velocity of the torque's sign crossed zero: the joint is stopped instead (within the bound).
         crossed = sliding[t] & (np.sign(v_end) == np.sign(held[t])) & (v_end != 0)
         if crossed.any():
-            stopped = np.minimum(np.maximum(np.where(crossed, tau - v_end / diag[t], tau), low), high)
+            stopped = np.minimum(np.maximum(np.where(crossed, tau - v_end / diag[t], tau), -bound), bound)
             moved += (stopped - tau) @ push[t]
         xu[:, :nx] = lin + moved
         out[:, t + 1] = mean[t + 1, :nj] + xu[:, :nj]
