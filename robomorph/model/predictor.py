@@ -27,6 +27,7 @@ from robomorph.core.inputs import check_model_inputs
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
 from robomorph.model.channels import arm_columns, pad, select
 from robomorph.model.checkpoint import CheckpointError, TrainedModel, load_trained
+from robomorph.model.hybrid_split import default_workers, predict_hybrid
 from robomorph.model.hybrid_std import calibrated_rows, debiasing, kind_calibrations, spread_points, springing
 
 
@@ -132,6 +133,8 @@ class Predictor:
         physics_debias: commands: the regression's bias, measured on the estimate's simulated context, taken off
             (:mod:`robomorph.model.debias`; default: the record's; off before it).
         physics_candidates: many horizons on one context: ``exact``, or ``tangent`` (:mod:`robomorph.sim.tangent`).
+        physics_workers: hybrids that share a batch of many windows on threads (:mod:`robomorph.model.hybrid_split`;
+            default 2 where there are 2 cores; 1: one hybrid does them all).
         channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside, its
             outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
     """
@@ -153,6 +156,7 @@ class Predictor:
         self.physics_springs: bool = bool((self.physics or {}).get("springs", False))  # the same
         self.physics_debias: bool = bool((self.physics or {}).get("debias", False))  # the same
         self.physics_candidates, self.channels = "exact", None
+        self.physics_workers, self._workers = default_workers(), []
         self._hybrid = None
         if self.physics:
             self.has_std = True  # the spread over robots around the estimate
@@ -280,8 +284,7 @@ class Predictor:
         stats = None if hybrid else _query_stats(self, y_query_stats, len(tensors[0]))
         try:
             if hybrid:
-                mean, std = self.hybrid(strict=return_std).predict(*tensors, at_rest=at_rest, mode=self.physics_mode,
-                                                                   anchor=anchor, return_std=return_std)
+                mean, std = predict_hybrid(self, tensors, return_std, at_rest, anchor)
                 mean, std = (None if t is None else torch.as_tensor(t) for t in (mean, std))
                 std = None if std is None else calibrated_rows(self, std, at_rest)
             else:
