@@ -20,6 +20,7 @@ Step convention (as :mod:`robomorph.evaluation.horizons`): step ``k`` is 1-based
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -145,7 +146,7 @@ def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold"
     u_ctx, y_ctx, u_q, y_q = w.split()
     y_q = y_q.astype(np.float64)
     steps = resolve_steps(steps, w.horizon, w.dt)
-    preds, std = {}, None
+    preds, std, seconds = {}, None, None
     if isinstance(predictor, Predictions):
         preds[MODEL] = np.asarray(predictor.mean, dtype=np.float64)[:, :w.horizon]
         std = None if predictor.std is None else np.asarray(predictor.std, dtype=np.float64)[:, :w.horizon]
@@ -153,10 +154,11 @@ def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold"
         at_rest = w.starts == 0 if len(w.starts) == len(u_ctx) else None  # the generator starts at rest
         # anchor: where each robot started, as the physics baselines are given it (sources.nominal_params)
         kwargs = {"y_query": y_q, "at_rest": at_rest, "anchor": start_joints(w)}
-        if gives_std(predictor, u_ctx, y_ctx, u_q, y_q):
-            preds[MODEL], std = predict(predictor, u_ctx, y_ctx, u_q, batch_size, with_std=True, **kwargs)
-        else:
-            preds[MODEL] = predict(predictor, u_ctx, y_ctx, u_q, batch_size, **kwargs)
+        with_std = gives_std(predictor, u_ctx, y_ctx, u_q, y_q)
+        t0 = time.perf_counter()  # the model's cost per window, beside identified physics' (its notes)
+        out = predict(predictor, u_ctx, y_ctx, u_q, batch_size, with_std=with_std, **kwargs)
+        seconds = (time.perf_counter() - t0) / len(u_ctx)
+        preds[MODEL], std = out if with_std else (out, None)
     base, skipped, notes = run_baselines(w, tuple(baselines), arx_orders, train_blocks)
     for name, other in (others or {}).items():
         base[name] = (np.asarray(other, dtype=np.float64)[:, :w.horizon] if isinstance(other, np.ndarray)
@@ -170,7 +172,7 @@ def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold"
                    "skipped_baselines": skipped,
                    "horizons": horizon_report(y_q, preds, names, w.dt, steps, std, units),
                    "window_starts": w.starts.tolist(),
-                   "meta": _meta(predictor, w, notes, std)})
+                   "meta": {**_meta(predictor, w, notes, std), "seconds_per_window": seconds}})
     groups = groups_for(names, units)
     if std is not None:
         result["calibration"] = _calibration(y_q, preds[MODEL], std, groups)

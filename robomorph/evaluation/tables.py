@@ -100,6 +100,8 @@ def table_markdown(result: dict) -> str:
     legend = ", ".join(f"{b.mark} {b.label}" for b in FIT_BANDS)
     lines += ["", f"FIT colour convention (the paper's Table 3): {legend}."]
     notes = meta.get("baseline_notes", {})
+    if (seconds := meta.get("seconds_per_window")) is not None:
+        lines.append(f"Model: {1e3 * seconds:.3g} ms per window, its predictions alone (wall time on this machine).")
     for b in base:
         if note := diverged_note(notes.get(b, {}), meta["n"]):
             lines.append(f"Baseline `{b}`: {note} (its scores include those held predictions).")

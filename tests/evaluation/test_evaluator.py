@@ -51,6 +51,10 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
     for b in disk["baselines"].values():
         assert set(b) == {"approach1", "approach2"} and set(b["approach1"]["channels"]) == set(names)
     assert disk["meta"]["n"] == 6 and disk["meta"]["context_len"] == C and disk["meta"]["horizon"] == H
+    # The model's cost per window (its predictions alone), beside the baselines' fits where they fit.
+    assert disk["meta"]["seconds_per_window"] > 0
+    with open(os.path.join(out, "table.md")) as f:
+        assert "ms per window, its predictions alone" in f.read()
     assert [r["horizon"] for r in disk["sweeps"]["horizon"]] == [20, 40, 60]
     assert [r["context_len"] for r in disk["sweeps"]["context"]] == [10, 30]
     # The full-horizon sweep point is the main evaluation.

@@ -56,7 +56,7 @@ def test_the_workers_take_the_first_hybrids_settings(hybrid_ckpt, command_store)
 
 
 def test_one_context_and_small_batches_stay_whole(hybrid_ckpt, command_store):
-    """A planner's candidates share one context, identified once: no split (nor below MIN_ROWS rows a worker)."""
+    """A planner's candidates share one context, identified once: no split (nor a batch under two chunks)."""
     from robomorph import Predictor
 
     uc, yc, uq, _, _ = _batch(command_store)
@@ -69,17 +69,19 @@ def test_one_context_and_small_batches_stay_whole(hybrid_ckpt, command_store):
     assert p._workers == []
 
 
-@pytest.mark.parametrize("rows, workers, mode, whole, expected", [
+@pytest.mark.parametrize("rows, workers, mode, draws, expected", [
     (16, 2, "regression", False, [(0, 8), (8, 16)]),
     (25, 3, "refined", False, [(0, 8), (8, 17), (17, 25)]),
-    (15, 2, "regression", False, None),  # under MIN_ROWS a worker
+    (15, 2, "regression", False, None),  # under two chunks
     (64, 1, "regression", False, None),
+    (64, 2, "regression", True, None),  # random draws are drawn per batch
+    (64, 2, "learned", False, None),  # reads the network
     (64, 2, "blend", False, None),
-    (64, 2, "smoothed", True, None),
+    (64, 2, "smoothed", False, None),
 ])
-def test_splits_cover_the_rows_once_in_order(rows, workers, mode, whole, expected):
+def test_splits_cover_the_rows_once_in_order(rows, workers, mode, draws, expected):
     from robomorph.model.hybrid_split import splits
 
     u = torch.arange(rows * 6, dtype=torch.float32).reshape(rows, 3, 2)
-    got = splits([u, u], workers, mode, whole)
+    got = splits([u, u], workers, mode, draws)
     assert (None if got is None else [(s.start, s.stop) for s in got]) == expected
