@@ -154,10 +154,9 @@ def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold"
         at_rest = w.starts == 0 if len(w.starts) == len(u_ctx) else None  # the generator starts at rest
         # anchor: where each robot started, as the physics baselines are given it (sources.nominal_params)
         kwargs = {"y_query": y_q, "at_rest": at_rest, "anchor": start_joints(w)}
-        with_std = gives_std(predictor, u_ctx, y_ctx, u_q, y_q)
-        t0 = time.perf_counter()  # the model's cost per window, beside identified physics' (its notes)
+        with_std, t0 = gives_std(predictor, u_ctx, y_ctx, u_q, y_q), time.perf_counter()
         out = predict(predictor, u_ctx, y_ctx, u_q, batch_size, with_std=with_std, **kwargs)
-        seconds = (time.perf_counter() - t0) / len(u_ctx)
+        seconds = (time.perf_counter() - t0) / len(u_ctx)  # the model's cost per window, as identified physics' notes
         preds[MODEL], std = out if with_std else (out, None)
     base, skipped, notes = run_baselines(w, tuple(baselines), arx_orders, train_blocks)
     for name, other in (others or {}).items():
