@@ -147,6 +147,8 @@ def main(argv=None) -> None:
     p.add_argument("--physics", default=None, help="a hybrid's physics mode (default: its default)")
     p.add_argument("--members", type=int, default=None, help="a hybrid's friction mixture members (1: the single "
                    "robot, the fast setting; default: the model's)")
+    p.add_argument("--substeps", type=int, default=None, help="a hybrid's physics steps per sample after the first "
+                   "second (Predictor.physics_substeps; 2: the fast setting's)")
     p.add_argument("--batch", type=int, default=16)
     p.add_argument("--cache", default=None, help="with --points: an .npz the predictions are kept in and read back "
                    "from for the same windows, so that calibrations can be compared again without predicting")
@@ -163,6 +165,7 @@ def main(argv=None) -> None:
         if a.members < 1:
             p.error(f"--members must be 1 or more, got {a.members}")
         pred.physics_members = a.members
+    pred.physics_substeps = a.substeps
     cal_w, test_w = _windows(pred, a.cal, a.n, a.offset, a.horizon), _windows(pred, a.test, a.n_test or a.n, a.offset,
                                                                               a.horizon)
     steps = sorted({s for s in (1, 15, 60, 300, 800) if s <= cal_w.horizon} | {cal_w.horizon})
@@ -172,7 +175,8 @@ def main(argv=None) -> None:
     rows, spreads = [], {}
     # The same windows whatever folder the command runs from: the files' real paths.
     real = [os.path.realpath(f) for f in (a.ckpt, a.cal, a.test)]
-    key = repr((*real, len(cal_w.u), len(test_w.u), a.offset, cal_w.horizon, a.physics, a.members))
+    key = repr((*real, len(cal_w.u), len(test_w.u), a.offset, cal_w.horizon, a.physics, a.members)
+               + ((a.substeps,) if a.substeps is not None else ()))  # caches written before --substeps stay valid
     cached = _load_cache(a.cache, key) if a.cache and a.points else {}
     for p in points:  # the model's own spread over each kind of points; the candidates beside the first's
         if p in cached:
@@ -219,6 +223,7 @@ def main(argv=None) -> None:
           " / ".join(f"{100 * float(v):.1f}" for v in r["cover1sigma"].split("/")),
           " / ".join(f"{100 * float(v):.1f}" for v in r["cover2sigma"].split("/")), r["largest_miss"]] for r in rows])
     members = f", {pred.physics_members} friction member{'s' * (pred.physics_members > 1)}" if pred.physics else ""
+    members += f", {a.substeps} physics steps per sample after the first second" if a.substeps else ""
     text = (f"# Which spread tells the windows that will miss ({a.ckpt}, physics mode {pred.physics_mode}{members})\n\n"
             f"Calibrated (`power`) on {len(cal_w.u)} windows of {a.cal}, scored on {len(test_w.u)} of {a.test}, "
             f"windows from offset `{a.offset}`, joints at steps {', '.join(map(str, steps))}. Skill: the rank "
