@@ -93,7 +93,7 @@ def predict_split(hybrids: list, parts: list[slice], tensors: list[torch.Tensor]
         try:
             mean, std = h.predict(*(t[part] for t in tensors), at_rest=None if rest is None else rest[part],
                                   anchor=None if anchors is None else anchors[part], **kwargs)
-            return mean, std, h._held, list(h._covs), list(h.last_fits)
+            return mean, std, h._held, h._covs, h.last_fits
         finally:
             free.put(h)
 
@@ -102,7 +102,8 @@ def predict_split(hybrids: list, parts: list[slice], tensors: list[torch.Tensor]
     held = [o[2] for o in outs]
     first._held = np.concatenate(held) if all(x is not None for x in held) else None
     first._covs = [c for o in outs for c in o[3]]
-    first.last_fits = [f for o in outs for f in o[4]]
+    if kwargs.get("mode") == "refined":  # the fits of the refined mode alone (others leave last_fits as it was)
+        first.last_fits = [f for o in outs for f in o[4]]
     mean = np.concatenate([o[0] for o in outs])
     std = None if outs[0][1] is None else np.concatenate([o[1] for o in outs])
     return mean, std

@@ -15,7 +15,6 @@ import numpy as np
 OBSERVED_SIZE = 0.5
 
 
-
 def default_points(observed: bool) -> str:
     """The points of a std no calibration was fitted on yet: ``observed`` where the horizon starts from the
     observer's velocity, else ``columns`` (what ``observed`` would be there)."""

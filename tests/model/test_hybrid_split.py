@@ -85,3 +85,17 @@ def test_splits_cover_the_rows_once_in_order(rows, workers, mode, draws, expecte
     u = torch.arange(rows * 6, dtype=torch.float32).reshape(rows, 3, 2)
     got = splits([u, u], workers, mode, draws)
     assert (None if got is None else [(s.start, s.stop) for s in got]) == expected
+
+
+def test_refined_fits_of_every_chunk_are_kept_and_other_modes_leave_them(hybrid_ckpt, command_store):
+    from robomorph import Predictor
+
+    uc, yc, uq, rest, anchor = _batch(command_store)
+    p = Predictor.from_checkpoint(hybrid_ckpt)
+    p.physics_workers, p.physics_members, p.physics_mode = 2, 1, "refined"
+    p.simulate(uc, yc, uq, at_rest=rest, anchor=anchor)
+    fits = p.hybrid().last_fits
+    assert len(fits) == len(uc) and len(p._workers) == 1
+    p.physics_mode = "regression"  # a mode without rollout fits: the refined record stays the batch's
+    p.simulate(uc, yc, uq, at_rest=rest, anchor=anchor)
+    assert p.hybrid().last_fits is fits
