@@ -300,6 +300,23 @@ def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
     return np.stack(out)
 
 
+def batch_record(hybrid: Hybrid) -> tuple:
+    """What the last call left on ``hybrid`` about its windows: ``(held joints or None, estimate
+    covariances, refined fits)``, for :func:`merge_records` (a batch split over hybrids)."""
+    return hybrid._held, hybrid._covs, hybrid.last_fits
+
+
+def merge_records(hybrid: Hybrid, records: list[tuple], refined: bool) -> None:
+    """Gives ``hybrid`` the record of a whole batch from :func:`batch_record` of its parts, in order,
+    as if it had predicted the batch alone. The refined fits only after a refined call: other modes
+    leave ``last_fits`` as they found it."""
+    held = [r[0] for r in records]
+    hybrid._held = np.concatenate(held) if all(x is not None for x in held) else None
+    hybrid._covs = [c for r in records for c in r[1]]
+    if refined:
+        hybrid.last_fits = [f for r in records for f in r[2]]
+
+
 def solves_whole_horizon(model, mode: str) -> bool:
     """Whether ``mode`` predicts the horizon as one smoothing problem (``smoothed``, or a blend of
     it), whose last steps have no later torque to pin them, rather than simulating it forward."""

@@ -75,6 +75,8 @@ def predict_split(hybrids: list, parts: list[slice], tensors: list[torch.Tensor]
     """``hybrids[0].predict`` of the whole batch, its chunks of rows ``parts`` predicted in turn by whichever of
     ``hybrids`` is free, one thread each; the first hybrid then holds the whole batch's per-window record (held
     joints, covariances, fits)."""
+    from robomorph.model.hybrid import batch_record, merge_records  # noqa: PLC0415  (MuJoCo only when used)
+
     first = hybrids[0]
     for other in hybrids[1:]:
         for name in SETTINGS:
@@ -93,17 +95,13 @@ def predict_split(hybrids: list, parts: list[slice], tensors: list[torch.Tensor]
         try:
             mean, std = h.predict(*(t[part] for t in tensors), at_rest=None if rest is None else rest[part],
                                   anchor=None if anchors is None else anchors[part], **kwargs)
-            return mean, std, h._held, h._covs, h.last_fits
+            return mean, std, batch_record(h)
         finally:
             free.put(h)
 
     with ThreadPoolExecutor(len(hybrids)) as pool:
         outs = list(pool.map(run, parts))
-    held = [o[2] for o in outs]
-    first._held = np.concatenate(held) if all(x is not None for x in held) else None
-    first._covs = [c for o in outs for c in o[3]]
-    if kwargs.get("mode") == "refined":  # the fits of the refined mode alone (others leave last_fits as it was)
-        first.last_fits = [f for o in outs for f in o[4]]
+    merge_records(first, [o[2] for o in outs], kwargs.get("mode") == "refined")
     mean = np.concatenate([o[0] for o in outs])
     std = None if outs[0][1] is None else np.concatenate([o[1] for o in outs])
     return mean, std
