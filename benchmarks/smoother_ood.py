@@ -39,6 +39,7 @@ from common import print_provenance
 
 from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
+from robomorph.evaluation.scoring import score_windows
 from robomorph.evaluation.windows import load_window
 from robomorph.model.predictor import Predictor
 from robomorph.sim.smoother import smooth_windows
@@ -56,11 +57,6 @@ def _variants(config) -> list[tuple[str, bool, object, float | None]]:
             ("true, v_std 3e-5", True, dataclasses.replace(config, v_std=3e-5), None),
             ("true, decoder = truth", True, config, 0.0),
             (f"true, decoder = truth + {BIAS} rad", True, config, BIAS)]
-
-
-def _rms(pred: np.ndarray, y: np.ndarray, steps) -> list[float]:
-    """Joint RMS error [mrad] over the windows at 1-based ``steps``."""
-    return [float(np.sqrt(np.mean((pred[:, k - 1] - y[:, k - 1]) ** 2)) * 1e3) for k in steps]
 
 
 def main(argv=None) -> None:
@@ -91,20 +87,20 @@ def main(argv=None) -> None:
         mean, std = pred.model.forward_dist_raw(*tensors)
     decoder, decoder_std = mean.double().numpy(), std.double().numpy()
     identified = hybrid.identify(tensors[0], tensors[1], "regression", at_rest=bool(w.starts.all()))
-    truth = y_q[..., joints]
-    rows = [{"variant": "hold", **dict(zip(map(str, steps), _rms(np.broadcast_to(y_ctx[:, -1:, joints],
-                                                                                   truth.shape), truth, steps)))},
-            {"variant": "decoder", **dict(zip(map(str, steps), _rms(decoder[..., joints], truth, steps)))}]
+    smoothed = {"decoder": decoder}
     for label, true, config, offset in _variants(hybrid.smoother):
         dec, dec_std = decoder, decoder_std
         if offset is not None:
             dec, dec_std = y_q.copy(), np.full_like(decoder_std, TRUTH_STD)
             dec[..., joints] += offset
         params = np.asarray(w.params, dtype=np.float64) if true else identified
-        out, _ = smooth_windows(hybrid.backbone, params, y_ctx[..., joints], u_ctx, u_q, y_ctx[:, -1, 3:7], dec,
-                                dec_std, config, with_std=False)
-        rows.append({"variant": label, **dict(zip(map(str, steps), _rms(out[..., joints], truth, steps)))})
-        print(rows[-1], file=sys.stderr, flush=True)
+        smoothed[label] = smooth_windows(hybrid.backbone, params, y_ctx[..., joints], u_ctx, u_q, y_ctx[:, -1, 3:7],
+                                         dec, dec_std, config, with_std=False)[0]
+        print(f"smoothed: {label}", file=sys.stderr, flush=True)
+    # Scored as evaluate scores: hold beside the decoder and the variants, on the same windows.
+    scores = score_windows(None, w, ("hold",), steps, others=smoothed)
+    rows = [{"variant": name, **{str(k): scores.at(name, "joints", k) for k in steps}}
+            for name in ("hold", *smoothed)]
     csv = a.csv or a.md.rsplit(".", 1)[0] + ".csv"
     write_rows(csv, rows, prov)
     table = markdown_table(["source", *(f"step {s}" for s in steps)],
