@@ -45,9 +45,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resample", type=float, metavar="HZ",
                    help="resample every log to HZ with an anti-aliasing filter before cutting windows (--steps and "
                         "--stride then count samples at HZ); the store records the logs' own rate (original_dt)")
-    p.add_argument("--layout", choices=("panda", "joints"),
-                   help="panda: --u-cols are the Panda's 7 joint torques and --y-cols its 7 joint angles [rad]; the "
-                        "store gets the simulator's channel names and EE pose computed with the catalogue kinematics. "
+    p.add_argument("--layout", metavar="ARM|joints",
+                   help="ARM (panda, kinova3, ur5e, iiwa, ... any registered arm): --u-cols are its joint torques and "
+                        "--y-cols its joint angles [rad], in joint order; the store gets the simulator's channel names "
+                        "and EE pose computed with the catalogue kinematics. "
                         "joints: --u-cols and --y-cols are any arm's joint torques and angles in joint order; the "
                         "store names them by role (tau0.., q0..) so a model of several arms reads them")
     return p

@@ -222,8 +222,9 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
         resample_hz: resample every recording to this rate (Hz) with an anti-aliasing filter
             before cutting windows (``steps`` and ``stride`` count samples at this rate); the
             store's dt is ``1 / resample_hz`` and ``attrs['original_dt']`` the logs'.
-        layout: ``"panda"``: the columns are the Panda's 7 torques and 7 joint angles; the
-            store gets the simulator's channel names and EE pose (see :mod:`robomorph.data.real_logs`);
+        layout: an arm of :mod:`robomorph.sim.arms` (``"panda"``, ``"kinova3"``, ...): the columns are
+            that arm's joint torques and joint angles; the store gets the simulator's channel
+            names and EE pose and records the arm (see :mod:`robomorph.data.real_logs`);
             ``"joints"``: any arm's joint torques and angles, in joint order, named by role.
 
     Returns:
@@ -263,7 +264,9 @@ def _store_attrs(config: dict, dt: float, original_dt: float, report: list[dict]
             "sources": [os.path.basename(f) for f in config["files"]], "skipped_recordings": skipped,
             "recordings": report, "u_units": list(config["u_units"] or [""] * len(config["u_cols"])),
             "y_units": list(y_units), "original_dt": original_dt,
-            "requested": total, "attempted": total, "kept": total, "rejected": {}}
+            "requested": total, "attempted": total, "kept": total, "rejected": {},
+            # The arm whose layout the channels follow: its catalogue physics can run beside the log.
+            "arm": None if config["layout"] in (None, "joints") else config["layout"]}
 
 
 def _write_store(out: str, recs: list, steps: int, names: tuple, attrs: dict, overwrite: bool) -> None:

@@ -7,10 +7,12 @@
   frequency, applied by a polyphase filter), so the store holds what a sensor at the new
   rate with an anti-aliasing filter would have recorded. The store keeps the log's rate in
   ``attrs['original_dt']``.
-* ``--layout panda``: a log of the Panda's seven torques and seven joint angles is stored
-  with the simulator's channel names and ``y`` (EE x y z, EE quaternion X Y Z W, q0..q6),
-  the pose computed from the joint angles with the catalogue model's kinematics
-  (:func:`robomorph.sim.kinematics.ee_pose`), so a model trained in simulation reads it.
+* ``--layout ARM`` (``panda``, ``kinova3``, ``ur5e``, ... any arm of :mod:`robomorph.sim.arms`):
+  a log of that arm's joint torques and joint angles is stored with the simulator's channel
+  names and ``y`` (EE x y z, EE quaternion X Y Z W, q0..q{n-1}), the pose computed from the
+  joint angles with the catalogue model's kinematics (:func:`robomorph.sim.kinematics.ee_pose`),
+  so a model trained in simulation reads it and the catalogue physics can be simulated beside
+  it; the store records the arm (``attrs['arm']``).
 * ``--layout joints``: a log of any arm's joint torques and joint angles, in joint order, is
   stored with the channels named by role (``tau0..``, ``cmd0..``, ``q0..``), as the
   simulator names every arm's, so a model of several arms maps them onto its own channels
@@ -26,7 +28,7 @@ import numpy as np
 
 from robomorph.core.errors import RoboMorphError
 
-LAYOUTS = ("panda", "joints")
+LAYOUTS = ("joints", "ARM")  # ARM: any name of robomorph.sim.arms.names()
 # Largest relative difference between the asked rate ratio and the integer ratio used.
 _RATIO_TOL = 1e-3
 
@@ -67,34 +69,53 @@ def resample(x: np.ndarray, dt: float, hz: float) -> np.ndarray:
     return out.astype(np.float32)
 
 
+def layout_arm(layout: str | None):
+    """The registered arm a layout names, or None (no layout, or ``joints``).
+
+    Raises:
+        RealLogError: the layout is neither ``joints`` nor a registered arm.
+    """
+    if layout in (None, "joints"):
+        return None
+    from robomorph.sim import arms  # noqa: PLC0415  (MuJoCo only for an arm's layout)
+
+    if layout not in arms.ARMS:
+        raise RealLogError(f"unknown --layout {layout!r}; choose joints or one of the arms {', '.join(arms.names())}")
+    return arms.ARMS[layout]
+
+
 def check_layout(layout: str | None, u_cols: list[str], y_cols: list[str], u_cmd_cols: list[str] | None) -> None:
-    """Refuses a layout the columns do not fit (the Panda: 7 torques, 7 joint angles; joints:
-    one torque per joint angle)."""
-    if layout is None:
-        return
-    if layout not in LAYOUTS:
-        raise RealLogError(f"unknown --layout {layout!r}; choose one of {', '.join(LAYOUTS)}")
+    """Refuses a layout the columns do not fit (an arm: one torque and one joint angle per joint;
+    joints: one torque per joint angle)."""
     if layout == "joints":
         for flag, cols in (("--u-cols", u_cols), ("--u-cmd-cols", u_cmd_cols)):
             if cols is not None and len(cols) != len(y_cols):
                 raise RealLogError(f"--layout joints needs one {flag} column per joint angle in --y-cols (joint "
                                    f"order), got {len(cols)} and {len(y_cols)}")
         return
-    from robomorph.sim import panda  # noqa: PLC0415
-
+    arm = layout_arm(layout)
+    if arm is None:
+        return
     for flag, cols in (("--u-cols", u_cols), ("--y-cols", y_cols), ("--u-cmd-cols", u_cmd_cols)):
-        if cols is not None and len(cols) != panda.N_JOINT:
-            raise RealLogError(f"--layout panda needs {panda.N_JOINT} {flag} (joints 1..7 in order: torques for "
-                               f"--u-cols/--u-cmd-cols, joint angles in rad for --y-cols), got {len(cols)}")
+        if cols is not None and len(cols) != arm.n_joint:
+            raise RealLogError(f"--layout {arm.name} needs {arm.n_joint} {flag} (joints 1..{arm.n_joint} in order: "
+                               f"torques for --u-cols/--u-cmd-cols, joint angles in rad for --y-cols), got {len(cols)}")
 
 
 def apply_layout(layout: str | None, y: np.ndarray) -> np.ndarray:
-    """``y`` in the layout's channels: for the Panda, (L, 7) joint angles -> (L, 14) pose + angles."""
-    if layout in (None, "joints"):
+    """``y`` in the layout's channels: for an arm, (L, n) joint angles -> (L, 7 + n) pose + angles."""
+    arm = layout_arm(layout)
+    if arm is None:
         return y
     from robomorph.sim.kinematics import ee_pose  # noqa: PLC0415  (MuJoCo only for this layout)
 
-    return np.concatenate([ee_pose(y), y], axis=1).astype(np.float32)
+    return np.concatenate([ee_pose(y, _catalogue(arm.name)), y], axis=1).astype(np.float32)
+
+
+def _catalogue(name: str):
+    from robomorph.sim import arms  # noqa: PLC0415
+
+    return arms.ARMS[name].build_model(gravity_compensation=False)
 
 
 def layout_names(layout: str | None, u_cols: list[str], y_cols: list[str], u_cmd_cols: list[str] | None,
@@ -106,8 +127,6 @@ def layout_names(layout: str | None, u_cols: list[str], y_cols: list[str], u_cmd
         n = len(y_cols)
         return ([f"tau{k}" for k in range(n)], [f"q{k}" for k in range(n)],
                 None if u_cmd_cols is None else [f"cmd{k}" for k in range(n)], y_units)
-    from robomorph.sim import panda  # noqa: PLC0415
-
-    units = ["m"] * 3 + [""] * 4 + list(y_units or ["rad"] * panda.N_JOINT)
-    return (list(panda.U_NAMES), list(panda.Y_NAMES), None if u_cmd_cols is None else list(panda.U_CMD_NAMES),
-            units)
+    arm = layout_arm(layout)
+    units = ["m"] * 3 + [""] * 4 + list(y_units or ["rad"] * arm.n_joint)
+    return (list(arm.u_names), list(arm.y_names), None if u_cmd_cols is None else list(arm.u_cmd_names), units)

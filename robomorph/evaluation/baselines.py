@@ -5,6 +5,11 @@ gets: the context ``u_ctx (B, Tc, n_u)``, ``y_ctx (B, Tc, n_y)`` and the query i
 ``u_query (B, H, n_u)``. None of them sees ``y_query``.
 
 - ``hold``: the last context output held over the horizon.
+- ``constant_velocity``: each output extrapolated along the velocity of the last two context
+  samples. On real logs, where joint angles are smooth and measured finely, this is the bar
+  at short horizons: a predictor that loses to it there is no use to a controller.
+- ``constant_acceleration``: the same with the acceleration of the last three samples too
+  (a parabola); better than ``constant_velocity`` over a few steps, worse beyond.
 - ``arx``: a linear ARX model fitted by least squares on each trajectory's own context,
   then simulated freely over the horizon (its own outputs fed back).
 - ``arx_train``: one linear ARX model fitted by least squares over the model's *training*
@@ -33,7 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-BASELINES = ("hold", "arx", "arx_train", "nominal_physics")
+BASELINES = ("hold", "constant_velocity", "constant_acceleration", "arx", "arx_train", "nominal_physics")
 # Competitors run only when named (--baselines): each window costs a fit of its own.
 OPT_IN = ("identified_physics", "identified_physics_springs")
 # Not a competitor (it reads the parameters the model never sees) but the ceiling of
@@ -47,6 +52,35 @@ _ARX_BLOWUP = 1e3
 def hold(u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
     """The last context output, held for every query step."""
     return np.repeat(y_ctx[:, -1:], u_query.shape[1], axis=1)
+
+
+def constant_velocity(u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
+    """Each output continued along its last step: ``y[c-1] + k (y[c-1] - y[c-2])`` at query step ``k``.
+
+    The outputs are extrapolated channel by channel, quaternion channels included (over a
+    short horizon their norm drifts by the square of the step's rotation).
+    """
+    y = np.asarray(y_ctx, dtype=np.float64)
+    if y.shape[1] < 2:
+        raise ValueError("constant_velocity needs a context of at least 2 steps")
+    k = np.arange(1, u_query.shape[1] + 1)[None, :, None]  # (1, H, 1)
+    return y[:, -1:] + k * (y[:, -1:] - y[:, -2:-1])
+
+
+def constant_acceleration(u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
+    """Each output continued along the parabola through its last three samples:
+    ``y[c-1] + k v + k (k + 1) / 2 a``, with ``v`` and ``a`` the last backward differences."""
+    y = np.asarray(y_ctx, dtype=np.float64)
+    if y.shape[1] < 3:
+        raise ValueError("constant_acceleration needs a context of at least 3 steps")
+    k = np.arange(1, u_query.shape[1] + 1)[None, :, None]
+    v = y[:, -1:] - y[:, -2:-1]
+    a = v - (y[:, -2:-1] - y[:, -3:-2])
+    return y[:, -1:] + k * v + k * (k + 1) / 2 * a
+
+
+# The baselines that read nothing but the context's last outputs, by name.
+KINEMATIC = {"hold": hold, "constant_velocity": constant_velocity, "constant_acceleration": constant_acceleration}
 
 
 @dataclass

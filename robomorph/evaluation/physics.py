@@ -49,15 +49,17 @@ def check_params(attrs: dict) -> None:
 
 
 class NominalPhysics:
-    """Callable ``(u_ctx, y_ctx, u_query) -> y_query`` for stores of a simulated arm.
+    """Callable ``(u_ctx, y_ctx, u_query) -> y_query`` for stores of a simulated arm, and for
+    real logs of a registered arm (ingested with ``--layout ARM``: driven by the logged total
+    torque).
 
     Args:
         attrs: the store's attributes (domain, channel names and generator config).
         inputs: ``total`` (torques given are ``u``) or ``command`` (they are ``u_cmd``).
 
     Raises:
-        NotApplicable: the store is not a simulated store of a registered arm (imported
-            real logs, other domains, another channel layout).
+        NotApplicable: the store is neither a simulated store of a registered arm nor a real
+            log in a registered arm's layout (other domains, another channel layout).
     """
 
     def __init__(self, attrs: dict, inputs: str = "total"):
@@ -70,15 +72,20 @@ class NominalPhysics:
         from robomorph.sim.randomize import Randomizer  # noqa: PLC0415
         from robomorph.sim.recipe import Recipe  # noqa: PLC0415
 
-        arm = arms.of_store(attrs)
+        logged = attrs.get("task") == "ingested"
+        arm = arms.ARMS.get(str(attrs.get("arm"))) if logged else arms.of_store(attrs)
         if arm is None or not isinstance(attrs.get("config"), dict):
-            raise NotApplicable(f"needs a simulated store of one of the arms {arms.names()} with its generator "
-                                f"config (this store's domain is {attrs.get('domain')!r})")
+            raise NotApplicable(f"needs a store of one of the arms {arms.names()}: simulated with its generator config, "
+                                f"or a real log ingested with --layout ARM (this store's domain is "
+                                f"{attrs.get('domain')!r})")
         if tuple(attrs.get("u_names", ())) != arm.u_names or tuple(attrs.get("y_names", ())) != arm.y_names:
             n = arm.n_joint
             raise NotApplicable(f"needs the {arm.name} channel layout (u = tau0..tau{n - 1}, "
                                 f"y = EE pose and q0..q{n - 1})")
-        recipe = from_dict(Recipe, attrs["config"], "store config")
+        # A real arm's log: the torque it measured is the total one, gravity included, so the
+        # catalogue arm is driven by it with no compensation of its own, at the log's rate.
+        recipe = (Recipe(robot=arm.name, dt=float(attrs["dt"]), gravity_compensation="none") if logged
+                  else from_dict(Recipe, attrs["config"], "store config"))
         if recipe.robot != arm.name:
             raise NotApplicable(f"the store's domain {arm.name!r} and its recipe's robot {recipe.robot!r} differ")
         self.dt, self.substeps = float(recipe.dt), int(recipe.substeps)

@@ -9,20 +9,20 @@ from __future__ import annotations
 
 import copy
 import inspect
-import sys
 
 import numpy as np
 
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.normalizations import NormalizationError, query_output_stats
+from robomorph.core.progress import Phase, progress
 from robomorph.evaluation import references
-from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, OPT_IN, hold
+from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, KINEMATIC, OPT_IN
 from robomorph.evaluation.windows import EvaluationError, Window, start_joints
 
 
 def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None,
             with_std: bool = False, at_rest=None, anchor=None):
-    """The model's predictions in batches, with a progress bar on stderr.
+    """The model's predictions in batches, with progress on stderr (:mod:`robomorph.core.progress`).
 
     ``y_query`` (the true outputs) is read only by a ``paper_window`` model, which needs
     their statistics (the paper's protocol); any other model never receives them.
@@ -33,14 +33,11 @@ def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "mode
     Returns:
         (N, H, n_y) means, or with ``with_std`` the pair (means, standard deviations).
     """
-    from tqdm.auto import tqdm  # noqa: PLC0415
-
     leaks = getattr(predictor, "leaks_query_statistics", False)
     if leaks and y_query is None:
         raise NormalizationError("a paper_window model needs the query outputs' statistics: pass y_query to predict()")
     means, stds = [], []
-    for s in tqdm(range(0, len(u_ctx), batch_size), desc=desc, unit="batch", leave=False,
-                  disable=not sys.stderr.isatty() and len(u_ctx) <= batch_size):
+    for s in progress(range(0, len(u_ctx), batch_size), desc, unit="batch"):
         part = slice(s, s + batch_size)
         kwargs = _extra(predictor, y_query, part, with_std)
         if at_rest is not None and getattr(predictor, "physics", None):
@@ -78,7 +75,9 @@ def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
         params = inspect.signature(predictor.simulate).parameters
         if "return_std" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
             return False
-        out = predictor.simulate(u_ctx[:1], y_ctx[:1], u_query[:1], **_extra(predictor, y_query, slice(0, 1), True))
+        # A hybrid's one window can take seconds: reported like any other phase.
+        with Phase("model (std probe)", total=1, unit="window"):
+            out = predictor.simulate(u_ctx[:1], y_ctx[:1], u_query[:1], **_extra(predictor, y_query, slice(0, 1), True))
     except (NotImplementedError, RoboMorphError, ValueError, TypeError):
         return False
     finally:
@@ -108,8 +107,11 @@ def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]
     u_ctx, y_ctx, u_q, _ = w.split()
     preds, skipped, notes = {}, {}, {}
     for name in names:
-        if name == "hold":
-            preds[name] = hold(u_ctx, y_ctx, u_q).astype(np.float64)
+        if name in KINEMATIC:
+            try:
+                preds[name] = KINEMATIC[name](u_ctx, y_ctx, u_q).astype(np.float64)
+            except ValueError as exc:  # a context too short to difference
+                skipped[name] = str(exc)
         elif name in ("arx", "arx_train"):
             try:
                 arx = ARX(*arx_orders) if name == "arx" else references.fit_arx_train(arx_orders, train_blocks)
@@ -151,9 +153,7 @@ def nominal_params(sim, w: Window) -> np.ndarray | None:
 
 
 def _batched(fn, u_ctx, y_ctx, u_q, desc: str, size: int = 16, params=None) -> np.ndarray:
-    from tqdm.auto import tqdm  # noqa: PLC0415
-
     parts = [fn(u_ctx[s:s + size], y_ctx[s:s + size], u_q[s:s + size],
                 params=None if params is None else params[s:s + size])
-             for s in tqdm(range(0, len(u_ctx), size), desc=desc, unit="batch", leave=False)]
+             for s in progress(range(0, len(u_ctx), size), desc, unit="batch")]
     return np.concatenate(parts).astype(np.float64)

@@ -149,16 +149,18 @@ def ee_pose(q: np.ndarray, model: mujoco.MjModel | None = None) -> np.ndarray:
     """End-effector pose of the ``ee`` site for each row of joint angles.
 
     Args:
-        q: (T, 7) joint angles [rad], joints 1..7 of the Panda in order.
-        model: the compiled Panda (default: the catalogue model, :func:`panda.build_model`).
+        q: (T, n) joint angles [rad], the model's joints in order (the Panda's 7 by default).
+        model: a compiled arm with an ``ee`` site (default: the catalogue Panda,
+            :func:`panda.build_model`).
 
     Returns:
         (T, 7) float64: EE x y z [m] and the EE quaternion X Y Z W, signs kept continuous
         over time as the simulator's recordings keep them.
     """
     q = np.asarray(q, dtype=np.float64)
-    if q.ndim != 2 or q.shape[1] != panda.N_JOINT:
-        raise ValueError(f"joint angles must have shape (T, {panda.N_JOINT}), got {q.shape}")
+    n = panda.N_JOINT if model is None else model.nq
+    if q.ndim != 2 or q.shape[1] != n:
+        raise ValueError(f"joint angles must have shape (T, {n}), got {q.shape}")
     pos, quat_wxyz = SiteKinematics(model or panda.build_model())(q)
     quat_wxyz = continuous_quaternion(quat_wxyz)
     return np.concatenate([pos, quat_wxyz[:, [1, 2, 3, 0]]], axis=1)

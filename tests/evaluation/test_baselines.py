@@ -108,3 +108,39 @@ def test_arx_fitted_on_training_data_holds_what_diverges_and_counts_it():
     np.testing.assert_array_equal(pred, np.repeat(y[:, 19:20], 180, axis=1))
     with pytest.raises(ValueError, match="at least one training trajectory"):
         TrainedARX().fit([])
+
+
+def test_constant_velocity_and_acceleration_are_exact_on_their_own_motions():
+    """A line is continued exactly by constant_velocity, a parabola by constant_acceleration;
+    neither is exact on the other's motion, and neither reads the query outputs."""
+    from robomorph.evaluation.baselines import constant_acceleration, constant_velocity
+
+    t = np.arange(30, dtype=np.float64)[None, :, None]  # (1, 30, 1)
+    line = 0.3 + 0.02 * t
+    parab = 0.1 - 0.01 * t + 0.003 * t**2
+    y = np.concatenate([line, parab], axis=-1)  # (1, 30, 2)
+    c = 20
+    u = np.random.default_rng(0).normal(size=(1, 30, 3))
+    cv = constant_velocity(u[:, :c], y[:, :c], u[:, c:])
+    ca = constant_acceleration(u[:, :c], y[:, :c], u[:, c:])
+    assert cv.shape == ca.shape == (1, 10, 2)
+    np.testing.assert_allclose(cv[..., 0], y[:, c:, 0], atol=1e-12)
+    np.testing.assert_allclose(ca[..., 1], y[:, c:, 1], atol=1e-12)
+    np.testing.assert_allclose(ca[..., 0], y[:, c:, 0], atol=1e-12)  # a line has zero acceleration
+    assert np.abs(cv[..., 1] - y[:, c:, 1]).max() > 0.01
+    # Causal: changing what follows the context changes nothing.
+    y2 = y.copy()
+    y2[:, c:] += 5.0
+    np.testing.assert_array_equal(constant_acceleration(u[:, :c], y2[:, :c], u[:, c:]), ca)
+
+
+def test_kinematic_baselines_refuse_too_short_a_context():
+    from robomorph.evaluation.baselines import constant_acceleration, constant_velocity
+
+    y = np.zeros((2, 2, 3))
+    u = np.zeros((2, 5, 1))
+    assert constant_velocity(u[:, :2], y, u[:, 2:]).shape == (2, 3, 3)
+    with pytest.raises(ValueError, match="at least 3 steps"):
+        constant_acceleration(u[:, :2], y, u[:, 2:])
+    with pytest.raises(ValueError, match="at least 2 steps"):
+        constant_velocity(u[:, :1], y[:, :1], u[:, 1:])

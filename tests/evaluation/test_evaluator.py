@@ -47,7 +47,8 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
         assert set(disk["approach1"]["channels"][ch]) == set(METRICS)
         assert set(disk["approach1"]["channels"][ch]["r2"]) == {"mean", "std"}
         assert set(disk["approach2"]["channels"][ch]) == set(METRICS)
-    assert set(disk["baselines"]) == {"hold", "arx", "arx_train", "nominal_physics"}
+    assert set(disk["baselines"]) == {"hold", "constant_velocity", "constant_acceleration", "arx", "arx_train",
+                                      "nominal_physics"}
     for b in disk["baselines"].values():
         assert set(b) == {"approach1", "approach2"} and set(b["approach1"]["channels"]) == set(names)
     assert disk["meta"]["n"] == 6 and disk["meta"]["context_len"] == C and disk["meta"]["horizon"] == H
