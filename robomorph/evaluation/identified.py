@@ -124,8 +124,8 @@ class IdentifiedPhysics:
 
 def predict_windows(w, config: IdentifyConfig | None = None, anchors=None) -> tuple[np.ndarray, dict]:
     """``identified_physics`` on a window set (:class:`robomorph.evaluation.windows.Window`):
-    (N, H, n_y) predictions and the notes (:meth:`IdentifiedPhysics.notes`), with a progress
-    bar on stderr (one step per window).
+    (N, H, n_y) predictions and the notes (:meth:`IdentifiedPhysics.notes`), with progress
+    on stderr (one step per window).
 
     ``anchors(physics, w)``: the (N, P) catalogue vectors with each robot's springs anchored
     where it started, or None for the context's first sample (the scoring path passes
@@ -134,7 +134,7 @@ def predict_windows(w, config: IdentifyConfig | None = None, anchors=None) -> tu
     Raises:
         NotApplicable: the store is not a simulated arm's store with its generator config.
     """
-    from tqdm.auto import tqdm  # noqa: PLC0415
+    from robomorph.core.progress import progress  # noqa: PLC0415
 
     u_ctx, y_ctx, u_q, _ = w.split()
     with IdentifiedPhysics(w.attrs, inputs=w.inputs, config=config) as ident:
@@ -144,5 +144,5 @@ def predict_windows(w, config: IdentifyConfig | None = None, anchors=None) -> tu
         parts = [ident(u_ctx[b:b + 1], y_ctx[b:b + 1], u_q[b:b + 1],
                        base=None if base is None else base[b:b + 1],
                        at_rest=None if at_rest is None else at_rest[b:b + 1])
-                 for b in tqdm(range(len(u_ctx)), desc="identified physics", unit="window", leave=False)]
+                 for b in progress(range(len(u_ctx)), "identified physics", unit="window")]
         return np.concatenate(parts).astype(np.float64), ident.notes()

@@ -34,9 +34,8 @@ import dataclasses
 
 import mujoco
 import numpy as np
-from tqdm.auto import tqdm
-
 from robomorph.core.errors import RoboMorphError
+from robomorph.core.progress import progress
 from robomorph.sim.kalman import rts
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -306,7 +305,7 @@ def smooth_windows(backbone, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
     q, cov = np.empty((b_n, h + 1, nj)), np.empty((b_n, h, nj, nj))
     q[:, 0] = q_ctx[:, -1]
     staged = 0
-    for b in tqdm(range(b_n), desc="smoothing", unit="window", leave=False, disable=b_n < 2):  # seconds each
+    for b in progress(range(b_n), "smoothing", unit="window"):  # seconds each
         p = params[min(b, len(params) - 1)]
         frames = FrameMap(backbone.ident.model, lambda m, p=p: randomizer.apply(m, p), backbone.substeps,
                           in_actuators, backbone.ident._rollout)
