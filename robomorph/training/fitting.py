@@ -148,13 +148,27 @@ class RoboMorphCLI(LightningCLI):
             raise
 
 
+class QuietWandbLogger(WandbLogger):
+    """Lightning's WandbLogger without the ``anonymous`` setting it always passes to ``wandb.init``.
+
+    Lightning sends ``anonymous=None`` when not asked for it; wandb (0.19 and later) warns
+    that "The anonymous setting has no effect" for any value given, None included, on every
+    fit. The setting does nothing, so leaving it out changes nothing but the warning.
+    """
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        if self._wandb_init.get("anonymous") is None:
+            self._wandb_init.pop("anonymous", None)
+
+
 def _loggers(run: RunDir, cfg) -> list:
     # save_dir + name "logs" + no version: the CSV log is RunDir's logs/metrics.csv.
     loggers: list = [ResumableCSVLogger(save_dir=run.path, name=os.path.basename(run.logs), version="")]
     if cfg.wandb != "disabled":
         os.environ.setdefault("WANDB_SILENT", "true")
         run_id = open(run.wandb_id).read().strip() if os.path.exists(run.wandb_id) else None
-        logger = WandbLogger(save_dir=run.path, project=cfg.project, name=run.name,
+        logger = QuietWandbLogger(save_dir=run.path, project=cfg.project, name=run.name,
                              group=cfg.group, id=run_id, resume="allow" if run_id else None, mode=cfg.wandb)
         loggers.append(logger)
     return loggers

@@ -25,9 +25,9 @@ def store(linear_store):
     return linear_store(n=32, steps=CKPT_CONTEXT + CKPT_HORIZON)
 
 
-def _fit_cli(store, tmp_path, run, *flags, **sections) -> tuple[subprocess.CompletedProcess, str]:
+def _fit_cli(store, tmp_path, run, *flags, wandb: str = "disabled", **sections) -> tuple[subprocess.CompletedProcess, str]:
     """``python -m robomorph.fit`` of the tiny model (7 steps, validating every 3) in a subprocess."""
-    args = tiny_fit_args(store, tmp_path / "runs", run, steps=7, **sections)
+    args = {**tiny_fit_args(store, tmp_path / "runs", run, steps=7, **sections), "wandb": wandb}
     config = tmp_path / f"{run}.yaml"
     config.write_text(yaml.safe_dump(args))
     env = {**os.environ, "WANDB_MODE": "disabled"}
@@ -113,3 +113,12 @@ def test_the_bar_reads_the_loss_only_every_few_steps():
     bar.on_train_batch_end(trainer)
     assert CountingMetrics.reads == 3
     bar.close()
+
+
+def test_an_offline_wandb_run_prints_no_third_party_warnings(store, tmp_path):
+    # wandb's "The anonymous setting has no effect" came from the setting Lightning passes (fitting.QuietWandbLogger).
+    done, run_dir = _fit_cli(store, tmp_path, "wandb", wandb="offline")
+    out = done.stdout + done.stderr
+    assert os.path.isdir(os.path.join(run_dir, "wandb"))  # the wandb run was made
+    for noise in ("anonymous", "wandb: WARNING", "Deprecat", "FutureWarning"):
+        assert noise not in out, (noise, out[-2000:])
