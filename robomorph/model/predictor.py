@@ -217,6 +217,30 @@ class Predictor:
         return cls(model, device, info)
 
     @classmethod
+    def from_arm(cls, arm: str = "panda", recipe: str | None = None, device: str | torch.device | None = "cpu",
+                 **overrides) -> "Predictor":
+        """The command-formulation hybrid of a catalogue arm, with no training and no checkpoint.
+
+        Its ``regression`` mode (and ``refined``) reads no network, so it predicts as a trained command
+        model does in that mode, from the arm's catalogue model and a generator recipe alone
+        (:mod:`robomorph.model.catalogue`): the robot identified from each context, then simulated. Its std
+        is the raw spread over robots (no calibration); the input range check is off (no training data).
+
+        Args:
+            arm: an arm with a catalogue physics backbone (``panda``).
+            recipe: the generator recipe whose physics step, gravity compensation and randomization ranges
+                the data follow (a shipped name or a YAML path; default the generator's defaults).
+            device: where tensors are returned (the simulation runs on the CPU).
+            overrides: recipe fields changed, e.g. ``dt=0.01``.
+
+        Raises:
+            NoNetworkError: an arm without a catalogue physics backbone.
+        """
+        from robomorph.model.catalogue import ArmPredictor  # noqa: PLC0415
+
+        return ArmPredictor.of(arm, recipe, device, **overrides)
+
+    @classmethod
     def from_pretrained(cls, path: str, device: str | torch.device | None = None) -> "Predictor":
         """Loads an inference-only model folder written by ``robomorph export``
         (``model.safetensors`` + ``config.json``); a training checkpoint is read as well.

@@ -1,0 +1,144 @@
+"""A prediction with no training: the hybrid of a catalogue arm, with no network at all.
+
+    from robomorph import Predictor
+    pred = Predictor.from_arm("panda")                       # seconds; reads no checkpoint
+    y_query, std = pred.simulate(u_ctx, y_ctx, u_query, return_std=True, at_rest=True)
+
+In the command formulation the hybrid's default mode, ``regression``, identifies the robot
+from the context by linear solves of its inverse dynamics, pulled toward the catalogue arm,
+and simulates it over the horizon (:mod:`robomorph.model.hybrid`): it never reads the network
+of the checkpoint it comes from. So a Predictor built from the arm's catalogue model and a
+generator recipe alone predicts exactly what a trained command-formulation hybrid predicts in
+that mode, the same to the bit (a test checks it against a trained checkpoint).
+
+What it cannot do, because there is no network: the modes that read one (``learned`` and
+``fused``: a parameter head; ``blend`` and ``smoothed``: the decoder; ``none``: the decoder
+alone) are refused with one line. Its standard deviation is the raw spread over robots
+around the estimate, with no calibration (``robomorph calibrate`` fits one on a trained
+checkpoint; :attr:`Predictor.calibration` is None here). There are no training statistics,
+so the range check of :attr:`Predictor.max_input_std` is off: check the torques' units
+yourself (N m, the command without gravity compensation).
+
+Only the Panda has a catalogue physics backbone today (:func:`robomorph.sim.backbone.parameter_layout`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+from robomorph.core.errors import RoboMorphError
+from robomorph.model.predictor import Predictor
+
+# The arms whose catalogue model the hybrid can identify and simulate.
+BACKBONE_ARMS = ("panda",)
+# The modes that read no network.
+NETWORK_FREE_MODES = ("regression", "refined")
+
+
+class NoNetworkError(RoboMorphError, ValueError):
+    """A prediction that needs a trained network, asked of a Predictor built from the arm alone."""
+
+
+@dataclasses.dataclass(frozen=True)
+class _Config:
+    n_u: int
+    n_y: int
+    patch: int = 1
+    n_params: int = 0
+    channel_mask: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class _Normalizer:
+    normalization: str = "train_stats"
+
+
+class NoNetwork:
+    """What a :class:`robomorph.model.predictor.Predictor` holds in place of a trained model when there is none:
+    the channel counts, no calibrations and no blend; anything that would run a network says so instead."""
+
+    gaussian = False
+    blend = None
+
+    def __init__(self, n_u: int, n_y: int) -> None:
+        self.config = _Config(n_u, n_y)
+        self.normalizer = _Normalizer()
+        self.calibrations: dict = {}
+
+    def to(self, device) -> NoNetwork:
+        return self
+
+    def eval(self) -> NoNetwork:
+        return self
+
+    def forward_dist_raw(self, *args, **kwargs) -> tuple[torch.Tensor, torch.Tensor]:
+        raise NoNetworkError("this Predictor was built from the arm alone (Predictor.from_arm), with no network: "
+                             f"predict with physics_mode {' or '.join(map(repr, NETWORK_FREE_MODES))}, or load a "
+                             "trained checkpoint (Predictor.from_checkpoint) for the decoder")
+
+
+def arm_record(arm: str = "panda", recipe: str | None = None, **overrides) -> dict:
+    """The data record a command-formulation hybrid of ``arm`` would carry, from its catalogue and a recipe.
+
+    Args:
+        arm: a name of :data:`robomorph.sim.arms.ARMS` with a physics backbone (:data:`BACKBONE_ARMS`).
+        recipe: a generator recipe (a shipped name such as ``multisine`` or a YAML path; default the
+            generator's defaults), whose physics step, gravity compensation and randomization ranges
+            the backbone uses, as a store generated with it records them.
+        overrides: recipe fields changed (``dt=...``, ``substeps=...``).
+
+    Raises:
+        NoNetworkError: an arm without a catalogue physics backbone.
+    """
+    from robomorph.sim import arms  # noqa: PLC0415
+    from robomorph.sim.backbone import parameter_layout  # noqa: PLC0415
+    from robomorph.sim.randomize import param_names  # noqa: PLC0415
+    from robomorph.sim.recipe import load_recipe  # noqa: PLC0415
+
+    if arm not in BACKBONE_ARMS:
+        known = ", ".join(arms.names())
+        raise NoNetworkError(f"arm {arm!r}: a prediction with no training needs a catalogue physics backbone, which "
+                             f"only {', '.join(BACKBONE_ARMS)} has (arms: {known}); train a model on its store instead")
+    rec = load_recipe(recipe, {"robot": arm, **overrides})
+    spec = rec.arm
+    attrs = {"domain": spec.name, "config": rec.to_dict(), "param_names": param_names(spec.name)}
+    # As a model trained today records it (robomorph.training.module): the observer, the springs and the debiasing on.
+    physics = {**parameter_layout(attrs), "mode": "catalogue", "observer": True, "springs": True, "debias": True}
+    return {"u_names": list(spec.u_names), "y_names": list(spec.y_names), "dt": float(rec.dt), "inputs": "command",
+            "stores": [], "physics": physics, "arm": spec.name}
+
+
+def check_network_free(mode: str) -> None:
+    """Refuses a physics mode that reads a network, asked of a Predictor with none."""
+    if mode not in NETWORK_FREE_MODES:
+        raise NoNetworkError(f"physics mode {mode!r} reads a trained network, and this Predictor was built from the "
+                             f"arm alone (Predictor.from_arm): use {' or '.join(map(repr, NETWORK_FREE_MODES))}, or "
+                             "load a trained checkpoint (Predictor.from_checkpoint)")
+
+
+class ArmPredictor(Predictor):
+    """A :class:`Predictor` of a catalogue arm with no network (:meth:`Predictor.from_arm`); it refuses the
+    physics modes that read one, in one line, before anything runs."""
+
+    @classmethod
+    def of(cls, arm: str = "panda", recipe: str | None = None, device=None, **overrides) -> ArmPredictor:
+        """See :meth:`Predictor.from_arm`."""
+        info = arm_record(arm, recipe, **overrides)
+        pred = cls(NoNetwork(len(info["u_names"]), len(info["y_names"])), device, info)
+        # The record a trained command hybrid carries, set here: a model without a parameter head takes no
+        # backbone from its record (Predictor.__init__), and this one has no model at all.
+        pred.physics, pred.physics_mode, pred.has_std = info["physics"], "regression", True
+        pred.physics_observer = pred.physics_springs = pred.physics_debias = True
+        pred.max_input_std = None  # no training statistics to compare the inputs with
+        return pred
+
+    def use_physics(self, mode: str | None, option: str = "--physics") -> None:
+        if mode is not None:
+            check_network_free(mode)
+        super().use_physics(mode, option)
+
+    def simulate(self, *args, **kwargs):
+        check_network_free(self.physics_mode)  # also when set as an attribute
+        return super().simulate(*args, **kwargs)
