@@ -54,12 +54,10 @@ class IdentifiedPhysics:
     """
 
     def __init__(self, attrs: dict, inputs: str = "total", config: IdentifyConfig | None = None):
-        from robomorph.core.config import from_dict  # noqa: PLC0415
         from robomorph.sim.identify import Identifier  # noqa: PLC0415  (MuJoCo only when used)
-        from robomorph.sim.recipe import Recipe  # noqa: PLC0415
 
         self.physics = NominalPhysics(attrs, inputs)  # refuses stores it cannot simulate (any registered arm)
-        self.identifier = Identifier(from_dict(Recipe, attrs["config"], "store config"), inputs, config)
+        self.identifier = Identifier(self.physics.recipe, inputs, config)
         self._fitted_velocity = inputs == "command"
         self.fits: list[Fit] = []
         self.seconds: list[float] = []  # per window: the fit and the horizon's simulation

@@ -48,6 +48,19 @@ def check_params(attrs: dict) -> None:
                             "are missing or named differently)")
 
 
+def recipe_of(attrs: dict):
+    """The recipe a store's robot is simulated with: a simulated store's generator config, or
+    for a real log of a registered arm (``ingest --layout ARM``) the catalogue arm at the
+    log's rate with no gravity compensation of its own (the logged torque is the total one,
+    gravity included)."""
+    from robomorph.core.config import from_dict  # noqa: PLC0415
+    from robomorph.sim.recipe import Recipe  # noqa: PLC0415
+
+    if attrs.get("task") == "ingested":
+        return Recipe(robot=str(attrs["arm"]), dt=float(attrs["dt"]), gravity_compensation="none")
+    return from_dict(Recipe, attrs["config"], "store config")
+
+
 class NominalPhysics:
     """Callable ``(u_ctx, y_ctx, u_query) -> y_query`` for stores of a simulated arm, and for
     real logs of a registered arm (ingested with ``--layout ARM``: driven by the logged total
@@ -65,12 +78,10 @@ class NominalPhysics:
     def __init__(self, attrs: dict, inputs: str = "total"):
         import mujoco  # noqa: PLC0415
 
-        from robomorph.core.config import from_dict  # noqa: PLC0415  (MuJoCo only when used)
-        from robomorph.core.inputs import check_inputs  # noqa: PLC0415
+        from robomorph.core.inputs import check_inputs  # noqa: PLC0415  (MuJoCo only when used)
         from robomorph.sim import arms  # noqa: PLC0415
         from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
         from robomorph.sim.randomize import Randomizer  # noqa: PLC0415
-        from robomorph.sim.recipe import Recipe  # noqa: PLC0415
 
         logged = attrs.get("task") == "ingested"
         arm = arms.ARMS.get(str(attrs.get("arm"))) if logged else arms.of_store(attrs)
@@ -82,10 +93,7 @@ class NominalPhysics:
             n = arm.n_joint
             raise NotApplicable(f"needs the {arm.name} channel layout (u = tau0..tau{n - 1}, "
                                 f"y = EE pose and q0..q{n - 1})")
-        # A real arm's log: the torque it measured is the total one, gravity included, so the
-        # catalogue arm is driven by it with no compensation of its own, at the log's rate.
-        recipe = (Recipe(robot=arm.name, dt=float(attrs["dt"]), gravity_compensation="none") if logged
-                  else from_dict(Recipe, attrs["config"], "store config"))
+        recipe = self.recipe = recipe_of(attrs)
         if recipe.robot != arm.name:
             raise NotApplicable(f"the store's domain {arm.name!r} and its recipe's robot {recipe.robot!r} differ")
         self.dt, self.substeps = float(recipe.dt), int(recipe.substeps)

@@ -1,0 +1,211 @@
+"""Real robots are the judge: every predictor on the public logs of real arms, one table per robot.
+
+The sources (:mod:`robomorph.data.public_logs`) are public repositories cloned into one folder,
+``--data DIR``; nothing is downloaded here. Each robot's recordings are split by recording
+(the source's rule: no test window comes from a recording that trained or identified
+anything), ingested at the rate the source names (the log's own, or resampled through
+``ingest``'s anti-aliasing filter) and cut into windows of ``context + horizon`` samples.
+
+Scored on the same test windows, through :func:`robomorph.evaluation.scoring.score_windows`:
+
+- ``hold``, ``constant_velocity``, ``constant_acceleration``: the kinematic bars;
+- ``arx``: a linear ARX fitted on each window's own context; ``arx_train``: one fitted on the
+  robot's training recordings;
+- ``nominal_physics``: the catalogue arm (where the robot has an MJCF in the arms registry)
+  driven by the logged torques from the end of the context;
+- ``identified_physics`` (``--identified``): that arm with masses, damping, armature and
+  friction fitted to each context;
+- any checkpoint given with ``--model NAME=CKPT`` (zero-shot, fine-tuned or trained from
+  scratch: the name says which), where its channels and rate match the robot's store.
+
+Reported: joint RMS error [mrad] at the first step, 0.25 s, 1 s and 5 s where the horizon
+reaches them, and FIT [%] over the horizon (each joint over all windows, then the joints' mean). For
+the industrial robot benchmark, also the NRMSE of free-run simulation over its test set.
+
+    python benchmarks/real_robots.py --data data/sources --md results/benchmarks/real_robots.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+from common import print_provenance
+
+from robomorph.core.errors import RoboMorphError, run_command
+from robomorph.core.results import markdown_table, provenance, write_markdown
+from robomorph.data import public_logs
+from robomorph.data.store import open_store
+from robomorph.evaluation.baselines import TrainedARX, hold
+from robomorph.evaluation.scoring import score_windows
+from robomorph.evaluation.windows import load_window
+
+KINEMATIC = ("hold", "constant_velocity", "constant_acceleration")
+TIMES = ((None, "step 1"), (0.25, "0.25 s"), (1.0, "1 s"), (5.0, "5 s"))
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--data", required=True, help="folder holding the sources' clones (docs/guide/real-robots.md)")
+    p.add_argument("--robots", default=",".join(public_logs.SOURCES),
+                   help=f"comma list from {', '.join(public_logs.SOURCES)} (default: all)")
+    p.add_argument("--work", default="data/real", help="where the robots' stores are written (default: data/real)")
+    p.add_argument("--windows", type=int, help="score only the first N test windows of each robot")
+    p.add_argument("--identified", action="store_true", help="also fit identified_physics to each context (slow)")
+    p.add_argument("--model", action="append", default=[], metavar="NAME=CKPT",
+                   help="a checkpoint scored as NAME on every robot whose store it reads (repeatable)")
+    p.add_argument("--md", help="write the tables (with provenance) to this Markdown file")
+    args = p.parse_args(argv)
+    args.robots = [r.strip() for r in args.robots.split(",") if r.strip()]
+    for name in args.robots:
+        public_logs.get(name)
+    if args.windows is not None and args.windows < 1:
+        p.error("--windows must be >= 1")
+    models = {}
+    for item in args.model:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            p.error(f"--model takes NAME=CKPT, got {item!r}")
+        models[name] = path
+    args.model = models
+    return args
+
+
+def report_steps(horizon: int, dt: float) -> list[tuple[int, str]]:
+    """The (1-based step, label) pairs of :data:`TIMES` that the horizon reaches."""
+    out = []
+    for t, label in TIMES:
+        k = 1 if t is None else int(round(t / dt))
+        if 1 <= k <= horizon and k not in [s for s, _ in out]:
+            out.append((k, label))
+    return out
+
+
+def joint_fit(result: dict, name: str, joints: list[str]) -> float:
+    """FIT [%] of a source over the horizon, the joints' mean: each joint's windows taken together
+    (approach 2), so a window where a joint barely moves does not swamp the figure."""
+    res = result if name == "model" else result["baselines"][name]
+    return float(np.mean([res["approach2"]["channels"][q]["fit"] for q in joints]))
+
+
+def _models(paths: dict[str, str], store: str) -> tuple[dict, dict]:
+    """The checkpoints that read ``store`` (loaded), and why each other one was skipped."""
+    from robomorph.model.predictor import Predictor  # noqa: PLC0415
+
+    loaded, skipped = {}, {}
+    ds = open_store(store)
+    for name, path in paths.items():
+        try:
+            pred = Predictor.from_checkpoint(path, device="cpu")
+            info = pred.data_info
+            if list(info["y_names"]) != list(ds.y_names) or abs(float(info.get("dt", ds.dt)) - ds.dt) > 1e-6 * ds.dt:
+                skipped[name] = "trained on other channels or another rate"
+                continue
+            loaded[name] = pred
+        except RoboMorphError as exc:
+            skipped[name] = str(exc)
+    return loaded, skipped
+
+
+def score_robot(source: public_logs.PublicLog, args) -> dict:
+    """Scores every predictor on one robot's test windows; returns its table's rows and notes."""
+    stores = public_logs.write_stores(source, args.data, os.path.join(args.work, source.name), overwrite=True)
+    test, train = open_store(stores["test"]), open_store(stores["train"])
+    w = load_window(stores["test"], source.context, source.horizon, args.windows, None,
+                    len(test.u_names), len(test.y_names))
+    baselines = list(KINEMATIC) + ["arx", "arx_train"]
+    if source.arm:
+        baselines.append("nominal_physics")
+        if args.identified:
+            baselines.append("identified_physics")
+    models, skipped_models = _models(args.model, stores["test"])
+
+    def train_blocks():
+        for s in range(0, train.n, 256):
+            rows = slice(s, s + 256)
+            yield train.read("u", rows), train.read("y", rows)
+
+    steps = report_steps(w.horizon, w.dt)
+    scores = score_windows(None, w, baselines=baselines, steps=[k for k, _ in steps], others=models,
+                           train_blocks=train_blocks)
+    joints = [n for n in w.y_names if n.startswith("q")]
+    rows = []
+    for name in scores.preds:
+        rows.append([name] + [scores.at(name, "joints", k) for k, _ in steps]
+                    + [joint_fit(scores.result, name, joints)])
+    recs = source.recordings(args.data)
+    return {"source": source, "steps": steps, "rows": rows, "windows": len(w.u), "dt": w.dt,
+            "train_windows": train.n, "skipped": {**scores.result["skipped_baselines"], **skipped_models},
+            "notes": scores.result["meta"].get("baseline_notes", {}),
+            "recordings": {sp: sum(r.split == sp for r in recs) for sp in public_logs.SPLITS},
+            "protocol": industrial_protocol(source, args) if source.name == "industrial_robot" else None}
+
+
+def industrial_protocol(source: public_logs.PublicLog, args, segment: int = 605) -> list[list]:
+    """NRMSE of free-run simulation over the industrial robot's test set.
+
+    The test set (3,630 samples) is simulated in its six consecutive segments of ``segment``
+    samples, each from its own first samples (the ARX's lags) with the measured torques
+    alone; NRMSE per joint is the RMS error over the test set divided by that joint's standard
+    deviation there, then averaged over the joints.
+    """
+    recs = {r.split: r for r in source.recordings(args.data)}
+    tr, te = recs["train"], recs["test"]
+    arx = TrainedARX(2, 2).fit([(tr.u[None], tr.q[None])])
+    n_seg = len(te.u) // segment
+    u = te.u[:n_seg * segment].reshape(n_seg, segment, -1)
+    y = te.q[:n_seg * segment].reshape(n_seg, segment, -1)
+    lag = 2
+    out = []
+    for name, fn in (("hold", hold), ("arx_train", arx)):
+        pred = fn(u[:, :lag], y[:, :lag], u[:, lag:])
+        err = (pred - y[:, lag:]).reshape(-1, y.shape[-1])
+        nrmse = np.sqrt((err ** 2).mean(0)) / y[:, lag:].reshape(-1, y.shape[-1]).std(0)
+        out.append([name, float(nrmse.mean())])
+    return out
+
+
+def render(res: dict) -> str:
+    s = res["source"]
+    rate = f"resampled to {1 / res['dt']:.6g} Hz" if s.hz else f"at its own {1 / res['dt']:.6g} Hz"
+    head = (f"## {s.robot}\n\n{res['windows']} test windows of {s.context} + {s.horizon} samples, {rate}; "
+            f"recordings train / val / test: {res['recordings']['train']} / {res['recordings']['val']} / "
+            f"{res['recordings']['test']} ({s.split_rule}); torque: {s.torque}; source: `{s.clone}` "
+            f"({s.licence}).\n\n")
+    table = markdown_table(["joint RMS [mrad]"] + [label for _, label in res["steps"]] + ["FIT [%]"],
+                           res["rows"], floatfmt=".3g")
+    extra = ""
+    if res["skipped"]:
+        extra += "\n\nNot scored: " + "; ".join(f"{k}: {v}" for k, v in res["skipped"].items()) + "."
+    diverged = {k: v["diverged_held"] for k, v in res["notes"].items() if isinstance(v, dict) and v.get("diverged_held")}
+    if diverged:
+        extra += "\n\nARX simulations that diverged and were held instead: " + ", ".join(
+            f"{k} {v} of {res['windows']}" for k, v in diverged.items()) + "."
+    if res["protocol"]:
+        extra += ("\n\nThe benchmark's own protocol (free-run simulation of the test set's six segments of 605 "
+                  "samples from their first 2 samples; NRMSE per joint, averaged; published: MA-LSTM-MLP 0.125, "
+                  "LSTM-MLP 0.142, NARX 0.146):\n\n" + markdown_table(["predictor", "NRMSE"], res["protocol"],
+                                                                      floatfmt=".3f"))
+    return head + table + extra
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    print_provenance()
+    parts = []
+    for name in args.robots:
+        print(f"{name}: ingesting and scoring ...", file=sys.stderr, flush=True)
+        text = render(score_robot(public_logs.get(name), args))
+        print("\n" + text, flush=True)
+        parts.append(text)
+    if args.md:
+        write_markdown(args.md, "# Real robots: every predictor on public logs of real arms\n\n" + "\n\n".join(parts),
+                       provenance())
+        print(f"\nwrote {args.md}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_command(lambda: main()))

@@ -1,0 +1,311 @@
+"""The public logs of real arms the project is judged on: where each comes from, its licence,
+how its files are read, which recordings are held out for test, and their stores.
+
+Nothing here downloads: each source is a public repository the user clones (the command is in
+:attr:`PublicLog.clone`) into one folder, ``--data DIR``, under the repository's own name.
+Each reader takes the files as their authors wrote them and gives :class:`Recording` s of
+joint torques ``u`` (N m) and joint angles ``q`` (rad); :func:`write_stores` then turns them
+into RoboMorph stores, one per split, through :func:`robomorph.data.ingest.ingest` (its
+anti-aliasing resampler, its layouts, its provenance), so a store made here is the store a
+user gets from ``robomorph ingest`` on the same files.
+
+Splits are by recording, never by window: no test window comes from a recording that
+trained or identified anything. Each source's rule is in its ``split_rule``.
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import os
+import tempfile
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from robomorph.core.errors import MissingInputError, RoboMorphError
+
+SPLITS = ("train", "val", "test")
+
+
+class PublicLogError(RoboMorphError, ValueError):
+    """A public source that is not where it was asked for, or whose files cannot be read."""
+
+
+@dataclass
+class Recording:
+    """One recording of a real arm, at its own (uniform) sample time.
+
+    Attributes:
+        name: where it comes from, relative to the source's folder.
+        u: (L, n) joint torques [N m] (what the source logs as the arm's torque).
+        q: (L, n) joint angles [rad].
+        dt: sample time [s].
+        split: ``train``, ``val`` or ``test``.
+        note: what the reader did to the file beyond reading it (empty: nothing).
+    """
+
+    name: str
+    u: np.ndarray
+    q: np.ndarray
+    dt: float
+    split: str
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class PublicLog:
+    """One public source of real-arm logs and how the benchmark windows it.
+
+    Attributes:
+        name: the source's key (``--robots``).
+        robot: the robot, for people.
+        arm: the arm of :mod:`robomorph.sim.arms` with this robot's catalogue model (its
+            layout, EE pose and physics), or None.
+        folder: the clone's folder name under ``--data``.
+        clone: the commands that fetch it.
+        licence: the data's licence, as the source states it.
+        torque: what ``u`` is, in the source's words.
+        split_rule: which recordings are held out for test, and why.
+        hz: the rate the benchmark resamples to (None: the log's own rate).
+        context, horizon: window lengths in samples at that rate.
+        stride: samples between test windows.
+        reader: ``root -> [Recording]``.
+    """
+
+    name: str
+    robot: str
+    arm: str | None
+    folder: str
+    clone: str
+    licence: str
+    torque: str
+    split_rule: str
+    hz: float | None
+    context: int
+    horizon: int
+    stride: int
+    reader: Callable[[str], list[Recording]]
+
+    def root(self, data: str) -> str:
+        """The clone's folder under ``data``; refuses one that is missing."""
+        path = os.path.join(data, self.folder)
+        if not os.path.isdir(path):
+            raise MissingInputError(f"{path} not found: fetch the {self.robot} logs with `{self.clone}` "
+                                    f"inside {data} (see docs/guide/real-robots.md)")
+        return path
+
+    def recordings(self, data: str) -> list[Recording]:
+        recs = self.reader(self.root(data))
+        if not recs:
+            raise PublicLogError(f"no {self.robot} recordings found under {self.root(data)}: is the clone complete?")
+        if not any(r.split == "test" for r in recs) or not any(r.split == "train" for r in recs):
+            raise PublicLogError(f"{self.robot}: the recordings found under {self.root(data)} leave the train or the "
+                                 "test split empty; is the clone complete?")
+        return recs
+
+
+# ---------------------------------------------------------------------------------- readers
+
+
+def _csv_header(path: str) -> tuple[list[str], np.ndarray]:
+    with open(path, encoding="utf-8-sig") as f:
+        names = [h.strip() for h in f.readline().split(",")]
+    return names, np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+
+
+def _kinova(root: str) -> list[Recording]:
+    # Time is the sample index of the arm's 1 kHz loop; Torque is the joint torque sensors'
+    # reading (TorqueSm a smoothed copy, TorqueCur one derived from motor current).
+    recs = []
+    for path in sorted(glob.glob(os.path.join(root, "pyDynaMapp", "data", "kinova", "*", "*.csv"))):
+        names, a = _csv_header(path)
+        try:
+            u = a[:, [names.index(f"Torque{j}") for j in range(1, 8)]]
+            q = a[:, [names.index(f"Position{j}") for j in range(1, 8)]]
+        except ValueError:
+            raise PublicLogError(f"{path} lacks the Torque1..7 / Position1..7 columns of the Kinova logs") from None
+        split = "test" if os.path.basename(os.path.dirname(path)) == "validation_data" else "train"
+        recs.append(Recording(os.path.relpath(path, root), u, q, 1e-3, split))
+    return recs
+
+
+def _lenient_rows(path: str, width: int) -> tuple[np.ndarray, int]:
+    """Rows of ``width`` numbers of a headerless CSV, and how many other rows were dropped
+    (some of the UR5 logs end in a truncated line)."""
+    rows, dropped = [], 0
+    with open(path) as f:
+        for line in f:
+            parts = line.strip().split(",")
+            try:
+                if len(parts) != width:
+                    raise ValueError
+                rows.append([float(x) for x in parts])
+            except ValueError:
+                dropped += 1
+    return np.asarray(rows, dtype=np.float64).reshape(-1, width), dropped
+
+
+def _on_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    order = np.argsort(t, kind="stable")
+    t, x = t[order], x[order]
+    keep = np.concatenate([[True], np.diff(t) > 0])
+    return np.stack([np.interp(grid, t[keep], x[keep, j]) for j in range(x.shape[1])], axis=1)
+
+
+_UR5_TEST = ("Verify_Model",)
+_UR5_DT = 0.008
+
+
+def _ur5(root: str) -> list[Recording]:
+    # Each movement logs q_actual and m_target (the target torque the controller sends the
+    # joints, gravity included) in their own CSVs: time [s], then 6 joints. Their clocks are
+    # the robot's 125 Hz loop, with jitter and gaps in a few movements: both are interpolated
+    # onto one uniform 8 ms grid over the span they share.
+    recs = []
+    base = os.path.join(root, "JointSpaceControl_Model_C_ForceEstim", "RecordedUR5Data")
+    for folder in sorted(glob.glob(os.path.join(base, "*", "csv_files"))):
+        q_path, u_path = os.path.join(folder, "log_q_actual.csv"), os.path.join(folder, "log_m_target.csv")
+        if not (os.path.isfile(q_path) and os.path.isfile(u_path)):
+            continue
+        q, dq = _lenient_rows(q_path, 7)
+        u, du = _lenient_rows(u_path, 7)
+        if len(q) < 2 or len(u) < 2:
+            continue
+        dt = _UR5_DT
+        start, stop = max(q[0, 0], u[0, 0]), min(q[-1, 0], u[-1, 0])
+        grid = start + dt * np.arange(int(np.floor((stop - start) / dt)) + 1)
+        movement = os.path.basename(os.path.dirname(folder))
+        jitter = float(np.abs(np.diff(q[:, 0]) - dt).max())
+        note = ", ".join(n for n in (f"{dq + du} malformed rows dropped" if dq + du else "",
+                                     f"clock jitter up to {jitter * 1e3:.1f} ms, interpolated" if jitter > 0.05 * dt
+                                     else "") if n)
+        split = "test" if any(k in movement for k in _UR5_TEST) else "train"
+        recs.append(Recording(os.path.relpath(folder, root), _on_grid(u[:, 0], u[:, 1:], grid),
+                              _on_grid(q[:, 0], q[:, 1:], grid), dt, split, note))
+    return recs
+
+
+def _schunk(root: str) -> list[Recording]:
+    # 100 runs of 6 excitation inputs: runs that share an input share a split, and the
+    # input first used latest is held out (a test input no training run has seen).
+    base = os.path.join(root, "autoKoopman_codeocean", "data", "Robot")
+    runs = sorted(glob.glob(os.path.join(base, "measurement_*")), key=lambda p: int(p.rsplit("_", 1)[-1]))
+    groups: dict[str, list[str]] = {}
+    for run in runs:
+        with open(os.path.join(run, "input.csv"), "rb") as f:
+            groups.setdefault(hashlib.sha256(f.read()).hexdigest(), []).append(run)
+    held_out = set(list(groups.values())[-1]) if groups else set()
+    recs = []
+    for run in runs:
+        t = np.loadtxt(os.path.join(run, "time.csv"), delimiter=",", ndmin=1)
+        traj = np.loadtxt(os.path.join(run, "trajectory.csv"), delimiter=",", ndmin=2)
+        u = np.loadtxt(os.path.join(run, "input.csv"), delimiter=",", ndmin=2)
+        n = min(len(t), len(traj), len(u))
+        dt = float(np.median(np.diff(t[:n])))
+        recs.append(Recording(os.path.relpath(run, root), u[:n], traj[:n, :6], dt,
+                              "test" if run in held_out else "train"))
+    return recs
+
+
+INDUSTRIAL_MAT = os.path.join("data", "IndustRobo", "forward_identification_without_raw_data_shifted.mat")
+
+
+def _industrial(root: str) -> list[Recording]:
+    # The benchmark's own split: u_train / u_val / u_test (6, L) motor torques, y_* (6, L)
+    # joint angles in degrees at 10 Hz (Weigand et al.); stored in radians here.
+    from scipy.io import loadmat  # noqa: PLC0415
+
+    path = os.path.join(root, INDUSTRIAL_MAT)
+    if not os.path.isfile(path):
+        return []
+    m = loadmat(path)
+    return [Recording(f"{INDUSTRIAL_MAT}:{split}", np.asarray(m[f"u_{split}"], np.float64).T,
+                      np.deg2rad(np.asarray(m[f"y_{split}"], np.float64).T), 0.1, split)
+            for split in SPLITS]
+
+
+SOURCES: dict[str, PublicLog] = {s.name: s for s in (
+    PublicLog("kinova_gen3", "Kinova Gen3 (7 joints, joint torque sensors, 1 kHz)", "kinova3", "dynamic-identification",
+              "git clone https://github.com/wissem01chiha/dynamic-identification && git -C dynamic-identification "
+              "checkout 90ba37d676d8da6c064d9edf5c1a09389309752e",
+              "MIT (at that commit)", "Torque1..7: the joint torque sensors, gravity included",
+              "validation_data/ (the authors' validation trajectories) is test; identification_data/ and "
+              "jointwise_motion/ train",
+              200.0, 200, 200, 50, _kinova),
+    PublicLog("ur5", "Universal Robots UR5 (6 joints, 125 Hz)", "ur5e", "ur5_modeling_force_estimate",
+              "git clone https://github.com/kkufieta/ur5_modeling_force_estimate",
+              "Apache-2.0", "m_target: the target joint torques of the UR controller, gravity included",
+              "the movements the authors recorded to verify their model (*Verify_Model*) are test; the rest train",
+              60.0, 200, 300, 100, _ur5),
+    PublicLog("schunk", "Schunk LWA 4P (6 joints, 250 Hz; Liu & Althoff 2018)", None, "AutoKoopman",
+              "git clone -b experiment_rerun https://github.com/nikhilushinde/AutoKoopman",
+              "CC0", "input.csv: the six motor torques",
+              "runs that repeat one input share a split; the input first used latest (its runs) is test",
+              None, 200, 500, 500, _schunk),
+    PublicLog("industrial_robot", "KUKA KR300 R2500 ultra SE (6 joints, 10 Hz; Weigand et al.)", None,
+              "Physics-Guided-Recurrent-State-Space-Neural-Networks",
+              "git clone https://github.com/yifang0-0/Physics-Guided-Recurrent-State-Space-Neural-Networks",
+              "the benchmark's terms (nonlinear-benchmarks: Industrial_robot)",
+              "u: the six motor torques", "the benchmark's own split (train / val / test)",
+              None, 200, 50, 50, _industrial),
+)}
+
+
+def get(name: str) -> PublicLog:
+    if name not in SOURCES:
+        raise PublicLogError(f"unknown public source {name!r}; choose from {', '.join(SOURCES)}")
+    return SOURCES[name]
+
+
+def write_stores(source: PublicLog, data: str, out: str, overwrite: bool = False) -> dict[str, str]:
+    """Ingests every split of ``source`` (its clone under ``data``) into ``out/<split>.zarr``.
+
+    Each recording goes through :func:`robomorph.data.ingest.ingest` as one NPZ log of its
+    columns (written to a temporary folder), resampled to ``source.hz`` where set, cut into
+    windows of ``context + horizon`` samples, ``stride`` apart, in the arm's layout where the
+    arm is registered. Recordings too short for one window are skipped, as ``ingest`` skips
+    them (its warning says so).
+
+    Returns:
+        ``{split: store path}`` for the splits that have a window.
+    """
+    import warnings  # noqa: PLC0415
+
+    from robomorph.data import ingest  # noqa: PLC0415
+
+    recs = source.recordings(data)
+    steps = source.context + source.horizon
+    n = recs[0].u.shape[1]
+    cols_u, cols_q = [f"u{j}" for j in range(n)], [f"q{j}" for j in range(n)]
+    stores = {}
+    with tempfile.TemporaryDirectory(prefix="robomorph-public-") as tmp:
+        for split in SPLITS:
+            chosen = [r for r in recs if r.split == split]
+            if not chosen:
+                continue
+            dts = {round(r.dt, 9) for r in chosen}
+            files = []
+            for k, r in enumerate(chosen):
+                path = os.path.join(tmp, f"{split}_{k:03d}_{r.name.replace(os.sep, '_').replace(':', '_')}.npz")
+                # Logs at another rate than the split's first are brought onto it by the resampler.
+                np.savez(path, **{c: r.u[:, j] for j, c in enumerate(cols_u)}, **{c: r.q[:, j] for j, c in enumerate(cols_q)})
+                files.append(path)
+            if len(dts) > 1:
+                raise PublicLogError(f"{source.name}: the {split} recordings have several sample times {sorted(dts)}")
+            hz = source.hz
+            target = os.path.join(out, f"{split}.zarr")
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ingest.ShortRecordingWarning)
+                try:
+                    ingest.ingest(files, cols_u, cols_q, target, steps, dt=chosen[0].dt,
+                                  stride=source.stride if split == "test" else max(1, steps // 4),
+                                  overwrite=overwrite, name=source.name, resample_hz=hz,
+                                  layout=source.arm or "joints", u_units=["N m"] * n, y_units=["rad"] * n)
+                except ingest.IngestError as exc:
+                    if "no recording" in str(exc) or "shorter than" in str(exc):
+                        continue  # no recording of this split is long enough for one window
+                    raise
+            stores[split] = target
+    return stores
