@@ -15,13 +15,19 @@ from robomorph.control.mppi import MPPIConfig
 from robomorph.control.references import TASKS
 from robomorph.control.runner import CONTROLLERS, DEFAULT_CONTROLLERS, UNCERTAINTY, ControlConfig
 from robomorph.core.errors import run_command
+from robomorph.core.locks import output_folder
+from robomorph.core.names import PHYSICS_MODES
+from robomorph.core.options import Parser, integer, number
 
 _WORKER: dict = {}
+# Bounds of the options: far beyond any useful run, and short of what would exhaust memory or
+# run for days (each episode holds every frame; a planner steps the physics this often per frame).
+MAX_ROBOTS, MAX_SECONDS, MAX_SUBSTEPS = 10_000, 3600.0, 64
 
 
 def build_parser() -> argparse.ArgumentParser:
     d, m = ControlConfig(), MPPIConfig()
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="robomorph control",
         description="Closed-loop control of randomized Panda robots never trained on: a warm-up under the "
                     "catalogue OSC records the first context, then each controller tracks the reference. "
@@ -31,30 +37,36 @@ def build_parser() -> argparse.ArgumentParser:
                                   "decoder)")
     p.add_argument("--task", default=d.task, choices=TASKS,
                    help="circle or spiral (the generator's paths), reach (10-20 cm point to point, then hold)")
-    p.add_argument("--robots", type=int, default=d.robots, help="held-out robots; every controller runs on each")
+    p.add_argument("--robots", type=integer(1, MAX_ROBOTS), default=d.robots,
+                   help="held-out robots; every controller runs on each")
     p.add_argument("--controllers", default=",".join(DEFAULT_CONTROLLERS),
                    help=f"comma-separated, from {', '.join(CONTROLLERS)} (mpc:true_physics reads the hidden "
                         "parameters: a ceiling)")
-    p.add_argument("--seed", type=int, default=d.seed, help="seeds robots, references and planner noise")
+    p.add_argument("--seed", type=integer(0, 2**63 - 1), default=d.seed, help="seeds robots, references and planner noise")
     p.add_argument("--out", default="results/control", help="output folder")
     p.add_argument("--uncertainty", default=d.uncertainty, choices=list(UNCERTAINTY),
                    help="wide: masses ±30 %%, damping 3-13, friction ×0.3-1.8 (outside training); training: the "
                         "training ranges")
-    p.add_argument("--warmup", type=float, default=d.warmup, help="seconds under the catalogue OSC first (≥ the "
-                                                                   "model's context)")
-    p.add_argument("--duration", type=float, default=d.duration, help="seconds of tracking after the warm-up")
-    p.add_argument("--samples", type=int, default=m.samples, help="MPPI candidates per re-plan")
-    p.add_argument("--horizon", type=int, default=m.horizon, help="frames planned ahead (60 Hz)")
-    p.add_argument("--replan", type=int, default=m.replan, help="frames applied from each plan")
-    p.add_argument("--noise", type=float, default=m.noise, help="exploration std, fraction of each torque limit")
-    p.add_argument("--temperature", type=float, default=m.temperature, help="MPPI lambda relative to the costs' spread")
-    p.add_argument("--plan-substeps", type=int, default=d.plan_substeps, help="physics steps per frame in planners")
-    p.add_argument("--context", type=int, default=d.context, help="context frames of the in-context model")
-    p.add_argument("--reidentify", type=int, default=d.reidentify,
+    p.add_argument("--warmup", type=number(0, MAX_SECONDS, low_open=True), default=d.warmup,
+                   help="seconds under the catalogue OSC first (≥ the model's context)")
+    p.add_argument("--duration", type=number(0, MAX_SECONDS, low_open=True), default=d.duration,
+                   help="seconds of tracking after the warm-up")
+    p.add_argument("--samples", type=integer(1, 100_000), default=m.samples, help="MPPI candidates per re-plan")
+    p.add_argument("--horizon", type=integer(1, 10_000), default=m.horizon, help="frames planned ahead (60 Hz)")
+    p.add_argument("--replan", type=integer(1, 10_000), default=m.replan, help="frames applied from each plan")
+    p.add_argument("--noise", type=number(0, 1, low_open=True), default=m.noise,
+                   help="exploration std, fraction of each torque limit")
+    p.add_argument("--temperature", type=number(0, 1e6, low_open=True), default=m.temperature,
+                   help="MPPI lambda relative to the costs' spread")
+    p.add_argument("--plan-substeps", type=integer(1, MAX_SUBSTEPS), default=d.plan_substeps,
+                   help="physics steps per frame in planners")
+    p.add_argument("--context", type=integer(1, 100_000), default=d.context, help="context frames of the in-context model")
+    p.add_argument("--reidentify", type=integer(0, 1_000_000), default=d.reidentify,
                    help="frames between a hybrid model's identifications from the rolling context (0: once)")
-    p.add_argument("--physics-mode", help="a hybrid model's physics mode (regression, fused, refined, learned, blend, "
-                                          "or none for its black-box decoder; default: the model's)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="episodes run in parallel")
+    p.add_argument("--physics-mode", choices=(*PHYSICS_MODES, "none"),
+                   help="a hybrid model's physics mode (regression, fused, refined, learned, blend, smoothed, or "
+                        "none for its black-box decoder; default: the model's)")
+    p.add_argument("--workers", type=integer(1, 1024), default=os.cpu_count() or 1, help="episodes run in parallel")
     return p
 
 
@@ -81,9 +93,22 @@ def check_model(predictor, cfg: ControlConfig, ckpt: str) -> None:
     if cfg.context > cfg_m.max_context or cfg.context < max(cfg_m.patch, cfg_m.n_init):
         raise ControlError(f"--context {cfg.context}: the model takes {max(cfg_m.patch, cfg_m.n_init)} to "
                            f"{cfg_m.max_context} frames")
+    decoder = not (predictor.physics and predictor.physics_mode != "none")
+    if decoder and cfg.context % cfg_m.patch:
+        # The decoder reads whole patches: a context between two would be cut without a word.
+        raise ControlError(f"--context {cfg.context}: the model reads contexts in patches of {cfg_m.patch} frames; "
+                           f"give a multiple of {cfg_m.patch} (e.g. {cfg.context // cfg_m.patch * cfg_m.patch})")
     if cfg.warmup_frames < cfg.context:
         raise ControlError(f"--warmup {cfg.warmup:g} s is {cfg.warmup_frames} frames, shorter than the context "
                            f"({cfg.context}): lengthen the warm-up or shorten --context")
+
+
+def _init_pool_worker(ckpt: str | None, physics_mode: str | None) -> None:
+    import signal  # noqa: PLC0415
+
+    # A Ctrl-C reaches every process of the terminal: the parent stops the run, workers say nothing.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _init_worker(ckpt, physics_mode)
 
 
 def _init_worker(ckpt: str | None, physics_mode: str | None) -> None:
@@ -100,8 +125,6 @@ def _job(cfg: ControlConfig, robot: int, controller: str):
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm.auto import tqdm  # noqa: PLC0415
-
     from robomorph.control import outputs  # noqa: PLC0415
     from robomorph.core.results import provenance  # noqa: PLC0415
 
@@ -114,45 +137,54 @@ def run(args: argparse.Namespace) -> int:
     cfg = ControlConfig(task=args.task, robots=args.robots, controllers=controllers, seed=args.seed,
                         warmup=args.warmup, duration=args.duration, uncertainty=args.uncertainty,
                         plan_substeps=args.plan_substeps, context=args.context, reidentify=args.reidentify, mpc=mpc)
-    if os.path.isfile(args.out):
-        raise ControlError(f"--out {args.out} is a file; give a folder")
-    if args.workers < 1:
-        raise ControlError(f"--workers must be >= 1, got {args.workers}")
     uses_model = "mpc:model" in controllers
     if uses_model and not args.ckpt:
         raise ControlError("mpc:model needs --ckpt (a model trained in the command formulation), or drop it "
                            "from --controllers")
     if uses_model:
         check_model(load_model(args.ckpt, args.physics_mode), cfg, args.ckpt)
-    ckpt = args.ckpt if uses_model else None
-    jobs = [(r, c) for r in range(cfg.robots) for c in controllers]
-    results = []
-    bar = tqdm(total=len(jobs), desc=f"control {cfg.task}", unit="episode")
-    if args.workers == 1:
-        _init_worker(ckpt, args.physics_mode)
-        for r, c in jobs:
-            results.append(_job(cfg, r, c))
-            bar.update()
-    else:
-        import multiprocessing as mp  # noqa: PLC0415
-        from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: PLC0415
-
-        with ProcessPoolExecutor(args.workers, mp_context=mp.get_context("spawn"), initializer=_init_worker,
-                                 initargs=(ckpt, args.physics_mode)) as pool:
-            for fut in as_completed([pool.submit(_job, cfg, r, c) for r, c in jobs]):
-                results.append(fut.result())
-                bar.update()
-    bar.close()
-    config = {**dataclasses.asdict(cfg), "ckpt": args.ckpt, "physics_mode": args.physics_mode}
-    metrics = outputs.write(args.out, results, list(controllers), config, provenance(), cfg.dt)
+    # The folder is checked and locked before any episode runs, and written whole at the end.
+    with output_folder(args.out, "control") as tmp:
+        results = _episodes(cfg, controllers, args.ckpt if uses_model else None, args.physics_mode, args.workers)
+        config = {**dataclasses.asdict(cfg), "ckpt": args.ckpt, "physics_mode": args.physics_mode}
+        metrics = outputs.write(tmp, results, list(controllers), config, provenance(), cfg.dt)
     print(outputs.table(metrics))
     print(f"wrote {os.path.join(args.out, 'metrics.json')}, table.md, errors.png and paths.png")
     return 0
 
 
+def _episodes(cfg: ControlConfig, controllers: tuple[str, ...], ckpt: str | None, physics_mode: str | None,
+              workers: int) -> list:
+    """Every (robot, controller) episode, in ``workers`` processes, with a progress report."""
+    from robomorph.core.progress import Phase  # noqa: PLC0415
+
+    jobs = [(r, c) for r in range(cfg.robots) for c in controllers]
+    results = []
+    with Phase(f"control {cfg.task}", total=len(jobs), unit="episode") as bar:
+        if workers == 1:
+            _init_worker(ckpt, physics_mode)
+            for r, c in jobs:
+                results.append(_job(cfg, r, c))
+                bar.update()
+        else:
+            import multiprocessing as mp  # noqa: PLC0415
+            from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: PLC0415
+
+            pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_init_pool_worker,
+                                       initargs=(ckpt, physics_mode))
+            try:
+                for fut in as_completed([pool.submit(_job, cfg, r, c) for r, c in jobs]):
+                    results.append(fut.result())
+                    bar.update()
+            finally:  # on a Ctrl-C or a failed episode, the queued episodes are not run
+                pool.shutdown(wait=True, cancel_futures=True)
+    return results
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return run_command(lambda: run(args))
+    return run_command(lambda: run(args), kept=f"no episode is kept and nothing was written to {args.out} "
+                                               "(its results are written whole, once every episode has run)")
 
 
 if __name__ == "__main__":

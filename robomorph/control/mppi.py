@@ -67,11 +67,11 @@ class MPPIConfig:
         if self.replan > self.horizon:
             raise ValueError(f"mpc.replan ({self.replan}) must not exceed mpc.horizon ({self.horizon})")
         for name in ("noise", "temperature"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"mpc.{name} must be > 0, got {getattr(self, name)}")
+            if not 0 < getattr(self, name) < np.inf:
+                raise ValueError(f"mpc.{name} must be finite and > 0, got {getattr(self, name)}")
         for name in ("w_pos", "w_rot", "w_vel", "w_posture", "w_limit", "limit_margin"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"mpc.{name} must be >= 0, got {getattr(self, name)}")
+            if not 0 <= getattr(self, name) < np.inf:
+                raise ValueError(f"mpc.{name} must be finite and >= 0, got {getattr(self, name)}")
 
 
 @dataclass

@@ -69,12 +69,18 @@ class ControlConfig:
         if unknown or not self.controllers:
             raise ControlError(f"--controllers: unknown {', '.join(map(repr, unknown)) or 'none given'}; "
                                f"choose from {', '.join(CONTROLLERS)}")
+        twice = sorted({c for c in self.controllers if self.controllers.count(c) > 1})
+        if twice:
+            raise ControlError(f"--controllers names {', '.join(twice)} more than once: name each controller once")
         if self.uncertainty not in UNCERTAINTY:
             raise ControlError(f"--uncertainty {self.uncertainty!r}: choose {', '.join(UNCERTAINTY)}")
         if self.robots < 1:
             raise ControlError(f"--robots must be >= 1, got {self.robots}")
-        if not self.warmup > 0 or not self.duration > 0:
-            raise ControlError("--warmup and --duration must be > 0 seconds")
+        if not (0 < self.warmup < np.inf and 0 < self.duration < np.inf):
+            raise ControlError(f"--warmup and --duration must be finite and > 0 seconds, got {self.warmup} and "
+                               f"{self.duration}")
+        if self.seed < 0:
+            raise ControlError(f"--seed must be >= 0, got {self.seed}")
         if self.plan_substeps < 1 or self.context < 1 or self.reidentify < 0:
             raise ControlError("plan_substeps and context must be >= 1, reidentify >= 0")
 

@@ -9,6 +9,12 @@ never a part.
 Before replacing a file a user named (``report --out``, ``calibrate --out``), a writer calls
 :func:`check_replaceable`: it replaces only a file of its own kind, never a checkpoint with a
 page or a page with a checkpoint, and never writes into a Zarr store.
+
+A result folder (``evaluate --out``, ``control --out``, ``export --out``) is written the same
+way, whole: :func:`atomic_folder` fills a temporary folder beside the target and swaps it in,
+after :func:`check_folder_replaceable` made sure the target is empty or an earlier result of
+the same kind (recognised by content, as files are), never another command's folder or a
+store. :func:`robomorph.core.locks.output_folder` puts the two under one writer's lock.
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import zipfile
 from collections.abc import Iterator
 from typing import IO, Any
@@ -161,3 +168,100 @@ def overlapping(a: str | os.PathLike, b: str | os.PathLike) -> bool:
     other: replacing either would then destroy (part of) the other."""
     ra, rb = os.path.realpath(os.fspath(a)), os.path.realpath(os.fspath(b))
     return ra == rb or ra.startswith(rb.rstrip(os.sep) + os.sep) or rb.startswith(ra.rstrip(os.sep) + os.sep)
+
+
+# The result folders a command may replace, recognised by what they hold: only files of the
+# writer's own names, and the file that says which command wrote it.
+_FOLDER_KINDS = {"evaluation": "an evaluation folder (robomorph evaluate)",
+                 "control": "a control folder (robomorph control)",
+                 "model": "a model folder (robomorph export)"}
+_RESULT_SUFFIXES = (".json", ".csv", ".md", ".png")
+
+
+def _read_json(path: str) -> Any:
+    try:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f)
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+
+
+def folder_kind(path: str | os.PathLike) -> str | None:
+    """``"evaluation"``, ``"control"`` or ``"model"`` for a folder a command wrote, ``"empty"``
+    for an empty one, else None (a folder of anything else, or with anything else in it)."""
+    path = os.fspath(path)
+    entries = os.listdir(path)
+    if not entries:
+        return "empty"
+    if any(not os.path.isfile(os.path.join(path, e)) or os.path.islink(os.path.join(path, e)) for e in entries):
+        return None
+    if set(entries) <= {"config.json", "model.safetensors"}:
+        config = _read_json(os.path.join(path, "config.json"))
+        return "model" if isinstance(config, dict) and config.get("format") == "robomorph-model" else None
+    if not all(e.endswith(_RESULT_SUFFIXES) for e in entries):
+        return None
+    metrics = _read_json(os.path.join(path, "metrics.json"))
+    if not isinstance(metrics, dict):
+        return None
+    if isinstance(metrics.get("_config"), dict) and "controllers" in metrics["_config"]:
+        return "control"
+    return "evaluation" if "approach1" in metrics and "meta" in metrics else None
+
+
+def check_folder_replaceable(path: str | os.PathLike, kind: str, flag: str = "--out") -> None:
+    """Raises unless a writer of ``kind`` folders may (re)write the folder ``path``.
+
+    Allowed: a path that does not exist yet, an empty folder, or an earlier folder of
+    ``kind`` holding nothing else. Refused: a file, anything in or of a Zarr store, and a
+    folder of another kind (another command's results, a user's files).
+
+    Raises:
+        OutputExistsError: the message names what ``path`` holds.
+    """
+    if kind not in _FOLDER_KINDS:
+        raise ValueError(f"kind must be one of {sorted(_FOLDER_KINDS)}, got {kind!r}")
+    path = os.fspath(path)
+    store = zarr_store_holding(path)
+    if store is not None:
+        found = "a Zarr store" if os.path.realpath(store) == os.path.realpath(path) else f"inside the Zarr store {store}"
+    elif not os.path.exists(path):
+        return
+    elif not os.path.isdir(path):
+        found = "a file"
+    else:
+        have = folder_kind(path)
+        if have in (kind, "empty"):
+            return
+        found = _FOLDER_KINDS.get(have, "a folder holding other files")
+    raise OutputExistsError(f"{flag} {path} is {found}, not {_FOLDER_KINDS[kind]}: refusing to write into it; "
+                            f"choose another {flag} (a new or empty folder)")
+
+
+@contextlib.contextmanager
+def atomic_folder(path: str | os.PathLike) -> Iterator[str]:
+    """Yields a temporary folder beside ``path``; on a clean exit it replaces ``path`` whole.
+
+    A reader (or a crash, a full disk, a Ctrl-C) sees the old folder or the new one, never a
+    part of either: on an exception the temporary folder is removed and ``path`` is as it was.
+    A symbolic link is followed, so the folder it leads to is replaced and the link stays.
+    """
+    target = os.path.realpath(os.fspath(path))
+    parent, name = os.path.split(target)
+    os.makedirs(parent, exist_ok=True)
+    tmp, old = (os.path.join(parent, f".{name}.{os.getpid()}.{s}") for s in ("tmp", "old"))
+    shutil.rmtree(tmp, ignore_errors=True)
+    os.makedirs(tmp)
+    try:
+        yield tmp
+        moved = os.path.isdir(target)
+        if moved:
+            os.replace(target, old)
+        try:
+            os.replace(tmp, target)
+        except BaseException:
+            if moved:
+                os.replace(old, target)
+            raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+        shutil.rmtree(old, ignore_errors=True)

@@ -92,17 +92,23 @@ class StoppedBySignal(Exception):
 
 
 SIGTERM_EXIT = 128 + 15  # the shell's code for a SIGTERM stop: schedulers may requeue on it
+INTERRUPT_EXIT = 128 + 2  # the shell's code for a Ctrl-C (SIGINT) stop
 
 
-def run_command(fn: Callable[[], int | None]) -> int:
+def run_command(fn: Callable[[], int | None], kept: str | None = None) -> int:
     """Runs a command body; a :class:`RoboMorphError` becomes one line and exit code 2.
 
     So does an :class:`OSError` of the file system the command was pointed at (read-only,
     no permission, full, a path through a file: see ``_PATH_ERRNOS``), whichever library
-    raised it: the user fixes the path or the disk, not the code.
+    raised it: the user fixes the path or the disk, not the code. A Ctrl-C stops the command
+    with one line saying what was kept (``kept``, the command's own words) and exit code 130.
     """
     try:
         return int(fn() or 0)
+    except KeyboardInterrupt:
+        print(f"stopped by Ctrl-C: {kept or 'what was finished before it is kept; nothing is half-written'}",
+              file=sys.stderr)
+        return INTERRUPT_EXIT
     except RoboMorphError as exc:
         return report(exc)
     except OSError as exc:

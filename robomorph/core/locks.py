@@ -13,6 +13,9 @@ process ends, however it ends, so a killed writer never blocks the next one. Who
 (pid, host, command, since when) is written to ``<folder>/.<name>.lock.holder``, a JSON
 note read only to word the refusal. Lock files stay after release: removing a lock file
 that another process has open would let two processes lock two different files.
+
+A command's result folder (``evaluate``, ``control``, ``export``) is written under
+:func:`output_folder`: checked, locked and written whole, before any work is spent on it.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from typing import Any
 
 import filelock
 
-from robomorph.core.atomic import write_json
+from robomorph.core.atomic import atomic_folder, check_folder_replaceable, write_json
 from robomorph.core.errors import RoboMorphError
 
 
@@ -130,3 +133,23 @@ def exclusive_on(arg: str, what: str = "store") -> Callable:
         return locked
 
     return wrap
+
+
+@contextlib.contextmanager
+def output_folder(path: str | os.PathLike, kind: str, flag: str = "--out") -> Iterator[str]:
+    """The one way a command writes a result folder: yields a temporary folder to fill.
+
+    On entry ``path`` is checked (:func:`robomorph.core.atomic.check_folder_replaceable`:
+    new, empty or an earlier folder of ``kind``; never another command's folder or a store)
+    and locked against a second writer; on a clean exit the filled folder replaces ``path``
+    whole; on any exception (a full disk, Ctrl-C) nothing of it is left.
+
+    Raises:
+        OutputExistsError: ``path`` is not for this writer; LockedError: another process
+            writes it.
+    """
+    check_folder_replaceable(path, kind, flag)  # before the lock: no lock file inside a store
+    with exclusive(path, "output folder"):
+        check_folder_replaceable(path, kind, flag)  # what it is now that no one else writes it
+        with atomic_folder(path) as tmp:
+            yield tmp

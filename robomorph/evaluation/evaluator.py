@@ -30,6 +30,7 @@ import copy
 import os
 
 from robomorph.core.atomic import write_json
+from robomorph.core.locks import output_folder
 from robomorph.core.normalizations import NormalizationError
 from robomorph.core.results import provenance
 from robomorph.core.rundir import RunDir
@@ -119,7 +120,15 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
     check_patch(predictor.patch, [w.context_len, *contexts])
     # Checked before the output folder is made: a refused --compare leaves nothing behind.
     others = {name: references.load_other(name, other, w, device) for name, other in (compare or {}).items()}
-    os.makedirs(out, exist_ok=True)
+    with output_folder(out, "evaluation") as tmp:  # refused, locked, and written whole or not at all
+        return _score_and_write(predictor, w, tmp, ckpt, data, baselines, steps, others, arx_orders,
+                                arx_train_data, batch_size, offset, seed, info, compare, horizons, contexts, samples)
+
+
+def _score_and_write(predictor, w: Window, out: str, ckpt: str, data: str, baselines, steps, others, arx_orders,
+                     arx_train_data, batch_size: int, offset, seed: int, info, compare, horizons, contexts,
+                     samples: int) -> dict:
+    """Scores the model and the baselines on ``w`` and writes every output file into ``out``."""
     scores = score_windows(predictor, w, tuple(baselines), steps, others=others, arx_orders=arx_orders,
                            train_blocks=training_data.reader(ckpt, arx_train_data), batch_size=batch_size)
     result = scores.result

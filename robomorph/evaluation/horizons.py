@@ -137,9 +137,15 @@ def parse_horizons(spec: str | None, horizon: int, dt: float) -> list[int]:
             if item == "end":
                 k = horizon
             elif item.endswith("s"):
-                k = max(1, int(round(float(item[:-1]) / dt)))
+                seconds = float(item[:-1])
+                if not 0 < seconds < float("inf"):  # 0s is no step, as 0 is none; a tiny time is the first
+                    raise HorizonError(f"--horizons item {item!r}: seconds must be finite and > 0 (0.25s is "
+                                       "0.25 s after the last context sample)")
+                k = max(1, int(round(seconds / dt)))
             else:
                 k = int(item)
+        except HorizonError:
+            raise
         except ValueError:
             raise HorizonError(f"--horizons items are steps (15), seconds (0.25s) or 'end', got {item!r}") from None
         if not 1 <= k <= horizon:

@@ -109,6 +109,15 @@ class ModelConfig:
         return self.n_init // self.patch
 
 
+# Upper bounds of the sizes, far above any model this package trains: a model file declaring
+# more (d_model 10^9, n_layer 10^6) would exhaust memory building the network before its
+# weights could be checked against it.
+MAX_SIZES = {"n_u": 4096, "n_y": 4096, "d_model": 65536, "n_head": 1024, "n_layer": 1024, "n_layer_dec": 1024,
+             "max_context": 10**7, "max_horizon": 10**7, "patch": 10**5}
+
+
 def _require_positive_int(name: str, value: object) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ConfigError(f"ModelConfig.{name} must be a positive integer, got {value!r}")
+    if value > MAX_SIZES.get(name, value):
+        raise ConfigError(f"ModelConfig.{name} must be at most {MAX_SIZES[name]}, got {value!r}")

@@ -154,6 +154,29 @@ class TrainedModel(nn.Module):
         self.calibrations = {**self.calibrations, calibration_key(calibration): calibration}
 
 
+def _build(path: str, hp: dict, state: dict, device: torch.device | None = None) -> TrainedModel:
+    """The model ``hp`` declares (on ``device``); on the meta device, refused unless every
+    tensor of ``state`` has the shape the declared sizes give."""
+    try:
+        with torch.device(device or "cpu"):
+            model = TrainedModel(model_config(hp), recenter=bool(hp.get("recenter", False)),
+                                 anchor=bool(hp.get("anchor", False)),
+                                 normalization=hp.get("normalization", "train_stats"),
+                                 integrate=bool(hp.get("integrate", False)))
+    except (ValueError, TypeError) as exc:
+        raise CheckpointError(f"{path} holds an invalid architecture: {exc}") from exc
+    if device is not None:
+        declared = {k: tuple(v.shape) for k, v in model.state_dict().items()}
+        stored = {k: tuple(v.shape) for k, v in state.items() if hasattr(v, "shape")}
+        wrong = sorted(k for k in declared.keys() | stored.keys() if declared.get(k) != stored.get(k))
+        if wrong:
+            k = wrong[0]
+            raise CheckpointError(f"{path} does not match its own hyper-parameters: {len(wrong)} weights differ, "
+                                  f"e.g. {k} is {stored.get(k, 'missing')} in the weights but "
+                                  f"{declared.get(k, 'unknown')} by the declared sizes; export the model again")
+    return model
+
+
 def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
     """Rebuilds the trained model of a checkpoint or of a model folder (``robomorph export``).
 
@@ -170,14 +193,9 @@ def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
     hp = ckpt["hyper_parameters"]
     if hp.get("n_u") is None or hp.get("n_y") is None:
         raise CheckpointError(f"{path} lacks n_u/n_y: it was not written by robomorph fit")
-    try:
-        model = TrainedModel(model_config(hp), recenter=bool(hp.get("recenter", False)),
-                             anchor=bool(hp.get("anchor", False)),
-                             normalization=hp.get("normalization", "train_stats"),
-                             integrate=bool(hp.get("integrate", False)))
-    except ValueError as exc:
-        raise CheckpointError(f"{path} holds an invalid architecture: {exc}") from exc
     state = {k: v for k, v in ckpt["state_dict"].items() if k not in _TRAINING_ONLY}
+    _build(path, hp, state, torch.device("meta"))  # the declared sizes against the weights, allocating nothing
+    model = _build(path, hp, state)
     try:
         model.load_state_dict(state)
     except RuntimeError as exc:

@@ -25,13 +25,13 @@ import hashlib
 import json
 import os
 import re
-import shutil
 import warnings
 
 import torch
 
 from robomorph.core.atomic import write_bytes, write_text
-from robomorph.core.errors import OutputExistsError, RoboMorphError
+from robomorph.core.errors import RoboMorphError
+from robomorph.core.locks import output_folder
 
 CONFIG_FILE, WEIGHTS_FILE = "config.json", "model.safetensors"
 FORMAT, FORMAT_VERSION = "robomorph-model", 1
@@ -43,7 +43,10 @@ _KEPT = ("hyper_parameters", "datamodule_hyper_parameters", "global_step")
 _WEIGHT_PREFIXES = ("net.", "normalizer.")
 # Marks a record read from a model folder, so that writing it back writes a folder.
 _FOLDER_MARK = "_robomorph_model_folder"
-_REFUSED = re.compile(r"Unsupported (?:global: GLOBAL (\S+)|operand (\S+))")
+_REFUSED = re.compile(r"[Uu]nsupported (?:global: GLOBAL (\S+)|GLOBAL (\S+)|operand (\S+))")
+# How torch opens every refusal of weights_only loading; the rest of its text advises loading
+# the file unsafely, which is never relayed.
+_WEIGHTS_ONLY = "Weights only load failed"
 
 
 class CheckpointError(RoboMorphError, RuntimeError):
@@ -85,8 +88,9 @@ def _safe_torch_load(path: str):
     except Exception as exc:  # noqa: BLE001  (any unreadable or refused file)
         text = str(exc)
         refused = _REFUSED.search(text)
-        if refused:
-            what = refused.group(1) or f"pickle instruction {refused.group(2)}"
+        if refused or _WEIGHTS_ONLY in text:
+            name = refused and (refused.group(1) or refused.group(2))
+            what = name or (f"pickle instruction {refused.group(3)}" if refused else "an object of a type not allowed")
             raise CheckpointError(f"{path} contains objects that are not allowed in a model file ({what}): "
                                   "refused without running anything; load model files only from sources "
                                   "you trust") from None
@@ -142,8 +146,13 @@ def _read_folder(folder: str) -> dict:
         raise CheckpointError(f"{folder} lacks {WEIGHTS_FILE}: copy the whole folder, or export it again")
     with open(weights_path, "rb") as f:
         data = f.read()
-    expected = (config.get("weights") or {}).get("sha256")
-    if expected and hashlib.sha256(data).hexdigest() != expected:
+    weights = config.get("weights")
+    expected = weights.get("sha256") if isinstance(weights, dict) else None
+    if not isinstance(expected, str):
+        # Without the digest nothing ties the weights to this description: never skip the check.
+        raise CheckpointError(f"{os.path.join(folder, CONFIG_FILE)} does not record the SHA-256 of {WEIGHTS_FILE} "
+                              "(\"weights\": {\"sha256\": ...}): the folder was altered; export it again")
+    if hashlib.sha256(data).hexdigest() != expected:
         raise CheckpointError(f"{weights_path} does not match {CONFIG_FILE} (its SHA-256 differs): the folder "
                               "was altered or mixed with another model's files; export it again")
     try:
@@ -189,41 +198,17 @@ def _folder_files(record: dict, source: str | None) -> tuple[bytes, str]:
 
 
 def write_folder(record: dict, out: str, source: str | None = None) -> None:
-    """Writes a model folder whole: a reader sees the old folder or the new one, never a mix.
+    """Writes a model folder whole, under its lock: a reader sees the old folder or the new
+    one, never a mix (:func:`robomorph.core.locks.output_folder`).
 
     Raises:
-        OutputExistsError: ``out`` exists and is neither empty nor a model folder.
+        OutputExistsError: ``out`` is a file, in a Zarr store, or a folder that is neither
+            empty nor a model folder; LockedError: another process writes it.
     """
-    out = os.path.abspath(os.fspath(out))
-    if os.path.exists(out) and not _replaceable(out):
-        raise OutputExistsError(f"refusing to write the model to {out}: it exists and is not a model folder "
-                                "written by robomorph export; choose another --out")
     weights, config = _folder_files(record, source)
-    parent, name = os.path.split(out)
-    tmp, old = (os.path.join(parent, f".{name}.{os.getpid()}.{s}") for s in ("tmp", "old"))
-    shutil.rmtree(tmp, ignore_errors=True)
-    try:
+    with output_folder(out, "model") as tmp:
         write_bytes(os.path.join(tmp, WEIGHTS_FILE), weights)
         write_text(os.path.join(tmp, CONFIG_FILE), config)
-        if os.path.isdir(out):
-            os.replace(out, old)
-        os.replace(tmp, out)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-        shutil.rmtree(old, ignore_errors=True)
-
-
-def _replaceable(folder: str) -> bool:
-    """An empty folder, or one holding nothing but an earlier export (its config.json says so)."""
-    if not os.path.isdir(folder) or not set(os.listdir(folder)) <= {CONFIG_FILE, WEIGHTS_FILE}:
-        return False
-    if not os.listdir(folder):
-        return True
-    try:
-        with open(os.path.join(folder, CONFIG_FILE), encoding="utf-8") as f:
-            return json.load(f).get("format") == FORMAT
-    except (OSError, ValueError, AttributeError):
-        return False
 
 
 def write_model(record: dict, out: str) -> None:

@@ -34,9 +34,10 @@ import numpy as np
 import torch
 
 from robomorph.core.errors import RoboMorphError
+from robomorph.core.names import PHYSICS_MODES
 from robomorph.model.hybrid_spread import default_points, draw_spread
 
-MODES = ("learned", "regression", "fused", "refined", "blend", "smoothed")
+MODES = PHYSICS_MODES
 # The modes that read the parameter head (a model trained with --model.physics amortized).
 HEAD_MODES = ("learned", "fused")
 # What ``refined`` fits over rollouts: the parameters the regression leaves least certain. Early

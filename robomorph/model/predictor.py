@@ -30,18 +30,15 @@ from robomorph.model.checkpoint import CheckpointError, TrainedModel, load_train
 from robomorph.model.hybrid_split import default_workers, predict_hybrid
 from robomorph.model.hybrid_std import calibrated_rows, debiasing, kind_calibrations, spread_points, springing
 
-
-class PredictionError(RoboMorphError, ValueError):
-    """Inputs the model cannot predict from (wrong shape or length, non-finite, far outside
-    the training range, or overflowing)."""
-
-
-# How far (in training standard deviations of each torque channel) inputs may lie from the
-# training mean before simulate refuses them. Measured on a multi-sine model: its own data
-# reach 5.2, a chirp store (another task, a legitimate transfer) 19, and torques in the
-# wrong units (x1000, N m given as mN m) thousands. 100 lets every transfer through and
-# stops unit errors, which otherwise return plausible-looking numbers.
-MAX_INPUT_STDS = 100.0
+# Re-exported: the public names of what simulate checks live beside the checks.
+from robomorph.model.predictor_checks import (  # noqa: F401
+    MAX_INPUT_STDS,
+    PredictionError,
+    all_finite,
+    as_batch,
+    check_range,
+    check_settings,
+)
 
 
 def resolve_device(device: str | torch.device | None) -> torch.device:
@@ -64,37 +61,6 @@ def resolve_device(device: str | torch.device | None) -> torch.device:
     elif dev.type not in ("cpu", "cuda", "mps"):
         raise DeviceError(f"--device {device}: robomorph runs on cpu, cuda or mps, not {dev.type}")
     return dev
-
-
-def all_finite(t: torch.Tensor) -> bool:
-    """Whether every value of ``t`` is finite. A finite sum says so at once (a NaN or inf
-    anywhere makes the sum non-finite); only a non-finite sum (that, or an overflow of huge
-    values) takes the elementwise test, which torch runs far slower on the CPU (measured:
-    8.7 ms against 0.04 ms for 256 contexts of 200 x 14 values, on a busy 2-core machine)."""
-    return bool(torch.isfinite(t.sum())) or bool(torch.isfinite(t).all())
-
-
-def _as_batch(arrays, widths: tuple[int, int, int], device: torch.device) -> tuple[list[torch.Tensor], bool]:
-    """``(u_ctx, y_ctx, u_query)``, numpy or torch, as float32 tensors (B, T, C) on ``device``,
-    and whether they came unbatched (T, C).
-
-    Raises:
-        PredictionError: arrays not all batched or all unbatched, channel counts other than
-            ``widths``, or NaN / inf values (each named).
-    """
-    tensors = [torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x,
-                               dtype=torch.float32, device=device) for x in arrays]
-    single = tensors[0].dim() == 2
-    if any(t.dim() != (2 if single else 3) for t in tensors):
-        raise PredictionError("give all three arrays unbatched (T, C) or all batched (B, T, C)")
-    if single:
-        tensors = [t.unsqueeze(0) for t in tensors]
-    for name, t, width in zip(("u_ctx", "y_ctx", "u_query"), tensors, widths):
-        if t.shape[-1] != width:
-            raise PredictionError(f"{name} has {t.shape[-1]} channels, the model expects {width}")
-        if not all_finite(t):
-            raise PredictionError(f"{name} holds NaN or inf values")
-    return tensors, single
 
 
 class Predictor:
@@ -302,7 +268,7 @@ class Predictor:
             raise CheckpointError("this model has no Gaussian head, so it predicts no standard deviation; "
                                   "train one with --model.gaussian true --model.loss nll, or drop return_std")
         tensors, single, cols = _arm_batch(self, (u_ctx, y_ctx, u_query))
-        _check_range(self, tensors[0], tensors[2])
+        check_range(self, *tensors)
         if hybrid and y_query_stats is not None:
             raise NormalizationError("a hybrid model uses no query statistics: drop y_query_stats")
         stats = None if hybrid else _query_stats(self, y_query_stats, len(tensors[0]))
@@ -348,31 +314,14 @@ def _backbone(model: TrainedModel, data_info: dict | None, inputs: str) -> tuple
     return physics, "regression" if inputs == "command" else ("blend" if blend else "none")
 
 
-def _check_range(self: "Predictor", u_ctx: torch.Tensor, u_query: torch.Tensor) -> None:
-    """Refuses torques far outside the training range (wrong units, most often)."""
-    if self.max_input_std is None or u_ctx.numel() == 0 or u_query.numel() == 0:
-        return  # empty arrays: the network's own checks name them
-    stats = self.model.normalizer
-    # The furthest sample per channel from each channel's extremes (a planner's batch is large: no array-wide ops).
-    ends = [torch.aminmax(u.reshape(-1, u.shape[-1]), dim=0) for u in (u_ctx, u_query)]
-    z = torch.stack([torch.maximum((hi - stats.u_mean).abs(), (lo - stats.u_mean).abs()) / stats.u_std
-                     for lo, hi in ends])
-    z = torch.nan_to_num(z, nan=0.0).amax(0)  # (n_u,) the furthest sample (absent channels: NaN)
-    worst = int(torch.argmax(z))
-    if float(z[worst]) > self.max_input_std:
-        names = (self.data_info or {}).get("u_names") or [f"u{i}" for i in range(self.n_u)]
-        raise PredictionError(
-            f"the inputs reach {float(z[worst]):.3g} training standard deviations (channel {names[worst]!r}), "
-            f"far outside the training range (refused above {self.max_input_std:g}); check their units and "
-            "scale (the checkpoint expects the training data's), or set Predictor.max_input_std")
-
-
 def _arm_batch(self: "Predictor", arrays) -> tuple[list[torch.Tensor], bool, tuple | None]:
-    """:func:`_as_batch` of an arm's arrays, padded to the model's channels when it has fewer
-    (a model of several arms), and their columns there (None: the model's own channels)."""
+    """:func:`as_batch` of an arm's arrays, padded to the model's channels when it has fewer
+    (a model of several arms), and their columns there (None: the model's own channels).
+    The Predictor's settings are checked first (:func:`check_settings`): every simulate comes here."""
+    check_settings(self)
     cols = arm_columns(self.model.config.channel_mask, self.data_info, arrays, (self.n_u, self.n_y), self.channels)
     widths = (self.n_u, self.n_y) if cols is None else (len(cols[0]), len(cols[1]))
-    tensors, single = _as_batch(arrays, (*widths, widths[0]), self.device)
+    tensors, single = as_batch(arrays, (*widths, widths[0]), self.device)
     return (tensors if cols is None else pad(tensors, cols, self.n_u, self.n_y)), single, cols
 
 

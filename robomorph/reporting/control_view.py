@@ -18,7 +18,8 @@ _COLUMNS = (("EE RMS [mm]", "ee_rms_mm", ".2f"), ("median robot [mm]", "ee_rms_m
 
 
 def _cell(value, spec: str) -> rh.Cell:
-    return rh.Cell("—" if value is None else format(value, spec), cls="num")
+    plain = isinstance(value, (int, float)) and not isinstance(value, bool) and (spec != "d" or isinstance(value, int))
+    return rh.Cell(format(value, spec) if plain else "—", cls="num")
 
 
 def control_view(folder: str | Path | None) -> dict | None:
@@ -34,11 +35,18 @@ def control_view(folder: str | Path | None) -> dict | None:
     path = folder / "metrics.json"
     if not path.is_file():
         return None
+    warnings: list[str] = []
+    guard = rh.FolderGuard(folder, warnings, "control folder")
     try:
-        metrics = json.loads(path.read_text())
+        metrics = json.loads(path.read_text()) if guard.allows(path) else None
     except (OSError, ValueError) as exc:
+        metrics, reason = None, f"{path} is unreadable: {exc}"
+    else:
+        reason = None if metrics is None or isinstance(metrics, dict) else \
+            f"{path} holds a {type(metrics).__name__}, not the metrics of robomorph control; not shown"
+    if not isinstance(metrics, dict):
         return {"path": str(folder), "table": None, "config": {}, "provenance": {}, "figures": [],
-                "warnings": [f"{path} is unreadable: {exc}"]}
+                "warnings": warnings + ([reason] if reason else [])}
     rows = []
     for name, m in metrics.items():
         if name.startswith("_") or not isinstance(m, dict):
@@ -52,10 +60,12 @@ def control_view(folder: str | Path | None) -> dict | None:
     for name, caption in (("errors.png", "EE tracking error against time (median over robots, 10-90 % band)"),
                           ("paths.png", "EE paths against the reference on the first robot")):
         png = folder / name
-        if png.is_file():
-            figures.append((rh.png_uri(png.read_bytes()), caption))
-    config = metrics.get("_config", {})
+        data = guard.png(png, str(folder)) if guard.file(png) else None
+        if data is not None:
+            figures.append((rh.png_uri(data), caption))
+    config = metrics.get("_config") if isinstance(metrics.get("_config"), dict) else {}
     shown = {k: config.get(k) for k in ("task", "robots", "uncertainty", "seed", "warmup", "duration", "ckpt",
                                           "physics_mode") if k in config}
-    return {"path": str(folder), "table": table, "config": shown, "provenance": metrics.get("_provenance", {}),
-            "figures": figures, "warnings": []}
+    prov = metrics.get("_provenance") if isinstance(metrics.get("_provenance"), dict) else {}
+    return {"path": str(folder), "table": table, "config": shown, "provenance": prov, "figures": figures,
+            "warnings": warnings}

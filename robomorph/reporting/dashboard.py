@@ -87,43 +87,7 @@ class RunData:
         return None
 
 
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-
-
-class _Guard:
-    """Reads files of one run folder, refusing any path that a symbolic link leads out of it.
-
-    The report is meant to be shared: a ``sample_0.png`` (or ``config.yaml``) that links to
-    ``/etc/passwd`` must not carry that file into the page. What is refused becomes a warning.
-    """
-
-    def __init__(self, run_dir: Path, warnings: list[str]):
-        self.root, self.warnings = run_dir.resolve(), warnings
-
-    def allows(self, path: Path) -> bool:
-        """Whether ``path``, every link followed, stays inside the run folder (warns if not)."""
-        try:
-            inside = path.resolve().is_relative_to(self.root)
-        except (OSError, RuntimeError):  # a link loop
-            inside = False
-        if not inside:
-            rel = path.relative_to(self.root) if path.is_relative_to(self.root) else path
-            self.warnings.append(f"{rel}: a symbolic link leading outside the run folder; not read")
-        return inside
-
-    def file(self, path: Path) -> bool:
-        return path.is_file() and self.allows(path)
-
-    def files(self, folder: Path, pattern: str) -> list[Path]:
-        return [p for p in sorted(folder.glob(pattern)) if self.file(p)]
-
-    def png(self, path: Path, where: str) -> bytes | None:
-        """The bytes of a real PNG file; a file of any other kind is left out with a warning."""
-        data = path.read_bytes()
-        if not data.startswith(PNG_MAGIC):
-            self.warnings.append(f"{where}/{path.name} is not a PNG image; not embedded")
-            return None
-        return data
+_Guard = rh.FolderGuard
 
 
 def _load_config(run: RunData, guard: _Guard) -> None:

@@ -14,6 +14,7 @@ import base64
 import functools
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import jinja2
@@ -312,6 +313,46 @@ def best_baseline(metrics: dict) -> tuple[str, float] | None:
               if name != "true_physics"]
     scored = [(name, fit) for name, fit in scored if fit is not None and math.isfinite(fit)]
     return max(scored, key=lambda item: item[1]) if scored else None
+
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+class FolderGuard:
+    """Reads files of one folder (a run, a control folder), refusing any path that a symbolic
+    link leads out of it.
+
+    The report is meant to be shared: a ``sample_0.png`` (or ``config.yaml``) that links to
+    ``/etc/passwd`` must not carry that file into the page. What is refused becomes a warning.
+    """
+
+    def __init__(self, folder: Path, warnings: list[str], what: str = "run folder"):
+        self.root, self.warnings, self.what = Path(folder).resolve(), warnings, what
+
+    def allows(self, path: Path) -> bool:
+        """Whether ``path``, every link followed, stays inside the folder (warns if not)."""
+        try:
+            inside = path.resolve().is_relative_to(self.root)
+        except (OSError, RuntimeError):  # a link loop
+            inside = False
+        if not inside:
+            rel = path.relative_to(self.root) if path.is_relative_to(self.root) else path
+            self.warnings.append(f"{rel}: a symbolic link leading outside the {self.what}; not read")
+        return inside
+
+    def file(self, path: Path) -> bool:
+        return path.is_file() and self.allows(path)
+
+    def files(self, folder: Path, pattern: str) -> list[Path]:
+        return [p for p in sorted(folder.glob(pattern)) if self.file(p)]
+
+    def png(self, path: Path, where: str) -> bytes | None:
+        """The bytes of a real PNG file; a file of any other kind is left out with a warning."""
+        data = path.read_bytes()
+        if not data.startswith(PNG_MAGIC):
+            self.warnings.append(f"{where}/{path.name} is not a PNG image; not embedded")
+            return None
+        return data
 
 
 def png_uri(png: bytes) -> str:

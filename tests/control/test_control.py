@@ -230,7 +230,7 @@ def test_bad_options_get_one_line_and_exit_code_2(hybrid_ckpt, tiny_checkpoint, 
         (["--ckpt", tiny_checkpoint, "--controllers", "mpc:model", "--context", str(CKPT_CONTEXT)],
          "trained on total torques"),
         (["--ckpt", str(tmp_path / "missing.ckpt"), "--controllers", "mpc:model"], "missing.ckpt"),
-        (["--robots", "0"], "--robots must be >= 1"),
+        (["--robots", "0"], "argument --robots: takes a whole number >= 1"),
     ]
     for args, expected in cases:
         res = _control(*args, "--out", str(tmp_path / "x"))
