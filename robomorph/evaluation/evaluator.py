@@ -32,6 +32,7 @@ import os
 from robomorph.core.atomic import write_json
 from robomorph.core.locks import output_folder
 from robomorph.core.normalizations import NormalizationError
+from robomorph.core.progress import progress
 from robomorph.core.results import provenance
 from robomorph.core.rundir import RunDir
 from robomorph.evaluation import plots as eval_plots
@@ -59,7 +60,7 @@ def sweep_horizon(predictor, w: Window, horizons: list[int], baselines: dict, ba
     """Mean R^2 / FIT (approaches 1 and 2) for each horizon, same context; the baselines'
     predictions (causal) are those of the full horizon, cut."""
     rows = []
-    for h in horizons:
+    for h in progress(horizons, "horizon sweep", unit="setting"):
         s = score_windows(predictor, w.cut(horizon=h), (), [], others=baselines, batch_size=batch_size)
         rows.append({"horizon": h, **{src: s.summary(src) for src in s.preds}})
     return rows
@@ -68,7 +69,7 @@ def sweep_horizon(predictor, w: Window, horizons: list[int], baselines: dict, ba
 def sweep_context(predictor, w: Window, contexts: list[int], batch_size: int) -> list[dict]:
     """Mean R^2 / FIT (approaches 1 and 2) of the model and hold for each context length, same predicted window."""
     rows = []
-    for c in contexts:
+    for c in progress(contexts, "context sweep", unit="setting"):
         s = score_windows(predictor, w.cut(context_len=c), ("hold",), [], batch_size=batch_size)
         rows.append({"context_len": c, "model": s.summary(), "hold": s.summary("hold")})
     return rows
