@@ -18,15 +18,18 @@ demo: $(STAMP)
 
 # The report test renders the dashboard in Debian's chromium and the sweep test runs a
 # throw-away PostgreSQL server: both Debian packages are installed when missing.
+# -n auto: one pytest worker per core (pytest-xdist); --dist loadfile keeps a test file on one
+# worker, so the models a file's fixtures train are trained once, not once per worker.
+PYTEST_WORKERS ?= auto
 test: $(STAMP)
 	bash tools/ensure_chromium.sh
 	bash tools/ensure_postgres.sh
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile
 
 test-fast: $(STAMP)
 	bash tools/ensure_chromium.sh
 	bash tools/ensure_postgres.sh
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile -m "not slow"
 
 # The documentation site, offline, into site/ (open site/index.html); --strict turns a broken
 # link, a missing page or a failed include into an error.

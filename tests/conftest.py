@@ -11,6 +11,12 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 os.environ.setdefault("WANDB_MODE", "offline")
+# Under pytest-xdist (`make test` runs one worker per core) each worker's torch and OpenMP would
+# start a thread per core: the cores' share of each worker instead (read by torch at import, and
+# by the commands the tests run in subprocesses), so workers do not fight over the same cores.
+if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1:
+    _share = max(1, (os.cpu_count() or 1) // int(os.environ["PYTEST_XDIST_WORKER_COUNT"]))
+    os.environ.setdefault("OMP_NUM_THREADS", str(_share))
 
 # The tiny checkpoint's window: 30 context + 60 query steps of a simulated multi-sine store.
 CKPT_CONTEXT, CKPT_HORIZON = 30, 60

@@ -61,7 +61,8 @@ def sweep_horizon(predictor, w: Window, horizons: list[int], baselines: dict, ba
     predictions (causal) are those of the full horizon, cut."""
     rows = []
     for h in progress(horizons, "horizon sweep", unit="setting"):
-        s = score_windows(predictor, w.cut(horizon=h), (), [], others=baselines, batch_size=batch_size)
+        # Means alone: a sweep reports R² and FIT, and a hybrid's std costs many simulations more.
+        s = score_windows(predictor, w.cut(horizon=h), (), [], others=baselines, batch_size=batch_size, score_std=False)
         rows.append({"horizon": h, **{src: s.summary(src) for src in s.preds}})
     return rows
 
@@ -70,7 +71,7 @@ def sweep_context(predictor, w: Window, contexts: list[int], batch_size: int) ->
     """Mean R^2 / FIT (approaches 1 and 2) of the model and hold for each context length, same predicted window."""
     rows = []
     for c in progress(contexts, "context sweep", unit="setting"):
-        s = score_windows(predictor, w.cut(context_len=c), ("hold",), [], batch_size=batch_size)
+        s = score_windows(predictor, w.cut(context_len=c), ("hold",), [], batch_size=batch_size, score_std=False)
         rows.append({"context_len": c, "model": s.summary(), "hold": s.summary("hold")})
     return rows
 

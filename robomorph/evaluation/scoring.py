@@ -121,7 +121,8 @@ def resolve_steps(steps: str | Sequence[int] | None, horizon: int, dt: float) ->
 
 def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold",),
                   steps: str | Sequence[int] | None = None, *, others: dict | None = None,
-                  arx_orders: tuple[int, int] = (2, 2), train_blocks=None, batch_size: int = 64) -> Scores:
+                  arx_orders: tuple[int, int] = (2, 2), train_blocks=None, batch_size: int = 64,
+                  score_std: bool = True) -> Scores:
     """Scores a predictor and baselines on the same windows.
 
     Args:
@@ -141,6 +142,9 @@ def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold"
         train_blocks: reads the training data for ``arx_train``
             (:func:`robomorph.evaluation.training_data.reader`).
         batch_size: trajectories per model call.
+        score_std: score the model's standard deviation when it gives one (default); False predicts the means
+            alone, for scores that read no std (a sweep's R² and FIT): a hybrid's std costs many more
+            simulations than its mean.
     """
     w = windows
     u_ctx, y_ctx, u_q, y_q = w.split()
@@ -154,7 +158,7 @@ def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold"
         at_rest = w.starts == 0 if len(w.starts) == len(u_ctx) else None  # the generator starts at rest
         # anchor: where each robot started, as the physics baselines are given it (sources.nominal_params)
         kwargs = {"y_query": y_q, "at_rest": at_rest, "anchor": start_joints(w)}
-        with_std, t0 = gives_std(predictor, u_ctx, y_ctx, u_q, y_q), time.perf_counter()
+        with_std, t0 = score_std and gives_std(predictor, u_ctx, y_ctx, u_q, y_q), time.perf_counter()
         out = predict(predictor, u_ctx, y_ctx, u_q, batch_size, with_std=with_std, **kwargs)
         seconds = (time.perf_counter() - t0) / len(u_ctx)  # the model's cost per window, as identified physics' notes
         preds[MODEL], std = out if with_std else (out, None)

@@ -76,3 +76,28 @@ def gaussian(simulated_store, tmp_path_factory):
     result = fit(tiny_fit_args(store, tmp_path_factory.mktemp("runs"), "gauss",
                                model={"anchor": True, "gaussian": True, "loss": "nll"}))
     return store, result.best_ckpt
+
+
+def test_the_sweeps_predict_means_alone_and_score_as_with_the_std(gaussian, monkeypatch):
+    """A sweep reports R² and FIT only: it asks no std (a hybrid's costs many simulations), and its scores
+    are those of the same windows scored with the std."""
+    from robomorph.evaluation.evaluator import sweep_context, sweep_horizon
+    from robomorph.evaluation.scoring import score_windows
+    from robomorph.evaluation.windows import load_window
+
+    store, best = gaussian
+    pred = Predictor.from_checkpoint(best, device="cpu")
+    w = load_window(store, C, H, 4, pred.data_info, pred.n_u, pred.n_y)
+    real, asked = Predictor.simulate, []
+
+    def simulate(self, *args, **kwargs):
+        asked.append(bool(kwargs.get("return_std")))
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(Predictor, "simulate", simulate)
+    rows = sweep_horizon(pred, w, [30, 60], {}, 64) + sweep_context(pred, w, [10, 30], 64)
+    assert asked and not any(asked)
+    asked.clear()
+    with_std = score_windows(pred, w.cut(horizon=30), (), [])
+    assert any(asked) and with_std.std is not None  # the default scores the std, so the comparison means something
+    assert rows[0]["model"] == with_std.summary()
