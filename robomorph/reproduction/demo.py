@@ -110,7 +110,7 @@ def calibrate_std(ckpt: str) -> bool:
     """Recalibrates a Gaussian head's std by horizon on the fit's validation robots (in place);
     False for a model without one. A total-torque model first gets its physics/decoder blend; a
     hybrid also gets the calibration of windows that do not open their trajectory."""
-    from robomorph.evaluation.calibrating import blend, blend_text, calibrate, report_text  # noqa: PLC0415
+    from robomorph.evaluation.calibrating import blend, blend_text, brief_text, calibrate  # noqa: PLC0415
     from robomorph.model.calibration import CalibrationError  # noqa: PLC0415
     from robomorph.model.checkpoint import load_trained  # noqa: PLC0415
 
@@ -122,12 +122,13 @@ def calibrate_std(ckpt: str) -> bool:
     hybrid = bool(model.config.n_params and (info or {}).get("physics"))
     if not model.gaussian and not hybrid:
         return False
-    print("\n" + report_text(calibrate(ckpt)))
+    # One line each: the table by step, and its advice, are `robomorph calibrate`'s (a newcomer cannot act on it here).
+    print("\n" + brief_text(calibrate(ckpt)))
     if hybrid:
         # What a controller sends: contexts of a robot already moving, whose own calibration this is
         # (windows at random offsets, with room for them: three quarters of the training horizon).
         try:
-            print("\n" + report_text(calibrate(ckpt, horizon=max(1, 3 * int(info["horizon"]) // 4), offset="random")))
+            print(brief_text(calibrate(ckpt, horizon=max(1, 3 * int(info["horizon"]) // 4), offset="random")))
         except CalibrationError as exc:
             print(f"\n(no calibration for windows of a moving robot: {exc}; the start windows' serves them)")
     return True

@@ -150,3 +150,17 @@ def test_the_report_ranks_the_spread_and_says_when_heavy_tails_leave_a_band():
     assert "spread-error rank corr." in inside and "| 0.12" in inside and "heavier-tailed" not in inside
     tails = report_text({**base, "after": {"1sigma": [0.69, 0.74], "2sigma": [0.95, 0.91]}})
     assert "at step(s) 60 the errors are heavier-tailed" in tails and "rank correlation of 0.12-0.12" in tails
+
+
+def test_the_brief_summary_is_one_line_of_the_reports_coverage(gaussian, tmp_path):
+    from robomorph.evaluation.calibrating import brief_text, report_text
+
+    _, best = gaussian
+    report = calibrate(_copy(best, tmp_path), method="coverage")
+    line = brief_text(report)
+    assert "\n" not in line and len(report_text(report).splitlines()) > 5
+    n = report["calibration"]["source"]["n"]
+    assert line.startswith(f"std calibrated (coverage) on {n} validation windows from the start: ±1σ covers ")
+    lo, hi = min(report["after"]["1sigma"]), max(report["after"]["1sigma"])
+    after = f"{lo:.0%}" if f"{lo:.0%}" == f"{hi:.0%}" else f"{lo:.0%}-{hi:.0%}"
+    assert f"-> {after}, ±2σ " in line and line.endswith("(ideal 68 % / 95 %)")
