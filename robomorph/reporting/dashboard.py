@@ -244,12 +244,50 @@ def _in_sample(metrics) -> str | None:
     return str(meta.get("in_sample_store") or "a training store")
 
 
+# How each physics mode predicts, for the reader of an evaluation (robomorph.model.hybrid.MODES).
+_READS_DECODER = {"blend": "its simulation and the network's decoder weighted by step",
+                  "smoothed": "its simulation smoothed against the network's decoder",
+                  "learned": "the robot read from the context by the network's parameter head, then simulated",
+                  "fused": "the robot identified from the context (the network's parameter head as prior), then simulated"}
+
+
+def predictor_note(metrics) -> str:
+    """Which part of the run predicted an evaluation: the hybrid (and whether it read the network) or the decoder."""
+    meta = metrics.get("meta") if isinstance(metrics, dict) else None
+    physics = meta.get("physics") if isinstance(meta, dict) else None
+    mode = physics.get("mode") if isinstance(physics, dict) else None
+    if not mode:
+        return ("Predicted by the network's decoder (the black-box model): the training curves above are its "
+                "validation scores.")
+    if mode in _READS_DECODER:
+        return f"Predicted by the hybrid, physics mode {mode}: {_READS_DECODER[mode]}."
+    return (f"Predicted by the hybrid, physics mode {mode}: the robot identified from each context by linear solves, "
+            "then simulated. It reads no network: the training curves above are the decoder's, not this prediction's.")
+
+
+def diverged_notes(metrics) -> list[str]:
+    """``"baseline arx diverged on k of n windows ..."`` for a baseline that fell back to hold on any window."""
+    from robomorph.evaluation.tables import diverged_note  # noqa: PLC0415
+
+    meta = metrics.get("meta") if isinstance(metrics, dict) else None
+    notes = meta.get("baseline_notes") if isinstance(meta, dict) else None
+    if not isinstance(notes, dict):
+        return []
+    out = []
+    for name, note in notes.items():
+        text = diverged_note(note, meta.get("n", "?")) if isinstance(note, dict) else ""
+        if text:
+            out.append(f"Baseline {name}: {text} (its scores are hold's on those; read them with that in mind).")
+    return out
+
+
 def eval_view(ev: EvalData) -> dict:
     """What the template shows of one evaluation: warnings, meta, tables, plots, table.md."""
     store = _in_sample(ev.metrics)
     in_sample = [f"In-sample: {store} is a training store of this model; these scores include robots it was "
                  "trained on, not how it generalizes."] if store else []
-    view = {"name": ev.name, "warnings": ev.warnings + rh.notes(ev.metrics) + in_sample, "meta": [], "skipped": [],
+    view = {"name": ev.name, "warnings": ev.warnings + rh.notes(ev.metrics) + in_sample + diverged_notes(ev.metrics),
+            "predictor": predictor_note(ev.metrics) if ev.metrics is not None else None, "meta": [], "skipped": [],
             "channels": None, "horizons": None, "table_md": ev.table_md,
             "figures": [(rh.png_uri(png), name) for name, png in ev.pngs]}
     if ev.metrics is not None:
@@ -279,8 +317,9 @@ def render(runs: list[RunData], title: str, runs_dir: str, control: str | None =
                      stamp=datetime.now().strftime("%Y-%m-%d %H:%M"),
                      warnings=[f"{run.name}: {w}" for run in runs for w in run.all_warnings],
                      legend=rh.legend(), overview=overview(runs), curves=rh.png_uri(curves) if curves else None,
-                     curves_caption="train/loss, val/loss (log scale where every value is positive, linear "
-                                    "otherwise) and val/r2 against step",
+                     curves_caption="the network's training: train/loss, val/loss (log scale where every value "
+                                    "is positive, linear otherwise) and val/r2 against step, of its decoder's "
+                                    "predictions; each evaluation below says what predicted it",
                      runs=[run_view(run, i) for i, run in enumerate(runs)], control=control_view(control))
 
 

@@ -168,6 +168,28 @@ def test_paper_window_evaluations_are_marked_and_others_are_not(tmp_path):
     assert "the query outputs&#39; statistics" in sections[1] and "query outputs" not in sections[0]
 
 
+def test_each_evaluation_says_what_predicted_it_marks_diverged_baselines_and_folds_its_metadata(tmp_path):
+    root = tmp_path / "runs"
+    make_run(root, "blackbox")
+    hybrid = make_run(root, "hybrid")
+    path = hybrid / "eval" / "heldout" / "metrics.json"
+    metrics = json.loads(path.read_text())
+    metrics["meta"]["physics"] = {"mode": "regression", "observer": True}
+    metrics["meta"]["baseline_notes"] = {"arx": {"na": 2, "nb": 2, "diverged_held": 40}}
+    path.write_text(json.dumps(metrics))
+    page = Path(build_report(str(root), str(tmp_path / "report.html"))).read_text()
+    assert "of its decoder&#39;s predictions; each evaluation below says what predicted it" in page  # the curves
+    blackbox, hyb = page.split('<section id="run-')[1:3]
+    assert "Predicted by the network&#39;s decoder (the black-box model)" in blackbox
+    assert "Predicted by the hybrid, physics mode regression" in hyb and "It reads no network" in hyb
+    assert "Baseline arx: 40 of 64 trajectories diverged: held instead" in hyb and "diverged" not in blackbox
+    for section in (blackbox, hyb):  # the evaluation's metadata sits behind a fold, not above its tables
+        fold = section.split("<summary>run information (")[1].split("</details>")[0]
+        assert "context_len: <code>200</code>" in fold and section.index("<details><summary>run information") < \
+            section.index("<table")
+        assert section.count("context_len: <code>200</code>") == 1
+
+
 def test_report_escapes_file_text(report):
     page = report.read_text()
     assert "<script>alert(1)</script>" not in page
