@@ -11,6 +11,8 @@ Scored on the same test windows, through :func:`robomorph.evaluation.scoring.sco
 - ``hold``, ``constant_velocity``, ``constant_acceleration``: the kinematic bars;
 - ``arx``: a linear ARX fitted on each window's own context; ``arx_train``: one fitted on the
   robot's training recordings;
+- ``accel_arx``, ``accel_arx_train``: the same two in acceleration form (a double integrator
+  whose acceleration is linear in the torque), which cannot drift from smooth motion;
 - ``nominal_physics``: the catalogue arm (where the robot has an MJCF in the arms registry)
   driven by the logged torques from the end of the context;
 - ``identified_physics`` (``--identified``): that arm with masses, damping, armature and
@@ -78,6 +80,8 @@ def report_steps(horizon: int, dt: float) -> list[tuple[int, str]]:
     out = []
     for t, label in TIMES:
         k = 1 if t is None else int(round(t / dt))
+        if t is not None and abs(k * dt - t) > 1e-6 * t:
+            label = f"{k * dt:.3g} s"  # the rate has no sample at t: the nearest step, named by its time
         if 1 <= k <= horizon and k not in [s for s, _ in out]:
             out.append((k, label))
     return out
@@ -115,7 +119,7 @@ def score_robot(source: public_logs.PublicLog, args) -> dict:
     test, train = open_store(stores["test"]), open_store(stores["train"])
     w = load_window(stores["test"], source.context, source.horizon, args.windows, None,
                     len(test.u_names), len(test.y_names))
-    baselines = list(KINEMATIC) + ["arx", "arx_train"]
+    baselines = list(KINEMATIC) + ["arx", "arx_train", "accel_arx", "accel_arx_train"]
     if source.arm:
         baselines.append("nominal_physics")
         if args.identified:

@@ -24,13 +24,17 @@ def _units(text: str) -> list[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m robomorph.ingest", description=ingest.__doc__.split("\n")[0])
-    p.add_argument("files", nargs="+", help="log files, one recording each (.csv, .npz, .mat)")
-    p.add_argument("--u-cols", required=True, type=_names,
+    p.add_argument("files", nargs="*", help="log files, one recording each (.csv, .npz, .mat)")
+    p.add_argument("--source", help="instead of files: a public real-arm source (kinova_gen3, ur5, schunk, "
+                   "industrial_robot; docs: Real robots), read from its clone under --data and written as "
+                   "OUT/train.zarr, OUT/test.zarr (and OUT/val.zarr), split by recording")
+    p.add_argument("--data", help="with --source: the folder holding the sources' clones")
+    p.add_argument("--u-cols", type=_names,
                    help="total joint torque columns (the store's u), comma-separated")
     p.add_argument("--u-cmd-cols", type=_names, help="command columns before the arm's gravity compensation "
                    "(the store's u_cmd, for data.inputs: command), comma-separated, joint order of --u-cols")
-    p.add_argument("--y-cols", required=True, type=_names, help="output columns, comma-separated")
-    p.add_argument("--steps", required=True, type=int, help="samples per window (T)")
+    p.add_argument("--y-cols", type=_names, help="output columns, comma-separated")
+    p.add_argument("--steps", type=int, help="samples per window (T)")
     p.add_argument("--stride", type=int, help="samples between window starts (default: --steps)")
     p.add_argument("--dt", type=float, help="sample time in seconds")
     p.add_argument("--time-col", help="timestamp column (seconds) to derive dt from; must be uniform")
@@ -54,7 +58,34 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def run_source(args: argparse.Namespace) -> int:
+    from robomorph.data import public_logs  # noqa: PLC0415
+
+    source = public_logs.get(args.source)
+    stores = public_logs.write_stores(source, args.data, args.out, overwrite=args.overwrite)
+    for split, path in stores.items():
+        ds = ingest.open_store(path)
+        print(f"{path}: {ds.n} windows x {ds.steps} steps (dt={ds.dt:.6g} s) from the {split} recordings")
+    return 0
+
+
+def check_request(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Either ``--source`` with ``--data``, or files with ``--u-cols``, ``--y-cols`` and ``--steps``."""
+    if args.source:
+        given = [flag for flag, v in (("files", args.files), ("--u-cols", args.u_cols), ("--y-cols", args.y_cols),
+                                      ("--steps", args.steps)) if v]
+        if given or not args.data:
+            p.error("--source reads a public source's clone: pass --data DIR and none of " + ", ".join(given or ["files"]))
+        return
+    missing = [flag for flag, v in (("files", args.files), ("--u-cols", args.u_cols), ("--y-cols", args.y_cols),
+                                    ("--steps", args.steps)) if not v]
+    if missing:
+        p.error(f"the following arguments are required: {', '.join(missing)} (or --source NAME --data DIR)")
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.source:
+        return run_source(args)
     # Warnings about skipped recordings are printed before the result line (or the error),
     # once the recording context is left (inside it, showwarning only records).
     caught: list[warnings.WarningMessage] = []
@@ -87,7 +118,9 @@ def _print_warnings(caught: list[warnings.WarningMessage]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    p = build_parser()
+    args = p.parse_args(argv)
+    check_request(p, args)
     return run_command(lambda: run(args))
 
 

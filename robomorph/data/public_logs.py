@@ -116,16 +116,18 @@ def _csv_header(path: str) -> tuple[list[str], np.ndarray]:
 
 
 def _kinova(root: str) -> list[Recording]:
-    # Time is the sample index of the arm's 1 kHz loop; Torque is the joint torque sensors'
-    # reading (TorqueSm a smoothed copy, TorqueCur one derived from motor current).
+    # Time is the sample index of the arm's 1 kHz loop. The joint torque is taken from
+    # TorqueCur (the motors' currents through their torque constants): the sensors' Torque
+    # columns read exactly 0 over whole files (Trajectory1, four of the joint-wise motions) and
+    # on joint 7 in every file, which would hand every predictor a robot with no torque there.
     recs = []
     for path in sorted(glob.glob(os.path.join(root, "pyDynaMapp", "data", "kinova", "*", "*.csv"))):
         names, a = _csv_header(path)
         try:
-            u = a[:, [names.index(f"Torque{j}") for j in range(1, 8)]]
+            u = a[:, [names.index(f"TorqueCur{j}") for j in range(1, 8)]]
             q = a[:, [names.index(f"Position{j}") for j in range(1, 8)]]
         except ValueError:
-            raise PublicLogError(f"{path} lacks the Torque1..7 / Position1..7 columns of the Kinova logs") from None
+            raise PublicLogError(f"{path} lacks the TorqueCur1..7 / Position1..7 columns of the Kinova logs") from None
         split = "test" if os.path.basename(os.path.dirname(path)) == "validation_data" else "train"
         recs.append(Recording(os.path.relpath(path, root), u, q, 1e-3, split))
     return recs
@@ -230,7 +232,8 @@ SOURCES: dict[str, PublicLog] = {s.name: s for s in (
     PublicLog("kinova_gen3", "Kinova Gen3 (7 joints, joint torque sensors, 1 kHz)", "kinova3", "dynamic-identification",
               "git clone https://github.com/wissem01chiha/dynamic-identification && git -C dynamic-identification "
               "checkout 90ba37d676d8da6c064d9edf5c1a09389309752e",
-              "MIT (at that commit)", "Torque1..7: the joint torque sensors, gravity included",
+              "MIT (at that commit)", "TorqueCur1..7: joint torque from the motor currents, gravity included (the "
+              "sensors' Torque columns read 0 in whole files and on joint 7 everywhere)",
               "validation_data/ (the authors' validation trajectories) is test; identification_data/ and "
               "jointwise_motion/ train",
               200.0, 200, 200, 50, _kinova),

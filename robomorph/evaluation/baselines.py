@@ -15,6 +15,13 @@ gets: the context ``u_ctx (B, Tc, n_u)``, ``y_ctx (B, Tc, n_y)`` and the query i
 - ``arx_train``: one linear ARX model fitted by least squares over the model's *training*
   data (the usual system-identification baseline), started from each context's last
   samples and simulated freely over the horizon.
+- ``accel_arx`` (opt-in): an ARX model in acceleration form, ``y[t+1] = 2 y[t] - y[t-1] + W x[t]``
+  with ``x[t]`` the inputs, their last change, the outputs' last step and a constant: a double
+  integrator whose acceleration is linear in the torque, fitted on each window's own context
+  with its ridge chosen on the context's last quarter. Unlike ``arx`` it cannot drift away from
+  smooth motion: with ``W = 0`` it is ``constant_velocity``.
+- ``accel_arx_train`` (opt-in): the same structure fitted once over the training recordings,
+  its constant re-estimated on each context's last samples (what offsets and gravity add there).
 - ``nominal_physics``: the catalogue Panda (no randomization) simulated in MuJoCo from
   the state at the end of the context, driven by the recorded torques.
 - ``identified_physics`` (opt-in): the physical parameters a context reveals (a mass per
@@ -40,7 +47,7 @@ import numpy as np
 
 BASELINES = ("hold", "constant_velocity", "constant_acceleration", "arx", "arx_train", "nominal_physics")
 # Competitors run only when named (--baselines): each window costs a fit of its own.
-OPT_IN = ("identified_physics", "identified_physics_springs")
+OPT_IN = ("identified_physics", "identified_physics_springs", "accel_arx", "accel_arx_train")
 # Not a competitor (it reads the parameters the model never sees) but the ceiling of
 # physics itself: each robot's own parameters, from the same estimated state. Opt-in.
 CEILINGS = ("true_physics",)
@@ -227,3 +234,131 @@ class TrainedARX:
         return pred
 
 
+
+
+def _accel_design(u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Regressors (B, T - 2, R) and targets (B, T - 2, n_y) of the acceleration form: row ``t``
+    (``t = 1 .. T - 2``) predicts ``y[t+1] - 2 y[t] + y[t-1]`` from ``u[t]`` (applied from the
+    state at ``t``, so it moves ``y[t+1]``), ``u[t] - u[t-1]``, ``y[t] - y[t-1]`` and 1."""
+    v = y[:, 1:-1] - y[:, :-2]
+    x = np.concatenate([u[:, 1:-1], u[:, 1:-1] - u[:, :-2], v, np.ones(v.shape[:2] + (1,))], axis=-1)
+    return x, y[:, 2:] - 2 * y[:, 1:-1] + y[:, :-2]
+
+
+def _ridge(x: np.ndarray, a: np.ndarray, ridge: float) -> np.ndarray:
+    """Per-window ridge solutions (B, R, n_y) of ``a ~ x W``, columns scaled by their std."""
+    scale = x.std(1) + 1e-12  # (B, R)
+    scale[:, -1] = 1.0  # the constant
+    xn = x / scale[:, None]
+    gram = np.einsum("btr,bts->brs", xn, xn)
+    reg = ridge * np.trace(gram, axis1=1, axis2=2)[:, None, None] / gram.shape[1] * np.eye(gram.shape[1])
+    return np.linalg.solve(gram + reg, np.einsum("btr,btn->brn", xn, a)) / scale[:, :, None]
+
+
+def _accel_rollout(w: np.ndarray, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
+    """Free simulation (B, H, n_y) of the acceleration form with per-window weights ``w`` (B, R, n_y)."""
+    u = np.concatenate([u_ctx[:, -2:], u_query], axis=1)  # u[c-2], u[c-1], u[c], ...
+    y_prev, y_last = y_ctx[:, -2], y_ctx[:, -1]
+    ones = np.ones((len(u), 1))
+    out = np.empty(y_ctx.shape[:1] + u_query.shape[1:2] + y_ctx.shape[2:])
+    for k in range(u_query.shape[1]):
+        x = np.concatenate([u[:, k + 1], u[:, k + 1] - u[:, k], y_last - y_prev, ones], axis=1)
+        y_prev, y_last = y_last, 2 * y_last - y_prev + np.einsum("br,brn->bn", x, w)
+        out[:, k] = y_last
+    return out
+
+
+def _held_if_diverged(pred: np.ndarray, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> tuple[np.ndarray, int]:
+    """``pred`` with each window that left the context's band (as :class:`ARX` judges it) held instead."""
+    centre = y_ctx.mean(1, keepdims=True)
+    span = np.abs(y_ctx - centre).max((1, 2)) + 1e-9
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(pred).all((1, 2)) | (np.abs(pred - centre).max((1, 2)) > _ARX_BLOWUP * span)
+    pred[bad] = hold(u_ctx, y_ctx, u_query)[bad]
+    return pred, int(bad.sum())
+
+
+@dataclass
+class AccelARX:
+    """The acceleration-form ARX of ``accel_arx``, fitted on each window's own context.
+
+    The ridge is chosen per window among ``ridges``: each is fitted on the context's first
+    ``1 - holdout`` share and scored by simulating the rest freely; the best is refitted on the
+    whole context. A simulation leaving the context's band is held and counted, as for ``arx``.
+    """
+
+    ridges: tuple[float, ...] = (1e-4, 1e-2, 1e-1, 1.0)
+    holdout: float = 0.25
+    diverged: int = field(default=0, init=False)
+
+    def __call__(self, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
+        u_ctx, y_ctx, u_query = (np.asarray(a, dtype=np.float64) for a in (u_ctx, y_ctx, u_query))
+        c = u_ctx.shape[1]
+        split = int(round(c * (1 - self.holdout)))
+        n_reg = 2 * u_ctx.shape[-1] + y_ctx.shape[-1] + 1
+        if split - 2 < n_reg or c - split < 2:
+            raise ValueError(f"accel_arx needs a context of at least {int(np.ceil((n_reg + 4) / (1 - self.holdout)))} "
+                             f"steps for {n_reg} coefficients per output, got {c}")
+        x_fit, a_fit = _accel_design(u_ctx[:, :split], y_ctx[:, :split])
+        errors = []
+        for ridge in self.ridges:
+            pred = _accel_rollout(_ridge(x_fit, a_fit, ridge), u_ctx[:, :split], y_ctx[:, :split], u_ctx[:, split:])
+            with np.errstate(over="ignore", invalid="ignore"):
+                err = np.sqrt(((pred - y_ctx[:, split:]) ** 2).mean((1, 2)))
+            errors.append(np.where(np.isfinite(err), err, np.inf))
+        best = np.asarray(self.ridges)[np.argmin(np.stack(errors), axis=0)]  # (B,)
+        x, a = _accel_design(u_ctx, y_ctx)
+        w = np.stack([_ridge(x[b:b + 1], a[b:b + 1], r)[0] for b, r in enumerate(best)])
+        with np.errstate(over="ignore", invalid="ignore"):
+            pred = _accel_rollout(w, u_ctx, y_ctx, u_query)
+        pred, self.diverged = _held_if_diverged(pred, u_ctx, y_ctx, u_query)
+        return pred
+
+
+@dataclass
+class TrainedAccelARX:
+    """The acceleration-form ARX of ``accel_arx_train``: one fit over training trajectories (the
+    normal equations accumulated block by block, as :class:`TrainedARX`), then on each window
+    its constant moved by the mean residual of the context's last ``bias_steps`` rows."""
+
+    ridge: float = 1e-6
+    bias_steps: int = 50
+    diverged: int = field(default=0, init=False)
+    trajectories: int = field(default=0, init=False)
+
+    def __post_init__(self) -> None:
+        self._w: np.ndarray | None = None
+
+    def fit(self, blocks) -> "TrainedAccelARX":
+        """Least squares over ``blocks``: an iterable of ``(u (B, T, n_u), y (B, T, n_y))``."""
+        gram = rhs = scale = None
+        for u, y in blocks:
+            x, a = _accel_design(np.asarray(u, np.float64), np.asarray(y, np.float64))
+            x, a = x.reshape(-1, x.shape[-1]), a.reshape(-1, a.shape[-1])
+            if gram is None:
+                scale = x.std(0) + 1e-12
+                scale[-1] = 1.0
+                gram, rhs = np.zeros((len(scale), len(scale))), np.zeros((len(scale), a.shape[-1]))
+            xn = x / scale
+            gram += xn.T @ xn
+            rhs += xn.T @ a
+            self.trajectories += len(u)
+        if gram is None:
+            raise ValueError("accel_arx_train needs at least one training trajectory")
+        gram[np.diag_indices_from(gram)] += self.ridge * np.trace(gram) / len(gram)
+        self._w = np.linalg.solve(gram, rhs) / scale[:, None]  # (R, n_y)
+        return self
+
+    def __call__(self, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
+        if self._w is None:
+            raise ValueError("fit accel_arx_train on training data before predicting")
+        u_ctx, y_ctx, u_query = (np.asarray(a, dtype=np.float64) for a in (u_ctx, y_ctx, u_query))
+        if u_ctx.shape[1] < 3:
+            raise ValueError("accel_arx_train needs a context of at least 3 steps")
+        x, a = _accel_design(u_ctx, y_ctx)
+        w = np.repeat(self._w[None], len(u_ctx), axis=0)
+        w[:, -1] += (a - x @ self._w)[:, -self.bias_steps:].mean(1)  # the constant row
+        with np.errstate(over="ignore", invalid="ignore"):
+            pred = _accel_rollout(w, u_ctx, y_ctx, u_query)
+        pred, self.diverged = _held_if_diverged(pred, u_ctx, y_ctx, u_query)
+        return pred

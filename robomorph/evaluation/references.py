@@ -1,9 +1,10 @@
-"""What an evaluation scores beside the model besides the fixed baselines: an ARX model
-fitted on the model's training data (``arx_train``) and other checkpoints (``--compare``)."""
+"""What an evaluation scores beside the model besides the fixed baselines: the ARX models
+fitted on the model's training data (``arx_train``, ``accel_arx_train``) and other
+checkpoints (``--compare``)."""
 
 from __future__ import annotations
 
-from robomorph.evaluation.baselines import BASELINES, CEILINGS, OPT_IN, TrainedARX
+from robomorph.evaluation.baselines import BASELINES, CEILINGS, OPT_IN, TrainedAccelARX, TrainedARX
 from robomorph.evaluation.windows import EvaluationError
 
 
@@ -12,6 +13,13 @@ def fit_arx_train(orders: tuple[int, int], train_blocks) -> TrainedARX:
     if train_blocks is None:
         raise ValueError("arx_train needs the training data: pass --arx-train-data")
     return TrainedARX(*orders).fit(train_blocks())
+
+
+def fit_accel_arx_train(train_blocks) -> TrainedAccelARX:
+    """``accel_arx_train`` fitted on ``train_blocks()``, as :func:`fit_arx_train`."""
+    if train_blocks is None:
+        raise ValueError("accel_arx_train needs the training data: pass --arx-train-data")
+    return TrainedAccelARX().fit(train_blocks())
 
 
 def load_other(name: str, ckpt: str, w, device: str | None):  # w: evaluation.windows.Window

@@ -16,7 +16,7 @@ from robomorph.core.errors import RoboMorphError
 from robomorph.core.normalizations import NormalizationError, query_output_stats
 from robomorph.core.progress import Phase, progress
 from robomorph.evaluation import references
-from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, KINEMATIC, OPT_IN
+from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, KINEMATIC, OPT_IN, AccelARX
 from robomorph.evaluation.windows import EvaluationError, Window, start_joints
 
 
@@ -119,6 +119,15 @@ def run_baselines(w: Window, names: tuple[str, ...], arx_orders: tuple[int, int]
                 notes[name] = {"na": arx.na, "nb": arx.nb, "diverged_held": arx.diverged}
                 if name == "arx_train":
                     notes[name]["trajectories"] = arx.trajectories
+            except ValueError as exc:  # too short a context, or no training data to read
+                skipped[name] = str(exc)
+        elif name in ("accel_arx", "accel_arx_train"):
+            try:
+                model = AccelARX() if name == "accel_arx" else references.fit_accel_arx_train(train_blocks)
+                preds[name] = model(u_ctx, y_ctx, u_q)
+                notes[name] = {"diverged_held": model.diverged}
+                if name == "accel_arx_train":
+                    notes[name]["trajectories"] = model.trajectories
             except ValueError as exc:  # too short a context, or no training data to read
                 skipped[name] = str(exc)
         elif name in ("identified_physics", "identified_physics_springs"):

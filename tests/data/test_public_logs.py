@@ -59,12 +59,13 @@ def write_sources(root: str) -> None:
     rng = np.random.default_rng(0)
     kin = os.path.join(root, "dynamic-identification", "pyDynaMapp", "data", "kinova")
     header = (["Time"] + [f"Position{j}" for j in range(1, 8)] + [f"Velocity{j}" for j in range(1, 8)]
-              + [f"Torque{j}" for j in range(1, 8)])
+              + [f"Torque{j}" for j in range(1, 8)] + [f"TorqueCur{j}" for j in range(1, 8)])
     for k, (folder, name) in enumerate((("identification_data", "Trajectory1.csv"),
                                         ("jointwise_motion", "joint_1_trapez.csv"),
                                         ("validation_data", "opti_traj_testing1.csv"))):
         u, q = _kinova_log(k, 2.6)
-        rows = np.column_stack([np.arange(len(u)), q, np.gradient(q, 1e-3, axis=0), u])
+        # The sensors' Torque columns read 0, as they do on the real arm's joint 7; TorqueCur is read.
+        rows = np.column_stack([np.arange(len(u)), q, np.gradient(q, 1e-3, axis=0), np.zeros_like(u), u])
         os.makedirs(os.path.join(kin, folder), exist_ok=True)
         np.savetxt(os.path.join(kin, folder, name), rows, delimiter=",", header=",".join(header), comments="")
 
@@ -162,10 +163,32 @@ def test_benchmark_scores_every_predictor_on_every_robot_and_physics_wins_on_its
     kinova = text.split("## Kinova")[1].split("\n## ")[0]
     rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
             for line in kinova.splitlines() if line.startswith("| ") and "joint RMS" not in line}
-    assert set(rows) == {"hold", "constant_velocity", "constant_acceleration", "arx", "arx_train",
-                         "nominal_physics", "identified_physics"}
+    assert set(rows) == {"hold", "constant_velocity", "constant_acceleration", "arx", "arx_train", "accel_arx",
+                         "accel_arx_train", "nominal_physics", "identified_physics"}
     # The logs were made by the catalogue arm itself: its physics beats hold at 0.25 s (step 50 at 200 Hz).
     assert float(rows["nominal_physics"][1]) < 0.5 * float(rows["hold"][1])
     industrial = text.split("## KUKA")[1]
     assert "NRMSE" in industrial and "arx_train" in industrial
     assert "nominal_physics" not in text.split("## Schunk")[1].split("\n## ")[0]  # no MJCF: not run
+
+
+def test_ingest_source_writes_the_split_stores_and_refuses_mixed_requests(sources, tmp_path, capsys):
+    from robomorph.data.store import open_store
+    from robomorph.ingest import main as ingest_main
+
+    out = str(tmp_path / "schunk")
+    assert ingest_main(["--source", "schunk", "--data", sources, "--out", out]) == 0
+    printed = capsys.readouterr().out
+    assert "train.zarr" in printed and "test.zarr" in printed
+    test = open_store(os.path.join(out, "test.zarr"))
+    assert test.steps == 700 and test.y_names == [f"q{j}" for j in range(6)] and test.n == 2
+    # A second run refuses to replace the stores without --overwrite, and keeps them.
+    assert ingest_main(["--source", "schunk", "--data", sources, "--out", out]) == 2
+    assert open_store(os.path.join(out, "test.zarr")).n == 2
+    for argv in (["--source", "schunk", "--out", out],  # no --data
+                 ["--source", "schunk", "--data", sources, "--steps", "10", "--out", out]):
+        with pytest.raises(SystemExit) as exc:
+            ingest_main(argv)
+        assert exc.value.code == 2
+    assert ingest_main(["--source", "bogus", "--data", sources, "--out", out]) == 2
+    assert "unknown public source 'bogus'" in capsys.readouterr().err

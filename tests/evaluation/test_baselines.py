@@ -144,3 +144,47 @@ def test_kinematic_baselines_refuse_too_short_a_context():
         constant_acceleration(u[:, :2], y, u[:, 2:])
     with pytest.raises(ValueError, match="at least 2 steps"):
         constant_velocity(u[:, :1], y[:, :1], u[:, 1:])
+
+
+def _double_integrator(rng, n_traj=4, steps=260, n=2, offset=0.3):
+    """Joints driven as double integrators through an input matrix, with a constant torque offset."""
+    gain = np.array([[0.004, 0.001], [-0.002, 0.006]])[:n, :n]
+    u = rng.normal(size=(n_traj, steps, n)).cumsum(1) * 0.1
+    y = np.zeros((n_traj, steps, n))
+    for t in range(1, steps - 1):
+        y[:, t + 1] = 2 * y[:, t] - y[:, t - 1] + (u[:, t] + offset) @ gain.T
+    return u, y
+
+
+def test_accel_arx_recovers_a_double_integrator_and_the_trained_one_reads_the_offset_from_the_context():
+    from robomorph.evaluation.baselines import AccelARX, TrainedAccelARX, constant_velocity
+
+    rng = np.random.default_rng(1)
+    u, y = _double_integrator(rng)
+    c = 200
+    truth = y[:, c:]
+    cv_err = np.abs(constant_velocity(u[:, :c], y[:, :c], u[:, c:]) - truth).max()
+    own = AccelARX()
+    pred = own(u[:, :c], y[:, :c], u[:, c:])
+    assert pred.shape == truth.shape and own.diverged == 0
+    assert np.abs(pred - truth).max() < 1e-2 * cv_err
+    # Trained without the offset, the constant re-estimated on each context recovers it.
+    u_train, y_train = _double_integrator(np.random.default_rng(2), offset=0.0)
+    trained = TrainedAccelARX().fit([(u_train, y_train)])
+    assert trained.trajectories == 4
+    pred = trained(u[:, :c], y[:, :c], u[:, c:])
+    assert np.abs(pred - truth).max() < 1e-2 * cv_err
+    # Causal: what follows the context does not change the prediction.
+    y2 = y.copy()
+    y2[:, c:] += 1.0
+    np.testing.assert_array_equal(trained(u[:, :c], y2[:, :c], u[:, c:]), pred)
+
+
+def test_accel_arx_refuses_too_short_a_context_and_an_unfitted_model():
+    from robomorph.evaluation.baselines import AccelARX, TrainedAccelARX
+
+    u, y = _double_integrator(np.random.default_rng(0), steps=30)
+    with pytest.raises(ValueError, match="accel_arx needs a context of at least"):
+        AccelARX()(u[:, :10], y[:, :10], u[:, 10:])
+    with pytest.raises(ValueError, match="fit accel_arx_train"):
+        TrainedAccelARX()(u[:, :10], y[:, :10], u[:, 10:])

@@ -62,8 +62,8 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
     assert disk["sweeps"]["horizon"][-1]["model"]["r2"] == pytest.approx(disk["approach1"]["mean"]["r2"]["mean"])
     with open(os.path.join(out, "metrics.csv")) as f:
         rows = [line for line in f.read().splitlines() if not line.startswith("#")]
-    # per source: approach 1 (14 channels + mean) and 2 (same), 4 metrics each
-    assert len(rows) == 1 + 5 * 2 * 15 * 4
+    # per source (the model and 6 baselines): approach 1 (14 channels + mean) and 2 (same), 4 metrics each
+    assert len(rows) == 1 + 7 * 2 * 15 * 4
     table = open(os.path.join(out, "table.md")).read()
     first_cells = [line.strip("|").split("|")[0].strip() for line in table.splitlines() if line.startswith("|")]
     assert set(names) <= set(first_cells) and "colour convention" in table
