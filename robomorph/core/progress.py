@@ -57,9 +57,11 @@ class Phase:
         enabled: False says nothing at all (a caller's ``progress=False``).
     """
 
-    def __init__(self, desc: str, total: int | None = None, unit: str = "item", enabled: bool = True) -> None:
+    def __init__(self, desc: str, total: int | None = None, unit: str = "item", enabled: bool = True,
+                 initial: int = 0) -> None:
         self.desc, self.total, self.unit, self.enabled = desc, total, unit, enabled
-        self.n = 0
+        # initial: items done before this session (a resumed run), counted but not in the rate.
+        self.n = self.initial = int(initial)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -75,8 +77,8 @@ class Phase:
         if _isatty(sys.stderr):
             from tqdm.auto import tqdm  # noqa: PLC0415
 
-            self._bar = tqdm(total=self.total, desc=self.desc, unit=self.unit, leave=False, file=sys.stderr,
-                             dynamic_ncols=True)
+            self._bar = tqdm(total=self.total, initial=self.initial, desc=self.desc, unit=self.unit, leave=False,
+                             file=sys.stderr, dynamic_ncols=True)
         self._thread = threading.Thread(target=self._beat, name=f"progress: {self.desc}", daemon=True)
         self._thread.start()
         return self
@@ -102,8 +104,8 @@ class Phase:
         """The log line of the phase now: counts, rate, elapsed and (with a total and a rate) time left."""
         elapsed = time.monotonic() - self._started
         parts = [self._count(), self._rate(elapsed), f"{_clock(elapsed)} elapsed"]
-        if self.total and self.n:
-            parts.append(f"~{_clock(elapsed / self.n * (self.total - self.n))} left")
+        if self.total and self.n > self.initial:
+            parts.append(f"~{_clock(elapsed / (self.n - self.initial) * (self.total - self.n))} left")
         return f"{self.desc}: " + ", ".join(parts)
 
     def _count(self) -> str:
@@ -111,8 +113,9 @@ class Phase:
         return f"{self.n}/{self.total} {units}" if self.total is not None else f"{self.n} {units}"
 
     def _rate(self, elapsed: float) -> str:
-        rate = self.n / elapsed if elapsed > 0 else 0.0
-        return f"{rate:.3g} {_plural(self.unit)}/s" if rate >= 1 or not self.n else f"{elapsed / self.n:.3g} s/{self.unit}"
+        done = self.n - self.initial
+        rate = done / elapsed if elapsed > 0 else 0.0
+        return f"{rate:.3g} {_plural(self.unit)}/s" if rate >= 1 or not done else f"{elapsed / done:.3g} s/{self.unit}"
 
     def _beat(self) -> None:
         # On a terminal the bar's clock is refreshed every second; in a log a line every interval().

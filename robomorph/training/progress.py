@@ -6,7 +6,8 @@ Lightning's own bar counts epochs ("Epoch 62"), which mean nothing here: the bud
 
 - :class:`StepBar` replaces Lightning's bar: a tqdm bar of steps out of ``max_steps``
   with the last training loss and, under a wall-clock cap, the time used of it (on a
-  terminal only, as tqdm decides, so logs do not fill with carriage returns).
+  terminal only, as tqdm decides, so logs do not fill with carriage returns); in a log, a
+  line of steps and rate every few seconds instead (:mod:`robomorph.core.progress`).
 - :class:`ValidationLines` prints one line per validation: step, validation loss and FIT,
   elapsed time (of the cap, when there is one), whether or not the bar is on.
 - :func:`quiet_lightning` turns off what Lightning says besides: its tips (advertisements
@@ -29,6 +30,7 @@ from lightning.pytorch.callbacks import ProgressBar, Timer
 from tqdm.auto import tqdm
 
 from robomorph.core.names import TRAIN_LOSS, VAL_FIT, VAL_LOSS
+from robomorph.core.progress import Phase
 
 # Loggers Lightning reports through (rank_zero_info and the model summary log under them).
 LIGHTNING_LOGGERS = ("lightning.pytorch", "lightning.fabric", "pytorch_lightning", "lightning_fabric")
@@ -105,6 +107,7 @@ class StepBar(ProgressBar):
     def __init__(self) -> None:
         super().__init__()
         self.bar: tqdm | None = None
+        self.log: Phase | None = None  # in a log, where tqdm draws nothing: a line every few seconds
         self.budget: Budget | None = None
         self._enabled = True
 
@@ -120,11 +123,15 @@ class StepBar(ProgressBar):
             # disable=None: tqdm draws only on a terminal.
             self.bar = tqdm(total=self.budget.max_steps, initial=trainer.global_step, unit="step", desc="training",
                             file=sys.stderr, dynamic_ncols=True, disable=None, leave=True)
+            if self.bar.disable:  # not a terminal: minutes between validation lines would be silent
+                self.log = Phase("training", self.budget.max_steps, "step", initial=trainer.global_step).__enter__()
 
     def on_train_batch_end(self, trainer: L.Trainer, *args) -> None:
         if self.bar is None:
             return
         self.bar.update(trainer.global_step - self.bar.n)
+        if self.log is not None:
+            self.log.update(trainer.global_step - self.log.n)
         # Reading the loss copies it to the host (a device sync on a GPU): only when the bar is
         # drawn, and every POSTFIX_EVERY steps, not in every training step.
         if self.bar.disable or self.bar.n % POSTFIX_EVERY:
@@ -142,6 +149,9 @@ class StepBar(ProgressBar):
         self.close()
 
     def close(self) -> None:
+        if self.log is not None:
+            self.log.__exit__(None, None, None)
+            self.log = None
         if self.bar is not None:
             self.bar.close()
             self.bar = None

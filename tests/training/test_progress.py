@@ -122,3 +122,12 @@ def test_an_offline_wandb_run_prints_no_third_party_warnings(store, tmp_path):
     assert os.path.isdir(os.path.join(run_dir, "wandb"))  # the wandb run was made
     for noise in ("anonymous", "wandb: WARNING", "Deprecat", "FutureWarning"):
         assert noise not in out, (noise, out[-2000:])
+
+
+def test_in_a_log_the_bar_is_a_line_of_steps_every_few_seconds(store, tmp_path, monkeypatch):
+    monkeypatch.setenv("ROBOMORPH_PROGRESS_SECONDS", "0.1")
+    done, _ = _fit_cli(store, tmp_path, "logged", trainer={"enable_progress_bar": True})  # stderr is a pipe: a log
+    lines = [line for line in done.stderr.splitlines() if line.startswith("training: ")]
+    assert lines and all(re.match(r"training: \d/7 steps, ", line) for line in lines[:-1]), done.stderr[-2000:]
+    assert re.fullmatch(r"training: 7/7 steps in \d+:\d\d \(.*\)", lines[-1])
+    assert "\r" not in done.stderr  # no bar redrawn into the log
