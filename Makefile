@@ -1,11 +1,11 @@
-# Two entry points: `make demo` and `make test`. Both install into .venv first; the
+# Two entry points: `make demo` and `make test` (`make test-all` adds the slow tests). Both install into .venv first; the
 # install re-runs only when pyproject.toml or the install script changes.
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-fast docs install clean
+.PHONY: demo test test-all test-fast docs install clean
 
 install: $(STAMP)
 
@@ -20,16 +20,22 @@ demo: $(STAMP)
 # throw-away PostgreSQL server: both Debian packages are installed when missing.
 # -n auto: one pytest worker per core (pytest-xdist); --dist loadfile keeps a test file on one
 # worker, so the models a file's fixtures train are trained once, not once per worker.
+# `make test` is the suite without the tests marked slow (every benchmark script end to end, the
+# docs site's strict build and examples, the wheel, the PostgreSQL sweep, ...): about half the
+# time. `make test-all` runs them too; CI (.ci/run) runs test-all.
 PYTEST_WORKERS ?= auto
+PYTEST := $(PY) -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile
 test: $(STAMP)
 	bash tools/ensure_chromium.sh
-	bash tools/ensure_postgres.sh
-	$(PY) -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile
+	$(PYTEST) -m "not slow"
 
-test-fast: $(STAMP)
+test-all: $(STAMP)
 	bash tools/ensure_chromium.sh
 	bash tools/ensure_postgres.sh
-	$(PY) -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile -m "not slow"
+	$(PYTEST)
+
+# The same as `make test` (its name before test-all existed).
+test-fast: test
 
 # The documentation site, offline, into site/ (open site/index.html); --strict turns a broken
 # link, a missing page or a failed include into an error.
