@@ -152,7 +152,8 @@ def test_inference_needs_only_model_and_core(module):
     # A deployed model ships robomorph/model/ and robomorph/core/ alone; the hybrid model's
     # physics backbone (robomorph.model.hybrid and its debiasing, imported only when a hybrid
     # predicts) needs robomorph/sim/ and MuJoCo as well.
-    backbone = ("robomorph.model.hybrid", "robomorph.model.debias")
+    # robomorph.model.catalogue builds a hybrid's record from the arm registry (Predictor.from_arm), also on use.
+    backbone = ("robomorph.model.hybrid", "robomorph.model.debias", "robomorph.model.catalogue")
     allowed = ("model", "core", "sim") if module in backbone else ("model", "core")
     outside = sorted(m for m in _internal(MODULES[module]) if _room(m) not in allowed)
     assert not outside, f"{module} imports {outside}"

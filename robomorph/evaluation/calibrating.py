@@ -387,22 +387,6 @@ def report_text(report: dict) -> str:
     return "\n".join(lines)
 
 
-def brief_text(report: dict) -> str:
-    """One line of :func:`report_text`: where the std was calibrated and the ±1σ / ±2σ coverage over the
-    reported steps before and after (what the demo prints; ``robomorph calibrate`` prints the table)."""
-    src, b, a = report["calibration"]["source"], report["before"], report["after"]
-
-    def span(values: list[float]) -> str:
-        lo, hi = min(values), max(values)
-        return f"{lo:.0%}" if f"{lo:.0%}" == f"{hi:.0%}" else f"{lo:.0%}-{hi:.0%}"
-
-    windows = "from random offsets" if src.get("offset", "start") != "start" else "from the start"
-    split = "validation" if src["split"] == "val" else "held-out"
-    return (f"std calibrated ({report['calibration']['method']}) on {src['n']} {split} windows {windows}: "
-            f"±1σ covers {span(b['1sigma'])} -> {span(a['1sigma'])}, ±2σ {span(b['2sigma'])} -> {span(a['2sigma'])} "
-            "of them over the horizon (ideal 68 % / 95 %)")
-
-
 def _tails_note(report: dict, missed: list[int]) -> str:
     """Why the calibration windows themselves leave a band after the fit: heavy tails, and how well the
     spread ranks the windows by their errors (:func:`robomorph.evaluation.horizons.spread_skill`)."""

@@ -155,13 +155,7 @@ def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold"
         preds[MODEL] = np.asarray(predictor.mean, dtype=np.float64)[:, :w.horizon]
         std = None if predictor.std is None else np.asarray(predictor.std, dtype=np.float64)[:, :w.horizon]
     elif predictor is not None:
-        at_rest = w.starts == 0 if len(w.starts) == len(u_ctx) else None  # the generator starts at rest
-        # anchor: where each robot started, as the physics baselines are given it (sources.nominal_params)
-        kwargs = {"y_query": y_q, "at_rest": at_rest, "anchor": start_joints(w)}
-        with_std, t0 = score_std and gives_std(predictor, u_ctx, y_ctx, u_q, y_q), time.perf_counter()
-        out = predict(predictor, u_ctx, y_ctx, u_q, batch_size, with_std=with_std, **kwargs)
-        seconds = (time.perf_counter() - t0) / len(u_ctx)  # the model's cost per window, as identified physics' notes
-        preds[MODEL], std = out if with_std else (out, None)
+        preds[MODEL], std, seconds = _model(predictor, w, y_q, batch_size, score_std)
     base, skipped, notes = run_baselines(w, tuple(baselines), arx_orders, train_blocks)
     for name, other in (others or {}).items():
         base[name] = (np.asarray(other, dtype=np.float64)[:, :w.horizon] if isinstance(other, np.ndarray)
@@ -183,6 +177,19 @@ def score_windows(predictor, windows: Window, baselines: Sequence[str] = ("hold"
         # The paper's protocol scales each window with its query outputs' statistics: say so first.
         result["leaks_query_statistics"] = leaks_query_statistics(result["meta"]["normalization"])
     return Scores(result, preds, std, y_q, groups)
+
+
+def _model(predictor, w: Window, y_q: np.ndarray, batch_size: int, score_std: bool):
+    """The model's (N, H, n_y) means, its std (None: not asked for, or none given) and its cost per window [s]."""
+    u_ctx, y_ctx, u_q, _ = w.split()
+    at_rest = w.starts == 0 if len(w.starts) == len(u_ctx) else None  # the generator starts at rest
+    # anchor: where each robot started, as the physics baselines are given it (sources.nominal_params)
+    kwargs = {"y_query": y_q, "at_rest": at_rest, "anchor": start_joints(w)}
+    with_std, t0 = score_std and gives_std(predictor, u_ctx, y_ctx, u_q, y_q), time.perf_counter()
+    out = predict(predictor, u_ctx, y_ctx, u_q, batch_size, with_std=with_std, **kwargs)
+    seconds = (time.perf_counter() - t0) / len(u_ctx)  # the model's cost per window, as identified physics' notes
+    mean, std = out if with_std else (out, None)
+    return mean, std, seconds
 
 
 def _approaches(y: np.ndarray, yhat: np.ndarray, names: list[str]) -> dict:

@@ -29,7 +29,6 @@ import dataclasses
 import torch
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.model.predictor import Predictor
 
 # The arms whose catalogue model the hybrid can identify and simulate.
 BACKBONE_ARMS = ("panda",)
@@ -61,6 +60,7 @@ class NoNetwork:
 
     gaussian = False
     blend = None
+    network_free_modes = NETWORK_FREE_MODES  # the Predictor refuses the others (check_network_free)
 
     def __init__(self, n_u: int, n_y: int) -> None:
         self.config = _Config(n_u, n_y)
@@ -74,9 +74,9 @@ class NoNetwork:
         return self
 
     def forward_dist_raw(self, *args, **kwargs) -> tuple[torch.Tensor, torch.Tensor]:
-        raise NoNetworkError("this Predictor was built from the arm alone (Predictor.from_arm), with no network: "
-                             f"predict with physics_mode {' or '.join(map(repr, NETWORK_FREE_MODES))}, or load a "
-                             "trained checkpoint (Predictor.from_checkpoint) for the decoder")
+        # Never reached through a Predictor (check_network_free refuses first): a direct call says why.
+        raise NoNetworkError("this model was built from the arm alone (Predictor.from_arm), with no network: "
+                             f"predict with physics_mode {' or '.join(map(repr, NETWORK_FREE_MODES))}")
 
 
 def arm_record(arm: str = "panda", recipe: str | None = None, **overrides) -> dict:
@@ -110,35 +110,35 @@ def arm_record(arm: str = "panda", recipe: str | None = None, **overrides) -> di
             "stores": [], "physics": physics, "arm": spec.name}
 
 
-def check_network_free(mode: str) -> None:
-    """Refuses a physics mode that reads a network, asked of a Predictor with none."""
-    if mode not in NETWORK_FREE_MODES:
-        raise NoNetworkError(f"physics mode {mode!r} reads a trained network, and this Predictor was built from the "
-                             f"arm alone (Predictor.from_arm): use {' or '.join(map(repr, NETWORK_FREE_MODES))}, or "
-                             "load a trained checkpoint (Predictor.from_checkpoint)")
+
+def check_network_free(predictor) -> None:
+    """Refuses, in one line, a physics mode that reads a network, asked of a Predictor that has none
+    (called by :func:`robomorph.model.predictor_checks.check_settings` before anything runs)."""
+    free = getattr(predictor.model, "network_free_modes", None)
+    if free is not None and predictor.physics_mode not in free:
+        raise NoNetworkError(f"physics mode {predictor.physics_mode!r} reads a trained network, and this Predictor "
+                             f"was built from the arm alone (Predictor.from_arm): use {' or '.join(map(repr, free))}, "
+                             "or load a trained checkpoint (Predictor.from_checkpoint)")
 
 
-class ArmPredictor(Predictor):
-    """A :class:`Predictor` of a catalogue arm with no network (:meth:`Predictor.from_arm`); it refuses the
-    physics modes that read one, in one line, before anything runs."""
+def from_arm(cls, arm: str = "panda", recipe: str | None = None, device=None, **overrides):
+    """:meth:`robomorph.model.predictor.Predictor.from_arm`: a ``cls`` (the Predictor) with no network.
 
-    @classmethod
-    def of(cls, arm: str = "panda", recipe: str | None = None, device=None, **overrides) -> ArmPredictor:
-        """See :meth:`Predictor.from_arm`."""
-        info = arm_record(arm, recipe, **overrides)
-        pred = cls(NoNetwork(len(info["u_names"]), len(info["y_names"])), device, info)
-        # The record a trained command hybrid carries, set here: a model without a parameter head takes no
-        # backbone from its record (Predictor.__init__), and this one has no model at all.
-        pred.physics, pred.physics_mode, pred.has_std = info["physics"], "regression", True
-        pred.physics_observer = pred.physics_springs = pred.physics_debias = True
-        pred.max_input_std = None  # no training statistics to compare the inputs with
-        return pred
+    Args:
+        arm: an arm with a catalogue physics backbone (:data:`BACKBONE_ARMS`).
+        recipe: the generator recipe whose physics step, gravity compensation and randomization ranges the
+            data follow (a shipped name such as ``multisine`` or a YAML path; default the generator's defaults).
+        device: where tensors are returned (the simulation runs on the CPU).
+        overrides: recipe fields changed, e.g. ``dt=0.01``.
 
-    def use_physics(self, mode: str | None, option: str = "--physics") -> None:
-        if mode is not None:
-            check_network_free(mode)
-        super().use_physics(mode, option)
-
-    def simulate(self, *args, **kwargs):
-        check_network_free(self.physics_mode)  # also when set as an attribute
-        return super().simulate(*args, **kwargs)
+    Raises:
+        NoNetworkError: an arm without a catalogue physics backbone.
+    """
+    info = arm_record(arm, recipe, **overrides)
+    pred = cls(NoNetwork(len(info["u_names"]), len(info["y_names"])), device, info)
+    # The record a trained command hybrid carries, set here: a model without a parameter head takes no
+    # backbone from its record (Predictor.__init__), and this one has no model at all.
+    pred.physics, pred.physics_mode, pred.has_std = info["physics"], "regression", True
+    pred.physics_observer = pred.physics_springs = pred.physics_debias = True
+    pred.max_input_std = None  # no training statistics to compare the inputs with
+    return pred

@@ -25,6 +25,7 @@ import torch
 from robomorph.core.errors import DeviceError, RoboMorphError
 from robomorph.core.inputs import check_model_inputs
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
+from robomorph.model import catalogue
 from robomorph.model.channels import arm_columns, pad, select
 from robomorph.model.checkpoint import CheckpointError, TrainedModel, load_trained
 from robomorph.model.hybrid_split import default_workers, predict_hybrid
@@ -82,10 +83,9 @@ class Predictor:
             from the training mean (default :data:`MAX_INPUT_STDS`; None: no check).
         physics: the physics backbone's record (parameter layout and generator recipe) of a model trained
             with ``--model.physics amortized`` or given a blend by ``robomorph calibrate --blend``, else None.
-        physics_mode: how such a model predicts: ``regression``, ``learned``, ``fused``,
-            ``refined``, ``blend`` (:data:`robomorph.model.hybrid.MODES`) or ``none`` (its
-            decoder). Default: ``regression`` for commands; for total torques ``blend`` when
-            the model has one, else ``none``.
+        physics_mode: how such a model predicts: ``regression``, ``learned``, ``fused``, ``refined``, ``blend``
+            (:data:`robomorph.model.hybrid.MODES`) or ``none`` (its decoder). Default: ``regression`` for
+            commands; for total torques ``blend`` when the model has one, else ``none``.
         physics_samples: parameter draws behind the hybrid's standard deviation (``physics_points`` draws).
         physics_points: the robots it is the spread of, ``columns``, ``observed`` (and the start velocity) or
             ``draws`` (:mod:`robomorph.model.hybrid_std`; None: those its stored calibration was fitted on, else
@@ -181,30 +181,7 @@ class Predictor:
         ``robomorph export`` (clear errors for bad files; nothing stored in them is run)."""
         model, info = load_trained(path)
         return cls(model, device, info)
-
-    @classmethod
-    def from_arm(cls, arm: str = "panda", recipe: str | None = None, device: str | torch.device | None = "cpu",
-                 **overrides) -> "Predictor":
-        """The command-formulation hybrid of a catalogue arm, with no training and no checkpoint.
-
-        Its ``regression`` mode (and ``refined``) reads no network, so it predicts as a trained command
-        model does in that mode, from the arm's catalogue model and a generator recipe alone
-        (:mod:`robomorph.model.catalogue`): the robot identified from each context, then simulated. Its std
-        is the raw spread over robots (no calibration); the input range check is off (no training data).
-
-        Args:
-            arm: an arm with a catalogue physics backbone (``panda``).
-            recipe: the generator recipe whose physics step, gravity compensation and randomization ranges
-                the data follow (a shipped name or a YAML path; default the generator's defaults).
-            device: where tensors are returned (the simulation runs on the CPU).
-            overrides: recipe fields changed, e.g. ``dt=0.01``.
-
-        Raises:
-            NoNetworkError: an arm without a catalogue physics backbone.
-        """
-        from robomorph.model.catalogue import ArmPredictor  # noqa: PLC0415
-
-        return ArmPredictor.of(arm, recipe, device, **overrides)
+    from_arm = classmethod(catalogue.from_arm)  # a catalogue arm's command hybrid, untrained: robomorph.model.catalogue
 
     @classmethod
     def from_pretrained(cls, path: str, device: str | torch.device | None = None) -> "Predictor":

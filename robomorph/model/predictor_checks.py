@@ -104,9 +104,12 @@ def _whole(value, low: int) -> bool:
 
 def check_settings(predictor) -> None:
     """Refuses a setting of the Predictor that it cannot predict with (each named, with what it takes)."""
+    from robomorph.model.catalogue import check_network_free  # noqa: PLC0415
+
     if predictor.physics_mode not in (*PHYSICS_MODES, "none"):
         raise PredictionError(f"physics_mode {predictor.physics_mode!r}: choose none or one of "
                               f"{', '.join(PHYSICS_MODES)}")
+    check_network_free(predictor)  # a Predictor of a catalogue arm alone (Predictor.from_arm)
     for name in ("physics_members", "physics_samples", "physics_workers"):
         if not _whole(getattr(predictor, name), 1):
             raise PredictionError(f"{name} must be a whole number >= 1, got {getattr(predictor, name)!r}")

@@ -110,7 +110,7 @@ def calibrate_std(ckpt: str) -> bool:
     """Recalibrates a Gaussian head's std by horizon on the fit's validation robots (in place);
     False for a model without one. A total-torque model first gets its physics/decoder blend; a
     hybrid also gets the calibration of windows that do not open their trajectory."""
-    from robomorph.evaluation.calibrating import blend, blend_text, brief_text, calibrate  # noqa: PLC0415
+    from robomorph.evaluation.calibrating import blend, blend_text, calibrate  # noqa: PLC0415
     from robomorph.model.calibration import CalibrationError  # noqa: PLC0415
     from robomorph.model.checkpoint import load_trained  # noqa: PLC0415
 
@@ -132,6 +132,17 @@ def calibrate_std(ckpt: str) -> bool:
         except CalibrationError as exc:
             print(f"\n(no calibration for windows of a moving robot: {exc}; the start windows' serves them)")
     return True
+
+
+def brief_text(report: dict) -> str:
+    """One line of :func:`robomorph.evaluation.calibrating.report_text`: where the std was calibrated, the coverage before and after."""
+    src, b, a = report["calibration"]["source"], report["before"], report["after"]
+    span = lambda v: f"{min(v):.0%}" if f"{min(v):.0%}" == f"{max(v):.0%}" else f"{min(v):.0%}-{max(v):.0%}"  # noqa: E731
+    where = ("validation" if src["split"] == "val" else "held-out") + " windows from " + \
+        ("the start" if src.get("offset", "start") == "start" else "random offsets")
+    return (f"std calibrated ({report['calibration']['method']}) on {src['n']} {where}: ±1σ covers "
+            f"{span(b['1sigma'])} -> {span(a['1sigma'])}, ±2σ {span(b['2sigma'])} -> {span(a['2sigma'])} of them "
+            "over the horizon (ideal 68 % / 95 %)")
 
 
 def _set_aside(path: str) -> str:

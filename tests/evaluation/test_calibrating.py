@@ -153,7 +153,8 @@ def test_the_report_ranks_the_spread_and_says_when_heavy_tails_leave_a_band():
 
 
 def test_the_brief_summary_is_one_line_of_the_reports_coverage(gaussian, tmp_path):
-    from robomorph.evaluation.calibrating import brief_text, report_text
+    from robomorph.evaluation.calibrating import report_text
+    from robomorph.reproduction.demo import brief_text
 
     _, best = gaussian
     report = calibrate(_copy(best, tmp_path), method="coverage")
