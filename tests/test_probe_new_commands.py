@@ -384,3 +384,34 @@ def test_the_hybrids_query_of_zero_steps_is_refused(hybrid_predictor):
     u, y, q = _window(hybrid_predictor, batch=1)
     with pytest.raises(PredictionError, match="no time steps"):
         hybrid_predictor.simulate(u, y, q[:, :0])
+
+
+# -- ingest ---------------------------------------------------------------------------------------
+
+def _log(tmp_path, n: int = 400) -> str:
+    t = np.arange(n) * 0.001
+    path = tmp_path / "log.npz"
+    np.savez(path, t=t, tau1=np.sin(7 * t), q1=np.cos(5 * t))
+    return str(path)
+
+
+def test_a_sample_time_that_overflows_the_time_axis_is_refused(tmp_path, capsys):
+    """Case 14: ``ingest --dt 1e308`` was accepted and the time axis overflowed to inf."""
+    from robomorph.ingest import main
+
+    out = tmp_path / "s.zarr"
+    code, err = _call(main, [_log(tmp_path), "--u-cols", "tau1", "--y-cols", "q1", "--dt", "1e308", "--steps", "50",
+                             "--out", str(out)], capsys)
+    _one_error(code, err, "--dt")
+    assert not out.exists()
+
+
+def test_an_upsampling_rate_beyond_the_ratio_limit_is_refused(tmp_path, capsys):
+    """Case 21: ``ingest --resample 1e9``: the ratio's limit applied to its denominator only."""
+    from robomorph.ingest import main
+
+    out = tmp_path / "s.zarr"
+    code, err = _call(main, [_log(tmp_path), "--u-cols", "tau1", "--y-cols", "q1", "--dt", "0.001", "--steps", "50",
+                             "--resample", "1e9", "--out", str(out)], capsys)
+    _one_error(code, err, "cannot resample")
+    assert not out.exists()

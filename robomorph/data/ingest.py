@@ -24,7 +24,6 @@ store's ``u_cmd``, read by ``data.inputs: command``), one column per joint as we
 
 from __future__ import annotations
 
-import math
 import os
 import warnings
 
@@ -39,6 +38,8 @@ __all__ = ["FORMATS", "IngestError", "ShortRecordingWarning", "ingest", "read_lo
 
 # Windows written per append: bounds memory when overlapping windows repeat samples.
 _WRITE_BLOCK = 64
+# The longest sample time a log may have: one an hour is no robot log.
+MAX_DT = 3600.0
 
 
 class ShortRecordingWarning(UserWarning):
@@ -123,8 +124,8 @@ def _check_args(files: list[str], u_cols: list[str], y_cols: list[str], steps: i
         raise IngestError(f"--steps and --stride must be >= 1, got steps={steps}, stride={stride}")
     if (dt is None) == (time_col is None):
         raise IngestError("give exactly one of --dt (seconds) or --time-col (a column of timestamps in seconds)")
-    if dt is not None and not (dt > 0 and math.isfinite(dt)):
-        raise IngestError(f"--dt must be a positive, finite number of seconds, got {dt}")
+    if dt is not None and not 0 < dt <= MAX_DT:  # beyond it the time axis of a long log overflows
+        raise IngestError(f"--dt must be a positive, finite number of seconds up to {MAX_DT:g}, got {dt}")
     if not time_tol >= 0:
         raise IngestError(f"--time-tol must be >= 0, got {time_tol}")
 

@@ -48,7 +48,8 @@ def rate_ratio(dt: float, hz: float) -> tuple[int, int]:
     check_rate(hz)
     exact = dt * hz  # new rate / old rate
     ratio = Fraction(exact).limit_denominator(1000)
-    if ratio == 0 or abs(float(ratio) - exact) > _RATIO_TOL * exact:
+    # Both ends bounded: an upsampling factor of 10^6 would allocate tens of GiB per log.
+    if ratio == 0 or ratio.numerator > 1000 or abs(float(ratio) - exact) > _RATIO_TOL * exact:
         raise RealLogError(f"cannot resample from {1 / dt:.6g} Hz to {hz:.6g} Hz by a ratio of integers up to 1000; "
                            "choose a rate that divides the log's (e.g. 1000 Hz -> 100, 125, 200 or 250 Hz)")
     return ratio.numerator, ratio.denominator
