@@ -415,3 +415,14 @@ def test_an_upsampling_rate_beyond_the_ratio_limit_is_refused(tmp_path, capsys):
                              "--resample", "1e9", "--out", str(out)], capsys)
     _one_error(code, err, "cannot resample")
     assert not out.exists()
+
+
+def test_dollars_in_channel_names_and_units_are_drawn_verbatim(tmp_path):
+    """Case 25: ``$`` in a channel name or unit crashed evaluate's error-growth plot (mathtext)."""
+    from robomorph.evaluation.plots import plot_error_growth
+
+    rng = np.random.default_rng(0)
+    y = rng.standard_normal((3, 20, 2))
+    path = plot_error_growth(str(tmp_path / "growth.png"), y, {"model": y + 0.1}, 0.01, ["q$1", "cost $\\frac"],
+                             [1, 10], ["$\\alpha", "k$"])
+    assert os.path.getsize(path) > 0

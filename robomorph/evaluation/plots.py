@@ -94,8 +94,8 @@ def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray
         for k in steps:
             ax.axvline(k * dt, color="0.6", ls=":", lw=0.8)
         # Log time too: the first second, what a controller uses, would be a sliver otherwise.
-        ax.set(xlabel="time into the horizon [s]", ylabel=f"RMS error [{g.unit}]" if g.unit else "RMS error",
-               xscale="log", yscale="log", title=g.label)
+        ax.set(xlabel="time into the horizon [s]", ylabel=f"RMS error [{literal(g.unit)}]" if g.unit else "RMS error",
+               xscale="log", yscale="log", title=literal(g.label))
         ax.grid(alpha=0.3, which="both")
     for ax in list(axes.flat)[len(groups):]:
         ax.axis("off")
