@@ -25,7 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     ds = open_store(args.store, allow_incomplete=args.allow_incomplete)
     print(summary.summarize(ds))
-    damage = ds.describe_damage()
+    damage = ds.describe_damage(decode=True)
     if damage:
         raise StoreDamagedError(damage)
     if args.plot:

@@ -426,3 +426,17 @@ def test_dollars_in_channel_names_and_units_are_drawn_verbatim(tmp_path):
     path = plot_error_growth(str(tmp_path / "growth.png"), y, {"model": y + 0.1}, 0.01, ["q$1", "cost $\\frac"],
                              [1, 10], ["$\\alpha", "k$"])
     assert os.path.getsize(path) > 0
+
+
+def test_inspect_names_a_chunk_whose_bytes_were_flipped(tmp_path, capsys):
+    """Case 26: ``inspect`` of a store with a flipped chunk exited 0 and never named the chunk."""
+    from robomorph.inspect import main
+
+    u, y = linear_system(8, 50)
+    store = write_store(tmp_path / "s.zarr", u, y)
+    chunk = os.path.join(store, "y", "c", "0", "0", "0")
+    data = bytearray(open(chunk, "rb").read())
+    data[len(data) // 2] ^= 0x01  # same length: only its checksum tells
+    open(chunk, "wb").write(bytes(data))
+    code, err = _call(main, [store], capsys)
+    _one_error(code, err, "'y' chunk c/0/0/0", "checksum")

@@ -372,10 +372,22 @@ class Dataset:
         that is missing or truncated (all arrays and chunks unless narrowed)."""
         return chunks.damaged(self.path, self.group, self.n, names or self.arrays, indices)
 
-    def describe_damage(self) -> str | None:
-        """One line naming the damaged chunks and what to do, or None when there are none."""
+    def describe_damage(self, decode: bool = False) -> str | None:
+        """One line naming the damaged chunks and what to do, or None when there are none.
+
+        Missing and truncated chunks are found from the files alone; with ``decode`` every
+        chunk of valid rows is read too, so a chunk whose bytes were flipped (its checksum
+        fails, its length does not) is named as well.
+        """
         damaged = self.damaged_chunks()
-        return chunks.describe(self.path, damaged) if damaged else None
+        if damaged:
+            return chunks.describe(self.path, damaged)
+        for name in self.arrays if decode and self.n else ():
+            try:
+                self.read(name)
+            except StoreDamagedError as exc:
+                return str(exc)
+        return None
 
 
 def open_store(path: str, allow_incomplete: bool = False) -> Dataset:
