@@ -229,7 +229,7 @@ def _industrial(root: str) -> list[Recording]:
 
 
 SOURCES: dict[str, PublicLog] = {s.name: s for s in (
-    PublicLog("kinova_gen3", "Kinova Gen3 (7 joints, joint torque sensors, 1 kHz)", "kinova3", "dynamic-identification",
+    PublicLog("kinova_gen3", "Kinova Gen3 (7 joints, 1 kHz)", "kinova3", "dynamic-identification",
               "git clone https://github.com/wissem01chiha/dynamic-identification && git -C dynamic-identification "
               "checkout 90ba37d676d8da6c064d9edf5c1a09389309752e",
               "MIT (at that commit)", "TorqueCur1..7: joint torque from the motor currents, gravity included (the "
