@@ -1,7 +1,8 @@
 """``make demo``: the main job end to end on a small built-in default.
 
 1. Generates a small dataset of every task (multi-sine, chirp, OSC circle and spiral) with
-   the recipes in ``datamodules/``, prints each summary and draws its trajectories.
+   the recipes in ``datamodules/``, writes each summary and a plot of its trajectories beside it,
+   and prints one line for each.
 2. Trains the CPU-sized meta-model briefly on a multi-sine training set, in the command
    formulation by default: the hybrid model (``physics: auto`` in ``train_cpu.yaml``),
    whose predictions simulate the robot identified from the context
@@ -37,26 +38,30 @@ from robomorph.sim.recipe import load_recipe
 
 
 def make_data(out_dir: str, robots: int, steps: int, workers: int | None = None) -> list[str]:
-    """Generates, summarizes and plots one small dataset per task; returns the store paths."""
+    """Generates, summarizes and plots one small dataset per task; returns the store paths.
+
+    Each store's full summary (channels, parameter ranges, attributes) goes to ``<task>.txt`` beside it
+    (what ``robomorph inspect`` prints); the terminal gets its first line and the files' paths."""
+    from robomorph.core.atomic import write_text  # noqa: PLC0415
+
     os.makedirs(out_dir, exist_ok=True)
     paths = []
     for task in TASKS:
+        t0 = time.time()
         path = _generate(task, os.path.join(out_dir, f"{task}.zarr"), {"robots": robots, "steps": steps}, workers)
-        ds = open_store(path)
-        print(summarize(ds))
-        png = os.path.join(out_dir, f"{task}.png")
-        plot(ds, png, n_traj=3)
-        print(f"plots: {png}\n")
+        ds, base = open_store(path), os.path.join(out_dir, task)
+        write_text(f"{base}.txt", summarize(ds) + "\n")
+        plot(ds, f"{base}.png", n_traj=3)
+        print(f"{path}: {ds.n} robots x {ds.steps} steps in {time.time() - t0:.0f} s "
+              f"(summary: {base}.txt, plots: {base}.png)")
         paths.append(path)
     return paths
 
 
 def _generate(task: str, path: str, overrides: dict, workers: int | None) -> str:
     recipe = load_recipe(f"datamodules/{task}.yaml", overrides)
-    t0 = time.time()
     # A demo store from another recipe (e.g. an older version) is replaced, not refused.
     ensure_store(recipe, path, workers=workers)
-    print(f"=== {path}: {time.time() - t0:.1f} s ===")
     return path
 
 
@@ -64,8 +69,10 @@ def train(out_dir: str, robots: int, minutes: float, runs_dir: str, inputs: str 
     """Trains on ``robots`` multi-sine robots; returns (run dir, best checkpoint, held-out store)."""
     from robomorph.training.fitting import fit  # noqa: PLC0415  (torch/lightning only when training)
 
+    t0 = time.time()
     train = _generate("multisine", os.path.join(out_dir, "ms_train.zarr"), {"robots": robots, "seed": 0}, None)
     test = _generate("multisine", os.path.join(out_dir, "ms_heldout.zarr"), {"robots": 64, "seed": 1}, None)
+    print(f"training robots: {train} ({robots}), held-out robots: {test} (64), in {time.time() - t0:.0f} s")
     run = "demo" if inputs == "command" else "demo-total"
     args = ["--config", locate("datamodules/train_cpu.yaml"), "--data.stores", train, "--data.test_store", test,
             "--data.split", "[0.95, 0.05, 0.0]", "--trainer.max_time", _ddhhmmss(minutes * 60),
