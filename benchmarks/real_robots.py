@@ -17,6 +17,10 @@ Scored on the same test windows, through :func:`robomorph.evaluation.scoring.sco
   driven by the logged torques from the end of the context;
 - ``identified_physics`` (``--identified``): that arm with masses, damping, armature and
   friction fitted to each context;
+- ``hybrid`` (where the arm is registered): ``Predictor.from_arm`` (no training) identifying the
+  robot in each context by its regression solve and simulating it: ``hybrid (total)`` on the
+  logged total torque, ``hybrid (nominal commands)`` on the command an arm that compensates its
+  gravity with its catalogue model is sent (the logged torque less the catalogue's g(q));
 - any checkpoint given with ``--model NAME=CKPT`` (zero-shot, fine-tuned or trained from
   scratch: the name says which), where its channels and rate match the robot's store.
 
@@ -113,6 +117,27 @@ def _models(paths: dict[str, str], store: str) -> tuple[dict, dict]:
     return loaded, skipped
 
 
+def hybrid_predictions(arm: str, w) -> dict[str, np.ndarray]:
+    """The hybrid with no training on the windows, as a real arm's torques can be given to it:
+    the total torque, and the command of an arm compensating its gravity with the catalogue model."""
+    from robomorph.model.predictor import Predictor  # noqa: PLC0415
+    from robomorph.sim import arms  # noqa: PLC0415
+    from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
+    from robomorph.sim.recipe import load_recipe  # noqa: PLC0415
+
+    u_ctx, y_ctx, u_q, _ = w.split()
+    n = arms.get(arm).n_joint
+    out = {}
+    total = Predictor.from_arm(arm, "multisine", inputs="total", dt=w.dt, gravity_compensation="none")
+    out["hybrid (total)"] = total.simulate(u_ctx, y_ctx, u_q)
+    gravity = NominalGravity(load_recipe("multisine", {"robot": arm, "dt": w.dt}))
+    cmd = w.u - np.stack([[gravity(q) for q in y[:, 7:7 + n]] for y in w.y.astype(np.float64)])
+    c = w.context_len
+    nominal = Predictor.from_arm(arm, "multisine", dt=w.dt, gravity_compensation="nominal_model")
+    out["hybrid (nominal commands)"] = nominal.simulate(cmd[:, :c], y_ctx, cmd[:, c:])
+    return out
+
+
 def score_robot(source: public_logs.PublicLog, args) -> dict:
     """Scores every predictor on one robot's test windows; returns its table's rows and notes."""
     stores = public_logs.write_stores(source, args.data, os.path.join(args.work, source.name), overwrite=True)
@@ -125,6 +150,8 @@ def score_robot(source: public_logs.PublicLog, args) -> dict:
         if args.identified:
             baselines.append("identified_physics")
     models, skipped_models = _models(args.model, stores["test"])
+    if source.arm:
+        models.update(hybrid_predictions(source.arm, w))
 
     def train_blocks():
         for s in range(0, train.n, 256):

@@ -19,7 +19,9 @@ checkpoint; :attr:`Predictor.calibration` is None here). There are no training s
 so the range check of :attr:`Predictor.max_input_std` is off: check the torques' units
 yourself (N m, the command without gravity compensation).
 
-Only the Panda has a catalogue physics backbone today (:func:`robomorph.sim.backbone.parameter_layout`).
+Every registered arm has a catalogue physics backbone (:func:`robomorph.sim.backbone.parameter_layout`).
+``inputs="total"`` takes the total joint torque a real arm's sensors log, gravity included (with the
+recipe's ``gravity_compensation="none"``).
 """
 
 from __future__ import annotations
@@ -30,8 +32,6 @@ import torch
 
 from robomorph.core.errors import RoboMorphError
 
-# The arms whose catalogue model the hybrid can identify and simulate.
-BACKBONE_ARMS = ("panda",)
 # The modes that read no network.
 NETWORK_FREE_MODES = ("regression", "refined")
 
@@ -79,34 +79,38 @@ class NoNetwork:
                              f"predict with physics_mode {' or '.join(map(repr, NETWORK_FREE_MODES))}")
 
 
-def arm_record(arm: str = "panda", recipe: str | None = None, **overrides) -> dict:
-    """The data record a command-formulation hybrid of ``arm`` would carry, from its catalogue and a recipe.
+def arm_record(arm: str = "panda", recipe: str | None = None, inputs: str = "command", **overrides) -> dict:
+    """The data record a hybrid of ``arm`` would carry, from its catalogue and a recipe.
 
     Args:
-        arm: a name of :data:`robomorph.sim.arms.ARMS` with a physics backbone (:data:`BACKBONE_ARMS`).
+        arm: a name of :data:`robomorph.sim.arms.ARMS`.
         recipe: a generator recipe (a shipped name such as ``multisine`` or a YAML path; default the
             generator's defaults), whose physics step, gravity compensation and randomization ranges
             the backbone uses, as a store generated with it records them.
+        inputs: ``command`` (the torque the arm is sent; it compensates its own gravity as the
+            recipe says) or ``total`` (the joint torque a torque sensor measures, gravity
+            included: a real arm's log, with the recipe's ``gravity_compensation: none``).
         overrides: recipe fields changed (``dt=...``, ``substeps=...``).
 
     Raises:
-        NoNetworkError: an arm without a catalogue physics backbone.
+        NoNetworkError: an arm that is not registered.
     """
+    from robomorph.core.inputs import check_inputs  # noqa: PLC0415
     from robomorph.sim import arms  # noqa: PLC0415
     from robomorph.sim.backbone import parameter_layout  # noqa: PLC0415
     from robomorph.sim.randomize import param_names  # noqa: PLC0415
     from robomorph.sim.recipe import load_recipe  # noqa: PLC0415
 
-    if arm not in BACKBONE_ARMS:
-        known = ", ".join(arms.names())
-        raise NoNetworkError(f"arm {arm!r}: a prediction with no training needs a catalogue physics backbone, which "
-                             f"only {', '.join(BACKBONE_ARMS)} has (arms: {known}); train a model on its store instead")
+    if arm not in arms.ARMS:
+        raise NoNetworkError(f"unknown arm {arm!r}: a prediction with no training needs a registered arm's catalogue "
+                             f"model; choose one of {', '.join(arms.names())}")
     rec = load_recipe(recipe, {"robot": arm, **overrides})
     spec = rec.arm
     attrs = {"domain": spec.name, "config": rec.to_dict(), "param_names": param_names(spec.name)}
     # As a model trained today records it (robomorph.training.module): the observer, the springs and the debiasing on.
     physics = {**parameter_layout(attrs), "mode": "catalogue", "observer": True, "springs": True, "debias": True}
-    return {"u_names": list(spec.u_names), "y_names": list(spec.y_names), "dt": float(rec.dt), "inputs": "command",
+    return {"u_names": list(spec.u_names), "y_names": list(spec.y_names), "dt": float(rec.dt),
+            "inputs": check_inputs(inputs),
             "stores": [], "physics": physics, "arm": spec.name}
 
 
@@ -121,20 +125,21 @@ def check_network_free(predictor) -> None:
                              "or load a trained checkpoint (Predictor.from_checkpoint)")
 
 
-def from_arm(cls, arm: str = "panda", recipe: str | None = None, device=None, **overrides):
+def from_arm(cls, arm: str = "panda", recipe: str | None = None, device=None, inputs: str = "command", **overrides):
     """:meth:`robomorph.model.predictor.Predictor.from_arm`: a ``cls`` (the Predictor) with no network.
 
     Args:
-        arm: an arm with a catalogue physics backbone (:data:`BACKBONE_ARMS`).
+        arm: a name of :data:`robomorph.sim.arms.ARMS`.
         recipe: the generator recipe whose physics step, gravity compensation and randomization ranges the
             data follow (a shipped name such as ``multisine`` or a YAML path; default the generator's defaults).
         device: where tensors are returned (the simulation runs on the CPU).
+        inputs: ``command`` or ``total`` (see :func:`arm_record`).
         overrides: recipe fields changed, e.g. ``dt=0.01``.
 
     Raises:
-        NoNetworkError: an arm without a catalogue physics backbone.
+        NoNetworkError: an arm that is not registered.
     """
-    info = arm_record(arm, recipe, **overrides)
+    info = arm_record(arm, recipe, inputs, **overrides)
     pred = cls(NoNetwork(len(info["u_names"]), len(info["y_names"])), device, info)
     # The record a trained command hybrid carries, set here: a model without a parameter head takes no
     # backbone from its record (Predictor.__init__), and this one has no model at all.

@@ -85,6 +85,8 @@ class Hybrid:
         if self.members < 1:
             raise HybridError(f"the friction mixture needs members >= 1, got {members}")
         self.backbone = PhysicsBackbone(physics, inputs)
+        # The arm's joints: y is the EE pose (7 channels), then one angle per joint.
+        self.n_joint = len(self.backbone.ident.randomizer.friction0)
         # Behind the std (robomorph.model.hybrid_std): the covariance's columns, and the observer's start where it is.
         self.points = default_points(self.backbone.observe and inputs == "command")
         self._identifier = None
@@ -136,7 +138,7 @@ class Hybrid:
 
         check_mode(self.model, mode)
         uc, yc, uq = (t.double().cpu().numpy() for t in (u_ctx, y_ctx, u_query))
-        q_ctx, quat_last = yc[..., 7:14], yc[:, -1, 3:7]
+        q_ctx, quat_last = yc[..., 7:7 + self.n_joint], yc[:, -1, 3:7]
         B = len(uc)
         rest = np.broadcast_to(np.asarray(False if at_rest is None else at_rest, dtype=bool), (B,))
         # Candidate torque sequences on one context (model-predictive control): the robot is
@@ -212,7 +214,7 @@ class Hybrid:
         from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
 
         check_mode(self.model, mode)
-        q_ctx = y_ctx.double().cpu().numpy()[..., 7:14]
+        q_ctx = y_ctx.double().cpu().numpy()[..., 7:7 + self.n_joint]
         qvel_start = np.zeros_like(q_ctx[:, 0]) if at_rest else -estimate_velocity(q_ctx[:, ::-1], self.backbone.dt)
         params = self._identify(u_ctx, y_ctx, mode, q_ctx[:, 0] if anchor is None else anchor, qvel_start)[0]
         mixture = self._mixture(mode, params, q_ctx, u_ctx.double().cpu().numpy(), qvel_start)
@@ -223,7 +225,7 @@ class Hybrid:
                   qvel_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Full parameter vectors (B, P), and the head's mean and std in unit coordinates."""
         uc = u_ctx.double().cpu().numpy()
-        q_ctx = y_ctx.double().cpu().numpy()[..., 7:14]
+        q_ctx = y_ctx.double().cpu().numpy()[..., 7:7 + self.n_joint]
         if mode not in HEAD_MODES:
             # The solve reads the context alone: the parameter head is not needed (nor run).
             z = z_std = np.zeros((len(uc), len(self.backbone.index)))
@@ -352,7 +354,7 @@ def _smoothed(hybrid: Hybrid, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query:
                           "has no Gaussian head: use 'regression' or 'none'")
     decoder, decoder_std = mean.double().cpu().numpy(), std.double().cpu().numpy()
     uc, yc, uq = (t.double().cpu().numpy() for t in (u_ctx, y_ctx, u_query))
-    out, out_std = smooth_windows(hybrid.backbone, params, yc[..., 7:14], uc, uq, yc[:, -1, 3:7], decoder,
+    out, out_std = smooth_windows(hybrid.backbone, params, yc[..., 7:7 + hybrid.n_joint], uc, uq, yc[:, -1, 3:7], decoder,
                                   decoder_std, hybrid.smoother, with_std, hybrid.smoothing)
     if mode == "blend":
         out, out_std = hybrid.model.blend.combine(out, decoder, out_std, decoder_std)

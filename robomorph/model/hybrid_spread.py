@@ -59,6 +59,6 @@ def observed_spread(horizon, params: np.ndarray, mean: np.ndarray, size: float =
     ``horizon(params, (joint, size))`` gives one (:meth:`robomorph.model.hybrid.Hybrid.predict`)."""
     size = OBSERVED_SIZE if size is None else size
     total = np.zeros_like(mean)
-    for joint in range(7):
+    for joint in range(mean.shape[-1] - 7):  # y: the EE pose (7 channels), then one angle per joint
         total += (horizon(params, (joint, size)) - mean) ** 2
     return np.sqrt(total)

@@ -51,24 +51,26 @@ def parameter_layout(attrs: dict) -> dict:
     """What a parameter head predicts for robots of a store (JSON-able, saved in checkpoints).
 
     Raises:
-        BackboneError: the store is not a simulated Panda store with its generator config
-            and per-robot parameters (imported real logs have no catalogue model to put
-            parameters into: train the black-box model on them).
+        BackboneError: the store is not a simulated store of a registered arm with its generator
+            config and per-robot parameters (imported real logs have no parameters to learn
+            from: train the black-box model on them, or predict with ``Predictor.from_arm``).
     """
     from robomorph.core.config import from_dict  # noqa: PLC0415
+    from robomorph.sim import arms  # noqa: PLC0415
     from robomorph.sim.identify import KINDS, ParameterSpace, lean_model  # noqa: PLC0415
     from robomorph.sim.randomize import Randomizer, param_names  # noqa: PLC0415
     from robomorph.sim.recipe import Recipe  # noqa: PLC0415
 
-    if attrs.get("domain") != "panda" or not isinstance(attrs.get("config"), dict) \
-            or list(attrs.get("param_names", [])) != param_names():
-        raise BackboneError("--model.physics needs simulated Panda stores that record each robot's parameters "
-                            f"(this store: domain {attrs.get('domain')!r}, "
+    arm = arms.of_store(attrs)
+    if arm is None or not isinstance(attrs.get("config"), dict) \
+            or list(attrs.get("param_names", [])) != param_names(arm.name):
+        raise BackboneError("--model.physics needs simulated stores of a registered arm that record each robot's "
+                            f"parameters (this store: domain {attrs.get('domain')!r}, "
                             f"{'with' if attrs.get('param_names') else 'without'} params); "
                             "train the black-box model on it with --model.physics none")
     recipe = from_dict(Recipe, attrs["config"], "store config")
-    model = lean_model(recipe.substeps, recipe.dt, recipe.gravity_compensation == "true_model")
-    randomizer = Randomizer(model, recipe.randomization)
+    model = lean_model(recipe.substeps, recipe.dt, recipe.gravity_compensation == "true_model", recipe.robot)
+    randomizer = Randomizer(model, recipe.randomization, recipe.robot)
     space = ParameterSpace.of(randomizer, recipe.randomization, KINDS)
     return {"recipe": dict(attrs["config"]), "names": list(space.names), "index": space.index.tolist(),
             "low": space.low.tolist(), "high": space.high.tolist()}
@@ -146,7 +148,8 @@ class PhysicsBackbone:
         self.index = np.asarray(layout["index"], dtype=np.int64)
         self.low, self.high = np.asarray(layout["low"]), np.asarray(layout["high"])
         if list(self.ident.space.names) != list(layout["names"]):
-            raise BackboneError("the model's parameter layout does not match this version's Panda: re-train it")
+            raise BackboneError(f"the model's parameter layout does not match this version's {self.recipe.robot}: "
+                                "re-train it")
         self.dt = float(self.recipe.dt)
         # Without state feedback inside the horizon, the horizon is one open-loop rollout.
         self.open_loop = self.ident._feedback is None
@@ -308,7 +311,7 @@ class PhysicsBackbone:
 
 def _closed_loop(bb: PhysicsBackbone, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:
     """(F + 1, 7) joint positions of one robot simulated closed loop (state feedback in the formulation)."""
-    from robomorph.sim import panda  # noqa: PLC0415
+    from robomorph.sim import arms  # noqa: PLC0415
     from robomorph.sim.closed_loop import formulation_controller, simulate_closed_loop  # noqa: PLC0415
     from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
     from robomorph.sim.filters import to_outputs  # noqa: PLC0415
@@ -316,7 +319,7 @@ def _closed_loop(bb: PhysicsBackbone, params: np.ndarray, qpos0: np.ndarray, qve
     recipe, nj = bb.recipe, len(qpos0)
     in_actuators = recipe.gravity_compensation == "true_model"
     if bb._closed is None:
-        model = panda.build_model(bb.substeps, recipe.dt, in_actuators)
+        model = arms.get(recipe.robot).build_model(bb.substeps, recipe.dt, in_actuators)
         grav = NominalGravity(recipe) if bb.inputs == "command" and not in_actuators \
             and recipe.gravity_compensation == "nominal_model" else None
         bb._closed = (model, mujoco.MjData(model), grav)

@@ -83,11 +83,14 @@ class RegressorIdentifier:
 
     def __init__(self, recipe, space, randomizer, inputs: str = "command", prior: float = 0.03, sigma: float = 0.05,
                  exact_columns: bool = False, iterations: int = 3):
+        from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
         from robomorph.sim.identify import lean_model, lean_spec  # noqa: PLC0415
 
-        if inputs == "command" and recipe.gravity_compensation == "nominal_model":
-            raise ValueError("the regressor needs the torque at the joints: commands on an arm that adds the "
-                             "catalogue's gravity are not supported (use total torques)")
+        # Commands to an arm that adds its catalogue model's gravity (a real arm's controller):
+        # the joints feel the command plus that g(q), and the robot's own gravity, which is
+        # linear in its masses, stays in the solve, as for total torques.
+        self._catalogue_gravity = (NominalGravity(recipe) if inputs == "command"
+                                   and recipe.gravity_compensation == "nominal_model" else None)
         self.dt = float(recipe.dt)
         self.space, self.randomizer = space, randomizer
         self.prior, self.sigma = float(prior), float(sigma)
@@ -95,7 +98,7 @@ class RegressorIdentifier:
         # Total torques hold g(q), which is linear in the link masses as well. The inverse is
         # that of the discrete step (implicit damping adds h D to the inertia).
         self.model = lean_model(recipe.substeps, recipe.dt, False, recipe.robot)
-        if inputs == "command":
+        if inputs == "command" and self._catalogue_gravity is None:
             self.model.opt.gravity[:] = 0.0
         self.model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_INVDISCRETE
         self._nj = len(randomizer.friction0)
@@ -121,12 +124,15 @@ class RegressorIdentifier:
         Args:
             base: (P,) the catalogue vector (springs anchored where the robot started).
             q: (T, 7) recorded joint positions (T >= 3).
-            torque: (T, 7) the commands (gravity compensated by the arm) or total torques.
+            torque: (T, 7) the commands (gravity compensated by the arm, with its own model or
+                with the catalogue's) or total torques.
             prior_mean, prior_std: (n,) a Gaussian prior on the identified entries in unit
                 coordinates (a learned estimate, :mod:`robomorph.model.hybrid`); the solve is
                 then the posterior mode, the data weighted by their residual variance.
                 Default: the weak pull toward ``base`` (``prior``).
         """
+        if self._catalogue_gravity is not None:
+            torque = np.asarray(torque, dtype=np.float64) + np.stack([self._catalogue_gravity(qt) for qt in q])
         data = _differences(q, torque, self.dt)
         base = np.asarray(base, dtype=np.float64)
         z_base = self._unit(base)

@@ -164,7 +164,8 @@ def test_benchmark_scores_every_predictor_on_every_robot_and_physics_wins_on_its
     rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
             for line in kinova.splitlines() if line.startswith("| ") and "joint RMS" not in line}
     assert set(rows) == {"hold", "constant_velocity", "constant_acceleration", "arx", "arx_train", "accel_arx",
-                         "accel_arx_train", "nominal_physics", "identified_physics"}
+                         "accel_arx_train", "nominal_physics", "identified_physics", "hybrid (total)",
+                         "hybrid (nominal commands)"}
     # The logs were made by the catalogue arm itself: its physics beats hold at 0.25 s (step 50 at 200 Hz).
     assert float(rows["nominal_physics"][1]) < 0.5 * float(rows["hold"][1])
     industrial = text.split("## KUKA")[1]

@@ -64,5 +64,5 @@ def test_what_needs_a_network_is_refused_in_one_line(store):
         assert "\n" not in str(exc.value)
     pred.use_physics("refined")  # reads no network either
     assert pred.simulate(uc, yc, uq).shape == uq.shape[:2] + (14,)
-    with pytest.raises(NoNetworkError, match=r"arm 'ur5e'.*only panda"):
-        Predictor.from_arm("ur5e")
+    with pytest.raises(NoNetworkError, match=r"unknown arm 'ur6'.*choose one of panda, ur5e"):
+        Predictor.from_arm("ur6")

@@ -251,13 +251,30 @@ def test_identified_physics_recovers_another_arms_damping_and_beats_its_catalogu
 
 
 @needs_robosuite
-def test_the_hybrid_backbone_refuses_other_arms_in_one_line(tmp_path):
-    """The hybrid's parameter head is the Panda's: another arm's store is refused with one line."""
+def test_the_hybrid_identifies_and_simulates_every_arm_with_no_training(tmp_path):
+    """The hybrid's backbone is any registered arm's: with no training (Predictor.from_arm) it
+    predicts a simulated Kinova far below the catalogue arm; a store of no arm is refused in one line."""
+    from robomorph import Predictor
+    from robomorph.evaluation.physics import NominalPhysics
     from robomorph.sim.backbone import BackboneError, parameter_layout
 
-    ds = _generate(tmp_path, "ur5e", "multisine", robots=1, steps=30)
-    with pytest.raises(BackboneError, match="simulated Panda stores") as info:
-        parameter_layout(ds.attrs)
+    ds = _generate(tmp_path, "kinova3", "multisine", robots=2, steps=260)
+    layout = parameter_layout(ds.attrs)
+    assert any(n.startswith("mass_HalfArm1") for n in layout["names"])
+    y, u = ds.read("y").astype(np.float64), ds.read("u_cmd").astype(np.float64)
+    c = 200
+    pred = Predictor.from_arm("kinova3").simulate(u[:, :c], y[:, :c], u[:, c:], at_rest=True)
+    nominal = NominalPhysics(ds.attrs, "command")(u[:, :c], y[:, :c], u[:, c:])
+    assert pred.shape == nominal.shape == (2, 60, 14)
+    err = np.sqrt(np.mean((pred[..., 7:] - y[:, c:, 7:]) ** 2))
+    assert err < 0.2 * np.sqrt(np.mean((nominal[..., 7:] - y[:, c:, 7:]) ** 2))
+    # An arm compensating its gravity with the catalogue model takes its commands, undebiased (measured worse).
+    from robomorph.model.hybrid_std import debiasing
+
+    assert debiasing(Predictor.from_arm("kinova3")) and not debiasing(
+        Predictor.from_arm("kinova3", gravity_compensation="nominal_model"))
+    with pytest.raises(BackboneError, match="simulated stores of a registered arm") as info:
+        parameter_layout({**ds.attrs, "domain": "real"})
     assert "\n" not in str(info.value)
 
 

@@ -81,10 +81,17 @@ def test_a_prior_pulls_the_solve_and_is_deterministic(stores):
     assert np.abs(loose[damping] - a[damping]).max() < 0.1  # N m s/rad, over a range of 5
 
 
-def test_commands_on_an_arm_with_catalogue_compensation_are_refused(simulated_store):
+def test_commands_on_an_arm_with_catalogue_compensation_solve_as_the_joint_torques_they_become(simulated_store):
+    """A real arm's controller adds its catalogue model's g(q) to the command: the solve from the
+    commands is the solve from the total torques the joints felt (the store records both)."""
     ds = open_store(simulated_store(robots=1, steps=30, seed=5, gravity_compensation="nominal_model"))
-    with pytest.raises(ValueError, match="total torques"):
-        _solver(ds, "command")
+    from_cmd, space = _solver(ds, "command")
+    from_total, _ = _solver(ds, "total")
+    y, u, u_cmd = (ds.read(k).astype(np.float64) for k in ("y", "u", "u_cmd"))
+    assert not np.allclose(u, u_cmd)  # the catalogue's gravity lies between them
+    base = from_cmd.randomizer.catalogue(y[0, 0, 7:])
+    a, b = from_cmd.fit(base, y[0, :, 7:], u_cmd[0]), from_total.fit(base, y[0, :, 7:], u[0])
+    np.testing.assert_allclose(a[space.index], b[space.index], rtol=1e-5, atol=1e-7)  # u is stored as float32
 
 
 def test_the_shortcut_columns_match_mujocos_inverse_dynamics(stores):
