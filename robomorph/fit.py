@@ -7,9 +7,7 @@ from __future__ import annotations
 
 import sys
 
-from lightning.fabric.utilities.exceptions import MisconfigurationException
-
-from robomorph.core.errors import SIGTERM_EXIT, DeviceError, FileSystemError, StoppedBySignal, UsageError, run_command
+from robomorph.core.errors import SIGTERM_EXIT, StoppedBySignal, run_command
 from robomorph.core.recipes import locate_config_args
 from robomorph.training.fitting import final_line, fit
 
@@ -21,17 +19,6 @@ def run(argv: list[str] | None) -> int:
     except StoppedBySignal as stop:
         print(stop, file=sys.stderr)
         return SIGTERM_EXIT
-    except MisconfigurationException as exc:
-        # Lightning's class for a configuration it refuses (an accelerator this machine
-        # lacks, an unknown profiler): the user's flags, so one line.
-        kind = DeviceError if "accelerator" in str(exc) or "backend" in str(exc) else UsageError
-        raise kind(f"--trainer: {exc}") from exc
-    except RuntimeError as exc:
-        # torch.save reports a failed write (a full disk while saving a checkpoint) as a
-        # RuntimeError of its C++ stream writer, not as an OSError.
-        if "PytorchStreamWriter failed" not in str(exc) and "file write failed" not in str(exc):
-            raise
-        raise FileSystemError(f"writing a checkpoint failed (is the disk full?): {str(exc).splitlines()[0]}") from exc
     print(f"best checkpoint: {result.best_ckpt}\nrun directory: {result.run_dir}")
     print(final_line(result))
     return 0

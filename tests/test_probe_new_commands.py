@@ -440,3 +440,71 @@ def test_inspect_names_a_chunk_whose_bytes_were_flipped(tmp_path, capsys):
     open(chunk, "wb").write(bytes(data))
     code, err = _call(main, [store], capsys)
     _one_error(code, err, "'y' chunk c/0/0/0", "checksum")
+
+
+# -- full disks -----------------------------------------------------------------------------------
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A folder on a 160 KiB file system: a tiny run's logs fit, its checkpoint does not (root only)."""
+    import subprocess
+
+    d = tmp_path / "small"
+    d.mkdir()
+    mounted = shutil.which("mount") and os.geteuid() == 0 and subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=160k", "tmpfs", str(d)], capture_output=True).returncode == 0
+    if not mounted:
+        pytest.skip("needs root with permission to mount a tiny tmpfs")
+    yield d
+    subprocess.run(["umount", str(d)], capture_output=True)
+
+
+def test_a_torch_file_on_a_full_disk_is_one_line_and_leaves_nothing(small_disk):
+    """Case 23: torch's zip writer reported a full disk as ``RuntimeError: unexpected pos``
+    (``fit``'s checkpoints and ``calibrate --out`` write through this one writer)."""
+    import torch
+
+    from robomorph.core.errors import FileSystemError
+    from robomorph.model.files import save_torch
+
+    with pytest.raises(FileSystemError, match="disk full"):
+        save_torch({"w": torch.zeros(200_000)}, str(small_disk / "x.ckpt"))
+    assert os.listdir(small_disk) == []
+
+
+def test_fit_on_a_full_disk_is_one_line(small_disk, simulated_store, capsys):
+    """Case 23: ``fit`` on a full disk ended in ``RuntimeError: unexpected pos`` from torch's zip writer."""
+    from robomorph import fit
+
+    store = simulated_store(robots=24, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=1)
+    argv = ["--data.stores", store, "--data.context_len", str(CKPT_CONTEXT), "--data.horizon", str(CKPT_HORIZON),
+            "--data.batch_size", "8", "--data.val_subset", "4", "--model.d_model", "64", "--model.n_head", "2",
+            "--model.n_layer", "2", "--model.patch", "5", "--model.max_context", "64", "--model.max_horizon", "64",
+            "--trainer.max_steps", "2", "--trainer.val_check_interval", "2", "--trainer.accelerator", "cpu",
+            "--run", "full", "--runs_dir", str(small_disk), "--wandb", "disabled"]
+    code, err = _call(fit.main, argv, capsys)
+    errors = [line for line in err.splitlines() if line.startswith("error: ")]  # after fit's progress lines
+    assert code == 2 and "Traceback" not in err and len(errors) == 1 and "disk full" in errors[0], err
+
+
+@pytest.mark.parametrize("setting, phrase", [("trainer.profiler=bogus", "--trainer"),
+                                             ("trainer.accelerator=gpu", "--trainer")])
+def test_a_trainer_setting_lightning_refuses_stops_a_sweep_in_one_line(setting, phrase, simulated_store, tmp_path):
+    """Case 24: ``sweep`` with ``trainer.profiler: bogus`` or ``trainer.accelerator: gpu`` in a
+    space ended in a MisconfigurationException traceback (the runner caught RuntimeError only)."""
+    import torch
+
+    import subprocess
+    import sys
+
+    if "gpu" in setting and torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    store = simulated_store(robots=40, steps=90, seed=1)
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    res = subprocess.run([sys.executable, "-m", "robomorph", "sweep", os.path.join(root, "sweeps", "ci.yaml"),
+                          "--n-trials", "1", "--storage", f"sqlite:///{tmp_path / 's.db'}", "--runs-dir",
+                          str(tmp_path / "runs"), "--wandb", "disabled", "--set", f"data.stores={store}", "--set",
+                          setting], capture_output=True, text=True, timeout=600, cwd=root)
+    code, err = res.returncode, res.stderr
+    errors = [line for line in err.splitlines() if line.startswith("error: ")]
+    assert code == 2 and "Traceback" not in err and len(errors) == 1 and phrase in errors[0], err

@@ -29,8 +29,8 @@ import warnings
 
 import torch
 
-from robomorph.core.atomic import write_bytes, write_text
-from robomorph.core.errors import RoboMorphError
+from robomorph.core.atomic import atomic_open, write_bytes, write_text
+from robomorph.core.errors import FileSystemError, RoboMorphError
 from robomorph.core.locks import output_folder
 
 CONFIG_FILE, WEIGHTS_FILE = "config.json", "model.safetensors"
@@ -217,12 +217,30 @@ def write_model(record: dict, out: str) -> None:
     if record.get(_FOLDER_MARK):
         write_folder(record, out)
         return
-    from robomorph.core.atomic import atomic_open  # noqa: PLC0415
-
     if os.path.isdir(out):
         raise CheckpointError(f"--out {out} is a folder: give the checkpoint file to write")
-    with atomic_open(out, "wb") as f:
-        torch.save(record, f)
+    save_torch(record, out)
+
+
+# How torch's C++ zip writer words a write that failed (a full disk): a RuntimeError, not an OSError.
+_WRITE_FAILED = ("PytorchStreamWriter failed", "file write failed", "unexpected pos")
+
+
+def save_torch(obj, path: str) -> None:
+    """``torch.save`` of ``obj`` to ``path``, whole or not at all (the one writer of torch files).
+
+    Raises:
+        FileSystemError: the write failed (a full disk, most often): one line, not torch's
+            C++ trace; the file at ``path`` is as it was.
+    """
+    try:
+        with atomic_open(path, "wb") as f:
+            torch.save(obj, f)
+    except RuntimeError as exc:
+        if not any(m in str(exc) for m in _WRITE_FAILED):
+            raise
+        raise FileSystemError(f"writing {path} failed (is the disk full?): {str(exc).splitlines()[0]}; free space "
+                              "or write to another disk") from exc
 
 
 def export(src: str, out: str) -> dict:

@@ -6,12 +6,11 @@ import csv
 import os
 from typing import Any
 
-import torch
 from lightning.pytorch.loggers import CSVLogger
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 from robomorph.core.atomic import atomic_open, write_bytes
-from robomorph.model.files import load_checkpoint_file
+from robomorph.model.files import load_checkpoint_file, save_torch
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
@@ -20,8 +19,7 @@ class AtomicCheckpointIO(TorchCheckpointIO):
     through the package's one reader, which runs nothing stored in the file."""
 
     def save_checkpoint(self, checkpoint: dict[str, Any], path: str, storage_options: Any | None = None) -> None:
-        with atomic_open(path, "wb") as f:
-            torch.save(checkpoint, f)
+        save_torch(checkpoint, path)
 
     def load_checkpoint(self, path, map_location: Any = None, weights_only: bool | None = None) -> dict[str, Any]:
         # Whatever Lightning or the environment (TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD) asks for,

@@ -26,10 +26,11 @@ import torch
 from lightning.pytorch.callbacks import LearningRateMonitor
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.loggers import WandbLogger
+from lightning.fabric.utilities.exceptions import MisconfigurationException
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 
 from robomorph.core.atomic import write_text
-from robomorph.core.errors import StoppedBySignal
+from robomorph.core.errors import DeviceError, StoppedBySignal, UsageError
 from robomorph.core.locks import exclusive
 from robomorph.core.names import VAL_LOSS, check_plain_name
 from robomorph.core.rundir import RunDir
@@ -253,9 +254,22 @@ def fit(args: list[str] | dict | None = None, callbacks: list | None = None) -> 
             (``{"data": {"stores": "x.zarr"}, "trainer": {"max_steps": 10}}``).
         callbacks: extra Lightning callback objects (e.g. a sweep's pruning callback).
     """
-    cli = build_cli(args, callbacks)
-    with cli.quiet, _run_lock(cli):
-        return _fit(cli)
+    with lightning_refusals():
+        cli = build_cli(args, callbacks)
+        with cli.quiet, _run_lock(cli):
+            return _fit(cli)
+
+
+@contextlib.contextmanager
+def lightning_refusals():
+    """Lightning's refusal of a configuration (an accelerator this machine lacks, an unknown
+    profiler) as the package's one-line error: the user's flags, whoever called fit() (the
+    fit door, a sweep's trial, reproduce, the demo)."""
+    try:
+        yield
+    except MisconfigurationException as exc:
+        kind = DeviceError if "accelerator" in str(exc) or "backend" in str(exc) else UsageError
+        raise kind(f"--trainer: {exc}") from exc
 
 
 def _run_lock(cli: RoboMorphCLI):

@@ -17,8 +17,10 @@ retried with the same parameters, resuming the dead trial's run directory.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
+import logging
 import os
 import sys
 import time
@@ -28,6 +30,7 @@ import numpy as np
 import optuna
 import yaml
 
+from robomorph.core.errors import RoboMorphError
 from robomorph.core.overrides import merge, unflatten
 from robomorph.core.rundir import RunDir
 from robomorph.tuning.space import Space, SpaceError
@@ -225,8 +228,30 @@ def run_sweep(space: Space, n_trials: int, storage=None, study_name: str | None 
     stop = optuna.study.MaxTrialsCallback(n_trials, states=STATES_DONE)
     objective = make_objective(space, study.study_name, runs_dir, wandb)
     # n_trials bounds this worker; the callback stops every worker at the study's total.
-    study.optimize(objective, n_trials=n_trials, callbacks=[stop], catch=(RuntimeError,), gc_after_trial=True)
+    with _told_once():
+        study.optimize(objective, n_trials=n_trials, callbacks=[stop], catch=(RuntimeError,), gc_after_trial=True)
     return study
+
+
+class _NotUserErrors(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (record.exc_info and isinstance(record.exc_info[1], RoboMorphError))
+
+
+@contextlib.contextmanager
+def _told_once():
+    """Optuna logs the traceback of the error that failed a trial, then re-raises it; a
+    :class:`RoboMorphError` (the user's setting, the same for every trial) stops the sweep
+    and the door tells it in one line, so optuna's copy is left out."""
+    quiet = _NotUserErrors()
+    handlers = logging.getLogger("optuna").handlers
+    for h in handlers:
+        h.addFilter(quiet)
+    try:
+        yield
+    finally:
+        for h in handlers:
+            h.removeFilter(quiet)
 
 
 def with_overrides(space: Space, pairs: list[str]) -> Space:
