@@ -9,18 +9,24 @@ import argparse
 import sys
 
 from robomorph.core.errors import run_command
+from robomorph.core.options import Parser, integer, number
 from robomorph.reproduction import demo
 
 
+MIN_TRAIN_ROBOTS = 20
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m robomorph.demo", description=demo.__doc__.split("\n")[0])
+    p = Parser(prog="python -m robomorph.demo", description=demo.__doc__.split("\n")[0])
     p.add_argument("--out-dir", default="data/demo")
-    p.add_argument("--robots", type=int, default=32, help="robots per task in the showcase datasets")
-    p.add_argument("--steps", type=int, default=1000)
-    p.add_argument("--train-robots", type=int, default=1024)
-    p.add_argument("--minutes", type=float, default=6.0, help="training budget (wall clock)")
+    p.add_argument("--robots", type=integer(1, 100_000), default=32, help="robots per task in the showcase datasets")
+    p.add_argument("--steps", type=integer(1, 1_000_000), default=1000, help="steps per showcase trajectory")
+    # Training holds out 5 % of these for validation: fewer than 20 leave it (nearly) empty.
+    p.add_argument("--train-robots", type=integer(MIN_TRAIN_ROBOTS, 1_000_000), default=1024,
+                   help=f"multi-sine robots to train on (at least {MIN_TRAIN_ROBOTS}: 5 %% of them validate)")
+    p.add_argument("--minutes", type=number(0, 7 * 24 * 60, low_open=True), default=6.0, help="training budget (wall clock)")
     p.add_argument("--runs-dir", default="results/runs")
-    p.add_argument("--workers", type=int, default=None)
+    p.add_argument("--workers", type=integer(1, 1024), default=None)
     p.add_argument("--inputs", choices=("command", "total"), default="command",
                    help="input formulation: command (the torque a torque-controlled Panda is sent; its physics "
                         "is predictable, so the hybrid model identifies the robot and simulates it) or total "

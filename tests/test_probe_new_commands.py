@@ -508,3 +508,17 @@ def test_a_trainer_setting_lightning_refuses_stops_a_sweep_in_one_line(setting, 
     code, err = res.returncode, res.stderr
     errors = [line for line in err.splitlines() if line.startswith("error: ")]
     assert code == 2 and "Traceback" not in err and len(errors) == 1 and phrase in errors[0], err
+
+
+@pytest.mark.parametrize("args", [["--train-robots", "4"], ["--minutes", "inf"], ["--robots", "0"]])
+def test_demo_options_are_checked_before_anything_runs(args, capsys, monkeypatch):
+    """Case 27: ``demo --train-robots 4`` failed after about 60 s with advice to pass ``--data``,
+    a flag the demo does not have."""
+    from robomorph import demo
+
+    def refuse(*_a, **_k):
+        raise AssertionError("the demo ran before its options were checked")
+
+    monkeypatch.setattr(demo.demo, "run_demo", refuse)
+    code, err = _call(demo.main, args, capsys)
+    _one_error(code, err, args[0])
