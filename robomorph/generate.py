@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return run_command(lambda: run(args))
+    return run_command(lambda: run(args), kept=f"{args.out} keeps every trajectory written before it (the store "
+                                               "records where it stopped): run the same command again to resume")
 
 
 if __name__ == "__main__":

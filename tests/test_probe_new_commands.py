@@ -522,3 +522,44 @@ def test_demo_options_are_checked_before_anything_runs(args, capsys, monkeypatch
     monkeypatch.setattr(demo.demo, "run_demo", refuse)
     code, err = _call(demo.main, args, capsys)
     _one_error(code, err, args[0])
+
+
+def _interrupted(args: list[str], started) -> tuple[int, str]:
+    """Runs ``robomorph ARGS`` in its own process group, sends it a Ctrl-C (SIGINT to the whole
+    group, as a terminal does) once ``started()`` holds, and returns its exit code and stderr."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    proc = subprocess.Popen([sys.executable, "-m", "robomorph", *args], cwd=root, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            env={**os.environ, "MUJOCO_GL": "disable", "WANDB_MODE": "disabled"})
+    deadline = time.monotonic() + 240
+    while not started() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.2)
+    time.sleep(1.0)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    return proc.returncode, err
+
+
+def test_ctrl_c_during_generate_stops_cleanly_and_the_store_resumes(tmp_path):
+    """Case 18: a Ctrl-C during ``generate`` printed KeyboardInterrupt tracebacks (its workers' too)."""
+    out = tmp_path / "g.zarr"
+    code, err = _interrupted(["generate", "--robots", "400", "--steps", "400", "--workers", "2", "--out", str(out),
+                              "--quiet"], lambda: (out / "zarr.json").exists())
+    assert code == 130 and "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert [line for line in err.splitlines() if line.strip()][-1].startswith("stopped by Ctrl-C: ")
+    assert "resume" in err
+
+
+def test_ctrl_c_during_control_with_workers_stops_cleanly(tmp_path):
+    """Case 18: a Ctrl-C during ``control`` (episodes in worker processes) printed tracebacks."""
+    out = tmp_path / "ctl"
+    code, err = _interrupted(["control", "--controllers", "osc,mpc:nominal_physics", "--robots", "4", "--workers",
+                              "2", "--out", str(out)],
+                             lambda: any(n.startswith(".ctl.") and n.endswith(".tmp") for n in os.listdir(tmp_path)))
+    assert code == 130 and "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert not out.exists() and not [n for n in os.listdir(tmp_path) if n.endswith(".tmp")]

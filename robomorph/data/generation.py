@@ -13,6 +13,7 @@ import collections
 import math
 import multiprocessing as mp
 import os
+import signal
 import time
 from dataclasses import dataclass, field
 
@@ -205,6 +206,8 @@ _WORKER: episode.ClosedLoopRunner | None = None
 
 def _init_worker(recipe: Recipe) -> None:
     global _WORKER
+    # A Ctrl-C reaches every process of the terminal: the parent stops the run, workers say nothing.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _WORKER = episode.ClosedLoopRunner(recipe)
 
 
