@@ -563,3 +563,40 @@ def test_ctrl_c_during_control_with_workers_stops_cleanly(tmp_path):
                              lambda: any(n.startswith(".ctl.") and n.endswith(".tmp") for n in os.listdir(tmp_path)))
     assert code == 130 and "Traceback" not in err and "KeyboardInterrupt" not in err, err
     assert not out.exists() and not [n for n in os.listdir(tmp_path) if n.endswith(".tmp")]
+
+
+# -- one arm's model on another arm ----------------------------------------------------------------
+
+def test_fit_records_the_arms_it_trained_on(tiny_checkpoint):
+    """Cases 9 and 10: what lets control and evaluate tell a model's arm (a Panda store here)."""
+    from robomorph.model.predictor import Predictor
+
+    assert Predictor.from_checkpoint(tiny_checkpoint).data_info["arms"] == ["panda"]
+
+
+def test_control_refuses_a_model_of_another_arm(tiny_checkpoint):
+    """Case 9: a Kinova3 model planned the Panda (``control --controllers mpc:model``)."""
+    from robomorph.control.dynamics import ControlError
+    from robomorph.control.runner import ControlConfig
+    from robomorph.model.predictor import Predictor
+
+    p = Predictor.from_checkpoint(tiny_checkpoint)
+    p.inputs, p.n_u, p.n_y = "command", 7, 14  # the checks before the arm's pass
+    p.data_info = {**p.data_info, "arms": ["kinova3"]}
+    with pytest.raises(ControlError, match="kinova3"):
+        control_cli.check_model(p, ControlConfig(context=4 * p.model.config.patch, warmup=2.0, duration=0.5), "m")
+
+
+def test_evaluate_refuses_a_store_of_another_arm(tiny_checkpoint, simulated_store, tmp_path, capsys):
+    """Case 10: ``evaluate`` of a Panda model on a Kinova3 store said nothing (719 mm at step 1)."""
+    import zarr
+
+    from robomorph import evaluate
+
+    test = str(tmp_path / "kinova.zarr")
+    shutil.copytree(simulated_store(robots=24, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=1), test)
+    zarr.open_group(test, mode="r+").attrs["domain"] = "kinova3"  # the channels have the same names
+    code, err = _call(evaluate.main, ["--ckpt", tiny_checkpoint, "--data", test, "--out", str(tmp_path / "ev"),
+                                      "--baselines", "hold", "--samples", "0"], capsys)
+    _one_error(code, err, "kinova3", "panda")
+    assert not (tmp_path / "ev").exists()

@@ -83,6 +83,12 @@ def check_model(predictor, cfg: ControlConfig, ckpt: str) -> None:
     if predictor.inputs != "command":
         raise ControlError(f"{ckpt} was trained on {predictor.inputs} torques; the controller sends commands to an "
                            "arm that compensates its own gravity: use a model trained with --data.inputs command")
+    from robomorph.evaluation.evaluator import EvaluationError, check_arm  # noqa: PLC0415
+
+    try:
+        check_arm(predictor, {"domain": "panda"}, "the controlled arm")
+    except EvaluationError as exc:
+        raise ControlError(f"{ckpt}: {exc}") from None
     if (predictor.n_u, predictor.n_y) != (7, 14):
         raise ControlError(f"{ckpt} predicts {predictor.n_y} outputs from {predictor.n_u} inputs; the controlled "
                            "arm is the Panda (7 torques in; EE pose and 7 joints out)")

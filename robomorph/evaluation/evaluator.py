@@ -115,6 +115,7 @@ def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, hor
         raise EvaluationError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
     w = load_window(data, int(context_len), int(horizon), n, info, predictor.n_u, predictor.n_y, offset, seed,
                     predictor.inputs)
+    check_arm(predictor, w.attrs, data)
     predictor.channels = (w.u_names, w.y_names)  # an arm with fewer joints than a multi-arm model: padded
     steps = parse_horizons(horizons_spec, w.horizon, w.dt)
     horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
@@ -144,6 +145,27 @@ def _score_and_write(predictor, w: Window, out: str, ckpt: str, data: str, basel
                          std=scores.std, steps=result["horizons"]["steps"], y_units=w.attrs.get("y_units"))
     _write_files(out, result)
     return result
+
+
+def check_arm(predictor, attrs: dict, where: str) -> None:
+    """Refuses data of one registered arm (a store's ``domain``) for a model trained on others.
+
+    Only registered arms are compared: a model or store of real logs (``domain`` a user's
+    name) may be another robot of the same kind, and a transfer between them is the user's
+    choice. Checkpoints that predate the record of their arms are let through.
+
+    Raises:
+        EvaluationError: the message names both arms and ``where`` the data come from.
+    """
+    from robomorph.model.predictor_checks import model_arms  # noqa: PLC0415  (torch only here)
+    from robomorph.sim import arms as registry  # noqa: PLC0415
+
+    arm = registry.of_store(attrs)
+    trained = [a for a in model_arms(predictor) if a in registry.ARMS]
+    if arm is not None and trained and arm.name not in trained:
+        raise EvaluationError(f"{where} is of the {arm.name} but the model was trained on the {', '.join(trained)}: "
+                              "its predictions would be of another robot's dynamics; use a model trained on the "
+                              f"{arm.name} (or on stores of several arms including it)")
 
 
 def _checked_predictor(ckpt: str, device: str | None, baselines, inputs: str | None, normalization: str | None,

@@ -119,3 +119,14 @@ def check_settings(predictor) -> None:
     limit = predictor.max_input_std
     if limit is not None and not (isinstance(limit, (int, float)) and math.isfinite(limit) and limit > 0):
         raise PredictionError(f"max_input_std must be None or a finite number > 0, got {limit!r}")
+
+
+def model_arms(predictor) -> list[str]:
+    """The arms a model was trained on (store ``domain`` names), or [] where it does not say
+    (checkpoints written before it was recorded, real logs without a registered arm). A
+    hybrid's backbone is the robot of its generator recipe (the Panda where it names none)."""
+    arms = list((predictor.data_info or {}).get("arms") or [])
+    if not arms and predictor.physics:
+        arms = [str(((predictor.physics or {}).get("recipe") or {}).get("robot") or "panda")]
+    return arms
+

@@ -20,6 +20,8 @@ def data_info(dm) -> dict:
             "context_len": int(dm.context_len), "horizon": int(dm.horizon),
             "stores": [str(s) for s in dm.stores], "inputs": str(getattr(dm, "inputs", "total")),
             "store_fingerprints": {str(s): fingerprint(str(s)) for s in dm.stores},
+            # The arms it learned: evaluate and control refuse another one's data.
+            "arms": list(getattr(dm, "arms", [])),
             # Stores of several arms: each training layout, so a Predictor maps an arm's arrays.
             **({"channel_mask": True, "layouts": dm.layouts} if getattr(dm, "channel_mask", False) else {})}
 
