@@ -158,6 +158,8 @@ def test_benchmark_scores_every_predictor_on_every_robot_and_physics_wins_on_its
     assert out.returncode == 0, out.stderr[-2000:]
     text = md.read_text()
     assert text.startswith("*Produced by `") and "at commit" in text
+    for name in public_logs.SOURCES:  # the error-growth figures beside the tables
+        assert (tmp_path / "real_robots" / f"{name}.png").stat().st_size > 1000
     for source in public_logs.SOURCES.values():
         assert f"## {source.robot}" in text
     kinova = text.split("## Kinova")[1].split("\n## ")[0]
