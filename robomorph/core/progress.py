@@ -103,7 +103,8 @@ class Phase:
     def line(self) -> str:
         """The log line of the phase now: counts, rate, elapsed and (with a total and a rate) time left."""
         elapsed = time.monotonic() - self._started
-        parts = [self._count(), self._rate(elapsed), f"{_clock(elapsed)} elapsed"]
+        # No rate before the first item: "0 windows/s" would read as a stall, not as a start.
+        parts = [self._count(), *([self._rate(elapsed)] if self.n > self.initial else []), f"{_clock(elapsed)} elapsed"]
         if self.total and self.n > self.initial:
             parts.append(f"~{_clock(elapsed / (self.n - self.initial) * (self.total - self.n))} left")
         return f"{self.desc}: " + ", ".join(parts)

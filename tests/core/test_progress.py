@@ -57,7 +57,7 @@ def test_a_slow_item_still_gets_lines_with_counts_rate_and_time_left(monkeypatch
     end = time.monotonic()
     texts = [line for _, line in stderr.lines]
     assert max(stderr.gaps(start, end)) < 0.6
-    assert any(re.fullmatch(r"identified physics: 0/3 windows, 0 windows/s, 0:0\d elapsed", t) for t in texts)
+    assert any(re.fullmatch(r"identified physics: 0/3 windows, 0:0\d elapsed", t) for t in texts)  # no rate yet
     assert any(re.fullmatch(rf"identified physics: 2/3 windows, ({RATE}), 0:0\d elapsed, ~0:0\d left", t)
                for t in texts)
     assert re.fullmatch(rf"identified physics: 3/3 windows in 0:0\d \(({RATE})\)", texts[-1])
