@@ -600,3 +600,17 @@ def test_evaluate_refuses_a_store_of_another_arm(tiny_checkpoint, simulated_stor
                                       "--baselines", "hold", "--samples", "0"], capsys)
     _one_error(code, err, "kinova3", "panda")
     assert not (tmp_path / "ev").exists()
+
+
+def test_a_store_holding_training_robots_is_in_sample(tiny_checkpoint, simulated_store, tmp_path):
+    """Case 15: a store generated with the training seed and more robots holds the training
+    robots bit for bit; ``evaluate`` reported ``in_sample: false`` (the fingerprint was of the
+    whole store)."""
+    from robomorph.evaluation.evaluator import in_sample
+    from robomorph.model.predictor import Predictor
+
+    info = Predictor.from_checkpoint(tiny_checkpoint).data_info
+    more = simulated_store(robots=30, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=1)
+    assert in_sample(info, more)["in_sample"]
+    other = simulated_store(robots=30, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=2)
+    assert not in_sample(info, other)["in_sample"]

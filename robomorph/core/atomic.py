@@ -20,6 +20,7 @@ store. :func:`robomorph.core.locks.output_folder` puts the two under one writer'
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
@@ -247,10 +248,15 @@ def atomic_folder(path: str | os.PathLike) -> Iterator[str]:
     """
     target = os.path.realpath(os.fspath(path))
     parent, name = os.path.split(target)
-    os.makedirs(parent, exist_ok=True)
     tmp, old = (os.path.join(parent, f".{name}.{os.getpid()}.{s}") for s in ("tmp", "old"))
-    shutil.rmtree(tmp, ignore_errors=True)
-    os.makedirs(tmp)
+    try:
+        os.makedirs(parent, exist_ok=True)
+        shutil.rmtree(tmp, ignore_errors=True)
+        os.makedirs(tmp)
+    except OSError as exc:
+        # Named as the user gave it (not the hidden temporary), and a file on the way as what it is.
+        code = errno.ENOTDIR if exc.errno == errno.EEXIST and not os.path.isdir(parent) else exc.errno
+        raise OSError(code, os.strerror(code) if code != exc.errno else exc.strerror, os.fspath(path)) from None
     try:
         yield tmp
         moved = os.path.isdir(target)

@@ -45,12 +45,30 @@ def fingerprint(path: str) -> str:
     return digest.hexdigest()[:32]
 
 
-def recorded_match(path: str, stores: list[str], fingerprints: dict[str, str] | None) -> str | None:
-    """Which of ``stores`` (as a checkpoint recorded them) ``path`` is, or None.
+def robot_hashes(path: str, block: int = 256) -> list[str]:
+    """One short hash per trajectory of a store (of its ``u`` and ``y`` bytes), in row order.
+
+    A store is more than its robots: one generated with the training seed and more robots
+    holds every training robot bit for bit under another fingerprint. ``fit`` records these,
+    so ``evaluate`` and ``calibrate`` recognize a training robot in any store.
+    """
+    ds = open_store(path, allow_incomplete=True)
+    out: list[str] = []
+    for start in range(0, ds.n, block):
+        rows = slice(start, min(start + block, ds.n))
+        u, y = ds.read("u", rows), ds.read("y", rows)
+        out += [hashlib.sha256(a.tobytes() + b.tobytes()).hexdigest()[:16] for a, b in zip(u, y)]
+    return out
+
+
+def recorded_match(path: str, stores: list[str], fingerprints: dict[str, str] | None,
+                   robots: dict[str, list[str]] | None = None) -> str | None:
+    """Which of ``stores`` (as a checkpoint recorded them) ``path`` is, or holds robots of, or None.
 
     Compared by content (:func:`fingerprint`) when ``fingerprints`` (store -> fingerprint,
     written at fit time) are given, so a copy under another path is recognized; by path
-    otherwise (checkpoints written before fingerprints were recorded).
+    otherwise (checkpoints written before fingerprints were recorded). With ``robots`` (store
+    -> :func:`robot_hashes`), a store holding any of a training store's trajectories matches it.
     """
     real = os.path.realpath(path)
     for store in stores:
@@ -60,6 +78,10 @@ def recorded_match(path: str, stores: list[str], fingerprints: dict[str, str] | 
         return None
     try:
         mine = fingerprint(path)
+        same = next((store for store, recorded in fingerprints.items() if recorded == mine), None)
+        if same is not None or not robots:
+            return same
+        held = set(robot_hashes(path))
     except RoboMorphError:
         return None
-    return next((store for store, recorded in fingerprints.items() if recorded == mine), None)
+    return next((store for store, hashes in robots.items() if held.intersection(hashes)), None)

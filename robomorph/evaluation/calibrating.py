@@ -64,10 +64,10 @@ def _sources(ckpt_dict: dict, data: str | None) -> tuple[list[tuple[str, np.ndar
     from robomorph.data.fingerprints import recorded_match  # noqa: PLC0415
     from robomorph.model.files import DATA_INFO_KEY  # noqa: PLC0415
 
-    fingerprints = (ckpt_dict.get(DATA_INFO_KEY) or {}).get("store_fingerprints")
-    if recorded_match(data, stores, fingerprints) is not None:
-        raise CalibrationError(f"{data} is a training store of this checkpoint (same content): the model has seen most "
-                               "of its robots, "
+    info = ckpt_dict.get(DATA_INFO_KEY) or {}
+    if recorded_match(data, stores, info.get("store_fingerprints"), info.get("robot_hashes")) is not None:
+        raise CalibrationError(f"{data} is a training store of this checkpoint, or holds its robots (same content): "
+                               "the model has seen them, "
                                "so its errors there understate those on new robots; drop --data to use the fit's "
                                "validation split, or give a store of other robots")
     return [(data, None)], "whole"

@@ -235,12 +235,13 @@ def _baseline_preds(scores: Scores) -> dict:
 def in_sample(info: dict | None, data: str) -> dict:
     """``{"in_sample": bool, "in_sample_store": the training store or None}``: whether ``data``
     is one of the checkpoint's training stores, by content fingerprint (a copy elsewhere
-    counts) or, for checkpoints that predate fingerprints, by path. Its scores then measure
+    counts) or holds any of their trajectories (a store of the training seed with more robots),
+    or, for checkpoints that predate fingerprints, by path. Its scores then measure
     how well the model fits robots it was trained on, not how it generalizes."""
     from robomorph.data.fingerprints import recorded_match  # noqa: PLC0415
 
     info = info or {}
-    match = recorded_match(data, list(info.get("stores") or []), info.get("store_fingerprints"))
+    match = recorded_match(data, list(info.get("stores") or []), info.get("store_fingerprints"), info.get("robot_hashes"))
     return {"in_sample": match is not None, "in_sample_store": match}
 
 

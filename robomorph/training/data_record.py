@@ -9,7 +9,7 @@ its defaults from it and marks a copy of the training data as in-sample.
 from __future__ import annotations
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.data.fingerprints import fingerprint
+from robomorph.data.fingerprints import fingerprint, robot_hashes
 from robomorph.model.checkpoint import CheckpointError
 
 
@@ -20,6 +20,7 @@ def data_info(dm) -> dict:
             "context_len": int(dm.context_len), "horizon": int(dm.horizon),
             "stores": [str(s) for s in dm.stores], "inputs": str(getattr(dm, "inputs", "total")),
             "store_fingerprints": {str(s): fingerprint(str(s)) for s in dm.stores},
+            "robot_hashes": {str(s): robot_hashes(str(s)) for s in dm.stores},
             # The arms it learned: evaluate and control refuse another one's data.
             "arms": list(getattr(dm, "arms", [])),
             # Stores of several arms: each training layout, so a Predictor maps an arm's arrays.
