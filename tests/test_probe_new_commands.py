@@ -614,3 +614,27 @@ def test_a_store_holding_training_robots_is_in_sample(tiny_checkpoint, simulated
     assert in_sample(info, more)["in_sample"]
     other = simulated_store(robots=30, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=2)
     assert not in_sample(info, other)["in_sample"]
+
+
+@pytest.mark.parametrize("scale, refused", [(180 / np.pi, True), (1.0, False)])
+def test_joint_angles_in_degrees_are_refused_for_an_arm_layout(scale, refused, tmp_path, capsys):
+    """Case 13: ``ingest --layout panda`` of joint angles in degrees (up to 106 "rad") was
+    accepted, and the EE pose computed from them looked plausible."""
+    from robomorph.ingest import main
+
+    n = 300
+    t = np.arange(n) * 0.01
+    home = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+    q = (home + 0.3 * np.sin(t)[:, None]) * scale
+    cols = {**{f"tau{k}": np.sin(t + k) for k in range(7)}, **{f"q{k}": q[:, k] for k in range(7)}}
+    log = tmp_path / "panda.npz"
+    np.savez(log, **cols)
+    out = tmp_path / "s.zarr"
+    code, err = _call(main, [str(log), "--u-cols", ",".join(f"tau{k}" for k in range(7)), "--y-cols",
+                             ",".join(f"q{k}" for k in range(7)), "--dt", "0.01", "--steps", "50", "--layout", "panda",
+                             "--out", str(out)], capsys)
+    if refused:
+        _one_error(code, err, "degrees")
+        assert not out.exists()
+    else:
+        assert code == 0, err

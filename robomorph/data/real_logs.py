@@ -110,7 +110,30 @@ def apply_layout(layout: str | None, y: np.ndarray) -> np.ndarray:
         return y
     from robomorph.sim.kinematics import ee_pose  # noqa: PLC0415  (MuJoCo only for this layout)
 
-    return np.concatenate([ee_pose(y, _catalogue(arm.name)), y], axis=1).astype(np.float32)
+    model = _catalogue(arm.name)
+    _check_angles(arm, model, y)
+    return np.concatenate([ee_pose(y, model), y], axis=1).astype(np.float32)
+
+
+# How far past a joint's limit a logged angle may lie (encoder offsets, a limit reached hard).
+_LIMIT_SLACK = 0.2  # rad
+
+
+def _check_angles(arm, model, y: np.ndarray) -> None:
+    """Refuses joint angles beyond the arm's limits: angles in degrees, most often, whose EE
+    pose would still look plausible. Joints without limits (continuous) are not checked."""
+    import mujoco  # noqa: PLC0415
+
+    for k, name in enumerate(arm.joint_names[:y.shape[1]]):
+        j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if j < 0 or not model.jnt_limited[j]:
+            continue
+        lo, hi = (float(v) for v in model.jnt_range[j])
+        worst = float(np.nanmax(np.abs(y[:, k] - np.clip(y[:, k], lo, hi)))) if len(y) else 0.0
+        if worst > _LIMIT_SLACK:
+            raise RealLogError(f"joint {k + 1} ({name}) of the {arm.name} layout reaches {worst:.3g} rad past its limits "
+                               f"[{lo:.3g}, {hi:.3g}] rad: are the angles in degrees? convert them to radians (or "
+                               "check the order of --y-cols)")
 
 
 def _catalogue(name: str):
