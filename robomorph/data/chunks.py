@@ -95,3 +95,13 @@ def undecodable(path: str, group, n: int, name: str, exc: BaseException) -> Stor
             return StoreDamagedError(describe(path, [(name, key, first, last, f"cannot be decoded: {why}")]))
     why = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
     return StoreDamagedError(f"{path}: reading array '{name}' failed ({why}); {REPAIR}")
+
+
+def undecoded(ds) -> str | None:
+    """The message naming the first chunk of a store (a Dataset) that cannot be decoded, or None."""
+    for name in ds.arrays if ds.n else ():
+        try:
+            ds.read(name)
+        except StoreDamagedError as exc:
+            return str(exc)
+    return None

@@ -182,11 +182,6 @@ class RoboMorphDataModule(L.LightningDataModule):
         return self._open()[0].dt
 
     @property
-    def arms(self) -> list[str]:
-        """The arms (store ``domain``: panda, kinova3, ...) the training stores record, sorted."""
-        return sorted({str(s.attrs["domain"]) for s in self._open()[:len(self.stores)] if s.attrs.get("domain")})
-
-    @property
     def n_u(self) -> int:
         return len(self.u_names)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from robomorph.core.errors import RoboMorphError
 from robomorph.data.fingerprints import fingerprint, robot_hashes
+from robomorph.data.store import open_store
 from robomorph.model.checkpoint import CheckpointError
 
 
@@ -22,9 +23,15 @@ def data_info(dm) -> dict:
             "store_fingerprints": {str(s): fingerprint(str(s)) for s in dm.stores},
             "robot_hashes": {str(s): robot_hashes(str(s)) for s in dm.stores},
             # The arms it learned: evaluate and control refuse another one's data.
-            "arms": list(getattr(dm, "arms", [])),
+            "arms": _arms(dm.stores),
             # Stores of several arms: each training layout, so a Predictor maps an arm's arrays.
             **({"channel_mask": True, "layouts": dm.layouts} if getattr(dm, "channel_mask", False) else {})}
+
+
+def _arms(stores: list[str]) -> list[str]:
+    """The arms (store ``domain``: panda, kinova3, ...) the training stores record, sorted."""
+    domains = (open_store(str(s), allow_incomplete=True).attrs.get("domain") for s in stores)
+    return sorted({str(d) for d in domains if d})
 
 
 def check_channels(dm, n_u: int | None, n_y: int | None, channel_mask: bool = False) -> None:
