@@ -3,7 +3,10 @@
 Layers import only downward: core -> sim -> data -> model -> training -> evaluation ->
 reporting / tuning -> reproduction (which drives the others to make the paper's tables and
 report), with the command doors and the predictor on top. No
-import cycle between modules or between packages; files, functions and classes stay short.
+import cycle between modules or between packages; no file or function egregiously long.
+
+Sizes are smells to look at, never a reason to split cohesive code or move a method out of its
+class (DESIGN.md): the limits catch only what is really too long, and classes have none.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "robomorph"
 RANKS = {"core": 0, "sim": 1, "data": 2, "model": 3, "training": 4, "evaluation": 5,
          "reporting": 6, "tuning": 6, "control": 6, "reproduction": 7}
 TOP = 8  # doors (robomorph/<command>.py), predictor.py, cli.py, __init__.py, __main__.py
-MAX_FILE_LINES, MAX_FUNCTION_LINES, MAX_CLASS_LINES = 400, 60, 200
+MAX_FILE_LINES, MAX_FUNCTION_LINES = 800, 120
 TORCH_LIBS = ("torch", "lightning")
 
 
@@ -119,11 +122,10 @@ def test_core_imports_no_torch(module):
 
 
 def _too_long(path: Path) -> list[str]:
-    """``kind name: n lines`` for each function or class past its limit."""
+    """``kind name: n lines`` for each function past the limit."""
     out = []
     for node in ast.walk(ast.parse(path.read_text())):
-        limit = (MAX_CLASS_LINES if isinstance(node, ast.ClassDef) else
-                 MAX_FUNCTION_LINES if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) else None)
+        limit = MAX_FUNCTION_LINES if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) else None
         if limit is not None:
             start = min([node.lineno] + [d.lineno for d in node.decorator_list])
             n = node.end_lineno - start + 1
@@ -133,7 +135,7 @@ def _too_long(path: Path) -> list[str]:
 
 
 @pytest.mark.parametrize("module", sorted(MODULES))
-def test_files_functions_and_classes_stay_short(module):
+def test_no_file_or_function_is_egregiously_long(module):
     path = MODULES[module]
     n = len(path.read_text().splitlines())
     assert n <= MAX_FILE_LINES, f"{path.name}: {n} lines (limit {MAX_FILE_LINES})"
