@@ -145,6 +145,10 @@ def hybrid_predictions(arm: str, w) -> dict[str, np.ndarray]:
 def score_robot(source: public_logs.PublicLog, args) -> dict:
     """Scores every predictor on one robot's test windows; returns its table's rows and notes."""
     stores = public_logs.write_stores(source, args.data, os.path.join(args.work, source.name), overwrite=True)
+    if not {"train", "test"} <= set(stores):
+        raise public_logs.PublicLogError(f"{source.name}: no recording of the train or the test split is long enough "
+                                         f"for one window of {source.context + source.horizon} samples; is the clone "
+                                         "complete?")
     test, train = open_store(stores["test"]), open_store(stores["train"])
     w = load_window(stores["test"], source.context, source.horizon, args.windows, None,
                     len(test.u_names), len(test.y_names))

@@ -19,6 +19,7 @@ import glob
 import hashlib
 import os
 import tempfile
+import warnings
 from dataclasses import dataclass
 from typing import Callable
 
@@ -267,15 +268,14 @@ def write_stores(source: PublicLog, data: str, out: str, overwrite: bool = False
 
     Each recording goes through :func:`robomorph.data.ingest.ingest` as one NPZ log of its
     columns (written to a temporary folder), resampled to ``source.hz`` where set, cut into
-    windows of ``context + horizon`` samples, ``stride`` apart, in the arm's layout where the
-    arm is registered. Recordings too short for one window are skipped, as ``ingest`` skips
-    them (its warning says so).
+    windows of ``context + horizon`` samples (test windows ``stride`` apart, training windows a
+    quarter window apart), in the arm's layout where the arm is registered. Recordings too short
+    for one window are skipped, as ``ingest`` skips them; a split none of whose recordings holds
+    a window is not written.
 
     Returns:
         ``{split: store path}`` for the splits that have a window.
     """
-    import warnings  # noqa: PLC0415
-
     from robomorph.data import ingest  # noqa: PLC0415
 
     recs = source.recordings(data)
@@ -289,26 +289,23 @@ def write_stores(source: PublicLog, data: str, out: str, overwrite: bool = False
             if not chosen:
                 continue
             dts = {round(r.dt, 9) for r in chosen}
+            if len(dts) > 1:
+                raise PublicLogError(f"{source.name}: the {split} recordings have several sample times {sorted(dts)}")
+            # Samples each recording keeps at the store's rate (resample_poly's output length).
+            kept = [int(np.ceil(len(r.u) * (source.hz * r.dt if source.hz else 1.0))) for r in chosen]
+            if max(kept) < steps:
+                continue  # no recording of this split is long enough for one window
             files = []
             for k, r in enumerate(chosen):
                 path = os.path.join(tmp, f"{split}_{k:03d}_{r.name.replace(os.sep, '_').replace(':', '_')}.npz")
-                # Logs at another rate than the split's first are brought onto it by the resampler.
                 np.savez(path, **{c: r.u[:, j] for j, c in enumerate(cols_u)}, **{c: r.q[:, j] for j, c in enumerate(cols_q)})
                 files.append(path)
-            if len(dts) > 1:
-                raise PublicLogError(f"{source.name}: the {split} recordings have several sample times {sorted(dts)}")
-            hz = source.hz
             target = os.path.join(out, f"{split}.zarr")
-            with warnings.catch_warnings():
+            with warnings.catch_warnings():  # recordings shorter than a window are skipped, as ingest skips them
                 warnings.simplefilter("ignore", ingest.ShortRecordingWarning)
-                try:
-                    ingest.ingest(files, cols_u, cols_q, target, steps, dt=chosen[0].dt,
-                                  stride=source.stride if split == "test" else max(1, steps // 4),
-                                  overwrite=overwrite, name=source.name, resample_hz=hz,
-                                  layout=source.arm or "joints", u_units=["N m"] * n, y_units=["rad"] * n)
-                except ingest.IngestError as exc:
-                    if "no recording" in str(exc) or "shorter than" in str(exc):
-                        continue  # no recording of this split is long enough for one window
-                    raise
+                ingest.ingest(files, cols_u, cols_q, target, steps, dt=chosen[0].dt,
+                              stride=source.stride if split == "test" else max(1, steps // 4),
+                              overwrite=overwrite, name=source.name, resample_hz=source.hz,
+                              layout=source.arm or "joints", u_units=["N m"] * n, y_units=["rad"] * n)
             stores[split] = target
     return stores
