@@ -166,12 +166,15 @@ class TrainedARX:
 
     Fit once with :meth:`fit` (any number of calls accumulate the normal equations, so a
     large store is read in blocks), then predict like every baseline. Scaling comes from
-    the training data; a simulation leaving the context's band is held, as for ``arx``.
+    the training data; a simulation leaving the context's band is held, as for ``arx``
+    (``band="training"``: the training outputs' band instead, for free runs from a context of a
+    few samples, whose own band says nothing).
     """
 
     na: int = 2
     nb: int = 2
     ridge: float = 1e-8
+    band: str = "context"
     diverged: int = field(default=0, init=False)
     trajectories: int = field(default=0, init=False)
 
@@ -187,8 +190,10 @@ class TrainedARX:
         conditions the solve; the fitted predictor does not depend on it beyond rounding).
         """
         gram = rhs = None
+        bounds = _Bounds()
         for u, y in blocks:
             u, y = u.astype(np.float64), y.astype(np.float64)
+            bounds.add(y)
             if gram is None:
                 self._scale = (y.mean((0, 1)), np.maximum(y.std((0, 1)), 1e-9),
                                u.mean((0, 1)), np.maximum(u.std((0, 1)), 1e-9))
@@ -203,6 +208,7 @@ class TrainedARX:
             raise ValueError("arx_train needs at least one training trajectory")
         gram[np.diag_indices_from(gram)] += self.ridge * np.trace(gram) / len(gram)
         self._theta = np.linalg.solve(gram, rhs)  # (n_reg, n_y)
+        self._band = bounds.band()
         return self
 
     def _normalize(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -222,18 +228,25 @@ class TrainedARX:
             reg = _lagged(y_all[:, k - lag:k + 1], u_all[:, k - lag:k + 1], self.na, self.nb)[:, 0]
             y_all[:, k] = reg @ self._theta
         ym, ys, _, _ = self._scale
-        pred = y_all[:, tc:] * ys + ym
-        # Same divergence rule as ARX: outside the context's band -> hold, and counted.
-        y64 = y_ctx.astype(np.float64)
-        centre = y64.mean(1, keepdims=True)
-        span = np.abs(y64 - centre).max((1, 2)) + 1e-9
-        with np.errstate(invalid="ignore"):
-            bad = ~np.isfinite(pred).all((1, 2)) | (np.abs(pred - centre).max((1, 2)) > _ARX_BLOWUP * span)
-        pred[bad] = hold(u_ctx, y64, u_query)[bad]
-        self.diverged = int(bad.sum())
+        pred, self.diverged = _held_if_diverged(y_all[:, tc:] * ys + ym, u_ctx, y_ctx.astype(np.float64), u_query,
+                                                self._band if self.band == "training" else None)
         return pred
 
 
+class _Bounds:
+    """The per-channel range of training outputs seen block by block."""
+
+    def __init__(self) -> None:
+        self.low = self.high = None
+
+    def add(self, y: np.ndarray) -> None:
+        low, high = y.min((0, 1)), y.max((0, 1))
+        self.low = low if self.low is None else np.minimum(self.low, low)
+        self.high = high if self.high is None else np.maximum(self.high, high)
+
+    def band(self) -> tuple[np.ndarray, float]:
+        """``(centre (n_y,), half-width)``: the band a free run is judged against."""
+        return (self.low + self.high) / 2, float(((self.high - self.low) / 2).max())
 
 
 def _accel_design(u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -268,10 +281,15 @@ def _accel_rollout(w: np.ndarray, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query:
     return out
 
 
-def _held_if_diverged(pred: np.ndarray, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> tuple[np.ndarray, int]:
-    """``pred`` with each window that left the context's band (as :class:`ARX` judges it) held instead."""
-    centre = y_ctx.mean(1, keepdims=True)
-    span = np.abs(y_ctx - centre).max((1, 2)) + 1e-9
+def _held_if_diverged(pred: np.ndarray, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray,
+                      band: tuple[np.ndarray, float] | None = None) -> tuple[np.ndarray, int]:
+    """``pred`` with each window that left the context's band (as :class:`ARX` judges it; ``band``:
+    ``(centre, half-width)`` of the training outputs instead) held instead, and their count."""
+    if band is None:
+        centre = y_ctx.mean(1, keepdims=True)
+        span = np.abs(y_ctx - centre).max((1, 2)) + 1e-9
+    else:
+        centre, span = np.asarray(band[0])[None, None], band[1] + 1e-9
     with np.errstate(invalid="ignore"):
         bad = ~np.isfinite(pred).all((1, 2)) | (np.abs(pred - centre).max((1, 2)) > _ARX_BLOWUP * span)
     pred[bad] = hold(u_ctx, y_ctx, u_query)[bad]
@@ -323,6 +341,7 @@ class TrainedAccelARX:
 
     ridge: float = 1e-6
     bias_steps: int = 50
+    band: str = "context"  # or "training", as TrainedARX
     diverged: int = field(default=0, init=False)
     trajectories: int = field(default=0, init=False)
 
@@ -332,7 +351,9 @@ class TrainedAccelARX:
     def fit(self, blocks) -> "TrainedAccelARX":
         """Least squares over ``blocks``: an iterable of ``(u (B, T, n_u), y (B, T, n_y))``."""
         gram = rhs = scale = None
+        bounds = _Bounds()
         for u, y in blocks:
+            bounds.add(np.asarray(y, np.float64))
             x, a = _accel_design(np.asarray(u, np.float64), np.asarray(y, np.float64))
             x, a = x.reshape(-1, x.shape[-1]), a.reshape(-1, a.shape[-1])
             if gram is None:
@@ -347,6 +368,7 @@ class TrainedAccelARX:
             raise ValueError("accel_arx_train needs at least one training trajectory")
         gram[np.diag_indices_from(gram)] += self.ridge * np.trace(gram) / len(gram)
         self._w = np.linalg.solve(gram, rhs) / scale[:, None]  # (R, n_y)
+        self._band = bounds.band()
         return self
 
     def __call__(self, u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
@@ -360,5 +382,6 @@ class TrainedAccelARX:
         w[:, -1] += (a - x @ self._w)[:, -self.bias_steps:].mean(1)  # the constant row
         with np.errstate(over="ignore", invalid="ignore"):
             pred = _accel_rollout(w, u_ctx, y_ctx, u_query)
-        pred, self.diverged = _held_if_diverged(pred, u_ctx, y_ctx, u_query)
+        pred, self.diverged = _held_if_diverged(pred, u_ctx, y_ctx, u_query,
+                                                self._band if self.band == "training" else None)
         return pred

@@ -188,3 +188,18 @@ def test_accel_arx_refuses_too_short_a_context_and_an_unfitted_model():
         AccelARX()(u[:, :10], y[:, :10], u[:, 10:])
     with pytest.raises(ValueError, match="fit accel_arx_train"):
         TrainedAccelARX()(u[:, :10], y[:, :10], u[:, 10:])
+
+
+def test_a_trained_free_run_from_a_few_samples_is_judged_against_the_training_band():
+    """From a context of a few samples (a benchmark's free run) the context's own band says
+    nothing: with ``band="training"`` an exact model's run is kept, not held."""
+    rng = np.random.default_rng(3)
+    u, y = _linear_system(rng, n_traj=2, steps=300)
+    lag = 2
+    by_context = TrainedARX(2, 2).fit([(u, y)])
+    by_training = TrainedARX(2, 2, band="training").fit([(u, y)])
+    held = by_context(u[:, :lag], y[:, :lag], u[:, lag:])
+    kept = by_training(u[:, :lag], y[:, :lag], u[:, lag:])
+    assert by_context.diverged == 2 and by_training.diverged == 0
+    np.testing.assert_allclose(kept, y[:, lag:], rtol=1e-5, atol=1e-4 * np.abs(y).max())
+    np.testing.assert_array_equal(held, np.repeat(y[:, lag - 1:lag], 298, axis=1))
