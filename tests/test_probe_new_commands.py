@@ -638,3 +638,17 @@ def test_joint_angles_in_degrees_are_refused_for_an_arm_layout(scale, refused, t
         assert not out.exists()
     else:
         assert code == 0, err
+
+
+def test_the_dashboard_leaves_out_an_evaluation_being_written(tiny_checkpoint, tmp_path):
+    """Cases 2-6: an evaluation is written in a hidden folder beside its target until complete;
+    the dashboard shows finished evaluations only."""
+    from pathlib import Path
+
+    from robomorph.reporting.dashboard import load_run
+
+    run = tmp_path / "runs" / "r"
+    shutil.copytree(Path(tiny_checkpoint).parents[1], run)
+    (run / "eval" / ".store.123.tmp").mkdir(parents=True)
+    (run / "eval" / ".store.123.tmp" / "table.md").write_text("half\n")
+    assert load_run(run).evals == []

@@ -154,7 +154,9 @@ def load_run(path: Path) -> RunData:
     run.checkpoints = [(p.name, p.stat().st_size) for p in guard.files(Path(layout.checkpoints), "*.ckpt")]
     eval_dir = Path(layout.evals)
     if eval_dir.is_dir() and guard.allows(eval_dir):
-        run.evals = [_load_eval(p, path) for p in sorted(eval_dir.iterdir()) if p.is_dir() and guard.allows(p)]
+        # Hidden folders are evaluations being written (robomorph.core.locks.output_folder), not results.
+        run.evals = [_load_eval(p, path) for p in sorted(eval_dir.iterdir())
+                     if p.is_dir() and not p.name.startswith(".") and guard.allows(p)]
     if not run.evals:
         run.notes.append("no evaluations (run `python -m robomorph.evaluate` to add some)")
     return run
