@@ -115,19 +115,17 @@ def test_the_bar_reads_the_loss_only_every_few_steps():
     bar.close()
 
 
-def test_an_offline_wandb_run_prints_no_third_party_warnings(store, tmp_path):
-    # wandb's "The anonymous setting has no effect" came from the setting Lightning passes (fitting.QuietWandbLogger).
-    done, run_dir = _fit_cli(store, tmp_path, "wandb", wandb="offline")
-    out = done.stdout + done.stderr
-    assert os.path.isdir(os.path.join(run_dir, "wandb"))  # the wandb run was made
-    for noise in ("anonymous", "wandb: WARNING", "Deprecat", "FutureWarning"):
-        assert noise not in out, (noise, out[-2000:])
-
-
-def test_in_a_log_the_bar_is_a_line_of_steps_every_few_seconds(store, tmp_path, monkeypatch):
+def test_in_a_log_fit_prints_a_line_of_steps_every_few_seconds_and_no_third_party_warning(store, tmp_path,
+                                                                                           monkeypatch):
+    """stderr a pipe (a log): the bar becomes plain lines of steps; an offline wandb run adds no warning (its
+    "The anonymous setting has no effect" came from the setting Lightning passes: fitting.QuietWandbLogger)."""
     monkeypatch.setenv("ROBOMORPH_PROGRESS_SECONDS", "0.1")
-    done, _ = _fit_cli(store, tmp_path, "logged", trainer={"enable_progress_bar": True})  # stderr is a pipe: a log
+    done, run_dir = _fit_cli(store, tmp_path, "logged", wandb="offline", trainer={"enable_progress_bar": True})
     lines = [line for line in done.stderr.splitlines() if line.startswith("training: ")]
     assert lines and all(re.match(r"training: \d/7 steps, ", line) for line in lines[:-1]), done.stderr[-2000:]
     assert re.fullmatch(r"training: 7/7 steps in \d+:\d\d \(.*\)", lines[-1])
     assert "\r" not in done.stderr  # no bar redrawn into the log
+    assert os.path.isdir(os.path.join(run_dir, "wandb"))  # the wandb run was made
+    out = done.stdout + done.stderr
+    for noise in ("anonymous", "wandb: WARNING", "Deprecat", "FutureWarning"):
+        assert noise not in out, (noise, out[-2000:])
