@@ -60,6 +60,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--work", default="data/real", help="where the robots' stores are written (default: data/real)")
     p.add_argument("--windows", type=int, help="score only the first N test windows of each robot")
     p.add_argument("--identified", action="store_true", help="also fit identified_physics to each context (slow)")
+    p.add_argument("--download-industrial", action="store_true",
+                   help="have the official loader (pip install nonlinear-benchmarks) download the industrial robot "
+                        "benchmark into DATA/nonlinear_benchmarks first, unless a clone of its copy is there")
     p.add_argument("--model", action="append", default=[], metavar="NAME=CKPT",
                    help="a checkpoint scored as NAME on every robot whose store it reads (repeatable)")
     p.add_argument("--md", help="write the tables (with provenance) to this Markdown file")
@@ -190,11 +193,11 @@ def score_robot(source: public_logs.PublicLog, args) -> dict:
             "protocol": industrial_protocol(source, args) if source.name == "industrial_robot" else None}
 
 
-def industrial_protocol(source: public_logs.PublicLog, args, segment: int = 605) -> list[list]:
+def industrial_protocol(source: public_logs.PublicLog, args, segments: int = 6) -> list[list]:
     """NRMSE of free-run simulation over the industrial robot's test set.
 
-    The test set (3,630 samples) is simulated in its six consecutive segments of ``segment``
-    samples, each from its own first samples (the ARX's lags) with the measured torques
+    The test set (3,630 samples in the copy) is simulated in its six consecutive segments (605
+    samples each), each from its own first samples (the ARX's lags) with the measured torques
     alone; NRMSE per joint is the RMS error over the test set divided by that joint's standard
     deviation there, then averaged over the joints.
     """
@@ -203,7 +206,7 @@ def industrial_protocol(source: public_logs.PublicLog, args, segment: int = 605)
     # A free run from 3 samples: divergence is judged against the training outputs' band.
     arx = TrainedARX(2, 2, band="training").fit([(tr.u[None], tr.q[None])])
     accel = TrainedAccelARX(bias_steps=2, band="training").fit([(tr.u[None], tr.q[None])])
-    n_seg = len(te.u) // segment
+    n_seg, segment = segments, len(te.u) // segments
     u = te.u[:n_seg * segment].reshape(n_seg, segment, -1)
     y = te.q[:n_seg * segment].reshape(n_seg, segment, -1)
     lag = 3  # accel_arx_train differences three samples
@@ -243,6 +246,9 @@ def render(res: dict) -> str:
 def main(argv=None) -> int:
     args = parse_args(argv)
     print_provenance()
+    if args.download_industrial and "industrial_robot" in args.robots and not os.path.isdir(
+            os.path.join(args.data, public_logs.SOURCES["industrial_robot"].folder.split("|")[0])):
+        print(f"downloaded {public_logs.download_industrial(args.data)}", flush=True)
     parts = []
     for name in args.robots:
         print(f"{name}: ingesting and scoring ...", file=sys.stderr, flush=True)

@@ -64,7 +64,8 @@ class PublicLog:
         robot: the robot, for people.
         arm: the arm of :mod:`robomorph.sim.arms` with this robot's catalogue model (its
             layout, EE pose and physics), or None.
-        folder: the clone's folder name under ``--data``.
+        folder: the clone's folder name under ``--data`` (or ``folder|other``: the first that exists,
+            e.g. the industrial robot's clone or the official loader's download).
         clone: the commands that fetch it.
         licence: the data's licence, as the source states it.
         torque: what ``u`` is, in the source's words.
@@ -90,8 +91,10 @@ class PublicLog:
     reader: Callable[[str], list[Recording]]
 
     def root(self, data: str) -> str:
-        """The clone's folder under ``data``; refuses one that is missing."""
-        path = os.path.join(data, self.folder)
+        """The clone's folder under ``data`` (the first of its names that exists; a local clone
+        wins over a download); refuses one that is missing."""
+        names = self.folder.split("|")
+        path = next((p for p in (os.path.join(data, n) for n in names) if os.path.isdir(p)), os.path.join(data, names[0]))
         if not os.path.isdir(path):
             raise MissingInputError(f"{path} not found: fetch the {self.robot} logs with `{self.clone}` "
                                     f"inside {data} (see docs/guide/real-robots.md)")
@@ -213,20 +216,51 @@ def _schunk(root: str) -> list[Recording]:
 
 
 INDUSTRIAL_MAT = os.path.join("data", "IndustRobo", "forward_identification_without_raw_data_shifted.mat")
+# Where the official loader (nonlinear-benchmarks) leaves its download, under --data.
+INDUSTRIAL_DOWNLOAD = "nonlinear_benchmarks"
 
 
 def _industrial(root: str) -> list[Recording]:
     # The benchmark's own split: u_train / u_val / u_test (6, L) motor torques, y_* (6, L)
-    # joint angles in degrees at 10 Hz (Weigand et al.); stored in radians here.
+    # joint angles in degrees at 10 Hz (Weigand et al.); stored in radians here. The copy in
+    # the clone, or the file the official loader downloads (the same variables).
     from scipy.io import loadmat  # noqa: PLC0415
 
-    path = os.path.join(root, INDUSTRIAL_MAT)
-    if not os.path.isfile(path):
+    found = [os.path.join(root, INDUSTRIAL_MAT)] + sorted(
+        glob.glob(os.path.join(root, "**", "forward_identification_without_raw_data*.mat"), recursive=True))
+    path = next((p for p in found if os.path.isfile(p)), None)
+    if path is None:
         return []
     m = loadmat(path)
-    return [Recording(f"{INDUSTRIAL_MAT}:{split}", np.asarray(m[f"u_{split}"], np.float64).T,
+    if not all(f"{k}_{split}" in m for k in "uy" for split in ("train", "test")):
+        raise PublicLogError(f"{path} lacks the benchmark's u_train / y_train / u_test / y_test variables")
+    name = os.path.relpath(path, root)
+    return [Recording(f"{name}:{split}", np.asarray(m[f"u_{split}"], np.float64).T,
                       np.deg2rad(np.asarray(m[f"y_{split}"], np.float64).T), 0.1, split)
-            for split in SPLITS]
+            for split in SPLITS if f"u_{split}" in m]
+
+
+def download_industrial(data: str) -> str:
+    """Has the official loader (``nonlinear-benchmarks``' ``Industrial_robot``) download the
+    industrial robot benchmark into ``data/nonlinear_benchmarks``, where :data:`SOURCES` reads
+    it when no clone is there. Only on the user's request (``--download-industrial``): nothing
+    else here reaches the network.
+
+    Returns:
+        The path of the downloaded ``.mat`` file.
+    """
+    try:
+        import nonlinear_benchmarks  # noqa: PLC0415
+    except ImportError:
+        raise PublicLogError("downloading the industrial robot benchmark needs its official loader: "
+                             "pip install nonlinear-benchmarks (or clone the copy named in docs/guide/real-robots.md)") from None
+    target = os.path.join(data, INDUSTRIAL_DOWNLOAD)
+    os.makedirs(target, exist_ok=True)
+    try:
+        return nonlinear_benchmarks.Industrial_robot(data_file_locations=True, dir_placement=target)
+    except Exception as exc:  # the loader's own download and unpacking errors, whatever their class
+        raise PublicLogError(f"the official loader could not download the industrial robot benchmark into {target}: "
+                             f"{type(exc).__name__}: {exc}") from None
 
 
 SOURCES: dict[str, PublicLog] = {s.name: s for s in (
@@ -249,7 +283,7 @@ SOURCES: dict[str, PublicLog] = {s.name: s for s in (
               "runs that repeat one input share a split; the input first used latest (its runs) is test",
               None, 200, 500, 500, _schunk),
     PublicLog("industrial_robot", "KUKA KR300 R2500 ultra SE (6 joints, 10 Hz; Weigand et al.)", None,
-              "Physics-Guided-Recurrent-State-Space-Neural-Networks",
+              f"Physics-Guided-Recurrent-State-Space-Neural-Networks|{INDUSTRIAL_DOWNLOAD}",
               "git clone https://github.com/yifang0-0/Physics-Guided-Recurrent-State-Space-Neural-Networks",
               "the benchmark's terms (nonlinear-benchmarks: Industrial_robot)",
               "u: the six motor torques", "the benchmark's own split (train / val / test)",

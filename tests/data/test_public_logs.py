@@ -9,6 +9,7 @@ joint torque: on them the catalogue physics is the true robot, which the benchma
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import subprocess
 import sys
@@ -195,3 +196,29 @@ def test_ingest_source_writes_the_split_stores_and_refuses_mixed_requests(source
         assert exc.value.code == 2
     assert ingest_main(["--source", "bogus", "--data", sources, "--out", out]) == 2
     assert "unknown public source 'bogus'" in capsys.readouterr().err
+
+
+def test_the_industrial_robot_is_read_from_the_official_loaders_download_when_no_clone_is_there(sources, tmp_path):
+    """The official loader (nonlinear-benchmarks) leaves its file under DATA/nonlinear_benchmarks;
+    a clone of the copy wins where both are present. Asking for the download without the loader
+    is one line, exit 2."""
+    import shutil
+
+    clone = os.path.join(sources, "Physics-Guided-Recurrent-State-Space-Neural-Networks", public_logs.INDUSTRIAL_MAT)
+    loader = tmp_path / "nonlinear_benchmarks" / "Industrial_robot" / "forward_identification_without_raw_data.mat"
+    loader.parent.mkdir(parents=True)
+    shutil.copy(clone, loader)
+    recs = public_logs.get("industrial_robot").recordings(str(tmp_path))
+    assert {r.split for r in recs} == {"train", "val", "test"}
+    assert all(r.name.startswith(os.path.join("Industrial_robot", "forward_identification_without_raw_data.mat"))
+               for r in recs)
+    assert public_logs.get("industrial_robot").root(sources).endswith("Physics-Guided-Recurrent-State-Space-Neural-Networks")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "real_robots.py"), "--data", str(empty),
+                          "--robots", "industrial_robot", "--download-industrial"], capture_output=True, text=True,
+                         cwd=str(tmp_path), env={**os.environ, "PYTHONNOUSERSITE": "1"})
+    # Without the loader (it is not a dependency) or without the network: one line, exit 2.
+    assert out.returncode == 2 and "Traceback" not in out.stderr and out.stderr.count("\n") == 1
+    if importlib.util.find_spec("nonlinear_benchmarks") is None:
+        assert "pip install nonlinear-benchmarks" in out.stderr
