@@ -107,7 +107,9 @@ class StepBar(ProgressBar):
     def __init__(self) -> None:
         super().__init__()
         self.bar: tqdm | None = None
-        self.log: Phase | None = None  # in a log, where tqdm draws nothing: a line every few seconds
+        # In a log, where tqdm draws nothing: a line every few seconds (not `self.log`: Lightning sets that
+        # attribute of every callback to the module's log method).
+        self.phase: Phase | None = None
         self.budget: Budget | None = None
         self._enabled = True
 
@@ -124,14 +126,14 @@ class StepBar(ProgressBar):
             self.bar = tqdm(total=self.budget.max_steps, initial=trainer.global_step, unit="step", desc="training",
                             file=sys.stderr, dynamic_ncols=True, disable=None, leave=True)
             if self.bar.disable:  # not a terminal: minutes between validation lines would be silent
-                self.log = Phase("training", self.budget.max_steps, "step", initial=trainer.global_step).__enter__()
+                self.phase = Phase("training", self.budget.max_steps, "step", initial=trainer.global_step).__enter__()
 
     def on_train_batch_end(self, trainer: L.Trainer, *args) -> None:
         if self.bar is None:
             return
         self.bar.update(trainer.global_step - self.bar.n)
-        if self.log is not None:
-            self.log.update(trainer.global_step - self.log.n)
+        if self.phase is not None:
+            self.phase.update(trainer.global_step - self.phase.n)
         # Reading the loss copies it to the host (a device sync on a GPU): only when the bar is
         # drawn, and every POSTFIX_EVERY steps, not in every training step.
         if self.bar.disable or self.bar.n % POSTFIX_EVERY:
@@ -149,9 +151,9 @@ class StepBar(ProgressBar):
         self.close()
 
     def close(self) -> None:
-        if self.log is not None:
-            self.log.__exit__(None, None, None)
-            self.log = None
+        if self.phase is not None:
+            self.phase.__exit__(None, None, None)
+            self.phase = None
         if self.bar is not None:
             self.bar.close()
             self.bar = None
