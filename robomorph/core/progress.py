@@ -62,6 +62,7 @@ class Phase:
         self.desc, self.total, self.unit, self.enabled = desc, total, unit, enabled
         # initial: items done before this session (a resumed run), counted but not in the rate.
         self.n = self.initial = int(initial)
+        self.note = ""  # appended to each log line after " | " (settable: e.g. a generator's rejections)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -107,7 +108,7 @@ class Phase:
         parts = [self._count(), *([self._rate(elapsed)] if self.n > self.initial else []), f"{_clock(elapsed)} elapsed"]
         if self.total and self.n > self.initial:
             parts.append(f"~{_clock(elapsed / (self.n - self.initial) * (self.total - self.n))} left")
-        return f"{self.desc}: " + ", ".join(parts)
+        return f"{self.desc}: " + ", ".join(parts) + (f" | {self.note}" if self.note else "")
 
     def _count(self) -> str:
         units = self.unit if self.total == 1 or (self.total is None and self.n == 1) else _plural(self.unit)

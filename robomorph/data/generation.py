@@ -14,6 +14,7 @@ import math
 import multiprocessing as mp
 import os
 import signal
+import sys
 import time
 from dataclasses import dataclass, field
 
@@ -23,6 +24,7 @@ from tqdm import tqdm
 from robomorph.core.config import ConfigError
 from robomorph.core.errors import OutputExistsError, RoboMorphError
 from robomorph.core.locks import exclusive_on
+from robomorph.core.progress import Phase
 from robomorph.data.store import STATUS_COMPLETE, DatasetWriter, SchemaError, create_store, open_store
 from robomorph.sim import episode
 from robomorph.sim.filters import REASONS
@@ -272,25 +274,30 @@ def generate(recipe: Recipe, out: str, workers: int | None = None, shard: Shard 
     prog = _Progress(target=int(a["capacity"]), cursor=int(a["cursor"]), kept=int(a["n"]),
                      rejected={r: int(a["rejected"].get(r, 0)) for r in REASONS})
     engines = _Engines(recipe, workers)
+    # A bar on a terminal; in a log, where its redraws would pile up on one line, a line every few seconds.
+    log = progress and not sys.stderr.isatty()
     bar = tqdm(total=prog.target, initial=prog.kept, unit="traj", desc=f"generate {recipe.task_label}",
-               disable=not progress, mininterval=1.0, dynamic_ncols=True)
+               disable=not progress or log, mininterval=1.0, dynamic_ncols=True)
     slot, t0, made = prog.cursor, time.time(), 0
-    try:
-        while prog.kept < prog.target:
-            _check_rate(recipe, prog, slot, prog.target)
-            slots = list(range(slot, slot + recipe.chunk))
-            outs = _simulate(engines, recipe, [shard.attempt(s) for s in slots])
-            prog.pending.extend(zip(slots, outs))
-            slot += len(slots)
-            made += len(slots)
-            _flush(writer, recipe, prog)
-            kept_now = prog.kept + prog.pending_kept()
-            bar.n = min(kept_now, prog.target)
-            bar.set_postfix_str(_postfix(prog, slot, made, time.time() - t0), refresh=False)
-            bar.refresh()
-    finally:
-        bar.close()
-        engines.close()
+    with Phase(f"generate {recipe.task_label}", prog.target, "robot", enabled=log, initial=prog.kept) as lines:
+        try:
+            while prog.kept < prog.target:
+                _check_rate(recipe, prog, slot, prog.target)
+                slots = list(range(slot, slot + recipe.chunk))
+                outs = _simulate(engines, recipe, [shard.attempt(s) for s in slots])
+                prog.pending.extend(zip(slots, outs))
+                slot += len(slots)
+                made += len(slots)
+                _flush(writer, recipe, prog)
+                kept_now = prog.kept + prog.pending_kept()
+                bar.n = min(kept_now, prog.target)
+                bar.set_postfix_str(_postfix(prog, slot, made, time.time() - t0), refresh=False)
+                bar.refresh()
+                lines.note = _postfix(prog, slot, made, time.time() - t0)
+                lines.update(min(kept_now, prog.target) - lines.n)
+        finally:
+            bar.close()
+            engines.close()
     writer.finalize(**prog.attrs())
     return open_store(out).attrs
 

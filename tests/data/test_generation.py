@@ -304,3 +304,18 @@ def test_command_plus_the_gravity_compensation_is_the_total_torque(tmp_path, mod
             np.testing.assert_array_equal(u_cmd[row], u[row])
         else:  # the shoulder carries the arm: the compensation is far above the tolerance
             assert np.abs(g[:, 1]).min() > 5
+
+
+def test_in_a_log_generate_prints_a_line_every_few_seconds_not_a_bar(tmp_path):
+    """stderr a pipe (a log): lines with counts, rate and the rejections, not tqdm's carriage-return redraws."""
+    env = {**os.environ, "MUJOCO_GL": "disable", "ROBOMORPH_PROGRESS_SECONDS": "0.05"}
+    config = tmp_path / "small.yaml"
+    config.write_text(yaml.safe_dump({"task": "multisine", "chunk": 1}))  # a chunk per robot: several updates
+    done = subprocess.run([sys.executable, "-m", "robomorph.generate", "--config", str(config), "--robots", "4",
+                           "--steps", "300", "--workers", "1", "--out", str(tmp_path / "s.zarr")],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    lines = [line for line in done.stderr.splitlines() if line.startswith("generate multisine: ")]
+    assert lines and "\r" not in done.stderr, done.stderr[-2000:]
+    assert any(" | attempted=" in line for line in lines)  # the bar's postfix: attempts, kept, rejections
+    assert lines[-1].startswith("generate multisine: 4/4 robots in ")
