@@ -11,6 +11,9 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 os.environ.setdefault("WANDB_MODE", "offline")
+# Progress lines (robomorph.core.progress) every minute, not every 5 s: tests that count a command's stderr
+# lines must not meet one on a loaded machine; the tests of progress set their own interval.
+os.environ.setdefault("ROBOMORPH_PROGRESS_SECONDS", "60")
 # Under pytest-xdist (`make test` runs one worker per core) each worker's torch and OpenMP would
 # start a thread per core: the cores' share of each worker instead (read by torch at import, and
 # by the commands the tests run in subprocesses), so workers do not fight over the same cores.
