@@ -55,6 +55,7 @@ import dataclasses
 import datetime
 import os
 import platform
+import shutil
 import sys
 import time
 from dataclasses import dataclass
@@ -192,6 +193,8 @@ def scored(plan: Plan, target: str, ckpt: str, data: str, name: str, sweeps: boo
         say(target, f"evaluation {run} on {name}: up to date, kept")
         return skip.read_json(os.path.join(out, "metrics.json"))
     say(target, f"evaluating {run} on {name} ...")
+    if skip.stale_evaluation(out):
+        shutil.rmtree(out)  # evaluate writes its folder whole and refuses one it cannot recognise
     s = plan.scale
     return evaluate(ckpt, data, out, n=s.eval_n, baselines=("hold",), batch_size=64, device=plan.device,
                     samples=s.samples, sweep_horizon_spec=s.sweep_horizon if sweeps else None,

@@ -92,6 +92,18 @@ def eval_fresh(out: str, ckpt: str) -> bool:
     return same and os.path.getmtime(path) >= os.path.getmtime(ckpt)
 
 
+def stale_evaluation(out: str) -> bool:
+    """True when ``out`` holds an evaluation's result files but no ``metrics.json`` (removed, or
+    an interrupted write of a version before evaluations were written whole): the pipeline's own
+    output under its run, to be redone whole. Anything else in it (a folder, a link, a file of
+    another kind) makes it the user's, and it is left alone."""
+    if not os.path.isdir(out) or os.path.exists(os.path.join(out, "metrics.json")):
+        return False
+    entries = os.listdir(out)
+    return bool(entries) and all(os.path.isfile(os.path.join(out, e)) and not os.path.islink(os.path.join(out, e))
+                                 and e.endswith((".json", ".csv", ".md", ".png")) for e in entries)
+
+
 def read_json(path: str) -> dict:
     """The content of a JSON file."""
     with open(path) as f:
