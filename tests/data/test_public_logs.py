@@ -151,6 +151,7 @@ def test_a_missing_clone_is_one_line_naming_the_clone_command(tmp_path):
     assert "git clone https://github.com/kkufieta/ur5_modeling_force_estimate" in out.stderr
 
 
+@pytest.mark.slow  # a benchmark script end to end, as tests/evaluation/test_benchmarks.py's
 def test_benchmark_scores_every_predictor_on_every_robot_and_physics_wins_on_its_own_arm(sources, tmp_path):
     md = tmp_path / "real_robots.md"
     out = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "real_robots.py"), "--data", sources,
