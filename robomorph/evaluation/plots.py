@@ -99,10 +99,15 @@ def plot_error_growth(path: str, y_true: np.ndarray, preds: dict[str, np.ndarray
         ax.grid(alpha=0.3, which="both")
     for ax in list(axes.flat)[len(groups):]:
         ax.axis("off")
-    axes.flat[0].legend(fontsize=8)
     fig.suptitle("error growth over the prediction horizon (RMS over trajectories)", fontsize=10)
-    fig.tight_layout()
-    save_figure(fig, path, dpi=100)
+    if len(preds) > 8:  # a legend that long hides the curves: beside the panels instead
+        axes.flat[0].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
+        fig.tight_layout()
+        save_figure(fig, path, dpi=100, bbox_inches="tight")
+    else:
+        axes.flat[0].legend(fontsize=8)
+        fig.tight_layout()
+        save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path
 
