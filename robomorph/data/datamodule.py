@@ -131,8 +131,8 @@ class RoboMorphDataModule(L.LightningDataModule):
         if self.loaded:
             for src in sources:
                 src.load()
-        _make_splits(self, sources)
-        _compute_stats(self, sources)
+        self._make_splits(sources)
+        self._compute_stats(sources)
         self._build_datasets(sources)
         self.sources, self._ready = sources, True
 
@@ -147,6 +147,32 @@ class RoboMorphDataModule(L.LightningDataModule):
             self._names = channel_set(sources, len(self.stores), self.channels)
             self._sources = sources
         return self._sources
+
+    def _make_splits(self, sources: list[Source]) -> None:
+        """Each store's trajectory split and the training stream's store probabilities."""
+        # A store that records recording_index (ingest) is split by recording.
+        self.splits = [split_store(src.n, self.split, self.seed, k, src.groups, src.path, self.val_store,
+                                   self.test_store) for k, src in enumerate(sources[:len(self.stores)])]
+        empty = np.zeros(0, dtype=np.int64)
+        for role, path in (("val", self.val_store), ("test", self.test_store)):
+            if path is not None:
+                whole = np.arange(sources[len(self.splits)].n)
+                self.splits.append({"train": empty, "val": empty, "test": empty, role: whole})
+        counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
+        w = np.asarray(self.weights if self.weights is not None else counts, dtype=float)
+        for k, ck in enumerate(counts):
+            if ck == 0:
+                raise DataError(f"{self.stores[k]} has no training trajectories (n={sources[k].n}, split "
+                                f"{self.split}): add trajectories or change split")
+        self.probs = w / w.sum()
+
+    def _compute_stats(self, sources: list[Source]) -> None:
+        """Training statistics per channel role: each channel's from the training stores that have it."""
+        acc = StatsAccumulator(self.n_u, self.n_y)
+        for k, src in enumerate(sources):
+            stop = src.steps if self.window == "random" else self.context_len + self.horizon
+            scan(src, self.splits[k]["train"], stop, ColumnAccumulator(acc, src.layout) if k < len(self.stores) else None)
+        self.stats: Stats = acc.finalize()
 
     @property
     def u_names(self) -> list[str]:
@@ -302,34 +328,6 @@ def _check_context_min(dm: RoboMorphDataModule) -> None:
     if dm.context_min is not None and dm.context_min > dm.context_len:
         raise DataError(f"context_min {dm.context_min} exceeds the context of {dm.context_len} steps"
                         + (f" that context_frac {dm.context_frac} gives" if dm.context_frac else ""))
-
-
-def _make_splits(self: RoboMorphDataModule, sources: list[Source]) -> None:
-    """Each store's trajectory split and the training stream's store probabilities."""
-    # A store that records recording_index (ingest) is split by recording.
-    self.splits = [split_store(src.n, self.split, self.seed, k, src.groups, src.path, self.val_store,
-                               self.test_store) for k, src in enumerate(sources[:len(self.stores)])]
-    empty = np.zeros(0, dtype=np.int64)
-    for role, path in (("val", self.val_store), ("test", self.test_store)):
-        if path is not None:
-            whole = np.arange(sources[len(self.splits)].n)
-            self.splits.append({"train": empty, "val": empty, "test": empty, role: whole})
-    counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
-    w = np.asarray(self.weights if self.weights is not None else counts, dtype=float)
-    for k, ck in enumerate(counts):
-        if ck == 0:
-            raise DataError(f"{self.stores[k]} has no training trajectories (n={sources[k].n}, split "
-                            f"{self.split}): add trajectories or change split")
-    self.probs = w / w.sum()
-
-
-def _compute_stats(self: RoboMorphDataModule, sources: list[Source]) -> None:
-    """Training statistics per channel role: each channel's from the training stores that have it."""
-    acc = StatsAccumulator(self.n_u, self.n_y)
-    for k, src in enumerate(sources):
-        stop = src.steps if self.window == "random" else self.context_len + self.horizon
-        scan(src, self.splits[k]["train"], stop, ColumnAccumulator(acc, src.layout) if k < len(self.stores) else None)
-    self.stats: Stats = acc.finalize()
 
 
 def _summary(dm: RoboMorphDataModule) -> dict:

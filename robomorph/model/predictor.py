@@ -244,11 +244,11 @@ class Predictor:
         if return_std and not (self.has_std if hybrid else getattr(self.model, "gaussian", False)):
             raise CheckpointError("this model has no Gaussian head, so it predicts no standard deviation; "
                                   "train one with --model.gaussian true --model.loss nll, or drop return_std")
-        tensors, single, cols = _arm_batch(self, (u_ctx, y_ctx, u_query))
+        tensors, single, cols = self._arm_batch((u_ctx, y_ctx, u_query))
         check_range(self, *tensors)
         if hybrid and y_query_stats is not None:
             raise NormalizationError("a hybrid model uses no query statistics: drop y_query_stats")
-        stats = None if hybrid else _query_stats(self, y_query_stats, len(tensors[0]))
+        stats = None if hybrid else self._query_stats(y_query_stats, len(tensors[0]))
         try:
             if hybrid:
                 mean, std = predict_hybrid(self, tensors, return_std, at_rest, anchor)
@@ -264,6 +264,43 @@ class Predictor:
         mean, std = select(mean, cols), select(std, cols)
         self._check_output(mean, tensors)
         return _outputs(u_query, [t[0] if single else t for t in (mean, std) if t is not None], return_std)
+
+    def _arm_batch(self, arrays) -> tuple[list[torch.Tensor], bool, tuple | None]:
+        """:func:`as_batch` of an arm's arrays, padded to the model's channels when it has fewer
+        (a model of several arms), and their columns there (None: the model's own channels).
+        The Predictor's settings are checked first (:func:`check_settings`): every simulate comes here."""
+        check_settings(self)
+        cols = arm_columns(self.model.config.channel_mask, self.data_info, arrays, (self.n_u, self.n_y), self.channels)
+        widths = (self.n_u, self.n_y) if cols is None else (len(cols[0]), len(cols[1]))
+        tensors, single = as_batch(arrays, (*widths, widths[0]), self.device)
+        return (tensors if cols is None else pad(tensors, cols, self.n_u, self.n_y)), single, cols
+
+    def _query_stats(self, y_query_stats, batch: int):
+        """Checks ``y_query_stats`` against the predictor's normalization; (mean, std) tensors (B, n_y) or None."""
+        if not self.leaks_query_statistics:
+            if y_query_stats is not None:
+                raise NormalizationError(f"this model was trained with normalization {self.normalization!r}, which "
+                                         "uses no query statistics: drop y_query_stats")
+            return None
+        if y_query_stats is None:
+            raise NormalizationError(
+                "this model was trained with normalization 'paper_window' (the paper's protocol): it rescales each "
+                "window with the mean and std of the outputs it is asked to predict, which a deployed model cannot "
+                "know. Pass y_query_stats=(mean, std) of the query outputs "
+                "(robomorph.core.normalizations.query_output_stats(y_query)) to score it as the paper did, or train "
+                "with data.normalization=train_stats for a model you can deploy")
+        if len(y_query_stats) != 2:
+            raise NormalizationError("y_query_stats must be a pair (mean, std) of the query outputs")
+        out = []
+        for name, v in zip(("mean", "std"), y_query_stats):
+            t = torch.as_tensor(np.asarray(v) if not isinstance(v, torch.Tensor) else v, dtype=torch.float32,
+                                device=self.device)
+            t = t.unsqueeze(0) if t.dim() == 1 else t
+            if t.shape not in ((1, self.n_y), (batch, self.n_y)) or not all_finite(t):
+                raise NormalizationError(f"y_query_stats {name} must be finite, ({self.n_y},) or ({batch}, {self.n_y}); "
+                                         f"got {tuple(t.shape)}")
+            out.append(t.expand(batch, self.n_y))
+        return tuple(out)
 
 
 def _checked_mode(physics: dict | None, mode: str | None, option: str) -> str | None:
@@ -290,44 +327,6 @@ def _backbone(model: TrainedModel, data_info: dict | None, inputs: str) -> tuple
     # so a total-torque model predicts with its decoder, or with the fitted blend of the two.
     return physics, "regression" if inputs == "command" else ("blend" if blend else "none")
 
-
-def _arm_batch(self: "Predictor", arrays) -> tuple[list[torch.Tensor], bool, tuple | None]:
-    """:func:`as_batch` of an arm's arrays, padded to the model's channels when it has fewer
-    (a model of several arms), and their columns there (None: the model's own channels).
-    The Predictor's settings are checked first (:func:`check_settings`): every simulate comes here."""
-    check_settings(self)
-    cols = arm_columns(self.model.config.channel_mask, self.data_info, arrays, (self.n_u, self.n_y), self.channels)
-    widths = (self.n_u, self.n_y) if cols is None else (len(cols[0]), len(cols[1]))
-    tensors, single = as_batch(arrays, (*widths, widths[0]), self.device)
-    return (tensors if cols is None else pad(tensors, cols, self.n_u, self.n_y)), single, cols
-
-
-def _query_stats(self: "Predictor", y_query_stats, batch: int):
-    """Checks ``y_query_stats`` against the predictor's normalization; (mean, std) tensors (B, n_y) or None."""
-    if not self.leaks_query_statistics:
-        if y_query_stats is not None:
-            raise NormalizationError(f"this model was trained with normalization {self.normalization!r}, which "
-                                     "uses no query statistics: drop y_query_stats")
-        return None
-    if y_query_stats is None:
-        raise NormalizationError(
-            "this model was trained with normalization 'paper_window' (the paper's protocol): it rescales each "
-            "window with the mean and std of the outputs it is asked to predict, which a deployed model cannot "
-            "know. Pass y_query_stats=(mean, std) of the query outputs "
-            "(robomorph.core.normalizations.query_output_stats(y_query)) to score it as the paper did, or train "
-            "with data.normalization=train_stats for a model you can deploy")
-    if len(y_query_stats) != 2:
-        raise NormalizationError("y_query_stats must be a pair (mean, std) of the query outputs")
-    out = []
-    for name, v in zip(("mean", "std"), y_query_stats):
-        t = torch.as_tensor(np.asarray(v) if not isinstance(v, torch.Tensor) else v, dtype=torch.float32,
-                            device=self.device)
-        t = t.unsqueeze(0) if t.dim() == 1 else t
-        if t.shape not in ((1, self.n_y), (batch, self.n_y)) or not all_finite(t):
-            raise NormalizationError(f"y_query_stats {name} must be finite, ({self.n_y},) or ({batch}, {self.n_y}); "
-                                     f"got {tuple(t.shape)}")
-        out.append(t.expand(batch, self.n_y))
-    return tuple(out)
 
 def _outputs(u_query, out: list[torch.Tensor], return_std: bool):
     """The prediction (and std) as the caller gave ``u_query``: numpy of its float type, or torch on its device."""
