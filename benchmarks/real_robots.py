@@ -255,7 +255,7 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     print_provenance()
     if args.download_industrial and "industrial_robot" in args.robots and not os.path.isdir(
-            os.path.join(args.data, public_logs.SOURCES["industrial_robot"].folder.split("|")[0])):
+            os.path.join(args.data, public_logs.SOURCES["industrial_robot"].folders[0])):
         print(f"downloaded {public_logs.download_industrial(args.data)}", flush=True)
     parts = []
     for name in args.robots:

@@ -64,8 +64,8 @@ class PublicLog:
         robot: the robot, for people.
         arm: the arm of :mod:`robomorph.sim.arms` with this robot's catalogue model (its
             layout, EE pose and physics), or None.
-        folder: the clone's folder name under ``--data`` (or ``folder|other``: the first that exists,
-            e.g. the industrial robot's clone or the official loader's download).
+        folders: where its files lie under ``--data``, the first that exists wins: the clone's
+            folder, then (the industrial robot) the official loader's download.
         clone: the commands that fetch it.
         licence: the data's licence, as the source states it.
         torque: what ``u`` is, in the source's words.
@@ -79,7 +79,7 @@ class PublicLog:
     name: str
     robot: str
     arm: str | None
-    folder: str
+    folders: tuple[str, ...]
     clone: str
     licence: str
     torque: str
@@ -93,8 +93,8 @@ class PublicLog:
     def root(self, data: str) -> str:
         """The clone's folder under ``data`` (the first of its names that exists; a local clone
         wins over a download); refuses one that is missing."""
-        names = self.folder.split("|")
-        path = next((p for p in (os.path.join(data, n) for n in names) if os.path.isdir(p)), os.path.join(data, names[0]))
+        path = next((p for p in (os.path.join(data, n) for n in self.folders) if os.path.isdir(p)),
+                    os.path.join(data, self.folders[0]))
         if not os.path.isdir(path):
             raise MissingInputError(f"{path} not found: fetch the {self.robot} logs with `{self.clone}` "
                                     f"inside {data} (see docs/guide/real-robots.md)")
@@ -264,7 +264,7 @@ def download_industrial(data: str) -> str:
 
 
 SOURCES: dict[str, PublicLog] = {s.name: s for s in (
-    PublicLog("kinova_gen3", "Kinova Gen3 (7 joints, 1 kHz)", "kinova3", "dynamic-identification",
+    PublicLog("kinova_gen3", "Kinova Gen3 (7 joints, 1 kHz)", "kinova3", ("dynamic-identification",),
               "git clone https://github.com/wissem01chiha/dynamic-identification && git -C dynamic-identification "
               "checkout 90ba37d676d8da6c064d9edf5c1a09389309752e",
               "MIT (at that commit)", "TorqueCur1..7: joint torque from the motor currents, gravity included (the "
@@ -272,18 +272,18 @@ SOURCES: dict[str, PublicLog] = {s.name: s for s in (
               "validation_data/ (the authors' validation trajectories) is test; identification_data/ and "
               "jointwise_motion/ train",
               200.0, 200, 200, 50, _kinova),
-    PublicLog("ur5", "Universal Robots UR5 (6 joints, 125 Hz)", "ur5e", "ur5_modeling_force_estimate",
+    PublicLog("ur5", "Universal Robots UR5 (6 joints, 125 Hz)", "ur5e", ("ur5_modeling_force_estimate",),
               "git clone https://github.com/kkufieta/ur5_modeling_force_estimate",
               "Apache-2.0", "m_target: the target joint torques of the UR controller, gravity included",
               "the movements the authors recorded to verify their model (*Verify_Model*) are test; the rest train",
               60.0, 200, 300, 100, _ur5),
-    PublicLog("schunk", "Schunk LWA 4P (6 joints, 250 Hz; Liu & Althoff 2018)", None, "AutoKoopman",
+    PublicLog("schunk", "Schunk LWA 4P (6 joints, 250 Hz; Liu & Althoff 2018)", None, ("AutoKoopman",),
               "git clone -b experiment_rerun https://github.com/nikhilushinde/AutoKoopman",
               "CC0", "input.csv: the six motor torques",
               "runs that repeat one input share a split; the input first used latest (its runs) is test",
               None, 200, 500, 500, _schunk),
     PublicLog("industrial_robot", "KUKA KR300 R2500 ultra SE (6 joints, 10 Hz; Weigand et al.)", None,
-              f"Physics-Guided-Recurrent-State-Space-Neural-Networks|{INDUSTRIAL_DOWNLOAD}",
+              ("Physics-Guided-Recurrent-State-Space-Neural-Networks", INDUSTRIAL_DOWNLOAD),
               "git clone https://github.com/yifang0-0/Physics-Guided-Recurrent-State-Space-Neural-Networks",
               "the benchmark's terms (nonlinear-benchmarks: Industrial_robot)",
               "u: the six motor torques", "the benchmark's own split (train / val / test)",
