@@ -1,0 +1,127 @@
+"""The hybrid's predictions kept to the bit: three small models and a few held-out windows, stored
+under ``tests/inference/kept/``, and what every physics mode predicts on them.
+
+Rewrite the fixtures (only when the predictions are meant to change, saying why in the commit):
+
+    python -m tests.inference.kept_predictions
+
+It trains three tiny models on freshly simulated stores (a command hybrid with a parameter head, a
+total-torque Gaussian decoder given a smoothed blend, a total-torque decoder given a forward blend),
+exports them as model folders, keeps three held-out windows of each formulation, and records every
+mode's mean and std together with the catalogue arm's untrained hybrid (``Predictor.from_arm``).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+KEPT = Path(__file__).resolve().parent / "kept"
+CONTEXT, HORIZON = 30, 60
+# (model folder, formulation, the modes it predicts in, whether each asks for the std too)
+CASES = {
+    "command": ("command", ("regression", "learned", "fused", "refined", "none")),
+    "total_smoothed": ("total", ("blend", "smoothed", "regression", "none")),
+    "total_forward": ("total", ("blend", "regression", "none")),
+}
+
+
+# One setting of the command hybrid away from its default each.
+VARIANTS = {"members": 1, "points": "draws", "samples": 4, "observer": False, "springs": False, "debias": False,
+            "substeps": 8}
+
+
+def _configure(pred, **settings) -> None:
+    for name, value in settings.items():
+        setattr(pred, f"physics_{name}", value)
+
+
+def predictions(folder: Path = KEPT) -> dict[str, np.ndarray]:
+    """Every case's and mode's mean (and std where the model has one), keyed ``case/mode/at_rest/{mean,std}``."""
+    from robomorph import Predictor
+
+    windows = np.load(folder / "windows.npz")
+    out = {}
+    for case, (inputs, modes) in CASES.items():
+        pred = Predictor.from_pretrained(str(folder / case))
+        u, y = windows[f"{inputs}_u"], windows[f"{inputs}_y"]
+        uc, yc, uq = u[:, :CONTEXT], y[:, :CONTEXT], u[:, CONTEXT:]
+        for mode in modes:
+            pred.use_physics(mode)
+            for rest in (True, False):
+                key = f"{case}/{mode}/{'rest' if rest else 'moving'}"
+                # The decoder's std where it takes part (the decoder, a blend, a smoothed horizon), else the spread's.
+                gaussian = bool(getattr(pred.model, "gaussian", False))
+                std_too = gaussian if mode in ("none", "blend", "smoothed") else pred.has_std
+                got = pred.simulate(uc, yc, uq, at_rest=None if mode == "none" else rest, return_std=std_too)
+                mean, std = got if std_too else (got, None)
+                out[f"{key}/mean"] = mean
+                if std is not None:
+                    out[f"{key}/std"] = std
+    # The command hybrid's settings away from their defaults, one at a time.
+    u, y = windows["command_u"], windows["command_y"]
+    for name, value in VARIANTS.items():
+        pred = Predictor.from_pretrained(str(folder / "command"))
+        _configure(pred, **{name: value})
+        mean, std = pred.simulate(u[:, :CONTEXT], y[:, :CONTEXT], u[:, CONTEXT:], at_rest=False, return_std=True)
+        out[f"command/{name}={value}/moving/mean"], out[f"command/{name}={value}/moving/std"] = mean, std
+    arm = Predictor.from_arm("panda")
+    u, y = windows["command_u"], windows["command_y"]
+    mean, std = arm.simulate(u[:, :CONTEXT], y[:, :CONTEXT], u[:, CONTEXT:], at_rest=True, return_std=True)
+    out["from_arm/regression/rest/mean"], out["from_arm/regression/rest/std"] = mean, std
+    return out
+
+
+def build(folder: Path = KEPT) -> None:
+    """Trains, exports and records everything :func:`predictions` reads, then the predictions themselves."""
+    from robomorph.data.generation import generate
+    from robomorph.data.store import open_store
+    from robomorph.evaluation.calibrating import blend
+    from robomorph.model.files import export
+    from robomorph.sim.recipe import load_recipe
+    from robomorph.training.fitting import fit
+    from tests.conftest import tiny_fit_args
+
+    work = Path(tempfile.mkdtemp(prefix="kept_"))
+    try:
+        def store(seed: int, robots: int, gravity: str | None = None) -> str:
+            path = str(work / f"s{seed}.zarr")
+            generate(load_recipe(None, {"task": "multisine", "robots": robots, "steps": CONTEXT + HORIZON,
+                                        "seed": seed}), path, workers=1, progress=False)
+            return path
+
+        command, total, heldout, test = store(3, 24), store(1, 24), store(7, 6), store(11, 3)
+        ckpts = {
+            "command": fit(tiny_fit_args(command, work, "command", data={"inputs": "command"},
+                                         model={"physics": "amortized", "anchor": True})).best_ckpt,
+            "total_smoothed": fit(tiny_fit_args(total, work, "gauss", model={"anchor": True, "gaussian": True,
+                                                                               "loss": "nll"})).best_ckpt,
+            "total_forward": fit(tiny_fit_args(total, work, "plain", model={"anchor": True})).best_ckpt,
+        }
+        for name in ("total_smoothed", "total_forward"):
+            blended = str(work / f"{name}.ckpt")
+            blend(ckpts[name], heldout, blended, n=6)
+            ckpts[name] = blended
+        if folder.exists():
+            shutil.rmtree(folder)
+        folder.mkdir(parents=True)
+        for name, ckpt in ckpts.items():
+            export(ckpt, str(folder / name))
+        for lock in folder.glob(".*.lock"):  # the writer's locks, not part of the fixtures
+            lock.unlink()
+        ds = open_store(test)
+        np.savez(folder / "windows.npz", command_u=ds.read_inputs("command"), command_y=ds.read("y"),
+                 total_u=ds.read_inputs("total"), total_y=ds.read("y"))
+        np.savez_compressed(folder / "predictions.npz", **predictions(folder))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("WANDB_MODE", "disabled")
+    build()
+    print(f"wrote {KEPT}")
