@@ -26,10 +26,11 @@ from robomorph.core.errors import OutputExistsError, RoboMorphError
 from robomorph.core.locks import exclusive_on
 from robomorph.core.progress import Phase
 from robomorph.data.store import STATUS_COMPLETE, DatasetWriter, SchemaError, create_store, open_store
-from robomorph.sim import episode
+from robomorph.data import real_logs
+from robomorph.sim import episode, kinematics, realism
 from robomorph.sim.filters import REASONS
 from robomorph.sim.open_loop import OpenLoopEngine
-from robomorph.sim.randomize import Randomizer, param_names
+from robomorph.sim.randomize import param_names
 from robomorph.sim.recipe import Recipe
 
 # Below this kept rate (after MIN_ATTEMPTS_FOR_RATE attempts) the bound on attempts can
@@ -108,6 +109,8 @@ def _extras(recipe: Recipe) -> dict:
     extras = {"attempt": ((), "int64"), "task_index": ((), "int8"), "fm": ((), "float32")}
     if recipe.has_osc:
         extras.update(kp=((), "float32"), target=((recipe.steps, 3), "float32"))
+    if recipe.realism.enabled:
+        extras["realism"] = ((len(realism.names(recipe.arm.n_joint)),), "float32")
     return extras
 
 
@@ -120,6 +123,8 @@ def _rows(recipe: Recipe, outs: list) -> tuple:
         extras["kp"] = np.array([o.kp for o in outs], dtype=np.float32)
         nan = np.full((recipe.steps, 3), np.nan, dtype=np.float32)
         extras["target"] = np.stack([nan if o.target is None else o.target for o in outs])
+    if recipe.realism.enabled:
+        extras["realism"] = np.stack([o.realism for o in outs]).astype(np.float32)
     u = np.stack([o.u for o in outs])
     extras["u_cmd"] = np.stack([o.u_cmd for o in outs])
     y = np.stack([o.y for o in outs])
@@ -159,6 +164,10 @@ def _open_writer(recipe: Recipe, out: str, shard: Shard, overwrite: bool) -> Dat
     if arm.name != "panda":  # (the Panda's attributes, hence its stores' fingerprints, stay as they were)
         attrs.update(robot=arm.title, joint_names=list(arm.joint_names),
                      torque_limits=[float(x) for x in arm.limits])
+    if recipe.realism.enabled:  # (the terms themselves are in config["realism"])
+        attrs["realism_names"] = realism.names(arm.n_joint)
+        if recipe.realism.timing.log_physics_rate:
+            attrs["original_dt"] = recipe.dt / recipe.substeps
     return create_store(out, target, recipe.steps, list(arm.u_names), list(arm.y_names),
                         param_names(arm.name), attrs, extras=_extras(recipe), chunk=recipe.chunk,
                         overwrite=overwrite, u_cmd_names=list(arm.u_cmd_names))
@@ -170,7 +179,7 @@ class _Engines:
     def __init__(self, recipe: Recipe, workers: int):
         self.recipe, self.workers = recipe, workers
         self.model = episode.build_model(recipe)
-        self.randomizer = Randomizer(self.model, recipe.randomization, recipe.robot)
+        self.randomizer = episode.make_randomizer(self.model, recipe)
         self._open: OpenLoopEngine | None = None
         self._pool = None
         self._local: episode.ClosedLoopRunner | None = None
@@ -182,7 +191,7 @@ class _Engines:
         draws = [episode.draw(r, self.randomizer, i) for i in indices]
         sens, ranges = self._open.run(lambda model, i: self.randomizer.apply(model, draws[i].params),
                                       np.stack([d.qpos0 for d in draws]), np.stack([d.ctrl for d in draws]))
-        return [episode.finish(r, d, s, jr[: r.arm.n_joint], r.substeps)
+        return [episode.finish(r, d, s, jr[: r.arm.n_joint], r.substeps, model=self.model)
                 for d, s, jr in zip(draws, sens, ranges)]
 
     def closed_loop(self, indices: list[int]) -> list:
@@ -227,7 +236,24 @@ def _simulate(engines: _Engines, recipe: Recipe, indices: list[int]) -> list:
         outs.update((o.index, o) for o in engines.open_loop(open_idx))
     if closed_idx:
         outs.update((o.index, o) for o in engines.closed_loop(closed_idx))
+    if recipe.realism.timing.log_physics_rate:
+        for o in outs.values():
+            _to_model_rate(recipe, engines.model, o)
     return [outs[i] for i in indices]
+
+
+def _to_model_rate(recipe: Recipe, model, out: episode.Outcome) -> None:
+    """Brings a row logged at the physics rate to ``dt`` through ingest's anti-aliasing resampler
+    (:func:`robomorph.data.real_logs.resample`), as a real 1 kHz log is brought to the model's
+    rate; the EE pose is the catalogue kinematics of the resampled joints, as ``ingest --layout``
+    computes it."""
+    if out.reason is not None:
+        return
+    h, hz = recipe.dt / recipe.substeps, 1.0 / recipe.dt
+    out.u = real_logs.resample(out.u, h, hz)
+    out.u_cmd = real_logs.resample(out.u_cmd, h, hz)
+    q = real_logs.resample(out.y[:, 7:], h, hz).astype(np.float64)
+    out.y = np.concatenate([kinematics.ee_pose(q, model), q], axis=1).astype(np.float32)
 
 
 def _max_attempts(recipe: Recipe, target: int) -> int:

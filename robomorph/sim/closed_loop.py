@@ -110,3 +110,55 @@ def formulation_controller(torque: np.ndarray, inputs: str, gravity_in_actuators
     if gravity_in_actuators:
         return lambda data, t: torque[t] - data.qfrc_gravcomp[:nj]
     return lambda data, t: torque[t]
+
+
+StepController = Callable[[mujoco.MjData, int], np.ndarray]
+"""``controller(data, k) -> (nu,)`` torque sent at physics step ``k`` (frame ``k // substeps``),
+called after ``mj_step1`` as :data:`Controller` is; a frame-rate controller returns a held value."""
+
+
+def simulate_substeps(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.ndarray, steps: int,
+                      substeps: int, controller: StepController, latency: int = 0,
+                      idle: np.ndarray | None = None,
+                      passive: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Simulates ``steps`` frames with Python at every physics step (the realism terms' engine).
+
+    Row ``k`` is the sensor data of physics step ``k`` (the state at its start and the torque
+    applied from it), the convention of :func:`simulate_closed_loop` and of ``mujoco.rollout``
+    at every physics step.
+
+    Args:
+        model, data, qpos0, steps, substeps: as :func:`simulate_closed_loop`.
+        controller: the torque sent at each physics step, see :data:`StepController`.
+        latency: physics steps between sending a torque and its effect on the motors.
+        idle: (nu,) torque acting before the first command arrives (default zeros), e.g. the
+            gravity compensation holding the arm at rest.
+        passive: ``qvel -> (nv,)`` joint force added at every physics step (friction).
+
+    Returns:
+        sens (steps * substeps, nsensordata) and the torques sent (steps * substeps, nu); rows
+        from a diverged frame on are NaN (rejected as ``"nan"``).
+    """
+    if steps < 1 or substeps < 1 or latency < 0:
+        raise ValueError(f"steps and substeps must be >= 1 and latency >= 0, got {steps}, {substeps}, {latency}")
+    total = steps * substeps
+    sens, sent = np.empty((total, model.nsensordata)), np.empty((total, model.nu))
+    reset_to(model, data, qpos0)
+    # queue[k % (latency + 1)] holds what was sent at step k - latency - 1, ... : a ring buffer.
+    queue = np.tile(np.zeros(model.nu) if idle is None else np.asarray(idle, dtype=np.float64), (latency + 1, 1))
+    for t in range(steps):
+        for s in range(substeps):
+            k = t * substeps + s
+            mujoco.mj_step1(model, data)
+            sent[k] = controller(data, k)
+            queue[k % (latency + 1)] = sent[k]
+            # The slot written latency steps ago: the oldest one, next after this step's.
+            data.ctrl[:] = queue[(k + 1) % (latency + 1)] if latency else sent[k]
+            if passive is not None:
+                data.qfrc_applied[:] = passive(data.qvel)
+            mujoco.mj_step2(model, data)
+            sens[k] = data.sensordata
+        if diverged(data):
+            sens[t * substeps:] = np.nan
+            break
+    return sens, sent

@@ -58,6 +58,25 @@ class RandomizationConfig:
         if self.init_q0_fraction[1] > 1:
             raise ValueError("randomization.init_q0_fraction must lie within [0, 1]")
 
+    def widened(self, factor: float) -> "RandomizationConfig":
+        """The physical ranges widened about their middles by ``factor`` (>= 1), kept physical
+        (masses above 5 % of nominal, damping, stiffness, armature and friction scales >= 0).
+        The initial poses are not physical parameters and keep their ranges."""
+        if not factor >= 1:
+            raise ValueError(f"a widening factor must be >= 1, got {factor}")
+        if factor == 1:
+            return self
+
+        def wide(rng: tuple[float, float]) -> tuple[float, float]:
+            mid, half = (rng[0] + rng[1]) / 2, (rng[1] - rng[0]) / 2 * factor
+            return max(0.0, mid - half), mid + half
+
+        return RandomizationConfig(
+            mass_pct=min(self.mass_pct * factor, 95.0), com_offset=self.com_offset * factor,
+            damping=wide(self.damping), stiffness=wide(self.stiffness), armature=wide(self.armature),
+            frictionloss_scale=wide(self.frictionloss_scale), init_q0_fraction=self.init_q0_fraction,
+            init_spread=self.init_spread)
+
 
 def param_names(robot: str = arms.DEFAULT_ROBOT) -> list[str]:
     """Names of the recorded parameters of ``robot``, in the order of :func:`Randomizer.sample`."""
@@ -75,10 +94,17 @@ def _names(bodies: tuple[str, ...], nj: int) -> list[str]:
 
 
 class Randomizer:
-    """Samples parameter vectors and applies them to copies of one compiled model."""
+    """Samples parameter vectors and applies them to copies of one compiled model.
 
-    def __init__(self, model: mujoco.MjModel, cfg: RandomizationConfig, robot: str = arms.DEFAULT_ROBOT):
+    ``widen`` (the recipe's ``realism.widen``) draws from :meth:`RandomizationConfig.widened`
+    ranges while ``cfg`` stays the box (and :meth:`catalogue` its middle): robots outside
+    the bounds an identification reads from the recipe.
+    """
+
+    def __init__(self, model: mujoco.MjModel, cfg: RandomizationConfig, robot: str = arms.DEFAULT_ROBOT,
+                 widen: float = 1.0):
         self.cfg = cfg
+        self.draw_cfg = cfg.widened(widen)
         self.arm = arms.get(robot)
         self.nj = nj = self.arm.n_joint
         bodies = self.arm.link_bodies(model)
@@ -104,7 +130,7 @@ class Randomizer:
 
     def sample(self, rng: np.random.Generator) -> np.ndarray:
         """Draws one parameter vector (float64, named by :func:`param_names`)."""
-        c, nj, nb, gain = self.cfg, self.nj, len(self.mass0), self.gain
+        c, nj, nb, gain = self.draw_cfg, self.nj, len(self.mass0), self.gain
         scale = rng.uniform(1 - c.mass_pct / 100, 1 + c.mass_pct / 100, nb)
         com = self.ipos0 + rng.uniform(-c.com_offset, c.com_offset, (nb, 3))
         damping = rng.uniform(*c.damping, nj) * gain

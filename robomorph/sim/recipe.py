@@ -15,6 +15,7 @@ from robomorph.sim.filters import FilterConfig
 from robomorph.sim.osc import OSCConfig
 from robomorph.sim.paths import CircleConfig, SpiralConfig
 from robomorph.sim.randomize import RandomizationConfig
+from robomorph.sim.realism import RealismConfig
 from robomorph.sim.signals import SignalConfig
 
 
@@ -35,6 +36,8 @@ class Recipe:
             show up as model error) or ``none``.
         chunk: trajectories per Zarr chunk, per rollout batch and per flush.
         max_attempts_factor: give up after ``robots * factor`` attempts.
+        realism: the realism terms of :mod:`robomorph.sim.realism` (all off by default; the
+            ``realistic`` recipe turns them on). Recorded in the store's ``config`` when any is on.
     """
 
     task: str | dict[str, float] = "multisine"
@@ -53,6 +56,7 @@ class Recipe:
     circle: CircleConfig = field(default_factory=CircleConfig)
     spiral: SpiralConfig = field(default_factory=SpiralConfig)
     filters: FilterConfig = field(default_factory=FilterConfig)
+    realism: RealismConfig = field(default_factory=RealismConfig)
 
     def __post_init__(self):
         for name in self.task_weights:
@@ -103,6 +107,9 @@ class Recipe:
         # checkpoints record this dict, and `reproduce` skips a store whose dict matches.
         if self.robot == arms.DEFAULT_ROBOT:
             del data["robot"]
+        # A clean recipe's dict (and so its stores' attributes and fingerprints) stays as it was.
+        if not self.realism.enabled:
+            del data["realism"]
         return data
 
 
