@@ -176,7 +176,7 @@ class ClosedLoopRunner:
         self.gravity = NominalGravity(recipe) if recipe.gravity_compensation == "nominal_model" else None
         self.realistic = recipe.realism.steps_in_python
         if self.realistic:
-            self.flange = realism.Flange(self.model)
+            self.flange = realistic.Flange(self.model)
             self.flange_randomized = self.flange.body in set(self.randomizer.index.body_ids.tolist())
             self.comp = (realistic.Compensation(recipe.arm, recipe.substeps, recipe.dt)
                          if recipe.gravity_compensation == "nominal_model" else None)

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import mujoco
 import numpy as np
 
 from robomorph.core.config import check_range
@@ -374,49 +373,6 @@ def friction_torque(real: Realization, qvel: np.ndarray, v_smooth: float) -> np.
     fc, fv = real.coulomb[d, idx], real.viscous[d, idx]
     level = fc * (1 + (real.stribeck_ratio - 1) * np.exp(-(qvel / real.stribeck_velocity) ** 2))
     return -(level * np.tanh(qvel / v_smooth) + fv * qvel)
-
-
-class Flange:
-    """Adds a point-mass payload to the flange body of model copies (absolute, never compounding).
-
-    The body's inertia about the combined centre of mass follows the parallel-axis theorem,
-    re-diagonalized into MuJoCo's principal frame (``body_inertia``, ``body_iquat``).
-    """
-
-    def __init__(self, model: mujoco.MjModel):
-        self.body = int(model.site_bodyid[model.site("ee").id])
-        b = self.body
-        self.nominal = (float(model.body_mass[b]), model.body_ipos[b].copy(), model.body_inertia[b].copy(),
-                        model.body_iquat[b].copy())
-
-    def apply(self, model: mujoco.MjModel, mass: float, com: np.ndarray, base: tuple | None = None) -> None:
-        """Sets the flange body to ``base`` (default: its nominal values) plus the payload."""
-        b = self.body
-        m0, c0, i0, q0 = base or self.nominal
-        rot = np.empty(9)
-        mujoco.mju_quat2Mat(rot, q0)
-        rot = rot.reshape(3, 3)
-        inertia = rot @ np.diag(i0) @ rot.T
-        total = m0 + mass
-        if mass <= 0 or total <= 0:
-            model.body_mass[b], model.body_ipos[b], model.body_inertia[b], model.body_iquat[b] = m0, c0, i0, q0
-            return
-        c = (m0 * c0 + mass * np.asarray(com)) / total
-        for m, p in ((m0, c0), (mass, com)):
-            r = np.asarray(p) - c
-            inertia = inertia + m * (r @ r * np.eye(3) - np.outer(r, r))
-        eig, vec = np.linalg.eigh(inertia)
-        if np.linalg.det(vec) < 0:
-            vec[:, 0] = -vec[:, 0]
-        quat = np.empty(4)
-        mujoco.mju_mat2Quat(quat, vec.ravel())
-        model.body_mass[b], model.body_ipos[b], model.body_inertia[b], model.body_iquat[b] = total, c, eig, quat
-
-    def current(self, model: mujoco.MjModel) -> tuple:
-        """The flange body's values in ``model`` (to add a payload on top of a randomized body)."""
-        b = self.body
-        return (float(model.body_mass[b]), model.body_ipos[b].copy(), model.body_inertia[b].copy(),
-                self.nominal[3].copy())
 
 
 def sense(tau: np.ndarray, q: np.ndarray, real: Realization, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
