@@ -75,7 +75,7 @@ def _score(ckpts: dict[str, str], test: str, n: int):
     """Scores of each regime's model and of the baselines on the first ``n`` windows of ``test``."""
     from robomorph.evaluation.scoring import score_windows  # noqa: PLC0415
     from robomorph.evaluation.windows import load_window  # noqa: PLC0415
-    from robomorph.model.predictor import Predictor  # noqa: PLC0415
+    from robomorph.inference.predictor import Predictor  # noqa: PLC0415
 
     out = {}
     for regime, ckpt in ckpts.items():
@@ -147,7 +147,7 @@ def main() -> int:
     train = [_store(r, os.path.join(args.data, f"{r}.zarr"), args.robots, 0) for r in args.train.split(",")]
     heldout = args.heldout.split(",")
     pre = _train("arms-pretrain", train, args.minutes, args.runs_dir, ["--data.joint_dropout", str(args.joint_dropout)])
-    from robomorph.model.predictor import Predictor  # noqa: PLC0415
+    from robomorph.inference.predictor import Predictor  # noqa: PLC0415
 
     info = Predictor.from_checkpoint(pre).data_info
     channels = json.dumps({"u": info["u_names"], "y": info["y_names"]})

@@ -40,9 +40,9 @@ from robomorph.core.results import markdown_table, write_rows
 from robomorph.evaluation.calibrating import calibrate
 from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.windows import load_window
-from robomorph.model.calibration import METHODS, StdCalibration
+from robomorph.inference.calibration import METHODS, StdCalibration
 from robomorph.model.files import read_model
-from robomorph.model.predictor import Predictor
+from robomorph.inference.predictor import Predictor
 
 
 def _windows(pred: Predictor, test: str, offset: str, random_horizon: int):

@@ -13,7 +13,7 @@ parameters (so identification is out of the picture), in the command formulation
   (``dx[t+1] = A[t] dx[t] + B[t] du[t]``); once with the robot as it is, once with its joints'
   friction losses set to zero (against the exact frictionless candidates): dry friction is the
   one non-smooth term of the Panda's dynamics;
-- **tangent-linear, dry friction corrected** (:mod:`robomorph.sim.tangent`, what
+- **tangent-linear, dry friction corrected** (:mod:`robomorph.identification.tangent`, what
   ``Predictor.physics_candidates = "tangent"`` simulates): the same, with the friction torque each
   candidate's linear response implies held inside the friction losses, and sliding joints whose
   velocity would cross zero stopped.
@@ -38,8 +38,8 @@ from common import print_provenance
 from robomorph.core.errors import UsageError, run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
 from robomorph.data.store import open_store
-from robomorph.sim.backbone import PhysicsBackbone, parameter_layout
-from robomorph.sim.tangent import candidate_joints, one_frame_maps
+from robomorph.identification.backbone import PhysicsBackbone, parameter_layout
+from robomorph.identification.tangent import candidate_joints, one_frame_maps
 
 STEPS = (1, 15, 60)
 
@@ -47,7 +47,7 @@ STEPS = (1, 15, 60)
 def tangent_joints(bb: PhysicsBackbone, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray,
                    torque: np.ndarray) -> np.ndarray:
     """(K, F + 1, n) joint positions of K candidates (K, F, n) on one robot, linearized about their mean
-    (the maps of :func:`robomorph.sim.tangent.one_frame_maps` at every frame, no friction correction)."""
+    (the maps of :func:`robomorph.identification.tangent.one_frame_maps` at every frame, no friction correction)."""
     k, frames, nj = torque.shape
     nx, ref = 2 * nj, torque.mean(axis=0)
     states = bb.frame_states(params[None], qpos0[None], qvel0[None], ref[None])[0]  # (F + 1, S): time, qpos, qvel

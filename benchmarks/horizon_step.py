@@ -1,6 +1,6 @@
 """The hybrid's physics step: what a coarser step after the first second costs in accuracy.
 
-Held-out robots are simulated by :class:`robomorph.sim.backbone.PhysicsBackbone` with their
+Held-out robots are simulated by :class:`robomorph.identification.backbone.PhysicsBackbone` with their
 *true* parameters (so the identification's error is out of the picture) over the context and
 the horizon, in the command formulation, from the trajectory start; the generator recorded them
 at the recipe's step, so any difference is the step's. Settings: the recipe's step throughout,
@@ -25,7 +25,7 @@ from common import print_provenance
 from robomorph.core.errors import UsageError, run_command
 from robomorph.core.results import markdown_table, provenance, write_rows
 from robomorph.data.store import open_store
-from robomorph.sim.backbone import PhysicsBackbone, parameter_layout
+from robomorph.identification.backbone import PhysicsBackbone, parameter_layout
 
 STEPS = (1, 15, 60, 300, 800)
 

@@ -34,7 +34,7 @@ from robomorph.core.results import markdown_table, provenance, write_markdown, w
 from robomorph.evaluation.horizons import squared_error
 from robomorph.evaluation.scoring import MODEL, score_windows
 from robomorph.evaluation.windows import load_window
-from robomorph.model.predictor import Predictor
+from robomorph.inference.predictor import Predictor
 
 STEPS = (1, 15, 60, 300, 800)
 # The baseline the window-by-window table compares against (default of --paired).
@@ -74,7 +74,7 @@ def _row(name: str, offset: str, scores, source: str, seconds: float | None, std
 def configure(pred: Predictor, spec: str) -> str:
     """Sets ``pred`` up as ``MODE[@K][~M][/S][+obs][+springs][+debias][+tangent]`` says (K regression solves, default
     3; M members of the friction mixture, default 9; S physics steps per sample after the first second, default
-    :func:`robomorph.sim.backbone.coarse_substeps`; the joints' springs fitted; the regression's bias taken off; a
+    :func:`robomorph.identification.backbone.coarse_substeps`; the joints' springs fitted; the regression's bias taken off; a
     planner's candidates tangent-linear); returns MODE."""
     spec, *plus = spec.split("+")
     if set(plus) - {"obs", "springs", "debias", "tangent"}:

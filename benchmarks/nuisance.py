@@ -7,7 +7,7 @@ under the same torques. The joint RMS error over the windows at the reported ste
 of a prediction's error a kind can account for if the identification leaves it at the catalogue,
 and so which kinds an identification must fit (or its std cover). In the command formulation the
 springs (0.01-0.05 N m/rad), which no fit identified, cost more at 13.3 s than the link masses, the
-centres of mass or the armature: why the regression fits them (:data:`robomorph.sim.identify.SPRING_KINDS`).
+centres of mass or the armature: why the regression fits them (:data:`robomorph.identification.identify.SPRING_KINDS`).
 
     python benchmarks/nuisance.py --data data/demo/ms_test256.zarr --n 64 --md results/benchmarks/nuisance.md
 """

@@ -18,7 +18,7 @@ import torch
 from common import print_provenance
 
 from robomorph.data.statistics import Stats
-from robomorph.model.checkpoint import TrainedModel
+from robomorph.inference.checkpoint import TrainedModel
 from robomorph.model.transformer import ModelConfig
 from robomorph.predictor import Predictor
 

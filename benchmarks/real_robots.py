@@ -108,7 +108,7 @@ def joint_fit(result: dict, name: str, joints: list[str]) -> float:
 
 def _models(paths: dict[str, str], store: str) -> tuple[dict, dict]:
     """The checkpoints that read ``store`` (loaded), and why each other one was skipped."""
-    from robomorph.model.predictor import Predictor  # noqa: PLC0415
+    from robomorph.inference.predictor import Predictor  # noqa: PLC0415
 
     loaded, skipped = {}, {}
     ds = open_store(store)
@@ -128,7 +128,7 @@ def _models(paths: dict[str, str], store: str) -> tuple[dict, dict]:
 def hybrid_predictions(arm: str, w) -> dict[str, np.ndarray]:
     """The hybrid with no training on the windows, as a real arm's torques can be given to it:
     the total torque, and the command of an arm compensating its gravity with the catalogue model."""
-    from robomorph.model.predictor import Predictor  # noqa: PLC0415
+    from robomorph.inference.predictor import Predictor  # noqa: PLC0415
     from robomorph.sim import arms  # noqa: PLC0415
     from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
     from robomorph.sim.recipe import load_recipe  # noqa: PLC0415

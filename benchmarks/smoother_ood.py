@@ -7,7 +7,7 @@ robot identified from an OSC context (whose motions excite the parameters differ
 the smoother's structure, where the directions the torques to come do not fix (a neutral or
 slowly unstable mode) follow the decoder, here out of its training distribution.
 
-This script smooths the same windows (:func:`robomorph.sim.smoother.smooth_windows`, the
+This script smooths the same windows (:func:`robomorph.identification.smoother.smooth_windows`, the
 smoothed physics alone, no blend) in variants side by side:
 
 - ``identified``: the regression's robot, as the model predicts;
@@ -41,8 +41,8 @@ from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
 from robomorph.evaluation.scoring import score_windows
 from robomorph.evaluation.windows import load_window
-from robomorph.model.predictor import Predictor
-from robomorph.sim.smoother import smooth_windows
+from robomorph.inference.predictor import Predictor
+from robomorph.identification.smoother import smooth_windows
 
 STEPS = (60, 300, 600, 700, 750, 800)
 BIAS = 0.1  # rad: the synthetic decoder's offset on every joint

@@ -48,8 +48,8 @@ from robomorph.evaluation.calibrating import dense_at_end, moving_windows
 from robomorph.evaluation.horizons import coverage, groups_for, spread_skill
 from robomorph.evaluation.scoring import score_windows
 from robomorph.evaluation.windows import load_window, start_joints
-from robomorph.model.calibration import band_miss, fit
-from robomorph.model.predictor import Predictor
+from robomorph.inference.calibration import band_miss, fit
+from robomorph.inference.predictor import Predictor
 
 POWERS = (0.5, 1.0)  # of a candidate signal multiplied into the spread
 TERMS = (0.5, 1.0, 2.0)  # weights b of the gap added to the spread (in units of their medians' ratio)
@@ -139,8 +139,8 @@ def main(argv=None) -> None:
     p.add_argument("--knots", default=None, help="comma-separated knot layouts to fit the model's own spread on: "
                    "log (log-spaced) and end (as dense at the horizon's end as at its start); default: calibrate's")
     p.add_argument("--points", default=None, help="comma-separated robots a hybrid's spread is taken over, side by "
-                   "side (POINTS[+springs][+debias]: columns or draws, robomorph.model.hybrid_std; +springs: the "
-                   "regression fits the joints' springs too; +debias: its bias taken off, robomorph.model.debias), "
+                   "side (POINTS[+springs][+debias]: columns or draws, robomorph.inference.hybrid_std; +springs: the "
+                   "regression fits the joints' springs too; +debias: its bias taken off, robomorph.inference.debias), "
                    "its own spread alone; default: its own points and the candidates")
     p.add_argument("--offset", default="start", help="start, random or a step, as in evaluate")
     p.add_argument("--horizon", type=int, default=None, help="default: the training horizon (600 off the start)")

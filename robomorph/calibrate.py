@@ -10,7 +10,7 @@ import sys
 
 from robomorph.core.errors import run_command
 from robomorph.evaluation import calibrating
-from robomorph.model.calibration import METHODS, CalibrationError
+from robomorph.inference.calibration import METHODS, CalibrationError
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,8 +1,8 @@
 """Static checks of the package's shape, read with ``ast`` (nothing is imported).
 
-Layers import only downward: core -> sim -> data -> model -> training -> evaluation ->
-reporting / tuning -> reproduction (which drives the others to make the paper's tables and
-report), with the command doors and the predictor on top. No
+Layers import only downward: core -> sim -> identification -> data -> model -> inference ->
+training -> evaluation -> control -> reporting / tuning -> reproduction (which drives the others
+to make the paper's tables and report), with the command doors and the predictor on top. No
 import cycle between modules or between packages; no file or function egregiously long.
 
 Sizes are smells to look at, never a reason to split cohesive code or move a method out of its
@@ -18,9 +18,9 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "robomorph"
 # Rank of each room: a module imports its own room and rooms of lower rank only.
-RANKS = {"core": 0, "sim": 1, "data": 2, "model": 3, "training": 4, "evaluation": 5,
-         "reporting": 6, "tuning": 6, "control": 6, "reproduction": 7}
-TOP = 8  # doors (robomorph/<command>.py), predictor.py, cli.py, __init__.py, __main__.py
+RANKS = {"core": 0, "sim": 1, "identification": 2, "data": 3, "model": 4, "inference": 5, "training": 6,
+         "evaluation": 7, "control": 8, "reporting": 9, "tuning": 9, "reproduction": 10}
+TOP = 11  # doors (robomorph/<command>.py), predictor.py, cli.py, __init__.py, __main__.py
 MAX_FILE_LINES, MAX_FUNCTION_LINES = 800, 120
 TORCH_LIBS = ("torch", "lightning")
 
@@ -149,13 +149,13 @@ def test_limits_are_measured_on_real_code(tmp_path):
     assert _too_long(long) == [f"FunctionDef f: {MAX_FUNCTION_LINES + 1} lines (limit {MAX_FUNCTION_LINES})"]
 
 
-@pytest.mark.parametrize("module", sorted(m for m in MODULES if _room(m) == "model") + ["robomorph.predictor"])
-def test_inference_needs_only_model_and_core(module):
-    # A deployed model ships robomorph/model/ and robomorph/core/ alone; the hybrid model's
-    # physics backbone (robomorph.model.hybrid and its debiasing, imported only when a hybrid
-    # predicts) needs robomorph/sim/ and MuJoCo as well.
-    # robomorph.model.catalogue builds a hybrid's record from the arm registry (Predictor.from_arm), also on use.
-    backbone = ("robomorph.model.hybrid", "robomorph.model.debias", "robomorph.model.catalogue")
-    allowed = ("model", "core", "sim") if module in backbone else ("model", "core")
-    outside = sorted(m for m in _internal(MODULES[module]) if _room(m) not in allowed)
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if _room(m) in ("model", "inference"))
+                         + ["robomorph.predictor"])
+def test_inference_needs_no_training_code(module):
+    # A deployed model ships robomorph/inference/, model/ and core/; the hybrid's physics (imported
+    # only when a hybrid predicts) needs identification/, sim/ and MuJoCo as well. Never training,
+    # data or evaluation code.
+    allowed = {"model": ("model", "core"), "inference": ("inference", "model", "identification", "sim", "core")}
+    outside = sorted(m for m in _internal(MODULES[module])
+                     if _room(m) not in allowed.get(_room(module), ("inference", "model", "core")))
     assert not outside, f"{module} imports {outside}"

@@ -15,7 +15,7 @@ import pickle
 import pytest
 import torch
 
-from robomorph.model.checkpoint import CheckpointError
+from robomorph.inference.checkpoint import CheckpointError
 from tests.conftest import CKPT_CONTEXT, CKPT_HORIZON, tiny_fit_args
 
 

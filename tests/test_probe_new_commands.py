@@ -161,7 +161,7 @@ def test_a_context_between_patches_is_refused_for_a_decoder(tiny_checkpoint):
     """Case 16: ``control --context 37`` on a black-box model was cut to 35 without a word."""
     from robomorph.control.dynamics import ControlError
     from robomorph.control.runner import ControlConfig
-    from robomorph.model.predictor import Predictor
+    from robomorph.inference.predictor import Predictor
 
     p = Predictor.from_checkpoint(tiny_checkpoint)
     p.inputs = "command"  # the rest of the checks are what the test is about
@@ -256,8 +256,8 @@ def _edit_config(folder: str, edit) -> None:
 def test_a_model_folder_without_its_digest_is_refused(edit, phrase, tmp_path, tiny_checkpoint):
     """Case 20: ``"weights": "x"`` raised AttributeError; deleting ``weights.sha256`` skipped the
     integrity check."""
-    from robomorph.model.checkpoint import CheckpointError
-    from robomorph.model.predictor import Predictor
+    from robomorph.inference.checkpoint import CheckpointError
+    from robomorph.inference.predictor import Predictor
 
     folder = _exported(tmp_path, tiny_checkpoint)
     _edit_config(folder, edit)
@@ -271,8 +271,8 @@ def test_declared_sizes_are_checked_before_the_network_is_built(key, value, tmp_
     """Case 20: sizes such as d_model 10^9 built the network before the weights were checked."""
     import hashlib
 
-    from robomorph.model.checkpoint import CheckpointError
-    from robomorph.model.predictor import Predictor
+    from robomorph.inference.checkpoint import CheckpointError
+    from robomorph.inference.predictor import Predictor
 
     folder = _exported(tmp_path, tiny_checkpoint)
     digest = hashlib.sha256(open(os.path.join(folder, "model.safetensors"), "rb").read()).hexdigest()
@@ -323,7 +323,7 @@ def _window(p, batch: int = 2, tc: int = CKPT_CONTEXT, th: int = CKPT_HORIZON):
 
 def test_context_outputs_in_the_wrong_units_are_refused(tiny_checkpoint):
     """Case 12: context outputs x1000 (a unit error) gave plausible outputs."""
-    from robomorph.model.predictor import PredictionError, Predictor
+    from robomorph.inference.predictor import PredictionError, Predictor
 
     p = Predictor.from_checkpoint(tiny_checkpoint)
     u_ctx, y_ctx, u_q = _window(p)
@@ -341,7 +341,7 @@ def test_context_outputs_in_the_wrong_units_are_refused(tiny_checkpoint):
 def test_arrays_of_the_wrong_size_are_prediction_errors(cut, phrase, tiny_checkpoint):
     """Cases 11 and 19: an empty context, mismatched batch sizes (IndexError) and a query of
     zero steps (one step returned)."""
-    from robomorph.model.predictor import PredictionError, Predictor
+    from robomorph.inference.predictor import PredictionError, Predictor
 
     p = Predictor.from_checkpoint(tiny_checkpoint)
     with pytest.raises(PredictionError, match=phrase):
@@ -350,7 +350,7 @@ def test_arrays_of_the_wrong_size_are_prediction_errors(cut, phrase, tiny_checkp
 
 @pytest.fixture(scope="module")
 def hybrid_predictor(simulated_store, tmp_path_factory):
-    from robomorph.model.predictor import Predictor
+    from robomorph.inference.predictor import Predictor
     from robomorph.training.fitting import fit
 
     store = simulated_store(robots=24, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=3)
@@ -365,7 +365,7 @@ def hybrid_predictor(simulated_store, tmp_path_factory):
 def test_the_hybrids_settings_are_checked(setting, value, hybrid_predictor):
     """Cases 11 and 19: ``physics_members`` 0 or -1 behaved like 1; ``physics_mode = None``
     raised a TypeError."""
-    from robomorph.model.predictor import PredictionError
+    from robomorph.inference.predictor import PredictionError
 
     p = hybrid_predictor
     kept = getattr(p, setting)
@@ -379,7 +379,7 @@ def test_the_hybrids_settings_are_checked(setting, value, hybrid_predictor):
 
 def test_the_hybrids_query_of_zero_steps_is_refused(hybrid_predictor):
     """Case 11: the hybrid's simulate with a query of zero steps returned one step."""
-    from robomorph.model.predictor import PredictionError
+    from robomorph.inference.predictor import PredictionError
 
     u, y, q = _window(hybrid_predictor, batch=1)
     with pytest.raises(PredictionError, match="no time steps"):
@@ -569,7 +569,7 @@ def test_ctrl_c_during_control_with_workers_stops_cleanly(tmp_path):
 
 def test_fit_records_the_arms_it_trained_on(tiny_checkpoint):
     """Cases 9 and 10: what lets control and evaluate tell a model's arm (a Panda store here)."""
-    from robomorph.model.predictor import Predictor
+    from robomorph.inference.predictor import Predictor
 
     assert Predictor.from_checkpoint(tiny_checkpoint).data_info["arms"] == ["panda"]
 
@@ -578,7 +578,7 @@ def test_control_refuses_a_model_of_another_arm(tiny_checkpoint):
     """Case 9: a Kinova3 model planned the Panda (``control --controllers mpc:model``)."""
     from robomorph.control.dynamics import ControlError
     from robomorph.control.runner import ControlConfig
-    from robomorph.model.predictor import Predictor
+    from robomorph.inference.predictor import Predictor
 
     p = Predictor.from_checkpoint(tiny_checkpoint)
     p.inputs, p.n_u, p.n_y = "command", 7, 14  # the checks before the arm's pass
@@ -607,7 +607,7 @@ def test_a_store_holding_training_robots_is_in_sample(tiny_checkpoint, simulated
     robots bit for bit; ``evaluate`` reported ``in_sample: false`` (the fingerprint was of the
     whole store)."""
     from robomorph.evaluation.evaluator import in_sample
-    from robomorph.model.predictor import Predictor
+    from robomorph.inference.predictor import Predictor
 
     info = Predictor.from_checkpoint(tiny_checkpoint).data_info
     more = simulated_store(robots=30, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=1)

@@ -19,7 +19,7 @@ from robomorph.data.store import open_store
 from robomorph.evaluate import main as evaluate_main
 from robomorph.fit import main as fit_main
 from robomorph.ingest import main as ingest_main
-from robomorph.model.predictor import Predictor
+from robomorph.inference.predictor import Predictor
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit
 

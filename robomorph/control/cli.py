@@ -71,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def load_model(ckpt: str, physics_mode: str | None):
-    from robomorph.model.predictor import Predictor  # noqa: PLC0415
+    from robomorph.inference.predictor import Predictor  # noqa: PLC0415
 
     predictor = Predictor.from_checkpoint(ckpt, device="cpu")
     predictor.use_physics(physics_mode, "--physics-mode")

@@ -12,11 +12,11 @@ outputs, and the candidates are the commands of frames ``f .. f+H-1``, which the
   over the candidates from the measured joint state (a lean copy of the arm, with the EE
   sensors, at ``plan_substeps`` physics steps per frame). Its parameters come from
   ``nominal_physics`` (the catalogue robot), ``identified_physics`` (fitted once to the
-  warm-up's context by the rollout fit of :mod:`robomorph.sim.identify`), the in-context
+  warm-up's context by the rollout fit of :mod:`robomorph.identification.identify`), the in-context
   hybrid model (re-identified from the rolling context every ``reidentify`` frames), or
   ``true_physics`` (the hidden parameters: a ceiling, labelled as such, the only planner
   that reads them).
-- :class:`ModelPlanner`: a black-box meta-model (a :class:`robomorph.model.predictor.Predictor`
+- :class:`ModelPlanner`: a black-box meta-model (a :class:`robomorph.inference.predictor.Predictor`
   without a physics backbone, or one asked for ``physics_mode none``), context = the last
   ``context`` measured rows, query = the candidates.
 """
@@ -28,7 +28,7 @@ import numpy as np
 
 from robomorph.core.errors import RoboMorphError
 from robomorph.sim import panda
-from robomorph.sim.identify import lean_spec
+from robomorph.identification.identify import lean_spec
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -155,7 +155,7 @@ class TruePlanner(PhysicsPlanner):
 
 
 class IdentifiedPlanner(PhysicsPlanner):
-    """``identified_physics``: the rollout fit of :mod:`robomorph.sim.identify` on the warm-up's
+    """``identified_physics``: the rollout fit of :mod:`robomorph.identification.identify` on the warm-up's
     context (the robot at rest at its start), bounded by the recipe's randomization ranges;
     fitted once, as an engineer identifies a robot from one recorded run."""
 
@@ -167,7 +167,7 @@ class IdentifiedPlanner(PhysicsPlanner):
     def identify(self, m: Measured) -> np.ndarray:
         import time  # noqa: PLC0415
 
-        from robomorph.sim.identify import Identifier  # noqa: PLC0415
+        from robomorph.identification.identify import Identifier  # noqa: PLC0415
 
         t0 = time.perf_counter()
         f = m.frame

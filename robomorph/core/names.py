@@ -40,7 +40,7 @@ INPUTS = ("total", "command")
 # How a training step runs (--model.compile, reproduce --compile): robomorph.training.compiling.
 COMPILE_MODES = ("auto", "off", "default", "reduce-overhead", "max-autotune")
 
-# How a model with a physics backbone predicts (robomorph.model.hybrid), besides ``none`` (its decoder).
+# How a model with a physics backbone predicts (robomorph.inference.hybrid), besides ``none`` (its decoder).
 PHYSICS_MODES = ("learned", "regression", "fused", "refined", "blend", "smoothed")
 
 # Which parameters a fine-tuned model keeps fixed, and the transfer regimes of Table 2.

@@ -8,14 +8,14 @@
 Predicts the validation windows of the checkpoint (the robots its DataModule held out for
 validation, read back from its stores; or a held-out store given with ``--data``) with the
 head's own standard deviation, fits the per-step, per-channel scale of
-:mod:`robomorph.model.calibration` on them, and stores it in the checkpoint (atomically, in
+:mod:`robomorph.inference.calibration` on them, and stores it in the checkpoint (atomically, in
 place or into ``--out``). From then on ``Predictor.simulate(..., return_std=True)``,
 ``evaluate`` and the dashboard use the recalibrated spread; the mean prediction does not
 change. A training store given whole as ``--data`` is refused: the model has seen those
 robots, and its errors there are smaller than on robots it has not seen.
 
 ``--blend`` fits, on the same windows, the per-step weights of the model's physics prediction
-against its decoder's (:mod:`robomorph.model.blending`) and stores them (with the physics
+against its decoder's (:mod:`robomorph.inference.blending`) and stores them (with the physics
 backbone's record, for a model trained without one): a total-torque model then predicts
 with the blend by default. Calibrate its std afterwards with a plain run.
 """
@@ -35,12 +35,12 @@ from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.tables import POINTS_TEXT
 from robomorph.evaluation.windows import (EvaluationError, Window, check_counts, check_patch, load_window, parse_offset,
                                           start_joints)
-from robomorph.model.calibration import (CALIBRATION_KEY, POWER_MIN_WINDOWS, CalibrationError, calibration_key,
+from robomorph.inference.calibration import (CALIBRATION_KEY, POWER_MIN_WINDOWS, CalibrationError, calibration_key,
                                          calibrations_entry, fit, outside_bands, read_calibrations)
 
 
 def _predictor(ckpt: str, device: str | None, need_std: bool = True):
-    from robomorph.model.predictor import Predictor  # noqa: PLC0415  (torch only here)
+    from robomorph.inference.predictor import Predictor  # noqa: PLC0415  (torch only here)
 
     predictor = Predictor.from_checkpoint(ckpt, device=device)
     if need_std and not predictor.has_std:
@@ -119,7 +119,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
         n: at most this many windows.
         context_len, horizon: the window (default: the checkpoint's training window).
         offset, seed: where each window starts (``start``, ``random`` or a step), as in evaluate.
-        method: ``power`` (default), ``coverage``, ``nll`` or ``quantile`` (:mod:`robomorph.model.calibration`).
+        method: ``power`` (default), ``coverage``, ``nll`` or ``quantile`` (:mod:`robomorph.inference.calibration`).
         horizons_spec: the steps the report shows (evaluate's ``--horizons``).
         physics: a hybrid's physics mode to calibrate (default: its default mode); each mode keeps
             its own calibration, so calibrating one leaves the others' in place. A hybrid keeps one
@@ -128,13 +128,13 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
         observer, springs, debias: a command-formulation hybrid's observer, regression of the joints' springs and
             debiased regression (:attr:`Predictor.physics_observer`, ``physics_springs``, ``physics_debias``) set in
             the checkpoint's record before fitting (None: as recorded); each setting's calibrations are kept apart.
-        points: a hybrid's std's robots, ``columns`` or ``draws`` (:func:`robomorph.model.hybrid_std.spread_points`).
+        points: a hybrid's std's robots, ``columns`` or ``draws`` (:func:`robomorph.inference.hybrid_std.spread_points`).
 
     Returns:
         A report: the calibration's provenance, and the ±1σ/±2σ coverage of the calibration
         windows before and after at the reported steps.
     """
-    from robomorph.model.hybrid_std import debiasing, drawn_points, observing, springing  # noqa: PLC0415
+    from robomorph.inference.hybrid_std import debiasing, drawn_points, observing, springing  # noqa: PLC0415
 
     check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
     offset = parse_offset(offset)
@@ -167,7 +167,7 @@ def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int
 
 def dense_at_end(predictor) -> bool:
     """Whether a calibration of ``predictor`` places its knots as dense at the horizon's end as at its start
-    (:func:`robomorph.model.calibration.end_dense_knots`): every hybrid prediction. Log-spaced knots give the last
+    (:func:`robomorph.inference.calibration.end_dense_knots`): every hybrid prediction. Log-spaced knots give the last
     one a band on its left only (the last sixth of the horizon), whose errors are smaller than the last step's
     wherever they grow, the scale then held flat to the end. A smoothed horizon's errors grow fastest there (no
     later torque pins its last steps); a forward simulation's keep growing. Measured on the command hybrid
@@ -229,9 +229,9 @@ def blend(ckpt: str, data: str | None = None, out: str | None = None, n: int | N
           context_len: int | None = None, horizon: int | None = None, offset: str | int = "start", seed: int = 0,
           batch_size: int = 16, device: str | None = None, horizons_spec: str | None = None,
           physics: str | None = None) -> dict:
-    """Fits the physics/decoder blend (:mod:`robomorph.model.blending`) and writes the checkpoint
+    """Fits the physics/decoder blend (:mod:`robomorph.inference.blending`) and writes the checkpoint
     with it to ``out`` (default: in place); arguments as :func:`calibrate`. ``physics``: the physics
-    prediction blended (:data:`robomorph.model.blending.PHYSICS_MODES`; ``smoothed`` needs a model
+    prediction blended (:data:`robomorph.inference.blending.PHYSICS_MODES`; ``smoothed`` needs a model
     with a Gaussian head; None: ``smoothed`` where it has one, else ``regression``).
 
     Returns:
@@ -239,7 +239,7 @@ def blend(ckpt: str, data: str | None = None, out: str | None = None, n: int | N
         the decoder and the blend on the fitting windows at the reported steps.
     """
     from robomorph.evaluation.sources import predict  # noqa: PLC0415
-    from robomorph.model.blending import BLEND_KEY, PHYSICS_MODES, HorizonBlend, fit_blend  # noqa: PLC0415
+    from robomorph.inference.blending import BLEND_KEY, PHYSICS_MODES, HorizonBlend, fit_blend  # noqa: PLC0415
     from robomorph.model.files import read_model  # noqa: PLC0415
 
     if physics is not None and physics not in PHYSICS_MODES:
@@ -290,7 +290,7 @@ def _blend_layout(predictor, store: str) -> dict:
     """The model's physics backbone, or for a model trained without one its store's (simulated
     Panda stores that record each robot's parameters)."""
     from robomorph.data.store import open_store  # noqa: PLC0415
-    from robomorph.sim.backbone import BackboneError, parameter_layout  # noqa: PLC0415
+    from robomorph.identification.backbone import BackboneError, parameter_layout  # noqa: PLC0415
 
     if predictor.physics:
         return predictor.physics

@@ -157,7 +157,7 @@ def check_arm(predictor, attrs: dict, where: str) -> None:
     Raises:
         EvaluationError: the message names both arms and ``where`` the data come from.
     """
-    from robomorph.model.predictor_checks import model_arms  # noqa: PLC0415  (torch only here)
+    from robomorph.inference.predictor_checks import model_arms  # noqa: PLC0415  (torch only here)
     from robomorph.sim import arms as registry  # noqa: PLC0415
 
     arm = registry.of_store(attrs)
@@ -172,7 +172,7 @@ def _checked_predictor(ckpt: str, device: str | None, baselines, inputs: str | N
                        physics: str | None = None):
     """The checkpoint's Predictor, once the baselines, inputs and normalization asked for fit it,
     predicting in the physics mode asked for (a hybrid model's)."""
-    from robomorph.model.predictor import Predictor  # noqa: PLC0415  (torch only here)
+    from robomorph.inference.predictor import Predictor  # noqa: PLC0415  (torch only here)
 
     check_baselines(baselines)
     predictor = Predictor.from_checkpoint(ckpt, device=device)
@@ -197,8 +197,8 @@ def _physics(predictor) -> dict:
     is the spread of, None: none drawn), else {} (a black-box model, or its decoder)."""
     if not getattr(predictor, "physics", None) or predictor.physics_mode == "none":
         return {}
-    from robomorph.model.hybrid import MIXED_MODES  # noqa: PLC0415
-    from robomorph.model.hybrid_std import debiasing, drawn_points, observing, springing  # noqa: PLC0415
+    from robomorph.inference.hybrid import MIXED_MODES  # noqa: PLC0415
+    from robomorph.inference.hybrid_std import debiasing, drawn_points, observing, springing  # noqa: PLC0415
 
     mixture = predictor.inputs == "command" and predictor.physics_mode in MIXED_MODES and predictor.physics_members > 1
     return {"physics": {"mode": predictor.physics_mode, "observer": observing(predictor), "springs": springing(predictor),

@@ -2,7 +2,7 @@
 
 For each window, the physical parameters a context can reveal (a mass per link; damping,
 armature and friction loss per joint) are fitted to the context by bounded, regularized
-least squares over MuJoCo rollouts (:mod:`robomorph.sim.identify`): bounded by the recipe's
+least squares over MuJoCo rollouts (:mod:`robomorph.identification.identify`): bounded by the recipe's
 randomization ranges and pulled weakly toward the catalogue values. The fitted robot is then
 simulated over the horizon exactly as ``nominal_physics`` simulates the catalogue robot
 (same formulation, same gravity compensation), from the last context sample. In the
@@ -25,7 +25,7 @@ import numpy as np
 
 from robomorph.core.velocity import estimate_velocity
 from robomorph.evaluation.physics import NominalPhysics
-from robomorph.sim.identify import KINDS, SPRING_KINDS, Fit, IdentifyConfig
+from robomorph.identification.identify import KINDS, SPRING_KINDS, Fit, IdentifyConfig
 
 NAME = "identified_physics"
 # The same fit with the joints' springs too (their stiffness), as the command hybrid's regression fits them.
@@ -45,7 +45,7 @@ class IdentifiedPhysics:
     Args:
         attrs: the store's attributes (domain, channel names and generator config).
         inputs: ``total`` (torques given are ``u``) or ``command`` (they are ``u_cmd``).
-        config: how the parameters are fitted (:class:`robomorph.sim.identify.IdentifyConfig`).
+        config: how the parameters are fitted (:class:`robomorph.identification.identify.IdentifyConfig`).
 
     Raises:
         NotApplicable: the store is not a simulated arm's store with its generator config
@@ -54,7 +54,7 @@ class IdentifiedPhysics:
     """
 
     def __init__(self, attrs: dict, inputs: str = "total", config: IdentifyConfig | None = None):
-        from robomorph.sim.identify import Identifier  # noqa: PLC0415  (MuJoCo only when used)
+        from robomorph.identification.identify import Identifier  # noqa: PLC0415  (MuJoCo only when used)
 
         self.physics = NominalPhysics(attrs, inputs)  # refuses stores it cannot simulate (any registered arm)
         self.identifier = Identifier(self.physics.recipe, inputs, config)

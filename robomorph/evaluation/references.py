@@ -24,7 +24,7 @@ def fit_accel_arx_train(train_blocks) -> TrainedAccelARX:
 
 def load_other(name: str, ckpt: str, w, device: str | None):  # w: evaluation.windows.Window
     """Another checkpoint (``--compare name=ckpt``), checked against the evaluated windows."""
-    from robomorph.model.predictor import Predictor  # noqa: PLC0415
+    from robomorph.inference.predictor import Predictor  # noqa: PLC0415
 
     if name in BASELINES + OPT_IN + CEILINGS + ("model",):
         raise EvaluationError(f"--compare {name}=...: {name!r} names a baseline; choose another name")

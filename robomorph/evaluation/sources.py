@@ -1,7 +1,7 @@
 """The predictions a scoring compares: the model's (in batches) and the baselines' on a window set.
 
 Any object with ``simulate(u_ctx, y_ctx, u_query)`` returning ``(N, H, n_y)`` can be the
-predictor (a :class:`robomorph.model.predictor.Predictor`, a stand-in in a test, another
+predictor (a :class:`robomorph.inference.predictor.Predictor`, a stand-in in a test, another
 checkpoint); ``return_std=True`` is asked for only when it accepts it.
 """
 
@@ -83,7 +83,7 @@ def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
     finally:
         # The probe is not one of the windows: a hybrid's tally of smoothed windows forgets it.
         if (hybrid := getattr(predictor, "_hybrid", None)) is not None and hasattr(hybrid, "smoothing"):
-            from robomorph.sim.smoother import new_report  # noqa: PLC0415
+            from robomorph.identification.smoother import new_report  # noqa: PLC0415
 
             hybrid.smoothing = kept or new_report()
     return isinstance(out, tuple) and len(out) == 2 and out[1] is not None

@@ -10,7 +10,7 @@ from robomorph.core.results import markdown_table, provenance_markdown, write_ro
 from robomorph.evaluation.fit_bands import FIT_BANDS, fit_band
 from robomorph.evaluation.horizons import horizon_markdown
 
-# A hybrid's std points (robomorph.model.hybrid_std) in a table's note.
+# A hybrid's std points (robomorph.inference.hybrid_std) in a table's note.
 POINTS_TEXT = {"columns": "one robot per column of the estimate's covariance", "draws": "random parameter draws",
                "observed": "one robot per column of the estimate's covariance and the observer's start velocity"}
 
@@ -64,7 +64,7 @@ def cost_note(note: dict) -> str:
 
 
 def smoothing_note(report: dict | None) -> str:
-    """What the smoothed physics did out of its depth (:func:`robomorph.sim.smoother.new_report`), or ""."""
+    """What the smoothed physics did out of its depth (:func:`robomorph.identification.smoother.new_report`), or ""."""
     if not report or not (report["staged"] or report["handed_from"]):
         return ""
     n, handed = report["windows"], report["handed_from"]

@@ -32,7 +32,7 @@ def training_rows(ckpt: dict, stores: list[str] | None = None) -> list[tuple[str
     """``(store path, training rows)`` of each training store of a checkpoint.
 
     Args:
-        ckpt: a loaded checkpoint (``robomorph.model.checkpoint.load_checkpoint_file``).
+        ckpt: a loaded checkpoint (``robomorph.inference.checkpoint.load_checkpoint_file``).
         stores: use these stores whole instead (``--arx-train-data``).
     """
     if stores:

@@ -1,1 +1,2 @@
-"""The network: the encoder-decoder transformer and the normalization it carries in checkpoints."""
+"""The network: the encoder-decoder transformer, its parameter head, the normalization it carries,
+a multi-arm model's channels, and model files (the one reader and writer)."""

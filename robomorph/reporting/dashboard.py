@@ -246,7 +246,7 @@ def _in_sample(metrics) -> str | None:
     return str(meta.get("in_sample_store") or "a training store")
 
 
-# How each physics mode predicts, for the reader of an evaluation (robomorph.model.hybrid.MODES).
+# How each physics mode predicts, for the reader of an evaluation (robomorph.inference.hybrid.MODES).
 _READS_DECODER = {"blend": "its simulation and the network's decoder weighted by step",
                   "smoothed": "its simulation smoothed against the network's decoder",
                   "learned": "the robot read from the context by the network's parameter head, then simulated",

@@ -6,7 +6,7 @@
 2. Trains the CPU-sized meta-model briefly on a multi-sine training set, in the command
    formulation by default: the hybrid model (``physics: auto`` in ``train_cpu.yaml``),
    whose predictions simulate the robot identified from the context
-   (:mod:`robomorph.model.hybrid`); ``--inputs total`` trains on the paper's total torque.
+   (:mod:`robomorph.inference.hybrid`); ``--inputs total`` trains on the paper's total torque.
 3. Recalibrates the model's predicted standard deviation (a hybrid's: the spread over robots
    around the identified one, for windows from the start and for windows of a moving robot) by horizon
    on the training run's validation robots (``robomorph.calibrate``), then evaluates the model on held-out robots it never saw
@@ -118,8 +118,8 @@ def calibrate_std(ckpt: str) -> bool:
     False for a model without one. A total-torque model first gets its physics/decoder blend; a
     hybrid also gets the calibration of windows that do not open their trajectory."""
     from robomorph.evaluation.calibrating import blend, blend_text, calibrate  # noqa: PLC0415
-    from robomorph.model.calibration import CalibrationError  # noqa: PLC0415
-    from robomorph.model.checkpoint import load_trained  # noqa: PLC0415
+    from robomorph.inference.calibration import CalibrationError  # noqa: PLC0415
+    from robomorph.inference.checkpoint import load_trained  # noqa: PLC0415
 
     model, info = load_trained(ckpt)
     if (info or {}).get("inputs") == "total" and model.blend is None:

@@ -1,1 +1,2 @@
-"""Simulation: the Panda domain, randomization, signals, OSC, engines, filters, episodes, recipes, generation."""
+"""Simulation: the arms registry and its MJCF domains, randomization, signals, the operational-space
+controller and its paths, open- and closed-loop engines, validity filters, episodes and recipes."""

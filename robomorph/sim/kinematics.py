@@ -4,7 +4,7 @@ Real arms often log only joint angles and torques. A model trained in simulation
 the simulator's ``y`` (EE x y z [m], EE quaternion X Y Z W, q0..q6 [rad]); :func:`ee_pose`
 computes the first seven channels from the joint angles with the nominal (not randomized)
 model, so a real log can be put in the same layout (``robomorph ingest --layout panda``).
-The physics backbone (:mod:`robomorph.sim.backbone`) turns every simulated horizon into
+The physics backbone (:mod:`robomorph.identification.backbone`) turns every simulated horizon into
 those channels the same way.
 
 :class:`SiteKinematics` composes the site's chain of bodies as ``mj_kinematics`` does

@@ -2,7 +2,7 @@
 
 The record (channel names, sample time, window lengths, input formulation, training stores
 and their content fingerprints) is saved in every checkpoint under
-:data:`robomorph.model.checkpoint.DATA_INFO_KEY`: evaluation checks a store against it, takes
+:data:`robomorph.inference.checkpoint.DATA_INFO_KEY`: evaluation checks a store against it, takes
 its defaults from it and marks a copy of the training data as in-sample.
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 from robomorph.core.errors import RoboMorphError
 from robomorph.data.fingerprints import fingerprint, robot_hashes
 from robomorph.data.store import open_store
-from robomorph.model.checkpoint import CheckpointError
+from robomorph.inference.checkpoint import CheckpointError
 
 
 def data_info(dm) -> dict:

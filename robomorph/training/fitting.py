@@ -35,7 +35,7 @@ from robomorph.core.locks import exclusive
 from robomorph.core.names import VAL_LOSS, check_plain_name
 from robomorph.core.rundir import RunDir
 from robomorph.data.datamodule import RoboMorphDataModule
-from robomorph.model.checkpoint import load_checkpoint_file
+from robomorph.inference.checkpoint import load_checkpoint_file
 from robomorph.training import preflight
 from robomorph.training.callbacks import BestAndLast, FinalValidation, SaveOnSigterm
 from robomorph.training.checkpoints import AtomicCheckpointIO, ResumableCSVLogger, prune_log

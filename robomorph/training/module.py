@@ -19,7 +19,7 @@ from robomorph.core.names import (
     NORMALIZATIONS,
 )
 from robomorph.core.normalizations import check_normalization
-from robomorph.model.checkpoint import (
+from robomorph.inference.checkpoint import (
     DATA_INFO_KEY,
     TrainedModel,
     model_config,
@@ -86,7 +86,7 @@ class MetaModule(Steps, L.LightningModule):
         physics: ``none`` (the black-box model), ``amortized`` (a parameter head learns each
             robot's physical parameters from the context, targets the store's ``params``, and
             the Predictor simulates the robot identified from the context: the hybrid model,
-            :mod:`robomorph.model.hybrid`; needs simulated Panda stores that record
+            :mod:`robomorph.inference.hybrid`; needs simulated Panda stores that record
             ``params``) or ``auto`` (``amortized`` in the command formulation when every
             training store can have it, else ``none`` with a note: imported real logs have no
             catalogue robot, and total torques make any simulation diverge within seconds).
@@ -193,9 +193,9 @@ class MetaModule(Steps, L.LightningModule):
         self._physics_on, self._layout = resolve_physics(self.hparams.physics if self.hparams.n_params else "none",
                                                          dm, stage)
         if self._physics_on:
-            # The observer's start velocity (robomorph.sim.backbone.observed_velocity): on for models trained
+            # The observer's start velocity (robomorph.identification.backbone.observed_velocity): on for models trained
             # since it was measured (first step 2.5x lower); older records lack it and predict as before. The regression's
-            # springs (robomorph.sim.identify.SPRING_KINDS) and its debiasing (robomorph.model.debias): since 2026-11-27.
+            # springs (robomorph.identification.identify.SPRING_KINDS) and its debiasing (robomorph.inference.debias): since 2026-11-27.
             self.data_info = {**self.data_info, "physics": {**self._layout, "mode": "amortized", "observer": True,
                                                             "springs": True, "debias": True}}
         if stage == "fit" and self.hparams.init_ckpt and not self.resuming and not getattr(self, "_transferred", False):

@@ -3,7 +3,7 @@
 ``--model.physics amortized`` gives the meta-model a parameter head
 (:meth:`robomorph.model.transformer.MetaModel.forward_params`) trained against each robot's
 stored physical parameters, in the unit coordinates of the training stores' randomization
-ranges (:func:`robomorph.sim.backbone.parameter_layout`, recorded in the checkpoint so the
+ranges (:func:`robomorph.identification.backbone.parameter_layout`, recorded in the checkpoint so the
 Predictor can simulate the robot it identifies). ``auto`` decides from the data.
 """
 
@@ -13,10 +13,10 @@ import math
 
 import torch
 
-from robomorph.sim.backbone import BackboneError
+from robomorph.identification.backbone import BackboneError
 from robomorph.training.losses import ModelOptionError
 
-# The parameter head's outputs: the Panda's identifiable parameters (robomorph.sim.backbone).
+# The parameter head's outputs: the Panda's identifiable parameters (robomorph.identification.backbone).
 N_PHYSICAL = 29
 TRAIN_PARAM_RMSE = "train/param_rmse"
 PHYSICS = ("none", "amortized", "auto")
@@ -37,7 +37,7 @@ def physics_layout(dm) -> dict:
         BackboneError: a store is not a simulated Panda store with params, or the stores'
             randomization ranges differ (the unit coordinates would mean different things).
     """
-    from robomorph.sim.backbone import parameter_layout, same_layout  # noqa: PLC0415
+    from robomorph.identification.backbone import parameter_layout, same_layout  # noqa: PLC0415
 
     sources = dm._open()
     layouts = [parameter_layout(src.attrs) for src in sources]

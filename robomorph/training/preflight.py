@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.model.checkpoint import CheckpointError, load_checkpoint_file
+from robomorph.inference.checkpoint import CheckpointError, load_checkpoint_file
 from robomorph.model.files import read_model
 from robomorph.training.module import check_context
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from robomorph.model.checkpoint import CheckpointError
+from robomorph.inference.checkpoint import CheckpointError
 from robomorph.model.files import DATA_INFO_KEY, read_model
 
 # Parameters of these layers depend on n_u / n_y; ``reinit_io`` re-initializes them.

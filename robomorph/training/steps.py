@@ -12,7 +12,7 @@ import torch
 
 from robomorph.core import metrics
 from robomorph.core.names import LR, TEST_FIT, TEST_LOSS, TEST_R2, TRAIN_LOSS, VAL_FIT, VAL_LOSS, VAL_R2
-from robomorph.model.checkpoint import predict_normalized_dist
+from robomorph.inference.checkpoint import predict_normalized_dist
 from robomorph.model.normalization import query_stats
 from robomorph.training.compiling import CompiledStep, resolve_compile
 from robomorph.training.losses import elementwise_loss, horizon_weights, masked_loss, whole_patches

@@ -160,7 +160,7 @@ def _first_plan(cfg: ControlConfig, controller: str, hidden_change: bool, predic
 def test_only_true_physics_reads_the_hidden_parameters(hybrid_ckpt):
     """The world's parameters change after the warm-up: the measurements so far are the same, so
     every controller but the ceiling makes the same first plan."""
-    from robomorph.model.predictor import Predictor
+    from robomorph.inference.predictor import Predictor
 
     cfg = dataclasses.replace(SHORT, context=CKPT_CONTEXT)
     hybrid = Predictor.from_checkpoint(hybrid_ckpt)

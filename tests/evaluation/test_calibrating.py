@@ -13,9 +13,9 @@ from robomorph.evaluation.calibrating import calibrate, remove
 from robomorph.evaluation.evaluator import evaluate
 from robomorph.evaluation.sources import predict
 from robomorph.evaluation.windows import load_window
-from robomorph.model.calibration import CALIBRATION_KEY, fit
-from robomorph.model.checkpoint import load_checkpoint_file, load_trained
-from robomorph.model.predictor import Predictor
+from robomorph.inference.calibration import CALIBRATION_KEY, fit
+from robomorph.inference.checkpoint import load_checkpoint_file, load_trained
+from robomorph.inference.predictor import Predictor
 from tests.conftest import CKPT_CONTEXT, CKPT_HORIZON, tiny_fit_args
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

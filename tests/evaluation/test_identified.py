@@ -13,7 +13,7 @@ from robomorph.evaluation.sources import check_baselines
 from robomorph.evaluation.tables import cost_note, table_markdown
 from robomorph.evaluation.windows import load_window
 from tests.conftest import CKPT_CONTEXT, CKPT_HORIZON, write_store
-from tests.sim.test_identify import DAMPING_ONLY
+from tests.identification.test_identify import DAMPING_ONLY
 
 CONTEXT, HORIZON = 60, 60
 

@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from robomorph.model.predictor import Predictor
+from robomorph.inference.predictor import Predictor
 from tests.conftest import CKPT_CONTEXT as C
 from tests.conftest import CKPT_HORIZON as H
 from tests.core.test_progress import stamped

@@ -43,7 +43,7 @@ def test_the_table_has_a_row_per_channel_the_mean_and_the_skipped_baselines(tmp_
 
 
 def test_the_table_says_when_the_smoothed_physics_was_out_of_its_depth():
-    from robomorph.sim.smoother import new_report
+    from robomorph.identification.smoother import new_report
 
     result = _result()
     quiet = new_report()

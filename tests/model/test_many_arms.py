@@ -16,7 +16,7 @@ from robomorph.core.channels import ChannelError, union
 from robomorph.data.datamodule import DataError, RoboMorphDataModule
 from robomorph.data.statistics import Stats
 from robomorph.data.store import open_store
-from robomorph.model.predictor import Predictor
+from robomorph.inference.predictor import Predictor
 from robomorph.model.transformer import MetaModel, ModelConfig
 from robomorph.training.losses import horizon_weights, masked_loss
 from tests.conftest import tiny_fit_args, write_store

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from robomorph.core.errors import OutputExistsError
-from robomorph.model.calibration import CALIBRATION_KEY
-from robomorph.model.checkpoint import CheckpointError, load_checkpoint_file, load_trained
+from robomorph.inference.calibration import CALIBRATION_KEY
+from robomorph.inference.checkpoint import CheckpointError, load_checkpoint_file, load_trained
 from robomorph.model.files import CONFIG_FILE, WEIGHTS_FILE, export, read_model
 from robomorph.predictor import Predictor
 from tests.conftest import CKPT_CONTEXT, CKPT_HORIZON, tiny_fit_args

@@ -23,7 +23,7 @@ def test_demo_ends_with_the_horizon_table_of_model_hold_and_nominal_physics():
 def test_the_demo_gives_a_total_torque_model_its_blend_before_calibrating(tiny_checkpoint, tmp_path):
     import shutil
 
-    from robomorph.model.checkpoint import load_trained
+    from robomorph.inference.checkpoint import load_trained
     from robomorph.reproduction.demo import calibrate_std
 
     ckpt = str(tmp_path / "best.ckpt")

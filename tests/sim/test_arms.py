@@ -256,7 +256,7 @@ def test_the_hybrid_identifies_and_simulates_every_arm_with_no_training(tmp_path
     predicts a simulated Kinova far below the catalogue arm; a store of no arm is refused in one line."""
     from robomorph import Predictor
     from robomorph.evaluation.physics import NominalPhysics
-    from robomorph.sim.backbone import BackboneError, parameter_layout
+    from robomorph.identification.backbone import BackboneError, parameter_layout
 
     ds = _generate(tmp_path, "kinova3", "multisine", robots=2, steps=260)
     layout = parameter_layout(ds.attrs)
@@ -269,7 +269,7 @@ def test_the_hybrid_identifies_and_simulates_every_arm_with_no_training(tmp_path
     err = np.sqrt(np.mean((pred[..., 7:] - y[:, c:, 7:]) ** 2))
     assert err < 0.2 * np.sqrt(np.mean((nominal[..., 7:] - y[:, c:, 7:]) ** 2))
     # An arm compensating its gravity with the catalogue model takes its commands, undebiased (measured worse).
-    from robomorph.model.hybrid_std import debiasing
+    from robomorph.inference.hybrid_std import debiasing
 
     assert debiasing(Predictor.from_arm("kinova3")) and not debiasing(
         Predictor.from_arm("kinova3", gravity_compensation="nominal_model"))
@@ -283,7 +283,7 @@ def test_the_hybrid_identifies_and_simulates_every_arm_with_no_training(tmp_path
 def test_the_lean_model_of_every_arm_has_its_dynamics(name):
     """The fits' lean model (no meshes, sensors or contacts) keeps the arm's inertias, joints and
     motors, so a contact-free motion is the same in both (to rounding)."""
-    from robomorph.sim.identify import lean_model
+    from robomorph.identification.identify import lean_model
 
     full = arms.get(name).build_model(8, 1 / 60, True)
     lean = lean_model(8, 1 / 60, True, name)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from robomorph.data.store import create_store
-from robomorph.model.checkpoint import load_checkpoint_file
+from robomorph.inference.checkpoint import load_checkpoint_file
 from robomorph.training.fitting import final_line, fit
 from robomorph.training.module import schedule_change
 

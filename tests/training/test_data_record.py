@@ -10,7 +10,7 @@ import pytest
 
 from robomorph.core.errors import RoboMorphError
 from robomorph.data.fingerprints import fingerprint
-from robomorph.model.checkpoint import CheckpointError
+from robomorph.inference.checkpoint import CheckpointError
 from robomorph.training.data_record import check_channels, data_info
 from tests.conftest import linear_system, write_store
 

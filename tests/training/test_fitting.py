@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from robomorph.model.checkpoint import CheckpointError, load_checkpoint_file
+from robomorph.inference.checkpoint import CheckpointError, load_checkpoint_file
 from robomorph.predictor import Predictor
 from robomorph.training.fitting import fit
 from robomorph.training.module import MetaModule

@@ -13,7 +13,7 @@ import torch
 
 from robomorph.core.errors import RoboMorphError
 from robomorph.data.statistics import Stats
-from robomorph.model.checkpoint import INTEGRATE_SCALE, CheckpointError, predict_normalized_dist
+from robomorph.inference.checkpoint import INTEGRATE_SCALE, CheckpointError, predict_normalized_dist
 from robomorph.predictor import Predictor
 from robomorph.training.losses import elementwise_loss, horizon_weights
 from robomorph.training.module import MetaModule, _lr_factor

@@ -8,7 +8,7 @@ import pytest
 from robomorph.data.generation import generate
 from robomorph.data.store import create_store
 from robomorph.fit import main
-from robomorph.model.checkpoint import CheckpointError, load_checkpoint_file
+from robomorph.inference.checkpoint import CheckpointError, load_checkpoint_file
 from robomorph.sim.recipe import load_recipe
 from robomorph.training.fitting import fit
 from robomorph.training.preflight import FitError

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from robomorph.data.statistics import Stats
-from robomorph.model.checkpoint import CheckpointError
+from robomorph.inference.checkpoint import CheckpointError
 from robomorph.training.module import MetaModule
 from robomorph.training.pretrained import IO_LAYERS, start_from
 

@@ -1,0 +1,8 @@
+"""Inference: what a deployed model needs to predict, and nothing of training.
+
+The :class:`~robomorph.inference.predictor.Predictor` and the checks of its inputs, the trained model
+read back from its files (``checkpoint``), the hybrid (``hybrid``: identify the robot in the context,
+then simulate it), its settings, its pool of workers (``hybrid_split``), its spread and std
+(``hybrid_spread``, ``hybrid_std``), the regression's debiasing, the std calibration and the
+physics/decoder blend stored with a model, and the catalogue arm's untrained hybrid (``catalogue``).
+"""

@@ -1,0 +1,378 @@
+"""The hybrid model's prediction: parameters read from the context, the robot simulated with them.
+
+A model trained with ``--model.physics amortized`` carries a parameter head
+(:meth:`robomorph.model.transformer.MetaModel.forward_params`) and, in its data record, the
+parameter layout and the generator recipe of its training stores. Prediction:
+
+1. the network reads the context (normalized as in training) and gives the mean and
+   log-variance of each identifiable parameter in unit coordinates;
+2. the parameters are estimated by one of three modes, and the robot with them is
+   simulated over the horizon from the last context sample
+   (:class:`robomorph.identification.backbone.PhysicsBackbone`):
+   ``learned``, the parameter head's mean; ``regression``, bounded linear least-squares
+   solves of the regressor form of the inverse dynamics (:mod:`robomorph.identification.regressor`,
+   milliseconds) pulled weakly toward the catalogue; ``fused``, the same solve with the
+   parameter head's Gaussian as its prior (the posterior mode: the network says what
+   robots like this one usually are, the context's torques say what this one is);
+   ``refined``, a few Gauss-Newton iterations of the rollout fit
+   (:class:`robomorph.identification.identify.Identifier`) over the armature and friction losses
+   (:data:`REFINE_KINDS`), started from the regression's estimate and pulled toward it;
+   ``smoothed`` (total torques, where any simulation forward diverges), the regression's robot
+   over the whole horizon at once, smoothed against the decoder's prediction
+   (:mod:`robomorph.identification.smoother`);
+3. the standard deviation (when asked for) is the spread of the horizon over ``samples``
+   robots drawn from the head's Gaussian (clipped to the ranges), so it says how much the
+   parameters the context leaves uncertain move the prediction.
+
+Nothing here reads a query output: the parameters come from the context and the simulation
+from the context's last state and the query torques.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from robomorph.core.errors import RoboMorphError
+from robomorph.core.names import PHYSICS_MODES
+from robomorph.inference.hybrid_spread import default_points, draw_spread
+
+MODES = PHYSICS_MODES
+# The modes that read the parameter head (a model trained with --model.physics amortized).
+HEAD_MODES = ("learned", "fused")
+# What ``refined`` fits over rollouts: the parameters the regression leaves least certain. Early
+# steps follow the armature (the finite-difference accelerations the regression reads blur
+# it), late ones the friction losses (piecewise linear, little seen in many contexts).
+# Measured on 16 held-out robots: below identified_physics at every reported step from the
+# trajectory start, at a sixth of its cost; refitting all 29 parameters was no better.
+REFINE_KINDS = ("armature", "frictionloss")
+# The modes whose estimate comes from the regression, and so knows which joints held still in the
+# context: their prediction is the friction mixture of :mod:`robomorph.identification.stiction` (command formulation).
+MIXED_MODES = ("regression", "fused", "refined")
+
+
+class HybridError(RoboMorphError, ValueError):
+    """A hybrid prediction that cannot be made; the message says what to do."""
+
+
+class Hybrid:
+    """The physics backbone of one trained model (reusable; :meth:`close` when done).
+
+    Args:
+        model: the :class:`robomorph.inference.checkpoint.TrainedModel` (with a parameter head).
+        physics: the ``physics`` entry of the model's data record (layout and recipe).
+        inputs: the formulation the model was trained on.
+        samples: robots drawn from the parameter head for the standard deviation.
+        refine_iters: most cost evaluations of the ``refined`` mode's fit (each accepted step adds a
+            Jacobian of rollouts).
+        iterations: solves of the regression, each linearized where the previous one landed
+            (:class:`robomorph.identification.regressor.RegressorIdentifier`); 1: at the catalogue robot.
+        members: robots of the friction mixture over the joints that held still in the context
+            (:mod:`robomorph.identification.stiction`; command formulation); 1: the estimate alone.
+        seed: the seed of the parameter draws (the same windows give the same std).
+    """
+
+    def __init__(self, model, physics: dict, inputs: str, samples: int = 8, refine_iters: int = 3, seed: int = 0,
+                 iterations: int = 3, members: int = 9):
+        from robomorph.identification.backbone import PhysicsBackbone  # noqa: PLC0415  (MuJoCo only when used)
+
+        if model.config.n_params and model.config.n_params != len(physics["names"]):
+            raise HybridError(f"the model's parameter head has {model.config.n_params} outputs but its record "
+                              f"names {len(physics['names'])} parameters: the checkpoint is inconsistent")
+        self.model, self.physics, self.inputs = model, physics, inputs
+        self.samples, self.refine_iters, self.seed = int(samples), int(refine_iters), int(seed)
+        self.iterations, self.members = int(iterations), int(members)
+        if self.members < 1:
+            raise HybridError(f"the friction mixture needs members >= 1, got {members}")
+        self.backbone = PhysicsBackbone(physics, inputs)
+        # The arm's joints: y is the EE pose (7 channels), then one angle per joint.
+        self.n_joint = len(self.backbone.ident.randomizer.friction0)
+        # Behind the std (robomorph.inference.hybrid_std): the covariance's columns, and the observer's start where it is.
+        self.points = default_points(self.backbone.observe and inputs == "command")
+        self._identifier = None
+        self._regressor = None
+        self._regressor_kinds: tuple[str, ...] = ()
+        # Whether the regression fits the joints' springs too (robomorph.identification.identify.SPRING_KINDS; the std then carries
+        # them) and has its bias taken off (robomorph.inference.debias): the record's (commands; records before them: off).
+        self.springs, self.debias = (bool(physics.get(k, False)) and inputs == "command" for k in ("springs", "debias"))
+        self._stiction = None
+        self._held: np.ndarray | None = None  # (B, nj) of the last regression: joints that held still
+        self._covs: list[np.ndarray] = []  # of the last regression: each window's estimate covariance
+        self._cov_space: tuple = ()  # the entries those cover: their indices in a parameter vector, their bounds
+        from robomorph.identification.smoother import SmootherConfig, new_report  # noqa: PLC0415
+
+        self.smoother = SmootherConfig()  # how mode ``smoothed`` weighs physics and decoder
+        self.smoothing = new_report()  # what it did so far (robomorph.identification.smoother.smooth_windows)
+        self.last_fits: list = []
+
+    def close(self) -> None:
+        self.backbone.close()
+        if self._identifier is not None:
+            self._identifier.close()
+
+    @torch.no_grad()
+    def parameters(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and std (B, n) of the parameters in unit coordinates, from the context alone.
+
+        ``u_query`` only fixes the normalizer's shapes (it is not read by the parameter head)."""
+        uc, yc, _ = self.model.normalizer.encode(u_ctx, y_ctx, u_query, None)
+        mean, logvar = self.model.net.forward_params(uc, yc)
+        return mean.double().cpu().numpy(), torch.exp(0.5 * logvar).double().cpu().numpy()
+
+    def predict(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, at_rest=None,
+                mode: str = "regression", return_std: bool = False, calibration=None, anchor=None
+                ) -> tuple[np.ndarray, np.ndarray | None]:
+        """(B, H, n_y) mean prediction and, with ``return_std``, the std over robots around the estimate (:attr:`points`).
+
+        Args:
+            at_rest: bool or (B,) bools: the context opens its trajectory (the robot starts at rest); default False.
+            mode: one of :data:`MODES`.
+            calibration: a :class:`robomorph.inference.calibration.StdCalibration` of this
+                mode's std (``robomorph calibrate``), applied to it; None: the raw spread.
+            anchor: (B, 7) where each robot started (its springs' rest pose); default: the first context sample.
+
+        Raises: HybridError: an unknown mode, or a simulated robot that diverged."""
+        from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
+        from robomorph.identification.stiction import mixed_horizon  # noqa: PLC0415
+
+        check_mode(self.model, mode)
+        uc, yc, uq = (t.double().cpu().numpy() for t in (u_ctx, y_ctx, u_query))
+        q_ctx, quat_last = yc[..., 7:7 + self.n_joint], yc[:, -1, 3:7]
+        B = len(uc)
+        rest = np.broadcast_to(np.asarray(False if at_rest is None else at_rest, dtype=bool), (B,))
+        # Candidate torque sequences on one context (model-predictive control): the robot is
+        # identified once and only the horizons are simulated per row.
+        shared = B > 1 and bool(np.all(uc == uc[:1]) and np.all(yc == yc[:1]) and np.all(rest == rest[0]))
+        one = slice(0, 1) if shared else slice(None)
+        qvel_start = np.repeat(-estimate_velocity(q_ctx[one, ::-1], self.backbone.dt), B if shared else 1, axis=0)
+        qvel_start[rest] = 0.0
+        anchor = q_ctx[:, 0] if anchor is None else np.asarray(anchor, dtype=np.float64).reshape(B, -1)
+        params, z, z_std = self._identify(u_ctx[one], y_ctx[one], mode, anchor[one], qvel_start[one])
+        if solves_whole_horizon(self.model, mode):
+            return _smoothed(self, u_ctx, y_ctx, u_query, params, mode, return_std, calibration)
+        mixture = self._mixture(mode, params, q_ctx[one], uc[one], qvel_start[one])
+        if mixture is not None:
+            # The std's parameter draws go around each window's most likely member.
+            params = np.stack([m[int(np.argmax(w))] for m, w, _ in mixture])
+            if shared:
+                mixture = mixture * B  # the one context's members, for every candidate row
+
+        def horizon(p: np.ndarray, kick: tuple[int, float] | None = None) -> np.ndarray:
+            """(B, H, n_y) of robots ``p`` (a row each, or one for all on a shared context); ``kick``: the std's."""
+            qvel_end = self.backbone.context_velocity(p, q_ctx[one], uc[one], qvel_start[one], kick)
+            if shared:
+                p, qvel_end = np.repeat(p, B, axis=0), np.repeat(qvel_end, B, axis=0)
+            return self.backbone.simulate(p, q_ctx, uc, uq, qvel_start, quat_last, qvel_end)
+
+        if mixture is not None:
+            mean, mix_var = mixed_horizon(self.backbone, mixture, q_ctx, uc, uq, qvel_start, quat_last)
+        else:
+            mean, mix_var = horizon(params), None
+        if mode == "blend":
+            spread = (lambda: self._spread("regression", params, z, z_std, mean, horizon, None)) if return_std else None
+            return _blend(self.model, u_ctx, y_ctx, u_query, mean, spread, calibration)
+        if not np.all(np.isfinite(mean)):
+            raise HybridError("the simulated robot diverged (non-finite outputs): check the torques' units and "
+                              "scale, or predict with physics_mode 'none'")
+        if not return_std or mix_var is None:
+            return mean, self._spread(mode, params, z, z_std, mean, horizon, calibration) if return_std else None
+        # The parameters' uncertainty about the most likely member, and the friction's between members.
+        std = np.sqrt(self._spread(mode, params, z, z_std, horizon(params), horizon, None) ** 2 + mix_var)
+        return mean, std if calibration is None else calibration.scaled(std)
+
+    @property
+    def covariances(self) -> list[np.ndarray]:
+        """Each window's estimate covariance (n, n) in unit coordinates from the last regression (:meth:`identify`
+        or :meth:`predict` in a mode that regresses): what the std's parameter draws sample from."""
+        return list(self._covs)
+
+    def _mixture(self, mode: str, params: np.ndarray, q_ctx: np.ndarray, uc: np.ndarray,
+                 qvel_start: np.ndarray) -> list | None:
+        """Per window, the friction mixture's ``(members, weights, qvel_end)``; None where it does
+        not apply (total torques, modes without the regression, ``members`` 1, no joint held)."""
+        from robomorph.identification.stiction import FrictionMixture  # noqa: PLC0415
+
+        if self.members < 2 or self.inputs != "command" or mode not in MIXED_MODES or self._held is None \
+                or not self._held.any():
+            return None
+        if self._stiction is None or self._stiction.members != self.members:
+            self._stiction = FrictionMixture(self.backbone.ident, self.members)
+        return [self._stiction.weigh(params[b], self._held[b], q_ctx[b], uc[b], qvel_start[b], self.backbone.observe)
+                for b in range(len(params))]
+
+    @torch.no_grad()
+    def identify(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, mode: str = "regression",
+                 anchor: np.ndarray | None = None, at_rest: bool = False) -> np.ndarray:
+        """(B, P) the robots' full parameter vectors read from their contexts in ``mode``.
+
+        What a model-predictive controller simulates its candidates with (the parameters
+        change slowly, the candidates at every plan). Where joints held still in the context, the
+        friction mixture's weighted mean (:mod:`robomorph.identification.stiction`). ``anchor``: (B, 7) where each robot
+        started (its springs' rest pose); default: the first context sample.
+        """
+        from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
+
+        check_mode(self.model, mode)
+        q_ctx = y_ctx.double().cpu().numpy()[..., 7:7 + self.n_joint]
+        qvel_start = np.zeros_like(q_ctx[:, 0]) if at_rest else -estimate_velocity(q_ctx[:, ::-1], self.backbone.dt)
+        params = self._identify(u_ctx, y_ctx, mode, q_ctx[:, 0] if anchor is None else anchor, qvel_start)[0]
+        mixture = self._mixture(mode, params, q_ctx, u_ctx.double().cpu().numpy(), qvel_start)
+        # One robot per context: the friction mixture's weighted mean (what the candidates are simulated with).
+        return params if mixture is None else np.stack([w @ m for m, w, _ in mixture])
+
+    def _identify(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, mode: str, anchor: np.ndarray,
+                  qvel_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Full parameter vectors (B, P), and the head's mean and std in unit coordinates."""
+        uc = u_ctx.double().cpu().numpy()
+        q_ctx = y_ctx.double().cpu().numpy()[..., 7:7 + self.n_joint]
+        if mode not in HEAD_MODES:
+            # The solve reads the context alone: the parameter head is not needed (nor run).
+            z = z_std = np.zeros((len(uc), len(self.backbone.index)))
+        else:
+            z, z_std = self.parameters(u_ctx, y_ctx, u_ctx[:, :1])
+        # The springs are anchored where the robot started: the first context sample when the context opens it.
+        params = self.backbone.full_params(z, anchor)
+        self._held = None
+        if mode != "learned":
+            prior = (z, z_std) if mode == "fused" else None
+            params = _regress(self, params, q_ctx, uc, prior, anchor, qvel_start)
+        if mode == "refined":
+            params = self._refine(params, q_ctx, uc, qvel_start)
+        return params, z, z_std
+
+    def _spread(self, mode: str, params: np.ndarray, z: np.ndarray, z_std: np.ndarray, mean: np.ndarray,
+                horizon, calibration) -> np.ndarray:
+        """The std (B, H, n_y): the horizons of robots drawn around the estimate, about ``mean``."""
+        covs = None if mode == "learned" else self._covs
+        space = (self.backbone.index, self.backbone.low, self.backbone.high) if covs is None else self._cov_space
+        std = draw_spread(space, params, z_std, covs, mean, horizon, self.samples, self.seed, self.points)
+        return std if calibration is None else calibration.scaled(std)
+
+    def _refine(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray) -> np.ndarray:
+        from robomorph.identification.identify import Identifier, IdentifyConfig  # noqa: PLC0415
+
+        if self._identifier is None:
+            config = IdentifyConfig(kinds=REFINE_KINDS, max_iters=self.refine_iters)
+            self._identifier = Identifier(self.backbone.recipe, self.inputs, config)
+        self.last_fits = [self._identifier.fit(params[b], q_ctx[b], u_ctx[b], qvel_start[b]) for b in range(len(params))]
+        return np.stack([f.params for f in self.last_fits])
+
+
+def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, prior=None,
+             anchor: np.ndarray | None = None, qvel_start: np.ndarray | None = None) -> np.ndarray:
+    """The catalogue robot's identified entries solved for, window by window (springs anchored at ``anchor``, default
+    the first context sample), debiased where the hybrid says so (commands, no prior; ``qvel_start``: (B, 7) the
+    velocity at each context's first sample, where its simulation starts)."""
+    from robomorph.identification.identify import GRAVITY_KINDS, KINDS, SPRING_KINDS, ParameterSpace  # noqa: PLC0415
+    from robomorph.identification.regressor import RegressorIdentifier  # noqa: PLC0415
+
+    # Total torques pay gravity in the torque: the centres of mass are solved for as well (a
+    # centimetre moves it by ~0.1 N m), except under the head's prior, which does not name them.
+    gravity = hybrid.inputs == "total" and prior is None
+    kinds = (GRAVITY_KINDS if gravity else KINDS) + (SPRING_KINDS if hybrid.springs and prior is None else ())
+    if hybrid._regressor is None or hybrid._regressor_kinds != kinds:
+        ident = hybrid.backbone.ident
+        space = ParameterSpace.of(ident.randomizer, hybrid.backbone.recipe.randomization, kinds) \
+            if kinds != KINDS else ident.space
+        hybrid._regressor = RegressorIdentifier(hybrid.backbone.recipe, space, ident.randomizer, hybrid.inputs,
+                                                iterations=hybrid.iterations)
+        hybrid._regressor_kinds = kinds
+    hybrid._regressor.iterations = hybrid.iterations
+    base = np.stack([hybrid.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
+    out, hybrid._covs, held = [], [], []
+    debias = hybrid.debias and prior is None and qvel_start is not None  # (commands only: Hybrid.debias)
+    fits = []  # each window's solve, which the debiasing moves (robomorph.inference.debias); kept only for it
+    # The layout's entries come first; the std's robots move those, and the springs where they were fitted
+    # (the centres of mass of total torques stay at the estimate).
+    n = len(hybrid.backbone.index)
+    space = hybrid._regressor.space
+    keep = np.r_[np.arange(n), np.flatnonzero([k.startswith(SPRING_KINDS) for k in space.names])]
+    hybrid._cov_space = (space.index[keep], space.low[keep], space.high[keep])
+    for b in range(len(params)):
+        out.append(hybrid._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))
+        hybrid._covs.append(hybrid._regressor.last_cov[np.ix_(keep, keep)])
+        held.append(hybrid._regressor.last_held)
+        if debias:
+            fits.append(hybrid._regressor.last_fit)
+    hybrid._held = np.stack(held)
+    if debias:
+        from robomorph.inference.debias import debiased  # noqa: PLC0415
+
+        return debiased(hybrid, np.stack(out), q_ctx, u_ctx, qvel_start, fits)
+    return np.stack(out)
+
+
+def batch_record(hybrid: Hybrid) -> tuple:
+    """What the last call left on ``hybrid`` about its windows: ``(held joints or None, estimate
+    covariances, refined fits)``, for :func:`merge_records` (a batch split over hybrids)."""
+    return hybrid._held, hybrid._covs, hybrid.last_fits
+
+
+def merge_records(hybrid: Hybrid, records: list[tuple], refined: bool) -> None:
+    """Gives ``hybrid`` the record of a whole batch from :func:`batch_record` of its parts, in order,
+    as if it had predicted the batch alone. The refined fits only after a refined call: other modes
+    leave ``last_fits`` as they found it."""
+    held = [r[0] for r in records]
+    hybrid._held = np.concatenate(held) if all(x is not None for x in held) else None
+    hybrid._covs = [c for r in records for c in r[1]]
+    if refined:
+        hybrid.last_fits = [f for r in records for f in r[2]]
+
+
+def solves_whole_horizon(model, mode: str) -> bool:
+    """Whether ``mode`` predicts the horizon as one smoothing problem (``smoothed``, or a blend of
+    it), whose last steps have no later torque to pin them, rather than simulating it forward."""
+    blend = getattr(model, "blend", None)
+    return mode == "smoothed" or (mode == "blend" and blend is not None and blend.physics_mode == "smoothed")
+
+
+def check_mode(model, mode: str) -> None:
+    """Refuses a physics mode that ``model`` (a :class:`robomorph.inference.checkpoint.TrainedModel`) cannot run."""
+    if mode not in MODES:
+        raise HybridError(f"physics mode must be one of {MODES}, got {mode!r}")
+    if mode in HEAD_MODES and not model.config.n_params:
+        raise HybridError(f"physics mode {mode!r} reads a parameter head, which this model has not (it was "
+                          "trained with --model.physics none): use 'regression' or 'blend'")
+    if mode == "blend" and getattr(model, "blend", None) is None:
+        raise HybridError("physics mode 'blend' needs the blend's weights, which this model has not: fit them "
+                          "with robomorph calibrate --blend")
+
+
+@torch.no_grad()
+def _smoothed(hybrid: Hybrid, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, params: np.ndarray,
+              mode: str, with_std: bool, calibration) -> tuple[np.ndarray, np.ndarray | None]:
+    """Mode ``smoothed``, or a blend of it (:mod:`robomorph.identification.smoother`): mean and std (B, H, n_y)."""
+    from robomorph.identification.smoother import smooth_windows  # noqa: PLC0415
+
+    if hybrid.inputs != "total":
+        raise HybridError("physics mode 'smoothed' is for total torques (their simulation diverges); in the "
+                          "command formulation the simulation is stable: use 'regression'")
+    mean, std = hybrid.model.forward_dist_raw(u_ctx, y_ctx, u_query)
+    if std is None:
+        raise HybridError("physics mode 'smoothed' weighs the decoder by its standard deviation, and this model "
+                          "has no Gaussian head: use 'regression' or 'none'")
+    decoder, decoder_std = mean.double().cpu().numpy(), std.double().cpu().numpy()
+    uc, yc, uq = (t.double().cpu().numpy() for t in (u_ctx, y_ctx, u_query))
+    out, out_std = smooth_windows(hybrid.backbone, params, yc[..., 7:7 + hybrid.n_joint], uc, uq, yc[:, -1, 3:7], decoder,
+                                  decoder_std, hybrid.smoother, with_std, hybrid.smoothing)
+    if mode == "blend":
+        out, out_std = hybrid.model.blend.combine(out, decoder, out_std, decoder_std)
+    return out, (None if not with_std else out_std if calibration is None else calibration.scaled(out_std))
+
+
+@torch.no_grad()
+def _blend(model, u_ctx, y_ctx, u_query, physics: np.ndarray, spread, calibration):
+    """The physics prediction and the decoder's, weighted by step and channel; with ``spread`` (a
+    callable giving the physics' std), their std too."""
+    mean, std = model.forward_dist_raw(u_ctx, y_ctx, u_query)
+    decoder = mean.double().cpu().numpy()
+    if spread is None:
+        return model.blend.combine(physics, decoder)[0], None
+    if std is None:
+        raise HybridError("the blend's standard deviation needs the decoder's, and this model has no Gaussian "
+                          "head: drop return_std")
+    with np.errstate(invalid="ignore", over="ignore"):
+        physics_std = spread()
+    out, out_std = model.blend.combine(physics, decoder, physics_std, std.double().cpu().numpy())
+    return out, out_std if calibration is None else calibration.scaled(out_std)

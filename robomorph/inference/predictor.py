@@ -1,0 +1,339 @@
+"""Inference API: a trained meta-model as a simulator of an unseen robot.
+
+    from robomorph import Predictor
+    pred = Predictor.from_checkpoint("results/runs/ms/checkpoints/best.ckpt")
+    pred = Predictor.from_pretrained("model/")   # or a folder written by robomorph export
+    y_query = pred.simulate(u_ctx, y_ctx, u_query)   # physical units in and out
+
+This is what a model predictive controller calls: given a window of measured torques and outputs of the
+robot at hand (the context) and candidate future torques, it returns the predicted outputs. Normalization is
+handled inside (statistics stored in the checkpoint). Only ``robomorph.model`` and ``robomorph.core`` are needed.
+
+A model trained with ``data.normalization: paper_window`` (the paper's protocol) rescales each window with the
+mean and std of the very outputs it predicts; ``simulate`` refuses it unless the caller passes those statistics
+explicitly (``y_query_stats``), which only an evaluation against recorded outputs can do.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+
+import numpy as np
+import torch
+
+from robomorph.core.errors import DeviceError, RoboMorphError
+from robomorph.core.inputs import check_model_inputs
+from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
+from robomorph.inference import catalogue
+from robomorph.model.channels import arm_columns, pad, select
+from robomorph.inference.checkpoint import CheckpointError, TrainedModel, load_trained
+from robomorph.inference.hybrid_split import default_workers, predict_hybrid
+from robomorph.inference.hybrid_std import calibrated_rows, debiasing, kind_calibrations, spread_points, springing
+
+# Re-exported: the public names of what simulate checks live beside the checks.
+from robomorph.inference.predictor_checks import (  # noqa: F401
+    MAX_INPUT_STDS,
+    PredictionError,
+    all_finite,
+    as_batch,
+    check_range,
+    check_settings,
+)
+
+
+def resolve_device(device: str | torch.device | None) -> torch.device:
+    """The torch device for ``--device`` (default: cuda when available), or a one-line
+    :class:`DeviceError` for a name torch does not know or a device this machine lacks."""
+    try:
+        dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    except (RuntimeError, TypeError) as exc:
+        raise DeviceError(f"--device {device!r} is not a device: {exc}; use cpu, cuda or cuda:N") from None
+    if dev.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise DeviceError(f"--device {device}: CUDA is not available on this machine (torch "
+                              f"{torch.__version__}); use --device cpu")
+        if dev.index is not None and dev.index >= count:
+            raise DeviceError(f"--device {device}: this machine has {count} CUDA device(s), "
+                              f"cuda:0..cuda:{count - 1}")
+    elif dev.type == "mps" and not torch.backends.mps.is_available():
+        raise DeviceError(f"--device {device}: MPS is not available on this machine; use --device cpu")
+    elif dev.type not in ("cpu", "cuda", "mps"):
+        raise DeviceError(f"--device {device}: robomorph runs on cpu, cuda or mps, not {dev.type}")
+    return dev
+
+
+class Predictor:
+    """Wraps a :class:`TrainedModel` for inference on numpy or torch arrays.
+
+    Attributes:
+        model: the network with its normalization, in eval mode.
+        n_u, n_y: channel counts the model expects.
+        patch: steps per token; context lengths must be multiples of it.
+        normalization: the protocol it was trained with (``train_stats`` or ``paper_window``).
+        inputs: the input formulation it was trained on: ``total`` (total joint torque)
+            or ``command`` (the command without the arm's gravity compensation).
+        data_info: channel names, dt and the training window (None for checkpoints that predate it).
+        has_std: the model has a Gaussian head (``simulate(..., return_std=True)`` works).
+        calibration: the per-horizon scale of that std stored in the checkpoint by ``python -m
+            robomorph.calibrate`` (a :class:`StdCalibration`), or None; ``simulate`` applies it.
+        device: where it runs.
+        max_input_std: ``simulate`` refuses torques further than this many training standard deviations
+            from the training mean (default :data:`MAX_INPUT_STDS`; None: no check).
+        physics: the physics backbone's record (parameter layout and generator recipe) of a model trained
+            with ``--model.physics amortized`` or given a blend by ``robomorph calibrate --blend``, else None.
+        physics_mode: how such a model predicts: ``regression``, ``learned``, ``fused``, ``refined``, ``blend``
+            (:data:`robomorph.inference.hybrid.MODES`) or ``none`` (its decoder). Default: ``regression`` for
+            commands; for total torques ``blend`` when the model has one, else ``none``.
+        physics_samples: parameter draws behind the hybrid's standard deviation (``physics_points`` draws).
+        physics_points: the robots it is the spread of, ``columns``, ``observed`` (and the start velocity) or
+            ``draws`` (:mod:`robomorph.inference.hybrid_std`; None: those its stored calibration was fitted on, else
+            ``observed`` with the observer, ``columns`` without).
+        physics_members: robots of the friction mixture over the joints that held still in the context
+            (:mod:`robomorph.identification.stiction`; command formulation); 1: the estimate alone (cheaper).
+        physics_substeps: physics steps per sample of the hybrid's horizons after their first second (None:
+            :func:`robomorph.identification.backbone.coarse_substeps`, 4 of the Panda's 8; 8 re-enacts the generator throughout).
+        physics_observer: commands: horizons from :func:`robomorph.identification.backbone.observed_velocity` (default: the record's).
+        physics_springs: commands: the regression fits the joints' springs too (default: the record's; off before it).
+        physics_debias: commands: the regression's bias, measured on the estimate's simulated context, taken off
+            (:mod:`robomorph.inference.debias`; default: the record's; off before it).
+        physics_candidates: many horizons on one context: ``exact``, or ``tangent`` (:mod:`robomorph.identification.tangent`).
+        physics_workers: hybrids that share a batch of many windows on threads (:mod:`robomorph.inference.hybrid_split`;
+            default 2 where there are 2 cores; 1: one hybrid does them all).
+        channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside, its
+            outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
+    """
+
+    def __init__(self, model: TrainedModel, device: str | torch.device | None = None, data_info: dict | None = None):
+        self.device = resolve_device(device)
+        self.max_input_std: float | None = MAX_INPUT_STDS
+        self.model = model.to(self.device).eval()
+        self.n_u, self.n_y, self.patch = model.config.n_u, model.config.n_y, model.config.patch
+        self.normalization: str = model.normalizer.normalization
+        self.data_info = data_info
+        self.has_std = bool(getattr(model, "gaussian", False))
+        # Checkpoints written before the command formulation were all trained on total torque.
+        self.inputs: str = (data_info or {}).get("inputs", "total")
+        self.physics, self.physics_mode = _backbone(model, data_info, self.inputs)
+        self.physics_samples, self.physics_members, self.physics_points = 8, 9, None
+        self.physics_substeps: int | None = None
+        self.physics_observer: bool = bool((self.physics or {}).get("observer", False))  # checkpoints before it: off
+        self.physics_springs: bool = bool((self.physics or {}).get("springs", False))  # the same
+        self.physics_debias: bool = bool((self.physics or {}).get("debias", False))  # the same
+        self.physics_candidates, self.channels = "exact", None
+        self.physics_workers, self._workers = default_workers(), []
+        self._hybrid = None
+        if self.physics:
+            self.has_std = True  # the spread over robots around the estimate
+
+    def hybrid(self, strict: bool = False):
+        """The :class:`robomorph.inference.hybrid.Hybrid` of this model (built on first use); a
+        :class:`PredictionError` for a model without a physics backbone. ``strict``: its std's points checked
+        against the stored calibrations (:func:`robomorph.inference.hybrid_std.spread_points`; a mean needs none)."""
+        from robomorph.inference.hybrid import Hybrid  # noqa: PLC0415  (MuJoCo only when used)
+
+        if not self.physics:
+            raise PredictionError("this model has no physics backbone (it was trained with --model.physics none)")
+        self._hybrid = self._hybrid or Hybrid(self.model, self.physics, self.inputs)
+        self._hybrid.samples, self._hybrid.members = self.physics_samples, self.physics_members
+        self._hybrid.points, self._hybrid.springs = spread_points(self, strict), springing(self)
+        self._hybrid.debias = debiasing(self)
+        bb = self._hybrid.backbone
+        bb.coarse, bb.observe, bb.candidates = self.physics_substeps, self.physics_observer, self.physics_candidates
+        return self._hybrid
+
+    def check_inputs(self, inputs: str | None) -> None:
+        """Refuses inputs of the other formulation than the one the model was trained on."""
+        check_model_inputs(self.inputs, inputs)
+
+    @property
+    def calibration(self):
+        """The stored std calibration of this physics mode (a hybrid's std depends on how the robot
+        is identified), from windows that open their trajectory where there is one, or None."""
+        return kind_calibrations(self)[0]
+
+    def use_physics(self, mode: str | None, option: str = "--physics") -> None:
+        """Predicts in physics mode ``mode`` (None: the default); refuses one it cannot predict in."""
+        self.physics_mode = _checked_mode(self.physics, mode, option) or self.physics_mode
+
+    @contextlib.contextmanager
+    def raw_std(self) -> Iterator["Predictor"]:
+        """Within the block, ``simulate`` returns the Gaussian head's own standard deviation,
+        without the stored calibration (what calibrating is fitted on)."""
+        kept, points = self.model.calibrations, self.physics_points
+        # The spread the stored calibrations scale (or the one chosen): what a calibration fitted here records.
+        self.physics_points = points or (spread_points(self) if self.physics else None)
+        self.model.calibrations = {}
+        try:
+            yield self
+        finally:
+            self.model.calibrations, self.physics_points = kept, points
+
+    @property
+    def leaks_query_statistics(self) -> bool:
+        """True when this model's predictions need the query outputs' statistics (``paper_window``)."""
+        return leaks_query_statistics(self.normalization)
+
+    @classmethod
+    def from_checkpoint(cls, path: str, device: str | torch.device | None = None) -> "Predictor":
+        """Loads a checkpoint written by ``robomorph fit``, or a model folder written by
+        ``robomorph export`` (clear errors for bad files; nothing stored in them is run)."""
+        model, info = load_trained(path)
+        return cls(model, device, info)
+    from_arm = classmethod(catalogue.from_arm)  # a catalogue arm's command hybrid, untrained: robomorph.inference.catalogue
+
+    @classmethod
+    def from_pretrained(cls, path: str, device: str | torch.device | None = None) -> "Predictor":
+        """Loads an inference-only model folder written by ``robomorph export``
+        (``model.safetensors`` + ``config.json``); a training checkpoint is read as well.
+
+        Raises:
+            CheckpointError: the folder is missing, incomplete, altered, or of another format.
+        """
+        return cls.from_checkpoint(path, device)
+
+    def _check_output(self, y: torch.Tensor, inputs: list[torch.Tensor]) -> None:
+        """Refuses non-finite predictions instead of handing them on without a word."""
+        rows = [] if all_finite(y) else torch.nonzero((~torch.isfinite(y)).flatten(1).any(1)).flatten().tolist()
+        if not rows:
+            return
+        stats = self.model.normalizer
+        scale = max(float((inputs[k].abs() / stats.u_std).nan_to_num(nan=0.0).max()) for k in (0, 2))
+        raise PredictionError(
+            f"the model's predictions are non-finite (NaN or inf) for batch rows {rows[:10]}: the inputs reach "
+            f"{scale:.3g} training standard deviations, far outside what the model was trained on; check their "
+            "units and scale (the checkpoint expects the training data's)")
+
+    @torch.no_grad()
+    def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, inputs: str | None = None,
+                 return_std: bool = False, at_rest=None, anchor=None):
+        """Predicts the outputs over the query horizon.
+
+        Args:
+            u_ctx: (Tc, n_u) or (B, Tc, n_u) context inputs, numpy or torch.
+            y_ctx: (Tc, n_y) or (B, Tc, n_y) context outputs.
+            u_query: (Th, n_u) or (B, Th, n_u) future inputs.
+            y_query_stats: only for a ``paper_window`` model, and required there: ``(mean, std)``
+                over time of the query outputs, (n_y,) or (B, n_y) each. This is information
+                about the answer: scores obtained with it are not those of a deployable model.
+            inputs: which formulation the torques are (``total`` or ``command``); when
+                given, a mismatch with the training formulation is refused.
+            return_std: also return the predicted standard deviation (models trained with
+                ``gaussian: true`` only), recalibrated by horizon when the checkpoint carries a calibration
+                (a hybrid's: the spread over robots around its estimate, :attr:`physics_points`, by window kind).
+            at_rest, anchor: hybrid models only: bool or (B,) bools, the context opens its trajectory (default
+                False); (B, 7) where each robot started (its springs' rest pose; default: the first context sample).
+
+        Returns:
+            y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``;
+            with ``return_std``, ``(mean, std)``, both in the outputs' physical units.
+
+        Raises:
+            NormalizationError: ``y_query_stats`` missing for a ``paper_window`` model, given
+                for another, or of the wrong shape.
+            InputsError: ``inputs`` names the other formulation.
+            PredictionError: arrays of the wrong shape or length (empty, a context that is not a
+                multiple of the patch, longer than the positional tables, mismatched batches),
+                non-finite inputs, torques further than ``max_input_std`` training standard
+                deviations from the training mean, or non-finite predictions.
+            CheckpointError: ``return_std`` for a model without a Gaussian head.
+        """
+        self.check_inputs(inputs)
+        hybrid = bool(self.physics) and self.physics_mode != "none"
+        if return_std and not (self.has_std if hybrid else getattr(self.model, "gaussian", False)):
+            raise CheckpointError("this model has no Gaussian head, so it predicts no standard deviation; "
+                                  "train one with --model.gaussian true --model.loss nll, or drop return_std")
+        tensors, single, cols = self._arm_batch((u_ctx, y_ctx, u_query))
+        check_range(self, *tensors)
+        if hybrid and y_query_stats is not None:
+            raise NormalizationError("a hybrid model uses no query statistics: drop y_query_stats")
+        stats = None if hybrid else self._query_stats(y_query_stats, len(tensors[0]))
+        try:
+            if hybrid:
+                mean, std = predict_hybrid(self, tensors, return_std, at_rest, anchor)
+                mean, std = (None if t is None else torch.as_tensor(t) for t in (mean, std))
+                std = None if std is None else calibrated_rows(self, std, at_rest)
+            else:
+                mean, std = self.model.forward_dist_raw(*tensors, stats)
+                std = std if std is None or self.calibration is None else self.calibration.apply(std)
+        except RoboMorphError:
+            raise
+        except ValueError as exc:  # the network's shape and length checks: the caller's arrays
+            raise PredictionError(str(exc)) from None
+        mean, std = select(mean, cols), select(std, cols)
+        self._check_output(mean, tensors)
+        return _outputs(u_query, [t[0] if single else t for t in (mean, std) if t is not None], return_std)
+
+    def _arm_batch(self, arrays) -> tuple[list[torch.Tensor], bool, tuple | None]:
+        """:func:`as_batch` of an arm's arrays, padded to the model's channels when it has fewer
+        (a model of several arms), and their columns there (None: the model's own channels).
+        The Predictor's settings are checked first (:func:`check_settings`): every simulate comes here."""
+        check_settings(self)
+        cols = arm_columns(self.model.config.channel_mask, self.data_info, arrays, (self.n_u, self.n_y), self.channels)
+        widths = (self.n_u, self.n_y) if cols is None else (len(cols[0]), len(cols[1]))
+        tensors, single = as_batch(arrays, (*widths, widths[0]), self.device)
+        return (tensors if cols is None else pad(tensors, cols, self.n_u, self.n_y)), single, cols
+
+    def _query_stats(self, y_query_stats, batch: int):
+        """Checks ``y_query_stats`` against the predictor's normalization; (mean, std) tensors (B, n_y) or None."""
+        if not self.leaks_query_statistics:
+            if y_query_stats is not None:
+                raise NormalizationError(f"this model was trained with normalization {self.normalization!r}, which "
+                                         "uses no query statistics: drop y_query_stats")
+            return None
+        if y_query_stats is None:
+            raise NormalizationError(
+                "this model was trained with normalization 'paper_window' (the paper's protocol): it rescales each "
+                "window with the mean and std of the outputs it is asked to predict, which a deployed model cannot "
+                "know. Pass y_query_stats=(mean, std) of the query outputs "
+                "(robomorph.core.normalizations.query_output_stats(y_query)) to score it as the paper did, or train "
+                "with data.normalization=train_stats for a model you can deploy")
+        if len(y_query_stats) != 2:
+            raise NormalizationError("y_query_stats must be a pair (mean, std) of the query outputs")
+        out = []
+        for name, v in zip(("mean", "std"), y_query_stats):
+            t = torch.as_tensor(np.asarray(v) if not isinstance(v, torch.Tensor) else v, dtype=torch.float32,
+                                device=self.device)
+            t = t.unsqueeze(0) if t.dim() == 1 else t
+            if t.shape not in ((1, self.n_y), (batch, self.n_y)) or not all_finite(t):
+                raise NormalizationError(f"y_query_stats {name} must be finite, ({self.n_y},) or ({batch}, {self.n_y}); "
+                                         f"got {tuple(t.shape)}")
+            out.append(t.expand(batch, self.n_y))
+        return tuple(out)
+
+
+def _checked_mode(physics: dict | None, mode: str | None, option: str) -> str | None:
+    """``mode`` once a model with backbone record ``physics`` can predict in it (None stays None)."""
+    from robomorph.inference.hybrid import MODES  # noqa: PLC0415
+
+    if mode is not None and mode != "none" and not physics:
+        raise PredictionError(f"{option} {mode}: this model has no physics backbone (trained with --model.physics "
+                              "none, e.g. on real logs without a catalogue robot); drop the option")
+    if mode is not None and mode not in (*MODES, "none"):
+        raise PredictionError(f"{option} {mode!r}: choose none or one of {', '.join(MODES)}")
+    return mode
+
+
+def _backbone(model: TrainedModel, data_info: dict | None, inputs: str) -> tuple[dict | None, str]:
+    """The physics backbone's record of a model and its default physics mode."""
+    blend = getattr(model, "blend", None)
+    # The backbone of a model trained with a parameter head, or of one whose blend brought it.
+    physics = ((data_info or {}).get("physics") if model.config.n_params else None) \
+        or (blend.physics if blend is not None else None)
+    if not physics:
+        return None, "none"
+    # Total torques pay gravity at the recorded state: the simulation diverges within seconds,
+    # so a total-torque model predicts with its decoder, or with the fitted blend of the two.
+    return physics, "regression" if inputs == "command" else ("blend" if blend else "none")
+
+
+def _outputs(u_query, out: list[torch.Tensor], return_std: bool):
+    """The prediction (and std) as the caller gave ``u_query``: numpy of its float type, or torch on its device."""
+    if isinstance(u_query, torch.Tensor):
+        out = [t.to(u_query.device, u_query.dtype) for t in out]
+    else:
+        dtype = getattr(u_query, "dtype", None)
+        kind = dtype if dtype is not None and np.issubdtype(dtype, np.floating) else np.float32
+        out = [t.cpu().numpy().astype(kind) for t in out]
+    return tuple(out) if return_std else out[0]
