@@ -328,7 +328,7 @@ def draw(cfg: RealismConfig, rng: np.random.Generator, limits: np.ndarray, gain:
         torque_noise=rng.uniform(*ts.noise) * limits,
         torque_offset=rng.uniform(-ts.offset, ts.offset, n) * limits,
         torque_scale=rng.uniform(1 - ts.scale, 1 + ts.scale, n),
-        latency=int(rng.integers(cfg.timing.latency[0], cfg.timing.latency[1] + 1)),
+        latency=int(rng.integers(int(cfg.timing.latency[0]), int(cfg.timing.latency[1]) + 1)),
         payload_mass=float(rng.uniform(*p.mass)), payload_com=rng.uniform(-p.com, p.com, 3),
         payload_configured=bool(rng.uniform() < p.configured),
         coulomb=rng.uniform(*f.coulomb, n) * gain * (1 + rng.uniform(-f.asymmetry, f.asymmetry, (2, n))),

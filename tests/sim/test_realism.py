@@ -75,6 +75,15 @@ def test_the_logged_torque_carries_the_drawn_offset_and_scale_and_the_command_st
     assert np.abs(scale - 1).max() > 0.005
 
 
+def test_torque_noise_has_the_drawn_std_per_joint():
+    clean = outcome(recipe(steps=400, task="chirp"))
+    noisy = outcome(recipe(steps=400, task="chirp", realism={"torque": {"noise": [0.001, 0.003]}}))
+    names = realism.names(7)
+    drawn = noisy.realism[[names.index(f"torque_noise_q{j}") for j in range(7)]]
+    np.testing.assert_allclose(drawn / recipe().arm.limits, drawn[0] / recipe().arm.limits[0], rtol=1e-5)
+    np.testing.assert_allclose(np.std(noisy.u.astype(np.float64) - clean.u, axis=0), drawn, rtol=0.15)
+
+
 def test_latency_delays_the_motion_by_the_drawn_steps():
     r = recipe(task="chirp")
     model = episode.build_model(r)
@@ -236,10 +245,11 @@ def test_a_realistic_attempt_is_deterministic_and_attempts_differ():
     r = load_recipe("realistic", {"steps": 40})
     a, b = episode.ClosedLoopRunner(r), episode.ClosedLoopRunner(r)
     x, y = a(5), b(5)
+    assert x.reason is None
     np.testing.assert_array_equal(x.realism, y.realism)
-    if x.reason is None:
-        np.testing.assert_array_equal(x.u, y.u)
-        np.testing.assert_array_equal(x.y, y.y)
+    np.testing.assert_array_equal(x.u, y.u)
+    np.testing.assert_array_equal(x.y, y.y)
+    np.testing.assert_array_equal(x.u_cmd, y.u_cmd)
     assert not np.array_equal(a(6).realism, x.realism)
 
 
