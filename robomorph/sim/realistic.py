@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 
 from robomorph.sim import osc, realism
-from robomorph.sim.closed_loop import reset_to, simulate_substeps
+from robomorph.sim.closed_loop import simulate_substeps
 from robomorph.sim.realism import Realization
 
 
@@ -168,7 +168,6 @@ def simulate(recipe, model: mujoco.MjModel, data: mujoco.MjData, d, real: Realiz
         controller, target = _Held(ctrl, r.substeps, comp, limits, log), pos
     friction = r.realism.friction
     passive = (lambda qvel: realism.friction_torque(real, qvel, friction.smoothing_velocity)) if friction.active else None
-    reset_to(model, data, d.qpos0)
     idle = comp(np.asarray(d.qpos0)) if comp is not None else None
     sens, _ = simulate_substeps(model, data, d.qpos0, r.steps, r.substeps, controller, real.latency, idle, passive)
     return Result(sens, log, target, kp)
