@@ -10,7 +10,9 @@ force from the state it reaches, so an attempt with any of these terms
 The controller's gravity compensation (``gravity_compensation: nominal_model``) is the
 catalogue robot's g(q) plus the payload only when the payload is configured
 (:class:`Compensation`); with ``true_model`` the arm's own actuators compensate the randomized
-robot and its payload, as before. Controllers see the true state (the sensor errors of
+robot and its payload, as before. The compensation is evaluated at every physics step (a real
+arm's loop runs at 1 kHz); frame-rate commands (open-loop torques, OSC) are held over the
+frame's substeps. Controllers see the true state (the sensor errors of
 :func:`robomorph.sim.realism.sense` are the log's, not the loop's).
 """
 
@@ -109,20 +111,21 @@ class Result:
 
 
 class _Held:
-    """A frame-rate command (open-loop torque or OSC) plus per-frame compensation, held over substeps."""
+    """A frame-rate command (open-loop torque or OSC), held over the frame's substeps, plus the
+    gravity compensation, evaluated at every physics step as a real arm's 1 kHz loop does."""
 
     def __init__(self, frame_command, substeps: int, comp, limits: np.ndarray, log: np.ndarray):
         self.frame_command, self.substeps, self.comp, self.limits, self.log = frame_command, substeps, comp, limits, log
-        self._u = np.zeros(len(limits))
+        self._cmd = np.zeros(len(limits))
 
     def __call__(self, data: mujoco.MjData, k: int) -> np.ndarray:
+        n = len(self.limits)
         if k % self.substeps == 0:
-            n = len(self.limits)
-            g = self.comp(data.qpos[:n]) if self.comp is not None else 0.0
-            self._u = np.clip(self.frame_command(data, k // self.substeps) + g, -self.limits, self.limits)
-            self._cmd = self._u - g
-        self.log[k] = self._cmd
-        return self._u
+            self._cmd = np.array(self.frame_command(data, k // self.substeps), dtype=np.float64)
+        g = self.comp(data.qpos[:n]) if self.comp is not None else 0.0
+        u = np.clip(self._cmd + g, -self.limits, self.limits)
+        self.log[k] = u - g
+        return u
 
 
 class _Feedback:
