@@ -103,6 +103,19 @@ def test_latency_delays_the_motion_by_the_drawn_steps():
     assert np.abs(sens0[20, lay.qpos] - sens3[20, lay.qpos]).max() > 1e-7
 
 
+def test_the_drawn_latency_delays_a_recipes_commands_and_the_log_keeps_what_was_sent():
+    r = recipe(task="chirp", gravity_compensation="true_model", realism={"timing": {"latency": [2, 5]}})
+    runner = episode.ClosedLoopRunner(r)
+    d = episode.draw(r, runner.randomizer, 0)
+    runner.randomizer.apply(runner.model, d.params)
+    res = realistic.simulate(r, runner.model, runner.data, d, d.real, None)
+    lat, cmd = d.real.latency, res.sens[:, r.arm.layout.cmd]
+    assert 2 <= lat <= 5 and runner(0).realism[realism.names(7).index("latency")] == lat
+    np.testing.assert_allclose(cmd[lat:], res.command[:-lat], atol=1e-12)  # the motors act lat steps late
+    np.testing.assert_allclose(cmd[:lat], 0.0)
+    np.testing.assert_array_equal(res.command[::r.substeps], np.clip(d.ctrl, -r.arm.limits, r.arm.limits))
+
+
 def test_friction_opposes_motion_with_a_stribeck_peak_and_per_direction_levels():
     real = realism.draw(realism.RealismConfig(friction=realism.FrictionConfig(
         coulomb=(0.5, 0.5), viscous=(0.1, 0.1), stribeck_ratio=(1.5, 1.5), stribeck_velocity=(0.1, 0.1),
