@@ -14,7 +14,7 @@ parameters (so identification is out of the picture), in the command formulation
   friction losses set to zero (against the exact frictionless candidates): dry friction is the
   one non-smooth term of the Panda's dynamics;
 - **tangent-linear, dry friction corrected** (:mod:`robomorph.identification.tangent`, what
-  ``Predictor.physics_candidates = "tangent"`` simulates): the same, with the friction torque each
+  ``Predictor.configure(candidates="tangent")`` simulates): the same, with the friction torque each
   candidate's linear response implies held inside the friction losses, and sliding joints whose
   velocity would cross zero stopped.
 

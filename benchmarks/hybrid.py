@@ -29,12 +29,13 @@ import time
 import numpy as np
 from common import print_provenance
 
-from robomorph.core.errors import run_command
+from robomorph.core.errors import RoboMorphError, run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
 from robomorph.evaluation.horizons import squared_error
 from robomorph.evaluation.scoring import MODEL, score_windows
 from robomorph.evaluation.windows import load_window
 from robomorph.inference.predictor import Predictor
+from robomorph.inference.settings import HybridSettings
 
 STEPS = (1, 15, 60, 300, 800)
 # The baseline the window-by-window table compares against (default of --paired).
@@ -72,25 +73,13 @@ def _row(name: str, offset: str, scores, source: str, seconds: float | None, std
 
 
 def configure(pred: Predictor, spec: str) -> str:
-    """Sets ``pred`` up as ``MODE[@K][~M][/S][+obs][+springs][+debias][+tangent]`` says (K regression solves, default
-    3; M members of the friction mixture, default 9; S physics steps per sample after the first second, default
-    :func:`robomorph.identification.backbone.coarse_substeps`; the joints' springs fitted; the regression's bias taken off; a
-    planner's candidates tangent-linear); returns MODE."""
-    spec, *plus = spec.split("+")
-    if set(plus) - {"obs", "springs", "debias", "tangent"}:
-        raise SystemExit(f"error: a mode's suffixes after '+' can be 'obs' (the observer's velocity), 'springs' (the "
-                         f"joints' springs fitted), 'debias' (the regression's bias taken off) and 'tangent' "
-                         f"(tangent-linear candidates), got {'+'.join(plus)!r}")
-    pred.physics_observer, pred.physics_springs, pred.physics_debias = "obs" in plus, "springs" in plus, "debias" in plus
-    pred.physics_candidates = "tangent" if "tangent" in plus else "exact"
-    spec, _, substeps = spec.partition("/")
-    mode, _, members = spec.partition("~")
-    mode, _, solves = mode.partition("@")
-    pred.physics_mode, pred.physics_members = mode, int(members or 9)
-    pred.physics_substeps = int(substeps) if substeps else None
-    if pred.physics and mode != "none":
-        pred.hybrid().iterations = int(solves or 3)
-    return mode
+    """Sets ``pred`` up as the settings key ``spec`` says (:meth:`HybridSettings.from_key`:
+    ``MODE[@K][~M][/S][+obs][+springs][+debias][+tangent]``); returns MODE."""
+    try:
+        pred.configure(HybridSettings.from_key(spec, pred.settings))
+    except RoboMorphError as exc:
+        raise SystemExit(f"error: {exc}") from None
+    return pred.settings.mode
 
 
 def latency(args, prov: dict) -> None:
@@ -137,10 +126,10 @@ def main(argv=None) -> int:
                         "mixture over the joints that held still (default 9; ~1: the estimate alone); MODE/S "
                         "simulates the horizon after its first second at S physics steps per sample (default: "
                         "a 240th of a second, 4 for the Panda recipe's 8; /8 re-enacts the generator throughout); "
-                        "MODE+obs starts the horizon from the observer's velocity (Predictor.physics_observer); "
-                        "MODE+springs fits the joints' springs too (Predictor.physics_springs); MODE+debias takes the "
-                        "regression's bias off (Predictor.physics_debias); "
-                        "MODE+tangent simulates the latency's candidates tangent-linear (Predictor.physics_candidates)")
+                        "MODE+obs starts the horizon from the observer's velocity (Predictor.settings.observer); "
+                        "MODE+springs fits the joints' springs too (Predictor.settings.springs); MODE+debias takes the "
+                        "regression's bias off (Predictor.settings.debias); "
+                        "MODE+tangent simulates the latency's candidates tangent-linear (Predictor.settings.candidates)")
     p.add_argument("--baselines", default="hold,nominal_physics,identified_physics",
                    help="comma-separated baselines of evaluate (identified_physics_springs: identified physics "
                         "fitting the joints' springs too)")

@@ -42,7 +42,7 @@ from robomorph.core.results import markdown_table, provenance, write_markdown, w
 from robomorph.evaluation.scoring import score_windows
 from robomorph.evaluation.windows import load_window
 from robomorph.inference.predictor import Predictor
-from robomorph.identification.smoother import smooth_windows
+from robomorph.identification.smoother import SmootherConfig, smooth_windows
 
 STEPS = (60, 300, 600, 700, 750, 800)
 BIAS = 0.1  # rad: the synthetic decoder's offset on every joint
@@ -88,7 +88,7 @@ def main(argv=None) -> None:
     decoder, decoder_std = mean.double().numpy(), std.double().numpy()
     identified = hybrid.identify(tensors[0], tensors[1], "regression", at_rest=bool(w.starts.all()))
     smoothed = {"decoder": decoder}
-    for label, true, config, offset in _variants(hybrid.smoother):
+    for label, true, config, offset in _variants(pred.settings.smoother or SmootherConfig()):
         dec, dec_std = decoder, decoder_std
         if offset is not None:
             dec, dec_std = y_q.copy(), np.full_like(decoder_std, TRUTH_STD)

@@ -71,7 +71,7 @@ def candidates(pred: Predictor, w, batch: int, mean: np.ndarray) -> dict:
         parts = [pred.model.forward_dist_raw(*(torch.as_tensor(a[i:i + batch]) for a in (u_ctx, y_ctx, u_q)))
                  for i in range(0, len(u_ctx), batch)]
         out["decoder"] = torch.cat([s for _, s in parts]).double().numpy()
-        if pred.physics_mode == "blend":
+        if pred.settings.mode == "blend":
             out["gap"] = np.abs(mean - torch.cat([m for m, _ in parts]).double().numpy())
     if pred.physics:
         hybrid, anchor, traces = pred.hybrid(), start_joints(w), []
@@ -87,7 +87,7 @@ def _predict(pred: Predictor, w, steps, batch: int, others: bool = True) -> tupl
     with pred.raw_std():
         s = score_windows(pred, w, (), steps, batch_size=batch)
     if s.std is None:
-        raise SystemExit(f"error: the model predicts no standard deviation (physics mode {pred.physics_mode!r})")
+        raise SystemExit(f"error: the model predicts no standard deviation (physics mode {pred.settings.mode!r})")
     return s.y, s.preds["model"], s.std, candidates(pred, w, batch, s.preds["model"]) if others else {}
 
 
@@ -148,7 +148,7 @@ def main(argv=None) -> None:
     p.add_argument("--members", type=int, default=None, help="a hybrid's friction mixture members (1: the single "
                    "robot, the fast setting; default: the model's)")
     p.add_argument("--substeps", type=int, default=None, help="a hybrid's physics steps per sample after the first "
-                   "second (Predictor.physics_substeps; 2: the fast setting's)")
+                   "second (Predictor.settings.substeps; 2: the fast setting's)")
     p.add_argument("--batch", type=int, default=16)
     p.add_argument("--cache", default=None, help="with --points: an .npz the predictions are kept in and read back "
                    "from for the same windows, so that calibrations can be compared again without predicting")
@@ -164,8 +164,8 @@ def main(argv=None) -> None:
     if a.members is not None:
         if a.members < 1:
             p.error(f"--members must be 1 or more, got {a.members}")
-        pred.physics_members = a.members
-    pred.physics_substeps = a.substeps
+        pred.configure(members=a.members)
+    pred.configure(substeps=a.substeps)
     cal_w, test_w = _windows(pred, a.cal, a.n, a.offset, a.horizon), _windows(pred, a.test, a.n_test or a.n, a.offset,
                                                                               a.horizon)
     steps = sorted({s for s in (1, 15, 60, 300, 800) if s <= cal_w.horizon} | {cal_w.horizon})
@@ -183,10 +183,10 @@ def main(argv=None) -> None:
             spreads[p] = cached[p]
             continue
         if p is not None:  # POINTS[+springs][+debias]: the regression fits the joints' springs too; its bias taken off
-            pred.physics_points, *extra = p.split("+")
+            points, *extra = p.split("+")
             if set(extra) - {"springs", "debias"}:
                 raise SystemExit(f"error: --points takes POINTS[+springs][+debias], got {p!r}")
-            pred.physics_springs, pred.physics_debias = "springs" in extra, "debias" in extra
+            pred.configure(points=points, springs="springs" in extra, debias="debias" in extra)
         spreads[p] = tuple(_predict(pred, w, steps, a.batch, others=not a.points) for w in (cal_w, test_w))
     if a.cache and a.points:
         _save_cache(a.cache, key, spreads)
@@ -222,9 +222,9 @@ def main(argv=None) -> None:
         [[_label(r), r["points"] or "own", r["knots"], r["skill"],
           " / ".join(f"{100 * float(v):.1f}" for v in r["cover1sigma"].split("/")),
           " / ".join(f"{100 * float(v):.1f}" for v in r["cover2sigma"].split("/")), r["largest_miss"]] for r in rows])
-    members = f", {pred.physics_members} friction member{'s' * (pred.physics_members > 1)}" if pred.physics else ""
+    members = f", {pred.settings.members} friction member{'s' * (pred.settings.members > 1)}" if pred.physics else ""
     members += f", {a.substeps} physics steps per sample after the first second" if a.substeps else ""
-    text = (f"# Which spread tells the windows that will miss ({a.ckpt}, physics mode {pred.physics_mode}{members})\n\n"
+    text = (f"# Which spread tells the windows that will miss ({a.ckpt}, physics mode {pred.settings.mode}{members})\n\n"
             f"Calibrated (`power`) on {len(cal_w.u)} windows of {a.cal}, scored on {len(test_w.u)} of {a.test}, "
             f"windows from offset `{a.offset}`, joints at steps {', '.join(map(str, steps))}. Skill: the rank "
             "correlation across the test windows between the signal and the joints' absolute error (median over the "

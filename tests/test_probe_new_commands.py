@@ -359,22 +359,20 @@ def hybrid_predictor(simulated_store, tmp_path_factory):
     return Predictor.from_checkpoint(fit(args).best_ckpt)
 
 
-@pytest.mark.parametrize("setting, value", [("physics_mode", None), ("physics_mode", "bogus"),
-                                            ("physics_members", 0), ("physics_members", -1),
-                                            ("physics_samples", 0), ("physics_substeps", 0)])
+@pytest.mark.parametrize("setting, value", [("mode", None), ("mode", "bogus"), ("members", 0), ("members", -1),
+                                            ("samples", 0), ("substeps", 0), ("workers", 1.5), ("observer", "yes"),
+                                            ("points", "sigma"), ("bogus", 1)])
 def test_the_hybrids_settings_are_checked(setting, value, hybrid_predictor):
     """Cases 11 and 19: ``physics_members`` 0 or -1 behaved like 1; ``physics_mode = None``
-    raised a TypeError."""
+    raised a TypeError. Each is refused in one line naming it where it is set, and the settings stay."""
     from robomorph.inference.predictor import PredictionError
 
     p = hybrid_predictor
-    kept = getattr(p, setting)
-    setattr(p, setting, value)
-    try:
-        with pytest.raises(PredictionError, match=setting):
-            p.simulate(*_window(p, batch=1))
-    finally:
-        setattr(p, setting, kept)
+    kept = p.settings
+    with pytest.raises(PredictionError, match=setting) as exc:
+        p.configure(**{setting: value})
+    assert "\n" not in str(exc.value) and p.settings is kept
+    p.simulate(*_window(p, batch=1))  # still predicts with the settings it had
 
 
 def test_the_hybrids_query_of_zero_steps_is_refused(hybrid_predictor):

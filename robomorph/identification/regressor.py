@@ -157,6 +157,11 @@ class RegressorIdentifier:
             self.last_cov = np.linalg.inv(hess)
         return params
 
+    @property
+    def half_range(self) -> np.ndarray:
+        """(n,) half the bounds' width of each identified entry: one unit coordinate in the parameter's units."""
+        return self._half
+
     def _unit(self, params: np.ndarray) -> np.ndarray:
         return (params[self.space.index] - self._mid) / self._half
 
@@ -232,7 +237,7 @@ class RegressorIdentifier:
             elif kind == "frictionloss":
                 friction.append((c, k, j))
             elif self.randomizer.names[k].startswith("com_"):  # total torques (see COM_STEP)
-                cols[:, :, c] = _bumped(self, params, k, COM_STEP, (qs, v, a), tau0)
+                cols[:, :, c] = self._bumped(params, k, COM_STEP, (qs, v, a), tau0)
             elif bodies is not None:
                 # The torque is linear in a link's mass (its inertia scales with it, its centre of
                 # mass stays): its column is the link's share of the torque per kilogram.
@@ -240,7 +245,7 @@ class RegressorIdentifier:
             else:
                 # A link's mass (inertia scaled with it) moves every joint's torque: a difference
                 # of MuJoCo's own inverse dynamics (exact for a mass: the torque is linear in it).
-                cols[:, :, c] = _bumped(self, params, k, 0.01 * max(abs(params[k]), 1e-3), (qs, v, a), tau0)
+                cols[:, :, c] = self._bumped(params, k, 0.01 * max(abs(params[k]), 1e-3), (qs, v, a), tau0)
         if friction and signs is not None:
             for c, k, j in friction:  # read from the torque's own pass (:func:`robomorph.identification.stacked._signs`)
                 cols[:, j, c] = signs[:, j]
@@ -265,6 +270,30 @@ class RegressorIdentifier:
         self._stacked.load(self.model)
         return self._stacked.run(q, v, a, self._carried, bodies, friction)
 
+    def shift(self, fit: "_Fit", q, torque) -> np.ndarray:
+        """(n,) in unit coordinates: how far the estimate of ``fit`` (a :attr:`last_fit` of this identifier)
+        moves when its joints are ``q`` (T, 7) instead (the same torques), the solve linearized there with that fit's
+        regressor: one inverse-dynamics pass instead of a fit's several (:mod:`robomorph.inference.debias`).
+
+        ``q`` and ``torque`` may also be lists of pieces of the context that overlap by two samples (each piece its
+        own trajectory): each piece's differences give the inner samples it holds whole, in order."""
+        pieces = [_differences(qp, tp, self.dt) for qp, tp in zip(*((q, torque) if isinstance(q, list) else ([q], [torque])))]
+        qs, v, a, tau = (np.concatenate(parts) for parts in zip(*pieces))
+        if len(qs) != len(fit.cols):
+            raise ValueError(f"shift: the pieces hold {len(qs)} inner samples, the fit read {len(fit.cols)}")
+        resid = (tau - self._inverse(fit.params, qs, v, a)[0]).ravel() / self.sigma
+        A_z = fit.cols.reshape(-1, len(self.space.index)) * (self._half / self.sigma)[None, :]
+        n, pull = len(resid), self.prior ** 2
+        z = self._unit(fit.params)  # the solve's normal equations with these torques' residual, less its own at z
+        return np.linalg.solve(fit.gram / n + pull * np.eye(len(z)), A_z.T @ resid / n - pull * (z - fit.z_base))
+
+    def _bumped(self, params: np.ndarray, k: int, step: float, states: tuple,
+                tau0: np.ndarray) -> np.ndarray:
+        """(T, nj, ...) the torque's change per unit of parameter ``k``: a difference of MuJoCo's inverse dynamics."""
+        bumped = params.copy()
+        bumped[k] += step
+        return (self._inverse(bumped, *states)[0] - tau0) / step
+
 
 def _differences(q: np.ndarray, torque: np.ndarray, dt: float) -> tuple:
     """(positions, velocities, accelerations, torques) at a context's inner samples: central differences."""
@@ -272,32 +301,6 @@ def _differences(q: np.ndarray, torque: np.ndarray, dt: float) -> tuple:
     v = (q[2:] - q[:-2]) / (2 * dt)
     a = (q[2:] - 2 * q[1:-1] + q[:-2]) / dt ** 2
     return q[1:-1], v, a, (torque[:-2] + torque[1:-1]) / 2  # a second difference spans two frames' torques
-
-
-def shift(reg: RegressorIdentifier, fit: "_Fit", q, torque) -> np.ndarray:
-    """(n,) in unit coordinates: how far the estimate of ``fit`` (a :attr:`RegressorIdentifier.last_fit` of ``reg``)
-    moves when its joints are ``q`` (T, 7) instead (the same torques), the solve linearized there with that fit's
-    regressor: one inverse-dynamics pass instead of a fit's several (:mod:`robomorph.inference.debias`).
-
-    ``q`` and ``torque`` may also be lists of pieces of the context that overlap by two samples (each piece its
-    own trajectory): each piece's differences give the inner samples it holds whole, in order."""
-    pieces = [_differences(qp, tp, reg.dt) for qp, tp in zip(*((q, torque) if isinstance(q, list) else ([q], [torque])))]
-    qs, v, a, tau = (np.concatenate(parts) for parts in zip(*pieces))
-    if len(qs) != len(fit.cols):
-        raise ValueError(f"shift: the pieces hold {len(qs)} inner samples, the fit read {len(fit.cols)}")
-    resid = (tau - reg._inverse(fit.params, qs, v, a)[0]).ravel() / reg.sigma
-    A_z = fit.cols.reshape(-1, len(reg.space.index)) * (reg._half / reg.sigma)[None, :]
-    n, pull = len(resid), reg.prior ** 2
-    z = reg._unit(fit.params)  # the solve's normal equations with these torques' residual, less its own at z
-    return np.linalg.solve(fit.gram / n + pull * np.eye(len(z)), A_z.T @ resid / n - pull * (z - fit.z_base))
-
-
-def _bumped(ident: RegressorIdentifier, params: np.ndarray, k: int, step: float, states: tuple,
-            tau0: np.ndarray) -> np.ndarray:
-    """(T, nj, ...) the torque's change per unit of parameter ``k``: a difference of MuJoCo's inverse dynamics."""
-    bumped = params.copy()
-    bumped[k] += step
-    return (ident._inverse(bumped, *states)[0] - tau0) / step
 
 
 class _Fit(NamedTuple):

@@ -1,4 +1,4 @@
-"""The regression's bias, measured by simulation and taken off (``Predictor.physics_debias``).
+"""The regression's bias, measured by simulation and taken off (``HybridSettings.debias``).
 
 The regression (:mod:`robomorph.identification.regressor`) reads velocities and accelerations as central
 differences of joints sampled at 60 Hz, while the arm moved under torques held over each sample
@@ -38,27 +38,25 @@ import numpy as np
 ROUNDS = 1
 
 
-def debiased(hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray,
+def debiased(backbone, reg, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray,
              fits: list) -> np.ndarray:
     """(B, P) the estimates ``params`` less the bias the regression shows on their own robots' simulated contexts.
 
     Args:
-        hybrid: the :class:`robomorph.inference.hybrid.Hybrid` whose regression gave ``params``.
+        backbone: the hybrid's :class:`robomorph.identification.backbone.PhysicsBackbone`, which simulates the contexts.
+        reg: the :class:`robomorph.identification.regressor.RegressorIdentifier` whose solves gave ``params``.
         q_ctx, u_ctx: (B, Tc, nj) the recorded contexts' joints and torques (this formulation's).
         qvel_start: (B, nj) the joint velocity at each context's first sample (0 where it opens its trajectory).
         fits: each window's solve (:attr:`robomorph.identification.regressor.RegressorIdentifier.last_fit`).
     """
-    from robomorph.identification.regressor import shift  # noqa: PLC0415  (MuJoCo only when used)
-
-    nj, reg = q_ctx.shape[2], hybrid._regressor
     index, low, high = reg.space.index, reg.space.low, reg.space.high
     out = params.copy()
     for _ in range(ROUNDS):
-        q_sim, cut = _simulated(hybrid.backbone, out, q_ctx, u_ctx, qvel_start)
+        q_sim, cut = _simulated(backbone, out, q_ctx, u_ctx, qvel_start)
         for b in np.flatnonzero([all(np.all(np.isfinite(p)) for p in q_sim[b]) for b in range(len(out))]):
             # (a diverged context: left as it was.) The regression on the simulated context finds its robot plus
             # the bias there; the next estimate is the first less that bias: out - (what it finds - the first one).
-            moved = shift(reg, fits[b], q_sim[b], [u_ctx[b, :cut + 2], u_ctx[b, cut:]]) * reg._half
+            moved = reg.shift(fits[b], q_sim[b], [u_ctx[b, :cut + 2], u_ctx[b, cut:]]) * reg.half_range
             out[b, index] = np.clip(out[b, index] - moved, low, high)
     return out
 

@@ -36,6 +36,7 @@ import torch
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.names import PHYSICS_MODES
 from robomorph.inference.hybrid_spread import default_points, draw_spread
+from robomorph.inference.settings import HybridSettings
 
 MODES = PHYSICS_MODES
 # The modes that read the parameter head (a model trained with --model.physics amortized).
@@ -62,48 +63,41 @@ class Hybrid:
         model: the :class:`robomorph.inference.checkpoint.TrainedModel` (with a parameter head).
         physics: the ``physics`` entry of the model's data record (layout and recipe).
         inputs: the formulation the model was trained on.
-        samples: robots drawn from the parameter head for the standard deviation.
-        refine_iters: most cost evaluations of the ``refined`` mode's fit (each accepted step adds a
-            Jacobian of rollouts).
-        iterations: solves of the regression, each linearized where the previous one landed
-            (:class:`robomorph.identification.regressor.RegressorIdentifier`); 1: at the catalogue robot.
-        members: robots of the friction mixture over the joints that held still in the context
-            (:mod:`robomorph.identification.stiction`; command formulation); 1: the estimate alone.
-        seed: the seed of the parameter draws (the same windows give the same std).
+        settings: its knobs (:class:`robomorph.inference.settings.HybridSettings`; default: the record's, in
+            effect); :meth:`apply` gives it others. The std's robots (``points``) default to the observer's
+            start where it runs, else the covariance's columns.
     """
 
-    def __init__(self, model, physics: dict, inputs: str, samples: int = 8, refine_iters: int = 3, seed: int = 0,
-                 iterations: int = 3, members: int = 9):
+    def __init__(self, model, physics: dict, inputs: str, settings: HybridSettings | None = None):
         from robomorph.identification.backbone import PhysicsBackbone  # noqa: PLC0415  (MuJoCo only when used)
+        from robomorph.identification.smoother import new_report  # noqa: PLC0415
 
         if model.config.n_params and model.config.n_params != len(physics["names"]):
             raise HybridError(f"the model's parameter head has {model.config.n_params} outputs but its record "
                               f"names {len(physics['names'])} parameters: the checkpoint is inconsistent")
         self.model, self.physics, self.inputs = model, physics, inputs
-        self.samples, self.refine_iters, self.seed = int(samples), int(refine_iters), int(seed)
-        self.iterations, self.members = int(iterations), int(members)
-        if self.members < 1:
-            raise HybridError(f"the friction mixture needs members >= 1, got {members}")
         self.backbone = PhysicsBackbone(physics, inputs)
         # The arm's joints: y is the EE pose (7 channels), then one angle per joint.
         self.n_joint = len(self.backbone.ident.randomizer.friction0)
-        # Behind the std (robomorph.inference.hybrid_std): the covariance's columns, and the observer's start where it is.
-        self.points = default_points(self.backbone.observe and inputs == "command")
         self._identifier = None
         self._regressor = None
         self._regressor_kinds: tuple[str, ...] = ()
-        # Whether the regression fits the joints' springs too (robomorph.identification.identify.SPRING_KINDS; the std then carries
-        # them) and has its bias taken off (robomorph.inference.debias): the record's (commands; records before them: off).
-        self.springs, self.debias = (bool(physics.get(k, False)) and inputs == "command" for k in ("springs", "debias"))
         self._stiction = None
         self._held: np.ndarray | None = None  # (B, nj) of the last regression: joints that held still
         self._covs: list[np.ndarray] = []  # of the last regression: each window's estimate covariance
         self._cov_space: tuple = ()  # the entries those cover: their indices in a parameter vector, their bounds
-        from robomorph.identification.smoother import SmootherConfig, new_report  # noqa: PLC0415
-
-        self.smoother = SmootherConfig()  # how mode ``smoothed`` weighs physics and decoder
-        self.smoothing = new_report()  # what it did so far (robomorph.identification.smoother.smooth_windows)
+        self.smoothing = new_report()  # what mode ``smoothed`` did so far (robomorph.identification.smoother)
         self.last_fits: list = []
+        default = HybridSettings.of_record(physics, inputs, getattr(model, "blend", None))
+        self.apply(settings or default.in_effect(inputs, (physics.get("recipe") or {}).get("gravity_compensation")))
+
+    def apply(self, settings: HybridSettings) -> None:
+        """Predicts with ``settings`` from now on (the backbone's step, observer and candidates too)."""
+        if settings.points is None:
+            settings = settings.replace(points=default_points(settings.observer and self.inputs == "command"))
+        self.settings = settings
+        bb = self.backbone
+        bb.coarse, bb.observe, bb.candidates = settings.substeps, settings.observer, settings.candidates
 
     def close(self) -> None:
         self.backbone.close()
@@ -150,7 +144,7 @@ class Hybrid:
         anchor = q_ctx[:, 0] if anchor is None else np.asarray(anchor, dtype=np.float64).reshape(B, -1)
         params, z, z_std = self._identify(u_ctx[one], y_ctx[one], mode, anchor[one], qvel_start[one])
         if solves_whole_horizon(self.model, mode):
-            return _smoothed(self, u_ctx, y_ctx, u_query, params, mode, return_std, calibration)
+            return self._smoothed(u_ctx, y_ctx, u_query, params, mode, return_std, calibration)
         mixture = self._mixture(mode, params, q_ctx[one], uc[one], qvel_start[one])
         if mixture is not None:
             # The std's parameter draws go around each window's most likely member.
@@ -193,11 +187,12 @@ class Hybrid:
         not apply (total torques, modes without the regression, ``members`` 1, no joint held)."""
         from robomorph.identification.stiction import FrictionMixture  # noqa: PLC0415
 
-        if self.members < 2 or self.inputs != "command" or mode not in MIXED_MODES or self._held is None \
+        members = self.settings.members
+        if members < 2 or self.inputs != "command" or mode not in MIXED_MODES or self._held is None \
                 or not self._held.any():
             return None
-        if self._stiction is None or self._stiction.members != self.members:
-            self._stiction = FrictionMixture(self.backbone.ident, self.members)
+        if self._stiction is None or self._stiction.members != members:
+            self._stiction = FrictionMixture(self.backbone.ident, members)
         return [self._stiction.weigh(params[b], self._held[b], q_ctx[b], uc[b], qvel_start[b], self.backbone.observe)
                 for b in range(len(params))]
 
@@ -236,7 +231,7 @@ class Hybrid:
         self._held = None
         if mode != "learned":
             prior = (z, z_std) if mode == "fused" else None
-            params = _regress(self, params, q_ctx, uc, prior, anchor, qvel_start)
+            params = self._regress(params, q_ctx, uc, prior, anchor, qvel_start)
         if mode == "refined":
             params = self._refine(params, q_ctx, uc, qvel_start)
         return params, z, z_std
@@ -246,78 +241,100 @@ class Hybrid:
         """The std (B, H, n_y): the horizons of robots drawn around the estimate, about ``mean``."""
         covs = None if mode == "learned" else self._covs
         space = (self.backbone.index, self.backbone.low, self.backbone.high) if covs is None else self._cov_space
-        std = draw_spread(space, params, z_std, covs, mean, horizon, self.samples, self.seed, self.points)
+        std = draw_spread(space, params, z_std, covs, mean, horizon, self.settings.samples, self.settings.seed,
+                          self.settings.points)
         return std if calibration is None else calibration.scaled(std)
 
     def _refine(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray) -> np.ndarray:
         from robomorph.identification.identify import Identifier, IdentifyConfig  # noqa: PLC0415
 
-        if self._identifier is None:
-            config = IdentifyConfig(kinds=REFINE_KINDS, max_iters=self.refine_iters)
+        if self._identifier is None or self._identifier.config.max_iters != self.settings.refine_iters:
+            if self._identifier is not None:
+                self._identifier.close()
+            config = IdentifyConfig(kinds=REFINE_KINDS, max_iters=self.settings.refine_iters)
             self._identifier = Identifier(self.backbone.recipe, self.inputs, config)
         self.last_fits = [self._identifier.fit(params[b], q_ctx[b], u_ctx[b], qvel_start[b]) for b in range(len(params))]
         return np.stack([f.params for f in self.last_fits])
 
+    def _regress(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, prior=None,
+                 anchor: np.ndarray | None = None, qvel_start: np.ndarray | None = None) -> np.ndarray:
+        """The catalogue robot's identified entries solved for, window by window (springs anchored at ``anchor``, default
+        the first context sample), debiased where the hybrid says so (commands, no prior; ``qvel_start``: (B, 7) the
+        velocity at each context's first sample, where its simulation starts)."""
+        from robomorph.identification.identify import GRAVITY_KINDS, KINDS, SPRING_KINDS, ParameterSpace  # noqa: PLC0415
+        from robomorph.identification.regressor import RegressorIdentifier  # noqa: PLC0415
 
-def _regress(hybrid: Hybrid, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, prior=None,
-             anchor: np.ndarray | None = None, qvel_start: np.ndarray | None = None) -> np.ndarray:
-    """The catalogue robot's identified entries solved for, window by window (springs anchored at ``anchor``, default
-    the first context sample), debiased where the hybrid says so (commands, no prior; ``qvel_start``: (B, 7) the
-    velocity at each context's first sample, where its simulation starts)."""
-    from robomorph.identification.identify import GRAVITY_KINDS, KINDS, SPRING_KINDS, ParameterSpace  # noqa: PLC0415
-    from robomorph.identification.regressor import RegressorIdentifier  # noqa: PLC0415
-
-    # Total torques pay gravity in the torque: the centres of mass are solved for as well (a
-    # centimetre moves it by ~0.1 N m), except under the head's prior, which does not name them.
-    gravity = hybrid.inputs == "total" and prior is None
-    kinds = (GRAVITY_KINDS if gravity else KINDS) + (SPRING_KINDS if hybrid.springs and prior is None else ())
-    if hybrid._regressor is None or hybrid._regressor_kinds != kinds:
-        ident = hybrid.backbone.ident
-        space = ParameterSpace.of(ident.randomizer, hybrid.backbone.recipe.randomization, kinds) \
-            if kinds != KINDS else ident.space
-        hybrid._regressor = RegressorIdentifier(hybrid.backbone.recipe, space, ident.randomizer, hybrid.inputs,
-                                                iterations=hybrid.iterations)
-        hybrid._regressor_kinds = kinds
-    hybrid._regressor.iterations = hybrid.iterations
-    base = np.stack([hybrid.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
-    out, hybrid._covs, held = [], [], []
-    debias = hybrid.debias and prior is None and qvel_start is not None  # (commands only: Hybrid.debias)
-    fits = []  # each window's solve, which the debiasing moves (robomorph.inference.debias); kept only for it
-    # The layout's entries come first; the std's robots move those, and the springs where they were fitted
-    # (the centres of mass of total torques stay at the estimate).
-    n = len(hybrid.backbone.index)
-    space = hybrid._regressor.space
-    keep = np.r_[np.arange(n), np.flatnonzero([k.startswith(SPRING_KINDS) for k in space.names])]
-    hybrid._cov_space = (space.index[keep], space.low[keep], space.high[keep])
-    for b in range(len(params)):
-        out.append(hybrid._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))
-        hybrid._covs.append(hybrid._regressor.last_cov[np.ix_(keep, keep)])
-        held.append(hybrid._regressor.last_held)
+        # Total torques pay gravity in the torque: the centres of mass are solved for as well (a
+        # centimetre moves it by ~0.1 N m), except under the head's prior, which does not name them.
+        gravity = self.inputs == "total" and prior is None
+        kinds = (GRAVITY_KINDS if gravity else KINDS) + (SPRING_KINDS if self.settings.springs and prior is None else ())
+        if self._regressor is None or self._regressor_kinds != kinds:
+            ident = self.backbone.ident
+            space = ParameterSpace.of(ident.randomizer, self.backbone.recipe.randomization, kinds) \
+                if kinds != KINDS else ident.space
+            self._regressor = RegressorIdentifier(self.backbone.recipe, space, ident.randomizer, self.inputs,
+                                                    iterations=self.settings.iterations)
+            self._regressor_kinds = kinds
+        self._regressor.iterations = self.settings.iterations
+        base = np.stack([self.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
+        out, self._covs, held = [], [], []
+        debias = self.settings.debias and prior is None and qvel_start is not None  # (commands only: in effect)
+        fits = []  # each window's solve, which the debiasing moves (robomorph.inference.debias); kept only for it
+        # The layout's entries come first; the std's robots move those, and the springs where they were fitted
+        # (the centres of mass of total torques stay at the estimate).
+        n = len(self.backbone.index)
+        space = self._regressor.space
+        keep = np.r_[np.arange(n), np.flatnonzero([k.startswith(SPRING_KINDS) for k in space.names])]
+        self._cov_space = (space.index[keep], space.low[keep], space.high[keep])
+        for b in range(len(params)):
+            out.append(self._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))
+            self._covs.append(self._regressor.last_cov[np.ix_(keep, keep)])
+            held.append(self._regressor.last_held)
+            if debias:
+                fits.append(self._regressor.last_fit)
+        self._held = np.stack(held)
         if debias:
-            fits.append(hybrid._regressor.last_fit)
-    hybrid._held = np.stack(held)
-    if debias:
-        from robomorph.inference.debias import debiased  # noqa: PLC0415
+            from robomorph.inference.debias import debiased  # noqa: PLC0415
 
-        return debiased(hybrid, np.stack(out), q_ctx, u_ctx, qvel_start, fits)
-    return np.stack(out)
+            return debiased(self.backbone, self._regressor, np.stack(out), q_ctx, u_ctx, qvel_start, fits)
+        return np.stack(out)
 
+    def record(self) -> tuple:
+        """What the last call left about its windows: ``(held joints or None, estimate covariances, refined
+        fits)``, for :meth:`merge` (a batch split over hybrids)."""
+        return self._held, self._covs, self.last_fits
 
-def batch_record(hybrid: Hybrid) -> tuple:
-    """What the last call left on ``hybrid`` about its windows: ``(held joints or None, estimate
-    covariances, refined fits)``, for :func:`merge_records` (a batch split over hybrids)."""
-    return hybrid._held, hybrid._covs, hybrid.last_fits
+    def merge(self, records: list[tuple], refined: bool) -> None:
+        """Takes the record of a whole batch from :meth:`record` of its parts, in order, as if this hybrid had
+        predicted the batch alone. The refined fits only after a refined call: other modes leave
+        ``last_fits`` as they found it."""
+        held = [r[0] for r in records]
+        self._held = np.concatenate(held) if all(x is not None for x in held) else None
+        self._covs = [c for r in records for c in r[1]]
+        if refined:
+            self.last_fits = [f for r in records for f in r[2]]
 
+    @torch.no_grad()
+    def _smoothed(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, params: np.ndarray,
+                  mode: str, with_std: bool, calibration) -> tuple[np.ndarray, np.ndarray | None]:
+        """Mode ``smoothed``, or a blend of it (:mod:`robomorph.identification.smoother`): mean and std (B, H, n_y)."""
+        from robomorph.identification.smoother import SmootherConfig, smooth_windows  # noqa: PLC0415
 
-def merge_records(hybrid: Hybrid, records: list[tuple], refined: bool) -> None:
-    """Gives ``hybrid`` the record of a whole batch from :func:`batch_record` of its parts, in order,
-    as if it had predicted the batch alone. The refined fits only after a refined call: other modes
-    leave ``last_fits`` as they found it."""
-    held = [r[0] for r in records]
-    hybrid._held = np.concatenate(held) if all(x is not None for x in held) else None
-    hybrid._covs = [c for r in records for c in r[1]]
-    if refined:
-        hybrid.last_fits = [f for r in records for f in r[2]]
+        if self.inputs != "total":
+            raise HybridError("physics mode 'smoothed' is for total torques (their simulation diverges); in the "
+                              "command formulation the simulation is stable: use 'regression'")
+        mean, std = self.model.forward_dist_raw(u_ctx, y_ctx, u_query)
+        if std is None:
+            raise HybridError("physics mode 'smoothed' weighs the decoder by its standard deviation, and this model "
+                              "has no Gaussian head: use 'regression' or 'none'")
+        decoder, decoder_std = mean.double().cpu().numpy(), std.double().cpu().numpy()
+        uc, yc, uq = (t.double().cpu().numpy() for t in (u_ctx, y_ctx, u_query))
+        out, out_std = smooth_windows(self.backbone, params, yc[..., 7:7 + self.n_joint], uc, uq, yc[:, -1, 3:7], decoder,
+                                      decoder_std, self.settings.smoother or SmootherConfig(), with_std,
+                                      self.smoothing)
+        if mode == "blend":
+            out, out_std = self.model.blend.combine(out, decoder, out_std, decoder_std)
+        return out, (None if not with_std else out_std if calibration is None else calibration.scaled(out_std))
 
 
 def solves_whole_horizon(model, mode: str) -> bool:
@@ -337,28 +354,6 @@ def check_mode(model, mode: str) -> None:
     if mode == "blend" and getattr(model, "blend", None) is None:
         raise HybridError("physics mode 'blend' needs the blend's weights, which this model has not: fit them "
                           "with robomorph calibrate --blend")
-
-
-@torch.no_grad()
-def _smoothed(hybrid: Hybrid, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, params: np.ndarray,
-              mode: str, with_std: bool, calibration) -> tuple[np.ndarray, np.ndarray | None]:
-    """Mode ``smoothed``, or a blend of it (:mod:`robomorph.identification.smoother`): mean and std (B, H, n_y)."""
-    from robomorph.identification.smoother import smooth_windows  # noqa: PLC0415
-
-    if hybrid.inputs != "total":
-        raise HybridError("physics mode 'smoothed' is for total torques (their simulation diverges); in the "
-                          "command formulation the simulation is stable: use 'regression'")
-    mean, std = hybrid.model.forward_dist_raw(u_ctx, y_ctx, u_query)
-    if std is None:
-        raise HybridError("physics mode 'smoothed' weighs the decoder by its standard deviation, and this model "
-                          "has no Gaussian head: use 'regression' or 'none'")
-    decoder, decoder_std = mean.double().cpu().numpy(), std.double().cpu().numpy()
-    uc, yc, uq = (t.double().cpu().numpy() for t in (u_ctx, y_ctx, u_query))
-    out, out_std = smooth_windows(hybrid.backbone, params, yc[..., 7:7 + hybrid.n_joint], uc, uq, yc[:, -1, 3:7], decoder,
-                                  decoder_std, hybrid.smoother, with_std, hybrid.smoothing)
-    if mode == "blend":
-        out, out_std = hybrid.model.blend.combine(out, decoder, out_std, decoder_std)
-    return out, (None if not with_std else out_std if calibration is None else calibration.scaled(out_std))
 
 
 @torch.no_grad()

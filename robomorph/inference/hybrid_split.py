@@ -1,4 +1,4 @@
-"""Many windows' hybrid predictions by two hybrids at once (``Predictor.physics_workers``).
+"""Many windows' hybrid predictions by two hybrids at once (``HybridSettings.workers``): the pool of a model's hybrids.
 
 A window's regression (:mod:`robomorph.identification.regressor`) is Python and numpy on one core, while the
 rollouts of its contexts and horizons fill every core. One hybrid does them in turn, so one core
@@ -20,7 +20,6 @@ draws are drawn per batch). Not split: batches of one context (a planner's candi
 
 from __future__ import annotations
 
-import os
 import queue
 from concurrent.futures import ThreadPoolExecutor
 
@@ -31,30 +30,51 @@ import torch
 CHUNK = 8
 # The modes that are split: a window's prediction depends on its own row alone, to the bit.
 SPLIT_MODES = ("regression", "refined")
-# What a worker copies from the first hybrid before each split call (what Predictor.hybrid and callers set).
-SETTINGS = ("samples", "members", "points", "springs", "debias", "iterations", "refine_iters", "seed", "smoother")
-BACKBONE_SETTINGS = ("coarse", "observe", "candidates")
 
 
-def default_workers() -> int:
-    """Two where there are two cores or more: one's regression runs beside the other's rollouts."""
-    return 2 if (os.cpu_count() or 1) >= 2 else 1
+class HybridPool:
+    """The hybrids of one model: the first (what ``Predictor.hybrid`` returns) and the workers beside it, each
+    built on first use with its own MuJoCo models, data and regressor, and each given the settings of every call
+    (:class:`~robomorph.inference.settings.HybridSettings`, in effect)."""
 
+    def __init__(self, model, physics: dict, inputs: str):
+        self.model, self.physics, self.inputs = model, physics, inputs
+        self.hybrids: list = []
 
-def predict_hybrid(pred, tensors: list[torch.Tensor], return_std: bool, at_rest=None, anchor=None
-                   ) -> tuple[np.ndarray, np.ndarray | None]:
-    """What ``pred.hybrid().predict`` gives for the batch ``tensors``, split over ``pred.physics_workers`` hybrids
-    where that pays (the workers past the first built on first use, as :meth:`Predictor.hybrid` builds the first)."""
-    from robomorph.inference.hybrid import Hybrid  # noqa: PLC0415  (MuJoCo only when used)
+    def first(self, settings):
+        """The first hybrid, with ``settings``."""
+        return self._ready(1, settings)[0]
 
-    first, mode = pred.hybrid(strict=return_std), pred.physics_mode
-    parts = splits(tensors, pred.physics_workers, mode, first.points == "draws" and return_std)
-    if parts is None:
-        return first.predict(*tensors, at_rest=at_rest, mode=mode, anchor=anchor, return_std=return_std)
-    while len(pred._workers) < int(pred.physics_workers) - 1:
-        pred._workers.append(Hybrid(pred.model, pred.physics, pred.inputs))
-    hybrids = [first, *pred._workers[:int(pred.physics_workers) - 1]]
-    return predict_split(hybrids, parts, tensors, at_rest, anchor, mode=mode, return_std=return_std)
+    def _ready(self, n: int, settings) -> list:
+        from robomorph.inference.hybrid import Hybrid  # noqa: PLC0415  (MuJoCo only when used)
+
+        while len(self.hybrids) < n:
+            self.hybrids.append(Hybrid(self.model, self.physics, self.inputs, settings))
+        for h in self.hybrids[:n]:
+            h.apply(settings)
+        return self.hybrids[:n]
+
+    @property
+    def smoothing(self) -> dict | None:
+        """The first hybrid's tally of smoothed windows (None before it exists)."""
+        return self.hybrids[0].smoothing if self.hybrids else None
+
+    @smoothing.setter
+    def smoothing(self, report: dict) -> None:
+        if self.hybrids:
+            self.hybrids[0].smoothing = report
+
+    def predict(self, settings, tensors: list[torch.Tensor], return_std: bool, at_rest=None, anchor=None
+                ) -> tuple[np.ndarray, np.ndarray | None]:
+        """What the first hybrid's ``predict`` gives for the batch ``tensors`` in ``settings.mode``, split over
+        ``settings.workers`` hybrids where that pays."""
+        mode = settings.mode
+        parts = splits(tensors, settings.workers, mode, settings.points == "draws" and return_std)
+        if parts is None:
+            return self.first(settings).predict(*tensors, at_rest=at_rest, mode=mode, anchor=anchor,
+                                                return_std=return_std)
+        return predict_split(self._ready(settings.workers, settings), parts, tensors, at_rest, anchor, mode=mode,
+                             return_std=return_std)
 
 
 def splits(tensors: list[torch.Tensor], workers: int, mode: str, draws: bool = False) -> list[slice] | None:
@@ -73,16 +93,9 @@ def splits(tensors: list[torch.Tensor], workers: int, mode: str, draws: bool = F
 def predict_split(hybrids: list, parts: list[slice], tensors: list[torch.Tensor], at_rest=None, anchor=None,
                   **kwargs) -> tuple[np.ndarray, np.ndarray | None]:
     """``hybrids[0].predict`` of the whole batch, its chunks of rows ``parts`` predicted in turn by whichever of
-    ``hybrids`` is free, one thread each; the first hybrid then holds the whole batch's per-window record (held
-    joints, covariances, fits)."""
-    from robomorph.inference.hybrid import batch_record, merge_records  # noqa: PLC0415  (MuJoCo only when used)
-
+    ``hybrids`` (all with the same settings) is free, one thread each; the first hybrid then holds the whole
+    batch's per-window record (held joints, covariances, fits)."""
     first = hybrids[0]
-    for other in hybrids[1:]:
-        for name in SETTINGS:
-            setattr(other, name, getattr(first, name))
-        for name in BACKBONE_SETTINGS:
-            setattr(other.backbone, name, getattr(first.backbone, name))
     n = len(tensors[0])
     rest = None if at_rest is None else np.broadcast_to(np.asarray(at_rest, dtype=bool), (n,))
     anchors = None if anchor is None else np.asarray(anchor, dtype=np.float64).reshape(n, -1)
@@ -95,13 +108,13 @@ def predict_split(hybrids: list, parts: list[slice], tensors: list[torch.Tensor]
         try:
             mean, std = h.predict(*(t[part] for t in tensors), at_rest=None if rest is None else rest[part],
                                   anchor=None if anchors is None else anchors[part], **kwargs)
-            return mean, std, batch_record(h)
+            return mean, std, h.record()
         finally:
             free.put(h)
 
     with ThreadPoolExecutor(len(hybrids)) as pool:
         outs = list(pool.map(run, parts))
-    merge_records(first, [o[2] for o in outs], kwargs.get("mode") == "refined")
+    first.merge([o[2] for o in outs], kwargs.get("mode") == "refined")
     mean = np.concatenate([o[0] for o in outs])
     std = None if outs[0][1] is None else np.concatenate([o[1] for o in outs])
     return mean, std

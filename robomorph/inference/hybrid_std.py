@@ -6,7 +6,7 @@ parameter head's Gaussian). :data:`POINTS` names how those robots are chosen:
 - ``columns`` (the default without the observer): one robot per column of the covariance's Cholesky factor, the
   squared distances from the estimate's horizon summed: the linearized propagation, deterministic, the same
   whatever else is in the batch, one horizon per identified parameter (29 on the Panda);
-- ``draws``: the RMS over :attr:`Predictor.physics_samples` random robots (8), what every calibration written
+- ``draws``: the RMS over ``settings.samples`` random robots (8), what every calibration written
   before ``columns`` was fitted on. Eight draws leave a sampling noise of about a quarter of the std (sd 0.25 of
   the log ratio to 128 draws, 32 windows) and a window's draws depended on its row in the batch;
 - ``observed`` (the default with the observer, since 2026-11-27): ``columns``, and beside the parameters the start's
@@ -27,50 +27,24 @@ import numpy as np
 import torch
 
 from robomorph.inference import hybrid_spread
-from robomorph.inference.calibration import POINTS, CalibrationError, mode_key
+from robomorph.inference.calibration import CalibrationError
 
 
 def observing(predictor) -> bool:
     """True when the predictions start the horizon from the observer's velocity (commands' simulated contexts)."""
-    return bool(predictor.physics and predictor.physics_observer and predictor.inputs == "command")
-
-
-def springing(predictor) -> bool:
-    """True when the regression fits the joints' springs too (:attr:`Predictor.physics_springs`)."""
-    return _regression_setting(predictor, predictor.physics_springs)
-
-
-def debiasing(predictor) -> bool:
-    """True when the regression's bias is taken off (:attr:`Predictor.physics_debias`, :mod:`robomorph.inference.debias`).
-
-    Never on an arm that compensates its gravity with its catalogue model (``nominal_model``): measured worse
-    there (simulated kinova3, 4 robots, joint RMS at steps 1 / 15 / 60 / 300: 0.15 / 8.2 / 54 / 256 mrad with it,
-    0.055 / 2.1 / 10 / 57 without; identified physics 0.49 / 9.0 / 33 / 122).
-    """
-    recipe = (predictor.physics or {}).get("recipe") or {}
-    if recipe.get("gravity_compensation") == "nominal_model":
-        return False
-    return _regression_setting(predictor, predictor.physics_debias)
-
-
-def _regression_setting(predictor, on: bool) -> bool:
-    """A setting of the regression in effect: asked for, commands, and a mode whose robot the regression identifies
-    without the parameter head's prior."""
-    return bool(predictor.physics and on and predictor.inputs == "command"
-                and predictor.physics_mode not in ("learned", "fused", "none"))
+    return bool(predictor.physics) and predictor.settings_in_effect.observer
 
 
 def kind_calibrations(predictor) -> tuple:
     """(for windows that open their trajectory, for the others): the mode's calibrations, each
     standing in for the other where only one was fitted; (None, None) without any."""
-    mode = mode_key(predictor.physics_mode if predictor.physics else "none", observing(predictor), springing(predictor),
-                    debiasing(predictor))
+    mode = predictor.settings_in_effect.calibration_key if predictor.physics else "none"
     start, moving = predictor.model.calibrations.get(mode), predictor.model.calibrations.get(f"{mode}/moving")
     return start or moving, moving or start
 
 
 def spread_points(predictor, strict: bool = True) -> str:
-    """The points (:data:`POINTS`) behind a hybrid's std: :attr:`Predictor.physics_points` where set, else
+    """The points (:data:`POINTS`) behind a hybrid's std: ``Predictor.settings.points`` where set, else
     those its mode's stored calibrations were fitted on, else :func:`default_points`. ``strict`` False: the choice
     (or the default) instead of the errors below, for predictions that ask for no std.
 
@@ -80,10 +54,8 @@ def spread_points(predictor, strict: bool = True) -> str:
         try:
             return spread_points(predictor)
         except CalibrationError:
-            return predictor.physics_points if predictor.physics_points in POINTS else default_points(predictor)
-    chosen = predictor.physics_points
-    if chosen is not None and chosen not in POINTS:
-        raise CalibrationError(f"physics_points {chosen!r}: choose one of {', '.join(POINTS)}")
+            return predictor.settings.points or default_points(predictor)
+    chosen = predictor.settings.points  # (a name of POINTS: the settings check it)
     cals = {c.points or "draws": c for c in kind_calibrations(predictor) if c is not None}
     if len(cals) > 1:
         raise CalibrationError("this model's two std calibrations (windows from the start, and the others) were "
@@ -92,7 +64,8 @@ def spread_points(predictor, strict: bool = True) -> str:
     fitted = next(iter(cals), None)
     if chosen is not None and fitted is not None and chosen != fitted:
         raise CalibrationError(f"the stored std calibration was fitted on the spread of {fitted!r}, not "
-                               f"{chosen!r}: leave physics_points unset, or calibrate again with --points {chosen}")
+                               f"{chosen!r}: leave the points unset (configure(points=None)), or calibrate again with "
+                               f"--points {chosen}")
     return chosen or fitted or default_points(predictor)
 
 
@@ -106,8 +79,8 @@ def drawn_points(predictor) -> str | None:
     (every hybrid mode but a smoothed horizon's), None for a decoder's std or the smoother's covariance."""
     from robomorph.inference.hybrid import solves_whole_horizon  # noqa: PLC0415  (torch only here)
 
-    if not predictor.physics or predictor.physics_mode == "none" \
-            or solves_whole_horizon(predictor.model, predictor.physics_mode):
+    mode = predictor.settings.mode
+    if not predictor.physics or mode == "none" or solves_whole_horizon(predictor.model, mode):
         return None
     return spread_points(predictor)
 

@@ -17,6 +17,7 @@ explicitly (``y_query_stats``), which only an evaluation against recorded output
 from __future__ import annotations
 
 import contextlib
+import warnings
 from collections.abc import Iterator
 
 import numpy as np
@@ -28,8 +29,8 @@ from robomorph.core.normalizations import NormalizationError, leaks_query_statis
 from robomorph.inference import catalogue
 from robomorph.model.channels import arm_columns, pad, select
 from robomorph.inference.checkpoint import CheckpointError, TrainedModel, load_trained
-from robomorph.inference.hybrid_split import default_workers, predict_hybrid
-from robomorph.inference.hybrid_std import calibrated_rows, debiasing, kind_calibrations, spread_points, springing
+from robomorph.inference.hybrid_std import calibrated_rows, kind_calibrations, spread_points
+from robomorph.inference.settings import HybridSettings
 
 # Re-exported: the public names of what simulate checks live beside the checks.
 from robomorph.inference.predictor_checks import (  # noqa: F401
@@ -83,24 +84,11 @@ class Predictor:
             from the training mean (default :data:`MAX_INPUT_STDS`; None: no check).
         physics: the physics backbone's record (parameter layout and generator recipe) of a model trained
             with ``--model.physics amortized`` or given a blend by ``robomorph calibrate --blend``, else None.
-        physics_mode: how such a model predicts: ``regression``, ``learned``, ``fused``, ``refined``, ``blend``
-            (:data:`robomorph.inference.hybrid.MODES`) or ``none`` (its decoder). Default: ``regression`` for
-            commands; for total torques ``blend`` when the model has one, else ``none``.
-        physics_samples: parameter draws behind the hybrid's standard deviation (``physics_points`` draws).
-        physics_points: the robots it is the spread of, ``columns``, ``observed`` (and the start velocity) or
-            ``draws`` (:mod:`robomorph.inference.hybrid_std`; None: those its stored calibration was fitted on, else
-            ``observed`` with the observer, ``columns`` without).
-        physics_members: robots of the friction mixture over the joints that held still in the context
-            (:mod:`robomorph.identification.stiction`; command formulation); 1: the estimate alone (cheaper).
-        physics_substeps: physics steps per sample of the hybrid's horizons after their first second (None:
-            :func:`robomorph.identification.backbone.coarse_substeps`, 4 of the Panda's 8; 8 re-enacts the generator throughout).
-        physics_observer: commands: horizons from :func:`robomorph.identification.backbone.observed_velocity` (default: the record's).
-        physics_springs: commands: the regression fits the joints' springs too (default: the record's; off before it).
-        physics_debias: commands: the regression's bias, measured on the estimate's simulated context, taken off
-            (:mod:`robomorph.inference.debias`; default: the record's; off before it).
-        physics_candidates: many horizons on one context: ``exact``, or ``tangent`` (:mod:`robomorph.identification.tangent`).
-        physics_workers: hybrids that share a batch of many windows on threads (:mod:`robomorph.inference.hybrid_split`;
-            default 2 where there are 2 cores; 1: one hybrid does them all).
+        settings: how it predicts, every knob of its hybrid included: one frozen
+            :class:`~robomorph.inference.settings.HybridSettings`, its defaults from the checkpoint's record
+            (mode ``regression`` for commands; for total torques ``blend`` when the model has one, else ``none``,
+            its decoder). Change it with :meth:`configure`; the ``physics_*`` attributes of earlier releases
+            are deprecated aliases of its fields.
         channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside, its
             outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
     """
@@ -115,33 +103,76 @@ class Predictor:
         self.has_std = bool(getattr(model, "gaussian", False))
         # Checkpoints written before the command formulation were all trained on total torque.
         self.inputs: str = (data_info or {}).get("inputs", "total")
-        self.physics, self.physics_mode = _backbone(model, data_info, self.inputs)
-        self.physics_samples, self.physics_members, self.physics_points = 8, 9, None
-        self.physics_substeps: int | None = None
-        self.physics_observer: bool = bool((self.physics or {}).get("observer", False))  # checkpoints before it: off
-        self.physics_springs: bool = bool((self.physics or {}).get("springs", False))  # the same
-        self.physics_debias: bool = bool((self.physics or {}).get("debias", False))  # the same
-        self.physics_candidates, self.channels = "exact", None
-        self.physics_workers, self._workers = default_workers(), []
-        self._hybrid = None
+        self.physics = _backbone(model, data_info)
+        self.channels = None
+        self._settings = HybridSettings.of_record(self.physics, self.inputs, getattr(model, "blend", None))
+        self._pool = None  # the hybrids (robomorph.inference.hybrid_split.HybridPool), built on first use
         if self.physics:
             self.has_std = True  # the spread over robots around the estimate
 
+    @property
+    def settings(self) -> HybridSettings:
+        """How this Predictor predicts (frozen; :meth:`configure` replaces it)."""
+        return self._settings
+
+    def configure(self, settings: HybridSettings | None = None, /, **changes) -> "Predictor":
+        """Replaces :attr:`settings` by ``settings`` (default: the current ones) with ``changes`` (names of
+        :class:`~robomorph.inference.settings.HybridSettings`), validated as a whole; returns the Predictor.
+
+            pred.configure(mode="refined", members=1)
+            pred.configure(HybridSettings.from_key("regression@1~1/2+obs", pred.settings))
+
+        Raises:
+            PredictionError: an unknown name, a value out of its range, or a physics mode this model cannot
+                predict in (no physics backbone)."""
+        new = (settings or self._settings).replace(**changes)
+        if new.mode != self._settings.mode:
+            _checked_mode(self.physics, new.mode, "mode")
+        self._settings = new
+        return self
+
+    @property
+    def hybrids(self) -> tuple:
+        """The hybrids built so far: the first (:meth:`hybrid`) and the workers beside it (``settings.workers``)."""
+        return () if self._pool is None else tuple(self._pool.hybrids)
+
+    @property
+    def settings_in_effect(self) -> HybridSettings:
+        """:attr:`settings` with the switches that do not apply to this model's formulation, mode or arm
+        turned off (:meth:`HybridSettings.in_effect`): what its hybrid runs with and its calibrations are
+        keyed by."""
+        recipe = (self.physics or {}).get("recipe") or {}
+        return self._settings.in_effect(self.inputs, recipe.get("gravity_compensation"))
+
     def hybrid(self, strict: bool = False):
-        """The :class:`robomorph.inference.hybrid.Hybrid` of this model (built on first use); a
-        :class:`PredictionError` for a model without a physics backbone. ``strict``: its std's points checked
-        against the stored calibrations (:func:`robomorph.inference.hybrid_std.spread_points`; a mean needs none)."""
-        from robomorph.inference.hybrid import Hybrid  # noqa: PLC0415  (MuJoCo only when used)
+        """The :class:`robomorph.inference.hybrid.Hybrid` of this model (built on first use) with the settings
+        in effect; a :class:`PredictionError` for a model without a physics backbone. ``strict``: its std's
+        points checked against the stored calibrations (:func:`robomorph.inference.hybrid_std.spread_points`;
+        a mean needs none)."""
+        return self._hybrids().first(self._hybrid_settings(strict))
+
+    def _hybrids(self):
+        from robomorph.inference.hybrid_split import HybridPool  # noqa: PLC0415  (MuJoCo only when used)
 
         if not self.physics:
             raise PredictionError("this model has no physics backbone (it was trained with --model.physics none)")
-        self._hybrid = self._hybrid or Hybrid(self.model, self.physics, self.inputs)
-        self._hybrid.samples, self._hybrid.members = self.physics_samples, self.physics_members
-        self._hybrid.points, self._hybrid.springs = spread_points(self, strict), springing(self)
-        self._hybrid.debias = debiasing(self)
-        bb = self._hybrid.backbone
-        bb.coarse, bb.observe, bb.candidates = self.physics_substeps, self.physics_observer, self.physics_candidates
-        return self._hybrid
+        self._pool = self._pool or HybridPool(self.model, self.physics, self.inputs)
+        return self._pool
+
+    def _hybrid_settings(self, strict: bool) -> HybridSettings:
+        """The settings in effect, with the std's points resolved against the stored calibrations."""
+        return self.settings_in_effect.replace(points=spread_points(self, strict))
+
+    @property
+    def smoothing(self) -> dict | None:
+        """What mode ``smoothed`` did so far (:func:`robomorph.identification.smoother.new_report`'s tally:
+        windows, stages, handovers), or None before this Predictor's hybrid smoothed any."""
+        return None if self._pool is None else self._pool.smoothing
+
+    @smoothing.setter
+    def smoothing(self, report: dict) -> None:
+        if self._pool is not None:
+            self._pool.smoothing = report
 
     def check_inputs(self, inputs: str | None) -> None:
         """Refuses inputs of the other formulation than the one the model was trained on."""
@@ -154,21 +185,24 @@ class Predictor:
         return kind_calibrations(self)[0]
 
     def use_physics(self, mode: str | None, option: str = "--physics") -> None:
-        """Predicts in physics mode ``mode`` (None: the default); refuses one it cannot predict in."""
-        self.physics_mode = _checked_mode(self.physics, mode, option) or self.physics_mode
+        """Predicts in physics mode ``mode`` (None: the default); refuses one it cannot predict in, naming
+        ``option`` (the command's flag)."""
+        if _checked_mode(self.physics, mode, option) is not None:
+            self.configure(mode=mode)
 
     @contextlib.contextmanager
     def raw_std(self) -> Iterator["Predictor"]:
         """Within the block, ``simulate`` returns the Gaussian head's own standard deviation,
         without the stored calibration (what calibrating is fitted on)."""
-        kept, points = self.model.calibrations, self.physics_points
+        kept, settings = self.model.calibrations, self._settings
         # The spread the stored calibrations scale (or the one chosen): what a calibration fitted here records.
-        self.physics_points = points or (spread_points(self) if self.physics else None)
+        if self.physics and settings.points is None:
+            self._settings = settings.replace(points=spread_points(self))
         self.model.calibrations = {}
         try:
             yield self
         finally:
-            self.model.calibrations, self.physics_points = kept, points
+            self.model.calibrations, self._settings = kept, settings
 
     @property
     def leaks_query_statistics(self) -> bool:
@@ -221,7 +255,7 @@ class Predictor:
                 given, a mismatch with the training formulation is refused.
             return_std: also return the predicted standard deviation (models trained with
                 ``gaussian: true`` only), recalibrated by horizon when the checkpoint carries a calibration
-                (a hybrid's: the spread over robots around its estimate, :attr:`physics_points`, by window kind).
+                (a hybrid's: the spread over robots around its estimate, ``settings.points``, by window kind).
             at_rest, anchor: hybrid models only: bool or (B,) bools, the context opens its trajectory (default
                 False); (B, 7) where each robot started (its springs' rest pose; default: the first context sample).
 
@@ -240,7 +274,7 @@ class Predictor:
             CheckpointError: ``return_std`` for a model without a Gaussian head.
         """
         self.check_inputs(inputs)
-        hybrid = bool(self.physics) and self.physics_mode != "none"
+        hybrid = bool(self.physics) and self._settings.mode != "none"
         if return_std and not (self.has_std if hybrid else getattr(self.model, "gaussian", False)):
             raise CheckpointError("this model has no Gaussian head, so it predicts no standard deviation; "
                                   "train one with --model.gaussian true --model.loss nll, or drop return_std")
@@ -251,7 +285,8 @@ class Predictor:
         stats = None if hybrid else self._query_stats(y_query_stats, len(tensors[0]))
         try:
             if hybrid:
-                mean, std = predict_hybrid(self, tensors, return_std, at_rest, anchor)
+                mean, std = self._hybrids().predict(self._hybrid_settings(return_std), tensors, return_std, at_rest,
+                                                    anchor)
                 mean, std = (None if t is None else torch.as_tensor(t) for t in (mean, std))
                 std = None if std is None else calibrated_rows(self, std, at_rest)
             else:
@@ -315,17 +350,35 @@ def _checked_mode(physics: dict | None, mode: str | None, option: str) -> str | 
     return mode
 
 
-def _backbone(model: TrainedModel, data_info: dict | None, inputs: str) -> tuple[dict | None, str]:
-    """The physics backbone's record of a model and its default physics mode."""
+def _backbone(model: TrainedModel, data_info: dict | None) -> dict | None:
+    """The physics backbone's record of a model trained with a parameter head, or of one whose blend brought it."""
     blend = getattr(model, "blend", None)
-    # The backbone of a model trained with a parameter head, or of one whose blend brought it.
-    physics = ((data_info or {}).get("physics") if model.config.n_params else None) \
-        or (blend.physics if blend is not None else None)
-    if not physics:
-        return None, "none"
-    # Total torques pay gravity at the recorded state: the simulation diverges within seconds,
-    # so a total-torque model predicts with its decoder, or with the fitted blend of the two.
-    return physics, "regression" if inputs == "command" else ("blend" if blend else "none")
+    return ((data_info or {}).get("physics") if model.config.n_params else None) \
+        or (blend.physics if blend is not None else None) or None
+
+
+def _deprecated_alias(name: str):
+    """``Predictor.physics_<name>``: the settings' ``name``, read and set with a DeprecationWarning (one release)."""
+    attr = f"physics_{name}"
+
+    def warn() -> None:
+        warnings.warn(f"Predictor.{attr} is deprecated: read predictor.settings.{name}, set it with "
+                      f"predictor.configure({name}=...)", DeprecationWarning, stacklevel=3)
+
+    def get(self):
+        warn()
+        return getattr(self._settings, name)
+
+    def set_(self, value):
+        warn()
+        self.configure(**{name: value})
+
+    return property(get, set_, doc=f"Deprecated: :attr:`settings`.{name}.")
+
+
+for _name in ("mode", "samples", "members", "points", "substeps", "observer", "springs", "debias", "candidates",
+              "workers"):
+    setattr(Predictor, f"physics_{_name}", _deprecated_alias(_name))
 
 
 def _outputs(u_query, out: list[torch.Tensor], return_std: bool):

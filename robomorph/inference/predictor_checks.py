@@ -1,11 +1,12 @@
 """What :meth:`robomorph.inference.predictor.Predictor.simulate` checks before it predicts.
 
 Every array it is given (shapes, lengths, batch sizes, finite values, and how far inputs and
-context outputs lie from the training data) and every setting of the hybrid set on the
-Predictor (physics mode, members, samples, workers, substeps, the range limit). Anything
-else would predict from the wrong thing without a word: a context output in millimetres
-instead of metres, a query of zero steps answered with one, ``physics_members = 0`` read
-as 1. Each refusal is a :class:`PredictionError` naming the array or setting.
+context outputs lie from the training data), the range limit, and a mode that needs a network
+asked of a Predictor without one (the hybrid's settings are checked whole where they are set,
+:class:`robomorph.inference.settings.HybridSettings`). Anything else would predict from the wrong
+thing without a word: a context output in millimetres instead of metres, a query of zero steps
+answered with one, ``members = 0`` read as 1. Each refusal is a :class:`PredictionError` naming
+the array or setting.
 """
 
 from __future__ import annotations
@@ -16,7 +17,6 @@ import numpy as np
 import torch
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.core.names import PHYSICS_MODES
 
 
 class PredictionError(RoboMorphError, ValueError):
@@ -98,24 +98,12 @@ def check_range(predictor, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: to
                 "scale (the checkpoint expects the training data's), or set Predictor.max_input_std")
 
 
-def _whole(value, low: int) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= low
-
-
 def check_settings(predictor) -> None:
     """Refuses a setting of the Predictor that it cannot predict with (each named, with what it takes)."""
     from robomorph.inference.catalogue import check_network_free  # noqa: PLC0415
 
-    if predictor.physics_mode not in (*PHYSICS_MODES, "none"):
-        raise PredictionError(f"physics_mode {predictor.physics_mode!r}: choose none or one of "
-                              f"{', '.join(PHYSICS_MODES)}")
+    # (the hybrid's settings are validated whole when set: robomorph.inference.settings.HybridSettings)
     check_network_free(predictor)  # a Predictor of a catalogue arm alone (Predictor.from_arm)
-    for name in ("physics_members", "physics_samples", "physics_workers"):
-        if not _whole(getattr(predictor, name), 1):
-            raise PredictionError(f"{name} must be a whole number >= 1, got {getattr(predictor, name)!r}")
-    if predictor.physics_substeps is not None and not _whole(predictor.physics_substeps, 1):
-        raise PredictionError(f"physics_substeps must be None or a whole number >= 1, got "
-                              f"{predictor.physics_substeps!r}")
     limit = predictor.max_input_std
     if limit is not None and not (isinstance(limit, (int, float)) and math.isfinite(limit) and limit > 0):
         raise PredictionError(f"max_input_std must be None or a finite number > 0, got {limit!r}")

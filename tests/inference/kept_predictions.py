@@ -36,8 +36,7 @@ VARIANTS = {"members": 1, "points": "draws", "samples": 4, "observer": False, "s
 
 
 def _configure(pred, **settings) -> None:
-    for name, value in settings.items():
-        setattr(pred, f"physics_{name}", value)
+    pred.configure(**settings)
 
 
 def predictions(folder: Path = KEPT) -> dict[str, np.ndarray]:
@@ -81,6 +80,7 @@ def build(folder: Path = KEPT) -> None:
     from robomorph.data.generation import generate
     from robomorph.data.store import open_store
     from robomorph.evaluation.calibrating import blend
+    from robomorph.evaluation.requests import BlendConfig
     from robomorph.model.files import export
     from robomorph.sim.recipe import load_recipe
     from robomorph.training.fitting import fit
@@ -104,7 +104,7 @@ def build(folder: Path = KEPT) -> None:
         }
         for name in ("total_smoothed", "total_forward"):
             blended = str(work / f"{name}.ckpt")
-            blend(ckpts[name], heldout, blended, n=6)
+            blend(BlendConfig(ckpt=ckpts[name], data=heldout, out=blended, n=6))
             ckpts[name] = blended
         if folder.exists():
             shutil.rmtree(folder)

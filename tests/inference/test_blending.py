@@ -97,10 +97,11 @@ def total_store(simulated_store):
 def blended(tiny_checkpoint, total_store, simulated_store, tmp_path_factory):
     """The tiny total-torque black-box model, given a blend fitted on other robots."""
     from robomorph.evaluation.calibrating import blend
+    from robomorph.evaluation.requests import BlendConfig
 
     heldout = simulated_store(robots=6, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=7)
     out = str(tmp_path_factory.mktemp("blend") / "blended.ckpt")
-    report = blend(tiny_checkpoint, heldout, out, n=6)
+    report = blend(BlendConfig(ckpt=tiny_checkpoint, data=heldout, out=out, n=6))
     return out, report
 
 
@@ -114,21 +115,21 @@ def test_calibrate_blend_gives_a_black_box_model_a_backbone_and_the_blend_by_def
     assert rms["physics"][0] < rms["decoder"][0]
     assert report["weight"][0] > 0.5
     pred = Predictor.from_checkpoint(out)
-    assert pred.inputs == "total" and pred.physics is not None and pred.physics_mode == "blend"
+    assert pred.inputs == "total" and pred.physics is not None and pred.settings.mode == "blend"
     ds = open_store(total_store)
     u, y = ds.read("u")[:3], ds.read("y")[:3]
     c = CKPT_CONTEXT
     mixed = pred.simulate(u[:, :c], y[:, :c], u[:, c:], at_rest=True)
-    pred.physics_mode = "none"
+    pred.configure(mode="none")
     decoder = pred.simulate(u[:, :c], y[:, :c], u[:, c:])
-    pred.physics_mode = "regression"  # the same backbone, no head needed
+    pred.configure(mode="regression")  # the same backbone, no head needed
     physics = pred.simulate(u[:, :c], y[:, :c], u[:, c:], at_rest=True)
     blend = pred.model.blend
     w = blend.weights(u.shape[1] - c)[None]
     gated = blend.gated(physics.astype(np.float64), decoder.astype(np.float64))[..., None]
     np.testing.assert_allclose(mixed, np.where(gated, decoder, w * physics + (1 - w) * decoder), rtol=1e-4, atol=1e-6)
     assert np.abs(mixed - decoder).max() > 1e-4  # the physics moved it
-    pred.physics_mode = "blend"
+    pred.configure(mode="blend")
     from robomorph.inference.hybrid import HybridError
 
     with pytest.raises(HybridError, match="no Gaussian head"):  # this decoder predicts no std
@@ -139,6 +140,7 @@ def test_calibrate_blend_gives_a_black_box_model_a_backbone_and_the_blend_by_def
 def gaussian_blended(total_store, simulated_store, tmp_path_factory):
     """A tiny total-torque model with a Gaussian head, given a blend (smoothed, its default) on other robots."""
     from robomorph.evaluation.calibrating import blend
+    from robomorph.evaluation.requests import BlendConfig
     from robomorph.training.fitting import fit
     from tests.conftest import tiny_fit_args
 
@@ -147,13 +149,14 @@ def gaussian_blended(total_store, simulated_store, tmp_path_factory):
                ).best_ckpt
     heldout = simulated_store(robots=6, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=7)
     out = str(runs / "blended.ckpt")
-    report = blend(ckpt, heldout, out, n=6)
+    report = blend(BlendConfig(ckpt=ckpt, data=heldout, out=out, n=6))
     return out, heldout, report
 
 
 def test_a_gaussian_models_blend_has_a_std_that_calibrate_then_rescales_in_blend_mode(gaussian_blended, total_store):
     from robomorph.data.store import open_store
     from robomorph.evaluation.calibrating import calibrate
+    from robomorph.evaluation.requests import CalibrateConfig
     from robomorph.inference.predictor import Predictor
 
     out, heldout, _ = gaussian_blended
@@ -165,7 +168,7 @@ def test_a_gaussian_models_blend_has_a_std_that_calibrate_then_rescales_in_blend
     np.testing.assert_allclose(mean, pred.simulate(u[:, :c], y[:, :c], u[:, c:], at_rest=True), rtol=1e-5, atol=1e-7)
     assert std.shape == mean.shape and np.all(np.isfinite(std)) and np.all(std > 0)
     calibrated_out = out.replace(".ckpt", "_cal.ckpt")
-    calibrate(out, heldout, calibrated_out, n=6)
+    calibrate(CalibrateConfig(ckpt=out, data=heldout, out=calibrated_out, n=6))
     pred = Predictor.from_checkpoint(calibrated_out)
     assert pred.calibration is not None and pred.calibration.source["physics_mode"] == "blend"
     _, calibrated = pred.simulate(u[:, :c], y[:, :c], u[:, c:], at_rest=True, return_std=True)
@@ -181,10 +184,10 @@ def test_a_head_less_model_refuses_the_head_modes_in_one_line(blended, total_sto
     ds = open_store(total_store)
     u, y = ds.read("u")[:1], ds.read("y")[:1]
     for mode in ("learned", "fused"):
-        pred.physics_mode = mode
+        pred.configure(mode=mode)
         with pytest.raises(HybridError, match="parameter head"):
             pred.simulate(u[:, :CKPT_CONTEXT], y[:, :CKPT_CONTEXT], u[:, CKPT_CONTEXT:])
-    pred.physics_mode = "refined"  # starts from the regression: no head needed
+    pred.configure(mode="refined")  # starts from the regression: no head needed
     out = pred.simulate(u[:, :CKPT_CONTEXT], y[:, :CKPT_CONTEXT], u[:, CKPT_CONTEXT:], at_rest=True)
     assert out.shape == (1, CKPT_HORIZON, 14) and np.all(np.isfinite(out))
 
@@ -198,7 +201,7 @@ def test_blend_without_weights_and_on_stores_without_parameters_is_refused(tiny_
     from robomorph.inference.hybrid import HybridError
     from robomorph.inference.predictor import Predictor
 
-    assert Predictor.from_checkpoint(tiny_checkpoint).physics_mode == "none"  # nothing fitted: the decoder
+    assert Predictor.from_checkpoint(tiny_checkpoint).settings.mode == "none"  # nothing fitted: the decoder
     pred = Predictor.from_checkpoint(blended[0])
     pred.model.blend = None
     ds = open_store(total_store)
@@ -229,14 +232,14 @@ def test_a_gaussian_models_blend_weighs_the_smoothed_physics_which_keeps_to_the_
     c = CKPT_CONTEXT
     args = (u[:, :c], y[:, :c], u[:, c:])
     mixed, mixed_std = pred.simulate(*args, at_rest=True, return_std=True)
-    pred.physics_mode = "smoothed"
+    pred.configure(mode="smoothed")
     smoothed, smoothed_std = pred.simulate(*args, at_rest=True, return_std=True)
-    pred.physics_mode = "none"
+    pred.configure(mode="none")
     decoder, decoder_std = pred.simulate(*args, return_std=True)
     want, want_std = blend.combine(smoothed, decoder, smoothed_std, decoder_std)
     np.testing.assert_allclose(mixed, want, rtol=1e-4, atol=1e-6)
     np.testing.assert_allclose(mixed_std, want_std, rtol=1e-4, atol=1e-7)
-    pred.physics_mode = "regression"  # the identified robot simulated forward, from the same estimate
+    pred.configure(mode="regression")  # the identified robot simulated forward, from the same estimate
     forward = pred.simulate(*args, at_rest=True)
     truth = y[:, c:, 7:]
     err = lambda p: np.sqrt(np.mean((p[..., 7:] - truth) ** 2))  # noqa: E731
@@ -245,7 +248,7 @@ def test_a_gaussian_models_blend_weighs_the_smoothed_physics_which_keeps_to_the_
     assert err(smoothed) < 0.2 * err(decoder) and err(smoothed) < 2 * err(forward)
     assert np.all(np.isfinite(smoothed_std)) and np.all(smoothed_std > 0)
     # The query outputs are never read: poisoning them changes nothing.
-    pred.physics_mode = "smoothed"
+    pred.configure(mode="smoothed")
     np.testing.assert_array_equal(pred.simulate(*args, at_rest=True), smoothed)
     # Every smoothed window is tallied (the blend's three, then three smoothed twice).
     tally = pred.hybrid().smoothing
@@ -261,7 +264,7 @@ def test_the_smoothed_mode_refuses_commands_and_decoders_without_a_std(blended, 
     pred = Predictor.from_checkpoint(blended[0])
     ds = open_store(total_store)
     u, y = ds.read("u")[:1], ds.read("y")[:1]
-    pred.physics_mode = "smoothed"
+    pred.configure(mode="smoothed")
     with pytest.raises(HybridError, match="no Gaussian head"):
         pred.simulate(u[:, :CKPT_CONTEXT], y[:, :CKPT_CONTEXT], u[:, CKPT_CONTEXT:])
     pred.hybrid().inputs = "command"
@@ -274,8 +277,9 @@ def test_evaluate_tallies_each_smoothed_window_once(gaussian_blended, tmp_path):
     import json
 
     from robomorph.evaluation.evaluator import evaluate
+    from robomorph.evaluation.requests import EvaluateConfig
 
     out, heldout, _ = gaussian_blended
-    evaluate(out, heldout, str(tmp_path / "ev"), n=3, baselines=(), samples=0)
+    evaluate(EvaluateConfig(ckpt=out, data=heldout, out=str(tmp_path / "ev"), n=3, baselines=(), samples=0))
     meta = json.loads((tmp_path / "ev" / "metrics.json").read_text())["meta"]
     assert meta["smoothing"]["windows"] == 3 and meta["smoothing"]["staged"] <= 3

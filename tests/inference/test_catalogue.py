@@ -33,7 +33,7 @@ def test_it_predicts_what_a_trained_command_hybrid_predicts_to_the_bit(store, tm
     trained = Predictor.from_checkpoint(ckpt, device="cpu")
     uc, yc, uq, _, attrs = _windows(store)
     arm = Predictor.from_arm("panda", **attrs["config"])  # the recipe the store was generated with
-    assert (arm.physics_mode, arm.inputs) == (trained.physics_mode, trained.inputs) == ("regression", "command")
+    assert (arm.settings.mode, arm.inputs) == (trained.settings.mode, trained.inputs) == ("regression", "command")
     want = trained.simulate(uc, yc, uq, return_std=True, at_rest=True)
     got = arm.simulate(uc, yc, uq, return_std=True, at_rest=True)
     np.testing.assert_array_equal(got[0], want[0])

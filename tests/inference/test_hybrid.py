@@ -102,16 +102,16 @@ def test_the_predictor_simulates_at_the_physics_substeps_asked_for(hybrid_ckpt, 
 
     uc, yc, uq, yq, _, attrs = _windows(command_store, n=1)
     p = Predictor.from_checkpoint(hybrid_ckpt)
-    p.physics_substeps = attrs["substeps"]  # the generator's own step throughout
+    p.configure(substeps=attrs["substeps"])  # the generator's own step throughout
     exact = p.simulate(uc, yc, uq, at_rest=True)
     assert p.hybrid().backbone.coarse == attrs["substeps"]
-    p.physics_substeps = attrs["substeps"] // 2
+    p.configure(substeps=attrs["substeps"] // 2)
     p.hybrid().backbone.FINE_STEPS = 20  # the test's horizon is shorter than the default's second
     coarse = p.simulate(uc, yc, uq, at_rest=True)
     assert p.hybrid().backbone.coarse == attrs["substeps"] // 2
     np.testing.assert_array_equal(coarse[:, :20], exact[:, :20])
     assert np.abs(coarse - exact).max() > 0 and np.sqrt(np.mean((coarse - exact)[..., 7:] ** 2)) < 3e-4
-    p.physics_substeps = attrs["substeps"]
+    p.configure(substeps=attrs["substeps"])
     np.testing.assert_array_equal(p.simulate(uc, yc, uq, at_rest=True), exact)
 
 
@@ -148,7 +148,7 @@ def test_hybrid_predictor_equals_the_training_module(hybrid_ckpt, command_store)
     module = MetaModule.load_from_checkpoint(hybrid_ckpt, map_location="cpu").eval()
     uc, yc, uq, _, _, _ = _windows(command_store)
     mean, std = p.simulate(uc, yc, uq, at_rest=True, return_std=True)
-    hyb = Hybrid(module.trained_model, ckpt["robomorph_data"]["physics"], "command", samples=p.physics_samples)
+    hyb = Hybrid(module.trained_model, ckpt["robomorph_data"]["physics"], "command", p.settings_in_effect)
     t = [torch.as_tensor(a, dtype=torch.float32) for a in (uc, yc, uq)]
     m2, s2 = hyb.predict(*t, at_rest=True, return_std=True)
     hyb.close()
@@ -166,13 +166,13 @@ def test_hybrid_is_deterministic_and_modes_differ(hybrid_ckpt, command_store):
     b = Predictor.from_checkpoint(hybrid_ckpt).simulate(uc, yc, uq, at_rest=True, return_std=True)
     for x, y in zip(a, b):
         np.testing.assert_array_equal(x, y)
-    p.physics_mode = "none"  # the black-box decoder of the same checkpoint
+    p.configure(mode="none")  # the black-box decoder of the same checkpoint
     black = p.simulate(uc, yc, uq)
     assert black.shape == a[0].shape and np.abs(black - a[0]).max() > 0
-    p.physics_mode = "refined"
+    p.configure(mode="refined")
     refined = p.simulate(uc, yc, uq, at_rest=True)
     assert refined.shape == a[0].shape and np.all(np.isfinite(refined))
-    assert p.hybrid().last_fits and all(f.evaluations <= p.hybrid().refine_iters for f in p.hybrid().last_fits)
+    assert p.hybrid().last_fits and all(f.evaluations <= p.settings.refine_iters for f in p.hybrid().last_fits)
 
 
 def test_store_without_params_refuses_physics_in_one_line(tmp_path, store_factory, command_store):
@@ -197,7 +197,7 @@ def test_black_box_checkpoints_have_no_parameter_head(tiny_checkpoint):
     from robomorph.inference.predictor import Predictor
 
     p = Predictor.from_checkpoint(tiny_checkpoint)
-    assert p.physics is None and p.physics_mode == "none" and p.model.net.param_head is None
+    assert p.physics is None and p.settings.mode == "none" and p.model.net.param_head is None
     ckpt = torch.load(tiny_checkpoint, weights_only=False, map_location="cpu")
     assert not any("param_head" in k for k in ckpt["state_dict"])
     with pytest.raises(Exception, match="no physics backbone"):
@@ -252,14 +252,14 @@ def test_held_joints_predict_the_weighted_mean_of_the_friction_mixture(hybrid_ck
 
     uc, yc, uq, _, _, _ = _windows(command_store, n=4)
     p = Predictor.from_checkpoint(hybrid_ckpt)
-    p.physics_mode, p.physics_debias = "regression", False  # the regression's own estimate (debiased: test_debias.py)
+    p.configure(mode="regression", debias=False)  # the regression's own estimate (debiased: test_debias.py)
     mean = p.simulate(uc, yc, uq, at_rest=True)
     hyb = p.hybrid()
     _, std = hyb.predict(*(torch.as_tensor(a) for a in (uc, yc, uq)), at_rest=True, return_std=True)  # uncalibrated
     held = hyb._held.copy()
     assert held.any()  # the short contexts of this store hold the wrist: the mixture is exercised
     params = hyb.identify(*(torch.as_tensor(a) for a in (uc, yc)), "regression", at_rest=True)
-    mix = FrictionMixture(hyb.backbone.ident, hyb.members)
+    mix = FrictionMixture(hyb.backbone.ident, hyb.settings.members)
     bb, q = hyb.backbone, yc[..., 7:].astype(np.float64)
     for b in range(len(uc)):
         est = hyb._regressor.fit(bb.catalogue(q[b, 0]), q[b], uc[b].astype(np.float64))
@@ -274,7 +274,7 @@ def test_held_joints_predict_the_weighted_mean_of_the_friction_mixture(hybrid_ck
         assert np.all(std[b] >= spread - 1e-9)
         if held[b].any():
             assert spread.max() > 0
-    p.physics_members = 1
+    p.configure(members=1)
     alone = p.simulate(uc, yc, uq, at_rest=True)
     rows = held.any(axis=1)
     np.testing.assert_array_equal(alone[~rows], mean[~rows])
@@ -291,7 +291,8 @@ def test_scoring_gives_the_hybrid_where_each_robot_started(hybrid_ckpt, simulate
 
     store = simulated_store(robots=4, steps=CKPT_CONTEXT + CKPT_HORIZON + 60, seed=5)
     p = Predictor.from_checkpoint(hybrid_ckpt)
-    p.has_std, p.physics_members = False, 1
+    p.has_std = False
+    p.configure(members=1)
     w = load_window(store, CKPT_CONTEXT, CKPT_HORIZON, 4, p.data_info, p.n_u, p.n_y, "random", 0, "command")
     moved = w.starts > 0
     assert moved.any()

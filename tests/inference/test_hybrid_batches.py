@@ -74,27 +74,25 @@ def test_the_observer_reads_the_contexts_tail_and_agrees_with_the_whole_context(
 
 
 def test_a_planners_candidates_tangent_linear_on_request(command_store, hybrid_ckpt):
-    """``physics_candidates = "tangent"`` answers many torque sequences on one context near the exact
+    """``configure(candidates="tangent")`` answers many torque sequences on one context near the exact
     rollouts (:mod:`robomorph.identification.tangent`) and leaves windows of different contexts exact; an unknown
     setting is refused in one line that names the choices."""
     import pytest
 
-    from robomorph.inference.predictor import Predictor
-    from robomorph.identification.backbone import BackboneError
+    from robomorph.inference.predictor import PredictionError, Predictor
 
     uc, yc, uq, _, _, _ = _windows(command_store, n=2)
     k = 8
     rng = np.random.default_rng(0)
     cands = uq[:1, :20] + rng.normal(0.0, 0.3, (k, 20, 7)).astype(np.float32)
     pred = Predictor.from_checkpoint(hybrid_ckpt)
-    pred.physics_mode, pred.physics_members = "regression", 1
+    pred.configure(mode="regression", members=1)
     exact, exact_windows = pred.simulate(np.repeat(uc[:1], k, 0), np.repeat(yc[:1], k, 0), cands), \
         pred.simulate(uc, yc, uq[:, :20])
-    pred.physics_candidates = "tangent"
+    pred.configure(candidates="tangent")
     tangent, tangent_windows = pred.simulate(np.repeat(uc[:1], k, 0), np.repeat(yc[:1], k, 0), cands), \
         pred.simulate(uc, yc, uq[:, :20])
     assert 0 < np.abs(tangent - exact).max() < 2e-3
     np.testing.assert_array_equal(tangent_windows, exact_windows)
-    pred.physics_candidates = "approximate"
-    with pytest.raises(BackboneError, match=r"one of \['exact', 'tangent'\], got 'approximate'"):
-        pred.simulate(uc, yc, uq[:, :20])
+    with pytest.raises(PredictionError, match=r"candidates must be one of \['exact', 'tangent'\], got 'approximate'"):
+        pred.configure(candidates="approximate")

@@ -18,21 +18,20 @@ def _batch(store: str, n: int = 16):
 
 def test_two_workers_give_the_one_hybrids_prediction_and_record(hybrid_ckpt, command_store):
     from robomorph import Predictor
-    from robomorph.inference.hybrid import batch_record
 
     uc, yc, uq, rest, anchor = _batch(command_store)
     one = Predictor.from_checkpoint(hybrid_ckpt)
-    one.physics_workers = 1
+    one.configure(workers=1)
     mean1, std1 = one.simulate(uc, yc, uq, at_rest=rest, anchor=anchor, return_std=True)
     two = Predictor.from_checkpoint(hybrid_ckpt)
-    two.physics_workers = 2
+    two.configure(workers=2)
     mean2, std2 = two.simulate(uc, yc, uq, at_rest=rest, anchor=anchor, return_std=True)
-    assert len(two._workers) == 1 and not one._workers  # the split happened, and only where asked for
+    assert len(two.hybrids) == 2 and len(one.hybrids) == 1  # the split happened, and only where asked for
     np.testing.assert_array_equal(mean2, mean1)
     np.testing.assert_array_equal(std2, std1)
     h1, h2 = one.hybrid(), two.hybrid()
-    held1, covs1, _ = batch_record(h1)
-    held2, covs2, _ = batch_record(h2)
+    held1, covs1, _ = h1.record()
+    held2, covs2, _ = h2.record()
     np.testing.assert_array_equal(held2, held1)  # the first hybrid holds the whole batch's record
     assert len(covs2) == len(uc)
     for a, b in zip(covs1, covs2):
@@ -48,13 +47,12 @@ def test_the_workers_take_the_first_hybrids_settings(hybrid_ckpt, command_store)
 
     uc, yc, uq, rest, anchor = _batch(command_store)
     p = Predictor.from_checkpoint(hybrid_ckpt)
-    p.physics_workers = 2
-    p.physics_members, p.physics_substeps = 1, 2
-    p.hybrid().iterations = 1  # set on the hybrid itself, as benchmarks do
+    p.configure(workers=2, members=1, substeps=2, iterations=1)
     got = p.simulate(uc, yc, uq, at_rest=rest, anchor=anchor)
-    worker = p._workers[0]
-    assert (worker.members, worker.iterations, worker.backbone.coarse) == (1, 1, 2)
-    p.physics_workers = 1
+    worker = p.hybrids[1]
+    assert worker.settings == p.hybrids[0].settings
+    assert (worker.settings.members, worker.settings.iterations, worker.backbone.coarse) == (1, 1, 2)
+    p.configure(workers=1)
     np.testing.assert_array_equal(got, p.simulate(uc, yc, uq, at_rest=rest, anchor=anchor))
 
 
@@ -64,12 +62,12 @@ def test_one_context_and_small_batches_stay_whole(hybrid_ckpt, command_store):
 
     uc, yc, uq, _, _ = _batch(command_store)
     p = Predictor.from_checkpoint(hybrid_ckpt)
-    p.physics_workers = 2
+    p.configure(workers=2)
     rng = np.random.default_rng(0)
     cands = uq[:1] + rng.normal(0, 0.1, size=(16,) + uq.shape[1:]).astype(np.float32)
     p.simulate(np.repeat(uc[:1], 16, 0), np.repeat(yc[:1], 16, 0), cands)
     p.simulate(uc[:15], yc[:15], uq[:15])
-    assert p._workers == []
+    assert len(p.hybrids) == 1
 
 
 @pytest.mark.parametrize("rows, workers, mode, draws, expected", [
@@ -95,10 +93,10 @@ def test_refined_fits_of_every_chunk_are_kept_and_other_modes_leave_them(hybrid_
 
     uc, yc, uq, rest, anchor = _batch(command_store)
     p = Predictor.from_checkpoint(hybrid_ckpt)
-    p.physics_workers, p.physics_members, p.physics_mode = 2, 1, "refined"
+    p.configure(workers=2, members=1, mode="refined")
     p.simulate(uc, yc, uq, at_rest=rest, anchor=anchor)
     fits = p.hybrid().last_fits
-    assert len(fits) == len(uc) and len(p._workers) == 1
-    p.physics_mode = "regression"  # a mode without rollout fits: the refined record stays the batch's
+    assert len(fits) == len(uc) and len(p.hybrids) == 2
+    p.configure(mode="regression")  # a mode without rollout fits: the refined record stays the batch's
     p.simulate(uc, yc, uq, at_rest=rest, anchor=anchor)
     assert p.hybrid().last_fits is fits

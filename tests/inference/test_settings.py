@@ -34,17 +34,16 @@ def test_new_fits_turn_it_on_and_records_written_before_predict_as_they_did(name
     torch.save(ckpt, old_path)
     uc, yc, uq, *_ = _windows(command_store, n=3)
     new, old = Predictor.from_checkpoint(hybrid_ckpt), Predictor.from_checkpoint(old_path)
-    attr = f"physics_{name}"
-    assert getattr(new, attr) is True and getattr(old, attr) is False
+    assert getattr(new.settings, name) is True and getattr(old.settings, name) is False
     on, on_std = new.simulate(uc, yc, uq, at_rest=True, return_std=True)
-    setattr(new, attr, False)
+    new.configure(**{name: False})
     mean, std = new.simulate(uc, yc, uq, at_rest=True, return_std=True)
     old_mean, old_std = old.simulate(uc, yc, uq, at_rest=True, return_std=True)
     np.testing.assert_array_equal(old_mean, mean)
     np.testing.assert_array_equal(old_std, std)
     assert np.abs(on - mean).max() > 1e-7 and np.abs(on_std - std).max() > 1e-7
     if name == "springs":  # the std moves the springs where they are fitted
-        setattr(new, attr, True)
+        new.configure(**{name: True})
         new.simulate(uc, yc, uq, at_rest=True, return_std=True)
         assert len(new.hybrid()._cov_space[0]) == len(new.hybrid().backbone.index) + 7
 
@@ -64,19 +63,19 @@ def test_calibrate_records_the_setting_and_each_keeps_its_calibrations(name, hyb
     common = ["--data", heldout, "--n", "4", "--physics", "regression"]
     assert main(["--ckpt", hybrid_ckpt, "--out", out, *common, f"--{name}", "off"]) == 0
     off = Predictor.from_checkpoint(out)
-    assert getattr(off, f"physics_{name}") is False and set(off.model.calibrations) == {without}
+    assert getattr(off.settings, name) is False and set(off.model.calibrations) == {without}
     assert said not in capsys.readouterr().out
     assert main(["--ckpt", out, *common, f"--{name}", "on"]) == 0
     assert said in capsys.readouterr().out
     p = Predictor.from_checkpoint(out)
     cals = p.model.calibrations
-    assert getattr(p, f"physics_{name}") is True and set(cals) == {without, KEY}
+    assert getattr(p.settings, name) is True and set(cals) == {without, KEY}
     assert p.calibration is cals[KEY] and cals[KEY].scale != cals[without].scale
-    setattr(p, f"physics_{name}", False)
+    p.configure(**{name: False})
     assert p.calibration is cals[without]
     if name != "observer":  # the head's robot: no regression, so neither springs nor debiasing (nor calibration)
-        setattr(p, f"physics_{name}", True)
-        p.physics_mode = "learned"
+        p.configure(**{name: True})
+        p.configure(mode="learned")
         assert p.calibration is None
     assert main(["--ckpt", out, "--remove", "--physics", "regression"]) == 0
     assert Predictor.from_checkpoint(out).model.calibrations == {}

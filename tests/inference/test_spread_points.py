@@ -46,13 +46,13 @@ def test_the_std_of_a_window_does_not_depend_on_its_batch(hybrid_ckpt, command_s
 
     uc, yc, uq, *_ = _windows(command_store, n=3)
     p = Predictor.from_checkpoint(hybrid_ckpt)
-    assert p.physics_points is None and p.hybrid().points == "observed"  # not calibrated, with the observer
+    assert p.settings.points is None and p.hybrid().settings.points == "observed"  # not calibrated, with the observer
     for points in ("observed", "columns"):
-        p.physics_points = points
+        p.configure(points=points)
         _, alone = p.simulate(uc[2:], yc[2:], uq[2:], at_rest=True, return_std=True)
         _, batch = p.simulate(uc, yc, uq, at_rest=True, return_std=True)
         np.testing.assert_allclose(batch[2:], alone, rtol=1e-6)
-    p.physics_points = "draws"
+    p.configure(points="draws")
     _, drawn = p.simulate(uc, yc, uq, at_rest=True, return_std=True)
     assert np.abs(drawn - batch).max() > 0  # the other spread, so the test above could fail
 
@@ -65,10 +65,10 @@ def test_the_observed_std_adds_the_start_velocitys_spread_to_the_columns(hybrid_
 
     uc, yc, uq, *_ = _windows(command_store, n=2)
     p = Predictor.from_checkpoint(hybrid_ckpt)
-    p.physics_members = 1
+    p.configure(members=1)
     std = {}
     for points in ("observed", "columns"):
-        p.physics_points = points
+        p.configure(points=points)
         std[points] = p.simulate(uc, yc, uq, at_rest=True, return_std=True)[1].astype(np.float64)
     joints = slice(7, 14)
     added = np.sqrt(np.maximum(std["observed"] ** 2 - std["columns"] ** 2, 0))[..., joints]
@@ -76,9 +76,9 @@ def test_the_observed_std_adds_the_start_velocitys_spread_to_the_columns(hybrid_
     assert added[:, 0].max() > 0.1 * std["columns"][:, 0, joints].max()  # the term is not negligible at step 1
     share = added / std["observed"][..., joints]
     assert share[:, 0].mean() > share[:, -1].mean()  # the start's velocity matters most at the start
-    p.physics_observer = False
+    p.configure(observer=False)
     for points in ("observed", "columns"):
-        p.physics_points = points
+        p.configure(points=points)
         std[points] = p.simulate(uc, yc, uq, at_rest=True, return_std=True)[1]
     np.testing.assert_array_equal(std["observed"], std["columns"])
 
@@ -98,19 +98,18 @@ def test_calibrations_record_their_points_and_old_ones_scale_the_draws(hybrid_ck
     assert main(["--ckpt", hybrid_ckpt, "--out", out, "--data", heldout, "--n", "4"]) == 0
     assert "std over one robot per column of the estimate's covariance and the observer's" in capsys.readouterr().out
     p = Predictor.from_checkpoint(out)
-    assert p.calibration.points == "observed" and p.hybrid().points == "observed"
+    assert p.calibration.points == "observed" and p.hybrid().settings.points == "observed"
     ckpt = torch.load(out, weights_only=False, map_location="cpu")
     del ckpt[CALIBRATION_KEY]["points"]  # as every calibration before the choice
     old_path = str(tmp_path / "old.ckpt")
     torch.save(ckpt, old_path)
     old = Predictor.from_checkpoint(old_path)
-    assert old.calibration.points is None and old.hybrid().points == "draws"
+    assert old.calibration.points is None and old.hybrid().settings.points == "draws"
     uc, yc, uq, *_ = _windows(command_store, n=2)
     _, std = old.simulate(uc, yc, uq, at_rest=True, return_std=True)
     module = MetaModule.load_from_checkpoint(old_path, map_location="cpu").eval()
-    hyb = Hybrid(module.trained_model, ckpt["robomorph_data"]["physics"], "command", samples=old.physics_samples)
-    hyb.points = "draws"
-    hyb.backbone.observe = old.physics_observer
+    hyb = Hybrid(module.trained_model, ckpt["robomorph_data"]["physics"], "command",
+                 old.settings_in_effect.replace(points="draws"))
     _, raw = hyb.predict(*(torch.as_tensor(a, dtype=torch.float32) for a in (uc, yc, uq)), at_rest=True,
                          return_std=True)
     hyb.close()
@@ -124,20 +123,20 @@ def test_a_choice_other_than_the_calibrations_is_refused_in_one_line(hybrid_ckpt
     alone predicts as ever."""
     from robomorph.calibrate import main
     from robomorph.inference.calibration import CalibrationError
+    from robomorph.inference.predictor import PredictionError
     from robomorph.inference.predictor import Predictor
 
     out = str(tmp_path / "cal.ckpt")
     heldout = simulated_store(robots=4, steps=CKPT_CONTEXT + CKPT_HORIZON + 40, seed=9)  # room for random offsets
     assert main(["--ckpt", hybrid_ckpt, "--out", out, "--data", heldout, "--n", "4", "--points", "draws"]) == 0
     p = Predictor.from_checkpoint(out)
-    assert p.calibration.points == "draws" and p.hybrid().points == "draws"
+    assert p.calibration.points == "draws" and p.hybrid().settings.points == "draws"
     uc, yc, uq, *_ = _windows(command_store, n=2)
-    p.physics_points = "columns"
+    p.configure(points="columns")
     with pytest.raises(CalibrationError, match="--points columns"):
         p.simulate(uc, yc, uq, at_rest=True, return_std=True)
-    p.physics_points = "sigma"
-    with pytest.raises(CalibrationError, match="choose one of"):
-        p.simulate(uc, yc, uq, at_rest=True, return_std=True)
+    with pytest.raises(PredictionError, match="points 'sigma': choose one of"):  # refused where it is set
+        p.configure(points="sigma")
     assert main(["--ckpt", out, "--data", heldout, "--n", "4", "--points", "columns", "--offset", "random"]) == 0
     mixed = Predictor.from_checkpoint(out)
     with pytest.raises(CalibrationError, match="different spreads"):
