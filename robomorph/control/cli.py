@@ -14,6 +14,7 @@ from robomorph.control.dynamics import ControlError
 from robomorph.control.mppi import MPPIConfig
 from robomorph.control.references import TASKS
 from robomorph.control.runner import CONTROLLERS, DEFAULT_CONTROLLERS, UNCERTAINTY, ControlConfig
+from robomorph.sim import arms
 from robomorph.core.errors import run_command
 from robomorph.core.locks import output_folder
 from robomorph.core.names import PHYSICS_MODES
@@ -29,14 +30,16 @@ def build_parser() -> argparse.ArgumentParser:
     d, m = ControlConfig(), MPPIConfig()
     p = Parser(
         prog="robomorph control",
-        description="Closed-loop control of randomized Panda robots never trained on: a warm-up under the "
-                    "catalogue OSC records the first context, then each controller tracks the reference. "
+        description="Closed-loop control of randomized robots of a registered arm, never trained on: a warm-up "
+                    "under the catalogue OSC records the first context, then each controller tracks the reference. "
                     "Writes OUT/metrics.json, OUT/table.md, OUT/errors.png and OUT/paths.png.")
     p.add_argument("--ckpt", help="model for mpc:model: a checkpoint or exported folder trained in the command "
                                   "formulation (a hybrid plans on its identified robot, a black-box model on its "
                                   "decoder)")
     p.add_argument("--task", default=d.task, choices=TASKS,
                    help="circle or spiral (the generator's paths), reach (10-20 cm point to point, then hold)")
+    p.add_argument("--robot", choices=arms.names(),
+                   help=f"the arm controlled (default: the arm --ckpt was trained on, else {arms.DEFAULT_ROBOT})")
     p.add_argument("--robots", type=integer(1, MAX_ROBOTS), default=d.robots,
                    help="held-out robots; every controller runs on each")
     p.add_argument("--controllers", default=",".join(DEFAULT_CONTROLLERS),
@@ -83,15 +86,12 @@ def check_model(predictor, cfg: ControlConfig, ckpt: str) -> None:
     if predictor.inputs != "command":
         raise ControlError(f"{ckpt} was trained on {predictor.inputs} torques; the controller sends commands to an "
                            "arm that compensates its own gravity: use a model trained with --data.inputs command")
-    from robomorph.evaluation.evaluator import EvaluationError, check_arm  # noqa: PLC0415
+    from robomorph.control.runner import check_model_arm  # noqa: PLC0415
 
     try:
-        check_arm(predictor, {"domain": "panda"}, "the controlled arm")
-    except EvaluationError as exc:
+        check_model_arm(predictor, cfg.robot)
+    except ControlError as exc:
         raise ControlError(f"{ckpt}: {exc}") from None
-    if (predictor.n_u, predictor.n_y) != (7, 14):
-        raise ControlError(f"{ckpt} predicts {predictor.n_y} outputs from {predictor.n_u} inputs; the controlled "
-                           "arm is the Panda (7 torques in; EE pose and 7 joints out)")
     cfg_m = predictor.model.config
     if cfg.mpc.horizon + 1 > cfg_m.max_horizon:
         raise ControlError(f"--horizon {cfg.mpc.horizon} is beyond the model's trained maximum "
@@ -140,15 +140,21 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise ControlError(str(exc).replace("mpc.", "--")) from None
     controllers = tuple(c.strip() for c in args.controllers.split(",") if c.strip())
-    cfg = ControlConfig(task=args.task, robots=args.robots, controllers=controllers, seed=args.seed,
-                        warmup=args.warmup, duration=args.duration, uncertainty=args.uncertainty,
-                        plan_substeps=args.plan_substeps, context=args.context, reidentify=args.reidentify, mpc=mpc)
+    cfg = ControlConfig(task=args.task, robot=args.robot or arms.DEFAULT_ROBOT, robots=args.robots,
+                        controllers=controllers, seed=args.seed, warmup=args.warmup, duration=args.duration,
+                        uncertainty=args.uncertainty, plan_substeps=args.plan_substeps, context=args.context,
+                        reidentify=args.reidentify, mpc=mpc)
     uses_model = "mpc:model" in controllers
     if uses_model and not args.ckpt:
         raise ControlError("mpc:model needs --ckpt (a model trained in the command formulation), or drop it "
                            "from --controllers")
     if uses_model:
-        check_model(load_model(args.ckpt, args.physics_mode), cfg, args.ckpt)
+        from robomorph.control.runner import model_arm  # noqa: PLC0415
+
+        predictor = load_model(args.ckpt, args.physics_mode)
+        if args.robot is None:  # the arm the model knows, so a model of the UR5e needs no --robot
+            cfg = dataclasses.replace(cfg, robot=model_arm(predictor) or arms.DEFAULT_ROBOT)
+        check_model(predictor, cfg, args.ckpt)
     # The folder is checked and locked before any episode runs, and written whole at the end.
     with output_folder(args.out, "control") as tmp:
         results = _episodes(cfg, controllers, args.ckpt if uses_model else None, args.physics_mode, args.workers)

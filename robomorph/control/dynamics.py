@@ -27,8 +27,12 @@ import mujoco
 import numpy as np
 
 from robomorph.core.errors import RoboMorphError
-from robomorph.sim import panda
 from robomorph.identification.identify import lean_spec
+from robomorph.sim import arms
+
+# Every arm's output row opens with the EE position (3) and quaternion (4), then its n joints
+# (Arm.y_names), so the joints start at the same column whatever the arm.
+POSE = 7
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -37,11 +41,12 @@ class ControlError(RoboMorphError, ValueError):
     """A control setting or model that cannot work; the message says what to do."""
 
 
-def planning_model(dt: float, substeps: int) -> mujoco.MjModel:
-    """The Panda a planner simulates: the same bodies, joints and motors (gravity compensated
-    through the actuators, as the arm does), no meshes or contacts, and two sensors, the EE
-    position and orientation, so a rollout returns ``y`` without a kinematics pass."""
-    spec = lean_spec(substeps, dt, True)
+def planning_model(dt: float, substeps: int, robot: str = arms.DEFAULT_ROBOT) -> mujoco.MjModel:
+    """The arm a planner simulates (``robot``, a name of :mod:`robomorph.sim.arms`): the same
+    bodies, joints and motors (gravity compensated through the actuators, as the arm does), no
+    meshes or contacts, and two sensors, the EE position and orientation, so a rollout returns
+    ``y`` without a kinematics pass."""
+    spec = lean_spec(substeps, dt, True, robot)
     for sensor_type in (mujoco.mjtSensor.mjSENS_FRAMEPOS, mujoco.mjtSensor.mjSENS_FRAMEQUAT):
         sensor = spec.add_sensor()
         sensor.type, sensor.objtype, sensor.objname = sensor_type, mujoco.mjtObj.mjOBJ_SITE, "ee"
@@ -55,7 +60,7 @@ class Measured:
 
     Attributes:
         u: (T, n) commands sent (rows ``< f`` valid).
-        y: (T, 7 + n) outputs recorded at frame starts (rows ``<= f`` valid).
+        y: (T, POSE + n) outputs recorded at frame starts (rows ``<= f`` valid).
         qpos, qvel: (n,) the joint state at the start of frame ``f`` (encoders).
         frame: ``f``.
         start: (n,) the joints where the episode started (at rest).
@@ -63,7 +68,7 @@ class Measured:
 
     def __init__(self, steps: int, n: int, start: np.ndarray):
         self.u = np.zeros((steps, n))
-        self.y = np.zeros((steps, 7 + n))
+        self.y = np.zeros((steps, POSE + n))
         self.qpos, self.qvel = np.zeros(n), np.zeros(n)
         self.frame = 0
         self.start = np.asarray(start, dtype=np.float64).copy()
@@ -80,18 +85,21 @@ class PhysicsPlanner:
             planner's model is coarser than the world, as in any MPC).
         nthread: rollout threads.
         reads_hidden: True only for ``true_physics``.
+        robot: the arm simulated, a name of :mod:`robomorph.sim.arms` (its joints and the
+            layout of ``params``).
     """
 
     def __init__(self, name: str, randomizer_cfg, dt: float, plan_substeps: int = 2, nthread: int = 1,
-                 reads_hidden: bool = False):
+                 reads_hidden: bool = False, robot: str = arms.DEFAULT_ROBOT):
         from mujoco import rollout  # noqa: PLC0415
 
         from robomorph.sim.randomize import Randomizer  # noqa: PLC0415
 
         self.name, self.reads_hidden = name, reads_hidden
-        self.model = planning_model(dt, plan_substeps)
-        self.randomizer = Randomizer(self.model, randomizer_cfg)
-        self.ss, self.nj = int(plan_substeps), panda.N_JOINT
+        self.arm = arms.get(robot)
+        self.model = planning_model(dt, plan_substeps, robot)
+        self.randomizer = Randomizer(self.model, randomizer_cfg, robot)
+        self.ss, self.nj = int(plan_substeps), self.arm.n_joint
         self._datas = [mujoco.MjData(self.model) for _ in range(max(1, nthread))]
         self._pool = rollout.Rollout(nthread=nthread) if nthread > 1 else None
         self._x0 = np.zeros(mujoco.mj_stateSize(self.model, _STATE))
@@ -117,13 +125,17 @@ class PhysicsPlanner:
             self.set_params(self.identify(m))
 
     def predict(self, torque: np.ndarray) -> np.ndarray:
-        """(K, H, n) commands of frames f..f+H-1 -> (K, H, 7 + n) outputs at frames f+1..f+H."""
+        """(K, H, n) commands of frames f..f+H-1 -> (K, H, POSE + n) outputs at frames f+1..f+H."""
         k, nj, ss = len(torque), self.nj, self.ss
         d = self._datas[0]
         mujoco.mj_resetData(self.model, d)
         d.qpos[:nj], d.qvel[:nj] = self._state
         mujoco.mj_getState(self.model, d, self._x0, _STATE)
         control = np.repeat(np.asarray(torque, dtype=np.float64), ss, axis=1)
+        # A rollout records each step's sensors as mj_step computed them, from the state before
+        # the step: a frame's closing EE pose is read at the next step, so one more step (the
+        # last command held) is simulated.
+        control = np.concatenate([control, control[:, -1:]], axis=1)
         args = ([self.model] * k, self._datas, np.tile(self._x0, (k, 1)), control)
         if self._pool is not None:
             state, sens = self._pool.rollout(*args)
@@ -131,9 +143,10 @@ class PhysicsPlanner:
             from mujoco import rollout  # noqa: PLC0415
 
             state, sens = rollout.rollout(*args)
-        rows = slice(ss - 1, None, ss)  # after the last physics step of each frame
-        quat = sens[:, rows, 3:7][..., [1, 2, 3, 0]]  # w x y z -> X Y Z W, as y holds it
-        return np.concatenate([sens[:, rows, :3], quat, state[:, rows, 1:1 + nj]], axis=2)
+        ends = slice(ss - 1, -1, ss)  # the state after the last physics step of each frame
+        read = slice(ss, None, ss)  # the sensors of that state (computed by the step after it)
+        quat = sens[:, read, 3:POSE][..., [1, 2, 3, 0]]  # w x y z -> X Y Z W, as y holds it
+        return np.concatenate([sens[:, read, :3], quat, state[:, ends, 1:1 + nj]], axis=2)
 
 
 class CataloguePlanner(PhysicsPlanner):
@@ -172,7 +185,7 @@ class IdentifiedPlanner(PhysicsPlanner):
         t0 = time.perf_counter()
         f = m.frame
         with Identifier(self.recipe, "command") as ident:
-            fit = ident.fit(self.randomizer.catalogue(m.start), m.y[:f, 7:], m.u[:f], np.zeros(self.nj))
+            fit = ident.fit(self.randomizer.catalogue(m.start), m.y[:f, POSE:], m.u[:f], np.zeros(self.nj))
         self.seconds += time.perf_counter() - t0
         return fit.params
 

@@ -1,8 +1,9 @@
 """One closed-loop episode: a randomized arm, a warm-up under the catalogue OSC, then a controller.
 
-The arm is the generator's Panda (meshes, contacts, sensors) with a parameter vector applied;
-it compensates its own gravity through its actuators (the command formulation, as a
-torque-controlled Panda does). The episode owns the world: controllers see only what an
+The arm is the generator's domain of a registered arm (:mod:`robomorph.sim.arms`: meshes,
+contacts, sensors, its joints and torque limits) with a parameter vector applied; it
+compensates its own gravity through its actuators (the command formulation, as a
+torque-controlled arm does). The episode owns the world: controllers see only what an
 encoder and a torque sensor report (:class:`robomorph.control.dynamics.Measured`), never the
 model the world simulates, except ``true_physics`` which is handed the hidden vector.
 
@@ -18,10 +19,10 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from robomorph.control.dynamics import Measured
+from robomorph.control.dynamics import POSE, Measured
 from robomorph.control.mppi import MPPI, Goal
 from robomorph.control.references import Reference
-from robomorph.sim import panda
+from robomorph.sim import arms
 from robomorph.sim.closed_loop import diverged, reset_to
 from robomorph.sim.osc import OSCConfig, OSCController
 
@@ -53,16 +54,20 @@ class EpisodeResult:
 
 
 class CatalogueOSC:
-    """The generator's OSC computed on the catalogue robot from the measured joint state."""
+    """The generator's OSC computed on the catalogue robot from the measured joint state
+    (``robot``: the arm's registry name)."""
 
-    def __init__(self, ref: Reference, start: np.ndarray, dt: float, substeps: int, kp: float = 10.0):
+    def __init__(self, ref: Reference, start: np.ndarray, dt: float, substeps: int, kp: float = 10.0,
+                 robot: str = arms.DEFAULT_ROBOT):
         from robomorph.sim.randomize import RandomizationConfig, Randomizer  # noqa: PLC0415
 
-        self.model = panda.build_model(substeps, dt, True)
-        catalogue = Randomizer(self.model, RandomizationConfig())
+        arm = arms.get(robot)
+        self.model = arm.build_model(substeps, dt, True)
+        catalogue = Randomizer(self.model, RandomizationConfig(), robot)
         catalogue.apply(self.model, catalogue.catalogue(start))
         self.data = mujoco.MjData(self.model)
-        self.osc = OSCController(self.model, ref.pos, ref.vel, ref.acc, ref.quat, start, kp, OSCConfig())
+        self.osc = OSCController(self.model, ref.pos, ref.vel, ref.acc, ref.quat, start, kp, OSCConfig(),
+                                 torque_limits=arm.limits)
 
     def __call__(self, qpos: np.ndarray, qvel: np.ndarray, t: int) -> np.ndarray:
         self.data.qpos[:], self.data.qvel[:] = qpos, qvel
@@ -78,21 +83,26 @@ class Episode:
         ref: the reference, warm-up included.
         randomizer_cfg: the ranges ``params`` was drawn from (its layout).
         dt, substeps: frame period and physics steps per frame of the world.
+        robot: the arm, a name of :mod:`robomorph.sim.arms` (its joints, torque limits, sensors
+            and the layout of ``params``).
     """
 
-    def __init__(self, params: np.ndarray, ref: Reference, randomizer_cfg, dt: float = 1 / 60, substeps: int = 8):
+    def __init__(self, params: np.ndarray, ref: Reference, randomizer_cfg, dt: float = 1 / 60, substeps: int = 8,
+                 robot: str = arms.DEFAULT_ROBOT):
         from robomorph.sim.randomize import Randomizer  # noqa: PLC0415
 
         self.ref, self.dt, self.substeps = ref, float(dt), int(substeps)
-        self.model = panda.build_model(substeps, dt, True)
-        self.randomizer = Randomizer(self.model, randomizer_cfg)
+        self.arm = arm = arms.get(robot)
+        self.nj, self.sens = arm.n_joint, arm.layout
+        self.model = arm.build_model(substeps, dt, True)
+        self.randomizer = Randomizer(self.model, randomizer_cfg, robot)
         self.params = np.asarray(params, dtype=np.float64)
         self.randomizer.apply(self.model, self.params)
         self.start = self.randomizer.split(self.params)["qinit"].copy()
         self.data = mujoco.MjData(self.model)
-        self.limits = panda.TORQUE_LIMITS
-        self.joint_range = self.model.jnt_range[:panda.N_JOINT].copy()
-        self.m = Measured(ref.steps, panda.N_JOINT, self.start)
+        self.limits = arm.limits
+        self.joint_range = self.model.jnt_range[:self.nj].copy()
+        self.m = Measured(ref.steps, self.nj, self.start)
         self.frame = 0
         self.failure: str | None = None
 
@@ -104,21 +114,21 @@ class Episode:
     def reset(self) -> None:
         reset_to(self.model, self.data, self.start)
         self.frame, self.failure = 0, None
-        self.m = Measured(self.ref.steps, panda.N_JOINT, self.start)
+        self.m = Measured(self.ref.steps, self.nj, self.start)
         self.ee = np.zeros((self.ref.steps, 3))
 
     def _measure(self) -> None:
         """Frame start: position and velocity stages, then the sensors into ``Measured``."""
-        f, d, m = self.frame, self.data, self.m
+        f, d, m, lay = self.frame, self.data, self.m, self.sens
         mujoco.mj_step1(self.model, d)
         s = d.sensordata
-        quat = s[panda.SENS_EE_QUAT][[1, 2, 3, 0]]
-        if f and np.dot(quat, m.y[f - 1, 3:7]) < 0:  # signs kept continuous, as the stores keep them
+        quat = s[lay.ee_quat][[1, 2, 3, 0]]
+        if f and np.dot(quat, m.y[f - 1, 3:POSE]) < 0:  # signs kept continuous, as the stores keep them
             quat = -quat
-        m.y[f] = np.concatenate([s[panda.SENS_EE_POS], quat, s[panda.SENS_QPOS]])
-        m.qpos[:], m.qvel[:] = d.qpos[:panda.N_JOINT], d.qvel[:panda.N_JOINT]
+        m.y[f] = np.concatenate([s[lay.ee_pos], quat, s[lay.qpos]])
+        m.qpos[:], m.qvel[:] = d.qpos[:self.nj], d.qvel[:self.nj]
         m.frame = f
-        self.ee[f] = s[panda.SENS_EE_POS]
+        self.ee[f] = s[lay.ee_pos]
 
     def _apply(self, u: np.ndarray) -> None:
         """Sends the command of this frame and simulates the frame; flags a failure."""
@@ -129,10 +139,10 @@ class Episode:
         if self.substeps > 1:
             mujoco.mj_step(self.model, d, nstep=self.substeps - 1)
         self.frame += 1
-        q = d.qpos[:panda.N_JOINT]
+        q = d.qpos[:self.nj]
         if diverged(d) or not np.all(np.isfinite(q)):
             self.failure = "diverged"
-        elif d.sensordata[panda.SENS_CONTACTS] > 0:
+        elif d.sensordata[self.sens.contacts] > 0:
             self.failure = "contact"
         elif np.any(q < self.joint_range[:, 0] + JOINT_MARGIN) or np.any(q > self.joint_range[:, 1] - JOINT_MARGIN):
             self.failure = "joint_limit"

@@ -16,6 +16,7 @@ import numpy as np
 from robomorph.control.dynamics import ControlError
 from robomorph.control.mppi import MPPIConfig
 from robomorph.control.references import TASKS
+from robomorph.sim.arms import ARMS, DEFAULT_ROBOT
 
 CONTROLLERS = ("osc", "mpc:model", "mpc:nominal_physics", "mpc:identified_physics", "mpc:true_physics")
 DEFAULT_CONTROLLERS = ("osc", "mpc:model", "mpc:nominal_physics", "mpc:true_physics")
@@ -33,6 +34,9 @@ class ControlConfig:
 
     Attributes:
         task: ``circle``, ``spiral`` or ``reach``.
+        robot: the arm, a name of :mod:`robomorph.sim.arms` (``panda``, ``ur5e``, ``kinova3``,
+            ...): the world, the catalogue OSC and the physics planners are built from its
+            registry entry (joints, torque limits, outputs); a model must be trained on it.
         robots: held-out robots (each controller runs on every one).
         controllers: from :data:`CONTROLLERS`.
         seed: root seed of robots, references and planner noise.
@@ -49,6 +53,7 @@ class ControlConfig:
     """
 
     task: str = "circle"
+    robot: str = DEFAULT_ROBOT
     robots: int = 8
     controllers: tuple[str, ...] = DEFAULT_CONTROLLERS
     seed: int = 0
@@ -65,6 +70,8 @@ class ControlConfig:
     def __post_init__(self):
         if self.task not in TASKS:
             raise ControlError(f"--task {self.task!r} is not a control task: choose {', '.join(TASKS)}")
+        if self.robot not in ARMS:
+            raise ControlError(f"--robot {self.robot!r} is not a registered arm: choose {', '.join(ARMS)}")
         unknown = [c for c in self.controllers if c not in CONTROLLERS]
         if unknown or not self.controllers:
             raise ControlError(f"--controllers: unknown {', '.join(map(repr, unknown)) or 'none given'}; "
@@ -83,6 +90,11 @@ class ControlConfig:
             raise ControlError(f"--seed must be >= 0, got {self.seed}")
         if self.plan_substeps < 1 or self.context < 1 or self.reidentify < 0:
             raise ControlError("plan_substeps and context must be >= 1, reidentify >= 0")
+
+    @property
+    def arm(self):
+        """The arm's registry entry (:class:`robomorph.sim.arms.Arm`)."""
+        return ARMS[self.robot]
 
     @property
     def warmup_frames(self) -> int:
@@ -108,12 +120,11 @@ def draw_episode(cfg: ControlConfig, robot: int, max_draws: int = 50):
     import mujoco  # noqa: PLC0415
 
     from robomorph.control.references import draw_reference, reachable  # noqa: PLC0415
-    from robomorph.sim import panda  # noqa: PLC0415
     from robomorph.sim.osc import start_pose  # noqa: PLC0415
     from robomorph.sim.randomize import Randomizer  # noqa: PLC0415
 
-    model = panda.build_model(cfg.substeps, cfg.dt, True)
-    randomizer = Randomizer(model, cfg.randomization())
+    model = cfg.arm.build_model(cfg.substeps, cfg.dt, True)
+    randomizer = Randomizer(model, cfg.randomization(), cfg.robot)
     nominal = model.body_mass.copy()
     for draw in range(max_draws):
         rng = np.random.default_rng(np.random.SeedSequence(cfg.seed, spawn_key=(robot, 0, draw)))
@@ -124,7 +135,7 @@ def draw_episode(cfg: ControlConfig, robot: int, max_draws: int = 50):
         ref = draw_reference(cfg.task, rng, pos, quat, cfg.warmup_frames, cfg.steps, cfg.dt)
         if reachable(model, ref, qinit):
             return params, ref
-    raise ControlError(f"no reachable {cfg.task} reference in {max_draws} draws for robot {robot}")
+    raise ControlError(f"no reachable {cfg.task} reference in {max_draws} draws for robot {robot} of the {cfg.robot}")
 
 
 def make_planner(cfg: ControlConfig, controller: str, params: np.ndarray, predictor=None):
@@ -133,20 +144,50 @@ def make_planner(cfg: ControlConfig, controller: str, params: np.ndarray, predic
     from robomorph.sim.recipe import Recipe  # noqa: PLC0415
 
     name = controller.split(":", 1)[1]
-    # The planners' ranges and catalogue are the training recipe's (what an engineer assumes).
-    recipe = Recipe()
+    # The planners' ranges and catalogue are the training recipe's (what an engineer assumes),
+    # for the arm controlled: a parameter vector's layout is the arm's.
+    recipe = Recipe(robot=cfg.robot)
     common = (controller, recipe.randomization, cfg.dt, cfg.plan_substeps)
     if name == "nominal_physics":
-        return dyn.CataloguePlanner(*common)
+        return dyn.CataloguePlanner(*common, robot=cfg.robot)
     if name == "true_physics":
-        return dyn.TruePlanner(controller, cfg.randomization(), cfg.dt, cfg.plan_substeps, hidden=params)
+        return dyn.TruePlanner(controller, cfg.randomization(), cfg.dt, cfg.plan_substeps, hidden=params,
+                               robot=cfg.robot)
     if name == "identified_physics":
-        return dyn.IdentifiedPlanner(*common, recipe=recipe)
+        return dyn.IdentifiedPlanner(*common, recipe=recipe, robot=cfg.robot)
     if predictor is None:
         raise ControlError("mpc:model needs --ckpt, a model trained in the command formulation")
+    check_model_arm(predictor, cfg.robot)
     if predictor.physics and predictor.physics_mode != "none":
-        return dyn.HybridPlanner(*common, predictor=predictor, context=cfg.context, reidentify=cfg.reidentify)
+        return dyn.HybridPlanner(*common, predictor=predictor, context=cfg.context, reidentify=cfg.reidentify,
+                                 robot=cfg.robot)
     return dyn.ModelPlanner(controller, predictor, cfg.context)
+
+
+def model_arm(predictor) -> str | None:
+    """The registered arm a model was trained on, or None where it does not say one (older
+    checkpoints, real logs of an unregistered robot, several arms)."""
+    from robomorph.inference.predictor_checks import model_arms  # noqa: PLC0415
+
+    trained = [a for a in model_arms(predictor) if a in ARMS]
+    return trained[0] if len(trained) == 1 else None
+
+
+def check_model_arm(predictor, robot: str) -> None:
+    """Refuses, in one line, a model that cannot plan for ``robot``: trained on another registered
+    arm, or with inputs and outputs of another number of joints."""
+    from robomorph.evaluation.evaluator import EvaluationError, check_arm  # noqa: PLC0415
+
+    arm = ARMS[robot]
+    try:
+        check_arm(predictor, {"domain": robot}, "the controlled arm")
+    except EvaluationError as exc:
+        raise ControlError(str(exc)) from None
+    n_u, n_y = len(arm.u_names), len(arm.y_names)
+    if (predictor.n_u, predictor.n_y) != (n_u, n_y):
+        raise ControlError(f"the model predicts {predictor.n_y} outputs from {predictor.n_u} inputs; the controlled "
+                           f"arm, the {robot}, takes {n_u} torques and gives {n_y} outputs (EE pose and "
+                           f"{arm.n_joint} joints)")
 
 
 def run_job(cfg: ControlConfig, robot: int, controller: str, predictor=None):
@@ -155,8 +196,8 @@ def run_job(cfg: ControlConfig, robot: int, controller: str, predictor=None):
     from robomorph.control.mppi import MPPI  # noqa: PLC0415
 
     params, ref = draw_episode(cfg, robot)
-    episode = Episode(params, ref, cfg.randomization(), cfg.dt, cfg.substeps)
-    osc = CatalogueOSC(ref, episode.start, cfg.dt, cfg.substeps)
+    episode = Episode(params, ref, cfg.randomization(), cfg.dt, cfg.substeps, cfg.robot)
+    osc = CatalogueOSC(ref, episode.start, cfg.dt, cfg.substeps, robot=cfg.robot)
     episode.warm_up(osc)
     planner = mppi = None
     if controller != "osc":

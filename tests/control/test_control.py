@@ -229,6 +229,8 @@ def test_bad_options_get_one_line_and_exit_code_2(hybrid_ckpt, tiny_checkpoint, 
          "beyond the model's trained maximum"),
         (["--ckpt", tiny_checkpoint, "--controllers", "mpc:model", "--context", str(CKPT_CONTEXT)],
          "trained on total torques"),
+        (["--ckpt", hybrid_ckpt, "--robot", "ur5e", "--controllers", "mpc:model", "--context", str(CKPT_CONTEXT)],
+         "the controlled arm is of the ur5e but the model was trained on the panda"),
         (["--ckpt", str(tmp_path / "missing.ckpt"), "--controllers", "mpc:model"], "missing.ckpt"),
         (["--robots", "0"], "argument --robots: takes a whole number >= 1"),
     ]
