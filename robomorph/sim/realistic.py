@@ -170,7 +170,7 @@ def simulate(recipe, model: mujoco.MjModel, data: mujoco.MjData, d, real: Realiz
         ctrl = osc.OSCController(model, pos, vel, acc, quat0, d.qpos0, kp, r.osc, torque_limits=limits)
         controller, target = _Held(ctrl, r.substeps, comp, limits, log), pos
     friction = r.realism.friction
-    passive = (lambda qvel: realism.friction_torque(real, qvel, friction.smoothing_velocity)) if friction.active else None
+    passive = realism.Friction(real, friction.smoothing_velocity) if friction.active else None
     idle = comp(np.asarray(d.qpos0)) if comp is not None else None
     sens, _ = simulate_substeps(model, data, d.qpos0, r.steps, r.substeps, controller, real.latency, idle, passive)
     return Result(sens, log, target, kp)
