@@ -159,3 +159,23 @@ def test_inference_needs_no_training_code(module):
     outside = sorted(m for m in _internal(MODULES[module])
                      if _room(m) not in allowed.get(_room(module), ("inference", "model", "core")))
     assert not outside, f"{module} imports {outside}"
+
+
+def _module_functions_taking_self(path: Path) -> list[str]:
+    """Module-level functions whose first parameter is ``self``: methods that left their class."""
+    tree = ast.parse(path.read_text())
+    return [f"{node.name} (line {node.lineno})" for node in tree.body
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.args.args
+            and node.args.args[0].arg == "self"]
+
+
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_no_module_function_takes_self(module):
+    found = _module_functions_taking_self(MODULES[module])
+    assert not found, f"{module}: {found} take self; a method belongs in its class"
+
+
+def test_the_self_check_finds_a_method_outside_its_class(tmp_path):
+    path = tmp_path / "m.py"
+    path.write_text("class A:\n    def ok(self):\n        pass\n\n\ndef stray(self, x):\n    return x\n")
+    assert _module_functions_taking_self(path) == ["stray (line 6)"]
