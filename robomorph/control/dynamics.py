@@ -17,7 +17,7 @@ outputs, and the candidates are the commands of frames ``f .. f+H-1``, which the
   ``true_physics`` (the hidden parameters: a ceiling, labelled as such, the only planner
   that reads them).
 - :class:`ModelPlanner`: a black-box meta-model (a :class:`robomorph.inference.predictor.Predictor`
-  without a physics backbone, or one asked for ``physics_mode none``), context = the last
+  without a physics backbone, or one configured with ``mode="none"``), context = the last
   ``context`` measured rows, query = the candidates.
 """
 
@@ -192,7 +192,7 @@ class IdentifiedPlanner(PhysicsPlanner):
 
 class HybridPlanner(PhysicsPlanner):
     """The in-context hybrid model: its physics backbone identifies the robot from the last
-    ``context`` measured rows (in the predictor's ``physics_mode``), re-identified every
+    ``context`` measured rows (in the mode of the predictor's ``settings``), re-identified every
     ``reidentify`` frames as the context rolls on; the candidates are simulated with the result."""
 
     def __init__(self, *args, predictor, context: int, reidentify: int, **kwargs):
@@ -210,7 +210,7 @@ class HybridPlanner(PhysicsPlanner):
         f, c = m.frame, min(self.context, m.frame)
         u_ctx = torch.as_tensor(m.u[f - c:f][None], dtype=torch.float32)
         y_ctx = torch.as_tensor(m.y[f - c:f][None], dtype=torch.float32)
-        params = self.predictor.hybrid().identify(u_ctx, y_ctx, self.predictor.physics_mode,
+        params = self.predictor.hybrid().identify(u_ctx, y_ctx, self.predictor.settings.mode,
                                                   anchor=m.start[None])[0]
         self.seconds += time.perf_counter() - t0
         self.identifications += 1

@@ -158,7 +158,7 @@ def make_planner(cfg: ControlConfig, controller: str, params: np.ndarray, predic
     if predictor is None:
         raise ControlError("mpc:model needs --ckpt, a model trained in the command formulation")
     check_model_arm(predictor, cfg.robot)
-    if predictor.physics and predictor.physics_mode != "none":
+    if predictor.physics and predictor.settings.mode != "none":
         return dyn.HybridPlanner(*common, predictor=predictor, context=cfg.context, reidentify=cfg.reidentify,
                                  robot=cfg.robot)
     return dyn.ModelPlanner(controller, predictor, cfg.context)

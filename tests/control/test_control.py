@@ -165,7 +165,7 @@ def test_only_true_physics_reads_the_hidden_parameters(hybrid_ckpt):
     cfg = dataclasses.replace(SHORT, context=CKPT_CONTEXT)
     hybrid = Predictor.from_checkpoint(hybrid_ckpt)
     black_box = Predictor.from_checkpoint(hybrid_ckpt)
-    black_box.physics_mode = "none"
+    black_box.configure(mode="none")
     for controller, predictor in (("mpc:nominal_physics", None), ("mpc:model", hybrid), ("mpc:model", black_box)):
         np.testing.assert_array_equal(_first_plan(cfg, controller, False, predictor),
                                       _first_plan(cfg, controller, True, predictor), err_msg=controller)
