@@ -179,3 +179,31 @@ def test_the_self_check_finds_a_method_outside_its_class(tmp_path):
     path = tmp_path / "m.py"
     path.write_text("class A:\n    def ok(self):\n        pass\n\n\ndef stray(self, x):\n    return x\n")
     assert _module_functions_taking_self(path) == ["stray (line 6)"]
+
+
+def _private_reaches(path: Path) -> list[str]:
+    """``x._name`` where ``x`` is not ``self`` or ``cls``: one object reading another's (or a module's) private
+    parts. A line may keep one with ``# private: <why>``."""
+    text = path.read_text()
+    lines = text.splitlines()
+    found = []
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+            owner = node.value
+            if isinstance(owner, ast.Name) and owner.id in ("self", "cls"):
+                continue
+            if "# private:" not in lines[node.lineno - 1]:
+                found.append(f"line {node.lineno}: {ast.unparse(node)}")
+    return found
+
+
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_no_object_reads_anothers_private_parts(module):
+    found = _private_reaches(MODULES[module])
+    assert not found, f"{module} reads private parts of other objects: {found} (make them public, or say why)"
+
+
+def test_the_private_check_finds_a_reach_and_accepts_a_reason(tmp_path):
+    path = tmp_path / "m.py"
+    path.write_text("def f(a):\n    return a._x + a._y  # private: a test of the reason\n\n\ndef g(b):\n    return b._z\n")
+    assert _private_reaches(path) == ["line 6: b._z"]

@@ -109,7 +109,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.train_samples_per_epoch, self.context_min, self.horizon_min = train_samples_per_epoch, context_min, horizon_min
         self.inputs, self.normalization, self.channels = inputs, normalization, channels
         self.joint_dropout = joint_dropout
-        _check_arguments(self)
+        self._check_arguments()
         self._ready = False
         self._sources: list[Source] | None = None
 
@@ -123,9 +123,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         """
         if self._ready:
             return
-        sources = self._open()
+        sources = self.open_sources()
         check_lengths(sources, self.context_len, self.horizon)
-        _check_context_min(self)
+        self._check_context_min()
         total = sum(s.nbytes for s in sources)
         self.loaded = self.in_memory if self.in_memory is not None else total <= MEMORY_BUDGET_BYTES
         if self.loaded:
@@ -138,7 +138,7 @@ class RoboMorphDataModule(L.LightningDataModule):
 
     # The layout of the data, read from the stores' metadata without setup: robomorph fit
     # links n_u, n_y and context_len into the model when it instantiates the two.
-    def _open(self) -> list[Source]:
+    def open_sources(self) -> list[Source]:
         """The training stores' sources (then the test store's), checked to agree; opened once."""
         if self._sources is None:
             # Held-out stores follow the training stores: [train..., val_store?, test_store?].
@@ -176,12 +176,12 @@ class RoboMorphDataModule(L.LightningDataModule):
 
     @property
     def u_names(self) -> list[str]:
-        self._open()
+        self.open_sources()
         return list(self._names[0])
 
     @property
     def y_names(self) -> list[str]:
-        self._open()
+        self.open_sources()
         return list(self._names[1])
 
     @property
@@ -189,13 +189,13 @@ class RoboMorphDataModule(L.LightningDataModule):
         """True when a store lacks some of the run's channels (an arm with fewer joints),
         ``joint_dropout`` hides some, or ``channels`` names the set (a multi-arm model's, to
         fine-tune it: its architecture reads the mask): robomorph fit links it."""
-        return pads_any(self._open()) or self.joint_dropout > 0 or self.channels is not None
+        return pads_any(self.open_sources()) or self.joint_dropout > 0 or self.channels is not None
 
     @property
     def layouts(self) -> list[dict[str, list[str]]]:
         """The training stores' distinct channel layouts (the checkpoint records them for the
         Predictor), and under ``joint_dropout`` the set without its last joint."""
-        out = layouts(self._open()[:len(self.stores)])
+        out = layouts(self.open_sources()[:len(self.stores)])
         if self.joint_dropout > 0:
             (u_col,), (y_col,) = last_joint(self.u_names, self.y_names)
             fewer = {"u_names": [n for i, n in enumerate(self.u_names) if i != u_col],
@@ -205,7 +205,7 @@ class RoboMorphDataModule(L.LightningDataModule):
 
     @property
     def dt(self) -> float:
-        return self._open()[0].dt
+        return self.open_sources()[0].dt
 
     @property
     def n_u(self) -> int:
@@ -220,7 +220,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         """Context steps: the argument, or ``round(context_frac * T)`` with T the shortest store's."""
         if self._context_len_arg is not None:
             return self._context_len_arg
-        t_min = min(s.steps for s in self._open())
+        t_min = min(s.steps for s in self.open_sources())
         n = round(self.context_frac * t_min)
         if n < 1:
             raise DataError(f"context_frac {self.context_frac} of T={t_min} gives no context step")
@@ -238,7 +238,7 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.train_set, self.val_set, self.test_set = (WindowDataset(sources, p, ctx, h) for p in (train, val, test))
         if self.joint_dropout > 0:
             self.train_set.hidden_cols = last_joint(self.u_names, self.y_names)
-        self.train_sampler = _train_sampler(self, sources, len(train))
+        self.train_sampler = self._train_sampler(sources, len(train))
 
     def _loader(self, split: str) -> DataLoader:
         self.setup()
@@ -263,87 +263,84 @@ class RoboMorphDataModule(L.LightningDataModule):
     def describe(self) -> dict:
         """A JSON-able summary for logging: stores, split sizes, window lengths."""
         self.setup()
-        return _summary(self)
+        return self._summary()
 
+    def _check_arguments(self) -> None:
+        """Refuses arguments that cannot work, naming the argument and the fix."""
+        if not self.stores:
+            raise DataError("stores: give at least one store path")
+        check_inputs(self.inputs)
+        paths = [os.path.realpath(p) for p in self.stores]
+        if len(set(paths)) != len(paths):
+            raise DataError(f"stores lists a store twice: {self.stores}")
+        check_held_out(paths, self.val_store, self.test_store)
+        if self.weights is not None:
+            w = np.asarray(self.weights, dtype=float)
+            if w.shape != (len(self.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
+                raise DataError(f"weights must be {len(self.stores)} non-negative numbers with a positive sum "
+                                f"(one per store), got {self.weights}")
+        if (self._context_len_arg is None) == (self.context_frac is None):
+            raise DataError("give exactly one of context_len and context_frac "
+                            f"(got context_len={self._context_len_arg}, context_frac={self.context_frac})")
+        if self._context_len_arg is not None and self._context_len_arg < 1:
+            raise DataError(f"context_len must be >= 1, got {self._context_len_arg}")
+        if self.context_frac is not None and not 0 < self.context_frac < 1:
+            raise DataError(f"context_frac must be in (0, 1), got {self.context_frac}")
+        if self.window not in ("start", "random"):
+            raise DataError(f"window must be 'start' or 'random', got {self.window!r}")
+        f = self.split
+        if len(f) != 3 or any(not math.isfinite(x) or x < 0 for x in f) or abs(sum(f) - 1) > 1e-6 or f[0] <= 0:
+            raise DataError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
+                            f"with train > 0, got {self.split}")
+        for name, value, low in (("horizon", self.horizon, 1), ("batch_size", self.batch_size, 1),
+                                 ("num_workers", self.num_workers, 0), ("val_subset", self.val_subset, 1),
+                                 ("seed", self.seed, 0)):
+            if value < low:
+                raise DataError(f"{name} must be >= {low}, got {value}")
+        if self.horizon_min is not None and not 1 <= self.horizon_min <= self.horizon:
+            raise DataError(f"horizon_min must be in [1, horizon={self.horizon}], got {self.horizon_min}")
+        if self.context_min is not None and (self.context_min < 1 or (
+                self._context_len_arg is not None and self.context_min > self._context_len_arg)):
+            raise DataError(f"context_min must be in [1, context_len={self._context_len_arg}], got {self.context_min}")
+        check_normalization(self.normalization, self.recenter)
+        jd = self.joint_dropout
+        if isinstance(jd, bool) or not isinstance(jd, (int, float)) or not 0 <= jd < 1:
+            raise DataError(f"joint_dropout must be a probability in [0, 1), got {jd!r}")
+        if self.train_samples_per_epoch is not None and self.train_samples_per_epoch < 1:
+            raise DataError(f"train_samples_per_epoch must be >= 1, got {self.train_samples_per_epoch}")
 
-def _check_arguments(dm: RoboMorphDataModule) -> None:
-    """Refuses arguments that cannot work, naming the argument and the fix."""
-    if not dm.stores:
-        raise DataError("stores: give at least one store path")
-    check_inputs(dm.inputs)
-    paths = [os.path.realpath(p) for p in dm.stores]
-    if len(set(paths)) != len(paths):
-        raise DataError(f"stores lists a store twice: {dm.stores}")
-    check_held_out(paths, dm.val_store, dm.test_store)
-    if dm.weights is not None:
-        w = np.asarray(dm.weights, dtype=float)
-        if w.shape != (len(dm.stores),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
-            raise DataError(f"weights must be {len(dm.stores)} non-negative numbers with a positive sum "
-                            f"(one per store), got {dm.weights}")
-    if (dm._context_len_arg is None) == (dm.context_frac is None):
-        raise DataError("give exactly one of context_len and context_frac "
-                        f"(got context_len={dm._context_len_arg}, context_frac={dm.context_frac})")
-    if dm._context_len_arg is not None and dm._context_len_arg < 1:
-        raise DataError(f"context_len must be >= 1, got {dm._context_len_arg}")
-    if dm.context_frac is not None and not 0 < dm.context_frac < 1:
-        raise DataError(f"context_frac must be in (0, 1), got {dm.context_frac}")
-    if dm.window not in ("start", "random"):
-        raise DataError(f"window must be 'start' or 'random', got {dm.window!r}")
-    f = dm.split
-    if len(f) != 3 or any(not math.isfinite(x) or x < 0 for x in f) or abs(sum(f) - 1) > 1e-6 or f[0] <= 0:
-        raise DataError(f"split must be three non-negative fractions (train, val, test) summing to 1 "
-                        f"with train > 0, got {dm.split}")
-    for name, value, low in (("horizon", dm.horizon, 1), ("batch_size", dm.batch_size, 1),
-                             ("num_workers", dm.num_workers, 0), ("val_subset", dm.val_subset, 1),
-                             ("seed", dm.seed, 0)):
-        if value < low:
-            raise DataError(f"{name} must be >= {low}, got {value}")
-    if dm.horizon_min is not None and not 1 <= dm.horizon_min <= dm.horizon:
-        raise DataError(f"horizon_min must be in [1, horizon={dm.horizon}], got {dm.horizon_min}")
-    if dm.context_min is not None and (dm.context_min < 1 or (
-            dm._context_len_arg is not None and dm.context_min > dm._context_len_arg)):
-        raise DataError(f"context_min must be in [1, context_len={dm._context_len_arg}], got {dm.context_min}")
-    check_normalization(dm.normalization, dm.recenter)
-    jd = dm.joint_dropout
-    if isinstance(jd, bool) or not isinstance(jd, (int, float)) or not 0 <= jd < 1:
-        raise DataError(f"joint_dropout must be a probability in [0, 1), got {jd!r}")
-    if dm.train_samples_per_epoch is not None and dm.train_samples_per_epoch < 1:
-        raise DataError(f"train_samples_per_epoch must be >= 1, got {dm.train_samples_per_epoch}")
+    def _train_sampler(self, sources: list[Source], n_train: int) -> MixtureSampler:
+        """The seeded training stream: stores by weight, random offsets and lengths as configured."""
+        counts = np.array([len(s["train"]) for s in self.splits[:len(self.stores)]])
+        ctx, h = self.context_len, self.horizon
+        return MixtureSampler(
+            base=np.concatenate([[0], np.cumsum(counts)[:-1]]), counts=counts, probs=self.probs,
+            steps=np.array([src.steps for src in sources[:len(self.stores)]]),
+            n_samples=self.train_samples_per_epoch or n_train, seed=self.seed,
+            random_window=self.window == "random", batch_size=self.batch_size,
+            lengths=(self.context_min or ctx, ctx, self.horizon_min or h, h), hide_prob=self.joint_dropout)
 
+    def _check_context_min(self) -> None:
+        """``context_min`` within the resolved context (``context_frac`` is known only from the stores)."""
+        if self.context_min is not None and self.context_min > self.context_len:
+            raise DataError(f"context_min {self.context_min} exceeds the context of {self.context_len} steps"
+                            + (f" that context_frac {self.context_frac} gives" if self.context_frac else ""))
 
-def _train_sampler(dm: RoboMorphDataModule, sources: list[Source], n_train: int) -> MixtureSampler:
-    """The seeded training stream: stores by weight, random offsets and lengths as configured."""
-    counts = np.array([len(s["train"]) for s in dm.splits[:len(dm.stores)]])
-    ctx, h = dm.context_len, dm.horizon
-    return MixtureSampler(
-        base=np.concatenate([[0], np.cumsum(counts)[:-1]]), counts=counts, probs=dm.probs,
-        steps=np.array([src.steps for src in sources[:len(dm.stores)]]),
-        n_samples=dm.train_samples_per_epoch or n_train, seed=dm.seed,
-        random_window=dm.window == "random", batch_size=dm.batch_size,
-        lengths=(dm.context_min or ctx, ctx, dm.horizon_min or h, h), hide_prob=dm.joint_dropout)
+    def _summary(self) -> dict:
+        """The set-up data module's summary (:meth:`RoboMorphDataModule.describe`)."""
+        per_store = {src.path: {"n": src.n, "steps": src.steps, **{k: len(v) for k, v in sp.items()}}
+                     for src, sp in zip(self.sources, self.splits)}
+        return {
+            "stores": list(self.stores), "val_store": self.val_store, "test_store": self.test_store,
+            "per_store": per_store,
+            "split_by": ["recording" if src.groups is not None else "trajectory" for src in self.sources],
+            "weights": [float(p) for p in self.probs],
+            "train": len(self.train_set), "val": self.n_val_total, "val_used": len(self.val_set),
+            "test": len(self.test_set), "train_samples_per_epoch": len(self.train_sampler),
+            "context_len": self.context_len, "horizon": self.horizon, "window": self.window,
+            "context_min": self.context_min, "horizon_min": self.horizon_min,
+            "n_u": self.n_u, "n_y": self.n_y, "dt": self.dt, "in_memory": bool(self.loaded),
+            "seed": self.seed, "split": list(self.split), "normalization": self.normalization,
+            "inputs": self.inputs, "channel_mask": self.channel_mask,
+        }
 
-
-def _check_context_min(dm: RoboMorphDataModule) -> None:
-    """``context_min`` within the resolved context (``context_frac`` is known only from the stores)."""
-    if dm.context_min is not None and dm.context_min > dm.context_len:
-        raise DataError(f"context_min {dm.context_min} exceeds the context of {dm.context_len} steps"
-                        + (f" that context_frac {dm.context_frac} gives" if dm.context_frac else ""))
-
-
-def _summary(dm: RoboMorphDataModule) -> dict:
-    """The set-up data module's summary (:meth:`RoboMorphDataModule.describe`)."""
-    per_store = {src.path: {"n": src.n, "steps": src.steps, **{k: len(v) for k, v in sp.items()}}
-                 for src, sp in zip(dm.sources, dm.splits)}
-    return {
-        "stores": list(dm.stores), "val_store": dm.val_store, "test_store": dm.test_store,
-        "per_store": per_store,
-        "split_by": ["recording" if src.groups is not None else "trajectory" for src in dm.sources],
-        "weights": [float(p) for p in dm.probs],
-        "train": len(dm.train_set), "val": dm.n_val_total, "val_used": len(dm.val_set),
-        "test": len(dm.test_set), "train_samples_per_epoch": len(dm.train_sampler),
-        "context_len": dm.context_len, "horizon": dm.horizon, "window": dm.window,
-        "context_min": dm.context_min, "horizon_min": dm.horizon_min,
-        "n_u": dm.n_u, "n_y": dm.n_y, "dt": dm.dt, "in_memory": bool(dm.loaded),
-        "seed": dm.seed, "split": list(dm.split), "normalization": dm.normalization,
-        "inputs": dm.inputs, "channel_mask": dm.channel_mask,
-    }

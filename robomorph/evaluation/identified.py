@@ -83,8 +83,8 @@ class IdentifiedPhysics:
                 rest: zero initial velocity); default: the velocity at the context's first
                 sample is estimated from its first samples.
         """
-        sim, nj = self.physics, self.physics._nj
-        q_ctx = y_ctx[..., sim._q].astype(np.float64)
+        sim, nj = self.physics, self.physics.n_joint
+        q_ctx = y_ctx[..., sim.joints].astype(np.float64)
         # The velocity at the first context sample: a cubic through the first samples, in reverse time.
         qvel_start = -estimate_velocity(q_ctx[:, ::-1], sim.dt)
         if at_rest is not None:
@@ -98,8 +98,8 @@ class IdentifiedPhysics:
             fit = self.identifier.fit(start, q_ctx[b], torque_ctx[b], qvel_start[b])
             qvel = fit.qvel_end[:nj] if self._fitted_velocity else estimate_velocity(q_ctx[b:b + 1], sim.dt)[0]
             y = sim.rollout(torque[b], q_ctx[b, -1], qvel, fit.params)
-            if np.dot(y[0, sim._quat], y_ctx[b, -1, sim._quat]) < 0:  # the context's sign convention
-                y[:, sim._quat] *= -1.0
+            if np.dot(y[0, sim.quaternion], y_ctx[b, -1, sim.quaternion]) < 0:  # the context's sign convention
+                y[:, sim.quaternion] *= -1.0
             out.append(y[1:])
             self.fits.append(fit)
             self.seconds.append(time.perf_counter() - t0)
@@ -117,7 +117,7 @@ class IdentifiedPhysics:
                 "converged": int(sum(x.converged for x in f)),
                 "context_rms_mrad": {"catalogue": 1e3 * float(np.sqrt(np.mean([x.rms_start ** 2 for x in f]))),
                                      "identified": 1e3 * float(np.sqrt(np.mean([x.rms ** 2 for x in f])))},
-                "parameters": list(f[0].names), "threads": self.identifier._rollout.nthread}
+                "parameters": list(f[0].names), "threads": self.identifier.engine.rollout.nthread}
 
 
 def predict_windows(w, config: IdentifyConfig | None = None, anchors=None) -> tuple[np.ndarray, dict]:

@@ -105,9 +105,9 @@ class NominalPhysics:
         self.model = arm.build_model(recipe.substeps, recipe.dt, self.gravity_in_actuators)
         self.data = mujoco.MjData(self.model)
         self._randomizer = Randomizer(self.model, recipe.randomization, arm.name)
-        self._nj = self.n_joint = arm.n_joint
-        self._q = slice(7, 7 + arm.n_joint)
-        self._quat = slice(3, 7)
+        self.n_joint = arm.n_joint
+        self.joints = slice(7, 7 + arm.n_joint)  # the columns of y holding the joint angles
+        self.quaternion = slice(3, 7)  # the columns of y holding the end effector's orientation
 
     def params(self, qinit: np.ndarray) -> np.ndarray:
         """The nominal parameter vector (in ``params`` order) with the spring anchored at ``qinit``."""
@@ -117,11 +117,11 @@ class NominalPhysics:
                  params: np.ndarray | None = None) -> np.ndarray:
         """Predicts ``y_query``; with ``params`` (B, P), each robot's own stored parameters
         replace the nominal ones (the ``true_physics`` ceiling)."""
-        q_ctx = y_ctx[..., self._q].astype(np.float64)
+        q_ctx = y_ctx[..., self.joints].astype(np.float64)
         qvel0 = estimate_velocity(q_ctx, self.dt)
         # Frames c-1 .. c+H-1: from the last context state, under u[c-1] then the query.
         torque = np.concatenate([u_ctx[:, -1:], u_query], axis=1).astype(np.float64)
-        return np.stack([self._one(q_ctx[b], qvel0[b], torque[b], y_ctx[b, -1, self._quat],
+        return np.stack([self._one(q_ctx[b], qvel0[b], torque[b], y_ctx[b, -1, self.quaternion],
                                    None if params is None else np.asarray(params[b], dtype=np.float64))
                          for b in range(len(torque))])
 
@@ -148,13 +148,13 @@ class NominalPhysics:
         if params is None:
             params = self.params(q_ctx[0])
         y = self.rollout(torque, q_ctx[-1], qvel0, params)  # row f: the start of frame c-1+f
-        if np.dot(y[0, self._quat], quat_last) < 0:  # the context's sign convention
-            y[:, self._quat] *= -1.0
+        if np.dot(y[0, self.quaternion], quat_last) < 0:  # the context's sign convention
+            y[:, self.quaternion] *= -1.0
         return y[1:]
 
     def _controller(self, torque: np.ndarray):
         """``(data, t) -> ctrl`` that applies ``torque`` in this baseline's formulation."""
         from robomorph.sim.closed_loop import formulation_controller  # noqa: PLC0415
 
-        return formulation_controller(torque, self.inputs, self.gravity_in_actuators, self._nj,
+        return formulation_controller(torque, self.inputs, self.gravity_in_actuators, self.n_joint,
                                       self._catalogue_gravity)

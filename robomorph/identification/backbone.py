@@ -152,7 +152,7 @@ class PhysicsBackbone:
                                 "re-train it")
         self.dt = float(self.recipe.dt)
         # Without state feedback inside the horizon, the horizon is one open-loop rollout.
-        self.open_loop = self.ident._feedback is None
+        self.open_loop = self.ident.engine.feedback is None
         self._closed = None  # (full model, data, controller settings) for the formulations that need feedback
         self._kinematics = SiteKinematics(self.ident.model, "ee")
         self.observe = bool(layout.get("observer", False))
@@ -209,12 +209,12 @@ class PhysicsBackbone:
         total torques: the finite-difference estimate (the context simulation drifts with g(q)
         in the torque, as ``identified_physics`` found). ``kick``: :func:`observed_velocity`'s."""
         from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
-        from robomorph.identification.identify import _Problem  # noqa: PLC0415
+        from robomorph.identification.identify import ContextProblem  # noqa: PLC0415
 
         if self.inputs != "command":
             return estimate_velocity(q_ctx, self.dt)
         if self.open_loop:
-            # All contexts in threaded batches: the rollouts of the fit's problem (_Problem), to the bit.
+            # All contexts in threaded batches: the rollouts of the fit's problem (ContextProblem), to the bit.
             nj = q_ctx.shape[2]
             s0, v0 = _context_start(q_ctx, qvel_start, self.observe, self.dt)
             states = self.frame_states(params, q_ctx[:, s0], v0,
@@ -223,10 +223,10 @@ class PhysicsBackbone:
             return observed_velocity(end, q_ctx[:, s0:] - states[..., 1:1 + nj], self.dt, kick) if self.observe else end
         out = np.empty((len(params), q_ctx.shape[2]))
         for b in range(len(params)):
-            problem = _Problem(self.ident, params[b], q_ctx[b], torque_ctx[b], np.asarray(qvel_start[b]))
+            problem = ContextProblem(self.ident, params[b], q_ctx[b], torque_ctx[b], np.asarray(qvel_start[b]))
             z = self.ident.space.to_unit(params[b][self.ident.space.index])
             residual = -problem.joint_error(z[None]).reshape(1, -1, q_ctx.shape[2])  # rows 1.. of the context
-            out[b] = problem._qvel_end[z.tobytes()][:q_ctx.shape[2]]
+            out[b] = problem.end_velocity(z)[:q_ctx.shape[2]]
             out[b] = observed_velocity(out[b:b + 1], residual, self.dt, kick)[0] if self.observe else out[b]
         return out
 
@@ -264,19 +264,19 @@ class PhysicsBackbone:
         elif self.open_loop:
             q = self.frame_states(params, q_ctx[:, -1], qvel_end, torque)[..., 1:1 + q_ctx.shape[2]]  # time, qpos, ...
         else:
-            q = np.stack([_closed_loop(self, params[b], q_ctx[b, -1], qvel_end[b], torque[b]) for b in range(n)])
-        return signed(self._outputs(q), quat_last)[:, 1:]  # row 0: the last context sample
+            q = np.stack([self._closed_loop(params[b], q_ctx[b, -1], qvel_end[b], torque[b]) for b in range(n)])
+        return signed(self.outputs(q), quat_last)[:, 1:]  # row 0: the last context sample
 
     def frame_states(self, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray,
                      fine: bool = False) -> np.ndarray:
         """(N, F + 1, S) full physics states (``mjSTATE_FULLPHYSICS``) at the starts of F open-loop frames (row 0:
-        the start): :func:`segments`' physics steps, or with ``fine`` the recipe's throughout (as contexts are simulated)."""
+        the start): :meth:`segments`' physics steps, or with ``fine`` the recipe's throughout (as contexts are simulated)."""
         ident, nj = self.ident, qpos0.shape[1]
-        m, d = ident.model, ident._scratch
+        m, d = ident.model, ident.engine.scratch
         frames = torque.shape[1]
         size = mujoco.mj_stateSize(m, _STATE)
         out = np.empty((len(params), frames + 1, size))
-        models = ident._models
+        models = ident.engine.models
         for s in range(0, len(params), len(models)):
             group = range(s, min(s + len(models), len(params)))
             ms = models[:len(group)]
@@ -287,12 +287,12 @@ class PhysicsBackbone:
                 d.qpos[:nj], d.qvel[:nj] = qpos0[b], qvel0[b]
                 mujoco.mj_getState(model, d, x[k], _STATE)
             try:
-                for first, last, ss in [(0, frames, self.substeps)] if fine else segments(self, frames):
+                for first, last, ss in [(0, frames, self.substeps)] if fine else self.segments(frames):
                     for model in ms:
                         model.opt.timestep = self.dt / ss
                     control = np.repeat(torque[group.start:group.stop, first:last], ss, axis=1)
                     state = np.empty((len(group), (last - first) * ss, size))
-                    ident._rollout(ms, np.ascontiguousarray(out[group.start:group.stop, first]), control, state=state)
+                    ident.engine.rollout(ms, np.ascontiguousarray(out[group.start:group.stop, first]), control, state=state)
                     rows = np.arange(1, last - first + 1) * ss - 1  # after the last physics step of each frame
                     out[group.start:group.stop, first + 1:last + 1] = state[:, rows]
             finally:
@@ -300,7 +300,7 @@ class PhysicsBackbone:
                     model.opt.timestep = m.opt.timestep  # the recipe's, which the context's simulations use
         return out
 
-    def _outputs(self, q: np.ndarray) -> np.ndarray:
+    def outputs(self, q: np.ndarray) -> np.ndarray:
         """(..., T, 7) joint positions -> (..., T, 14) y (catalogue kinematics: link geometry is not randomized)."""
         from robomorph.sim.filters import continuous_quaternion  # noqa: PLC0415
 
@@ -308,34 +308,32 @@ class PhysicsBackbone:
         quat = continuous_quaternion(quat)
         return np.concatenate([pos, quat[..., [1, 2, 3, 0]], q], axis=-1)
 
+    def _closed_loop(self, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:
+        """(F + 1, 7) joint positions of one robot simulated closed loop (state feedback in the formulation)."""
+        from robomorph.sim import arms  # noqa: PLC0415
+        from robomorph.sim.closed_loop import formulation_controller, simulate_closed_loop  # noqa: PLC0415
+        from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
+        from robomorph.sim.filters import to_outputs  # noqa: PLC0415
 
-def _closed_loop(bb: PhysicsBackbone, params: np.ndarray, qpos0: np.ndarray, qvel0: np.ndarray, torque: np.ndarray) -> np.ndarray:
-    """(F + 1, 7) joint positions of one robot simulated closed loop (state feedback in the formulation)."""
-    from robomorph.sim import arms  # noqa: PLC0415
-    from robomorph.sim.closed_loop import formulation_controller, simulate_closed_loop  # noqa: PLC0415
-    from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
-    from robomorph.sim.filters import to_outputs  # noqa: PLC0415
+        recipe, nj = self.recipe, len(qpos0)
+        in_actuators = recipe.gravity_compensation == "true_model"
+        if self._closed is None:
+            model = arms.get(recipe.robot).build_model(self.substeps, recipe.dt, in_actuators)
+            grav = NominalGravity(recipe) if self.inputs == "command" and not in_actuators \
+                and recipe.gravity_compensation == "nominal_model" else None
+            self._closed = (model, mujoco.MjData(model), grav)
+        model, data, grav = self._closed
+        self.ident.randomizer.apply(model, params)
+        torque = np.concatenate([torque, torque[-1:]], axis=0)  # a row per frame start, the start included
+        control = formulation_controller(torque, self.inputs, in_actuators, nj, grav)
+        sens = simulate_closed_loop(model, data, qpos0, len(torque), self.substeps, control, qvel0)
+        return to_outputs(sens)[1][:, 7:7 + nj]
 
-    recipe, nj = bb.recipe, len(qpos0)
-    in_actuators = recipe.gravity_compensation == "true_model"
-    if bb._closed is None:
-        model = arms.get(recipe.robot).build_model(bb.substeps, recipe.dt, in_actuators)
-        grav = NominalGravity(recipe) if bb.inputs == "command" and not in_actuators \
-            and recipe.gravity_compensation == "nominal_model" else None
-        bb._closed = (model, mujoco.MjData(model), grav)
-    model, data, grav = bb._closed
-    bb.ident.randomizer.apply(model, params)
-    torque = np.concatenate([torque, torque[-1:]], axis=0)  # a row per frame start, the start included
-    control = formulation_controller(torque, bb.inputs, in_actuators, nj, grav)
-    sens = simulate_closed_loop(model, data, qpos0, len(torque), bb.substeps, control, qvel0)
-    return to_outputs(sens)[1][:, 7:7 + nj]
-
-
-def segments(bb: PhysicsBackbone, frames: int) -> list[tuple[int, int, int]]:
-    """``(first, last, substeps)`` of ``bb``'s open-loop horizon stretches: :attr:`PhysicsBackbone.FINE_STEPS` frames
-    at the recipe's step, the rest at ``coarse`` (empty stretches left out)."""
-    fine = frames if bb.coarse == bb.substeps else min(frames, bb.FINE_STEPS)
-    return [(a, b, ss) for a, b, ss in ((0, fine, bb.substeps), (fine, frames, bb.coarse)) if b > a]
+    def segments(self, frames: int) -> list[tuple[int, int, int]]:
+        """``(first, last, substeps)`` of the open-loop horizon's stretches: :attr:`PhysicsBackbone.FINE_STEPS` frames
+        at the recipe's step, the rest at ``coarse`` (empty stretches left out)."""
+        fine = frames if self.coarse == self.substeps else min(frames, self.FINE_STEPS)
+        return [(a, b, ss) for a, b, ss in ((0, fine, self.substeps), (fine, frames, self.coarse)) if b > a]
 
 
 def _context_start(q_ctx: np.ndarray, qvel_start: np.ndarray, observe: bool, dt: float) -> tuple[int, np.ndarray]:

@@ -188,14 +188,38 @@ def lean_spec(substeps: int, dt: float, gravity_compensation: bool, robot: str =
     timestep = float(dt) / substeps
     if robot == "panda":
         # Without the mesh and texture files: compiling copies them all (14 MB), 45 of 47 ms, for nothing used.
-        spec = mujoco.MjSpec.from_string(panda._compiled_xml(timestep, bool(gravity_compensation))[0])
+        spec = mujoco.MjSpec.from_string(panda.compiled_xml(timestep, bool(gravity_compensation))[0])
     else:
-        spec = arms._build_spec(arms.get(robot), timestep, bool(gravity_compensation))
+        spec = arms.build_spec(arms.get(robot), timestep, bool(gravity_compensation))
     for kind in ("geoms", "meshes", "sensors", "textures", "materials"):
         for element in list(getattr(spec, kind)):
             if kind != "geoms" or element.type == mujoco.mjtGeom.mjGEOM_MESH:
                 spec.delete(element)
     return spec
+
+
+class RolloutEngine:
+    """Robots of one lean arm model simulated side by side: what the identifier's fits, the hybrid's backbone,
+    the smoother, the friction mixture and the tangent candidates all run their rollouts on.
+
+    Attributes:
+        model: the lean arm (:func:`lean_model`) whose copies are simulated.
+        models: one copy per robot simulated at once (a rollout sets each copy's parameters).
+        rollout: the threaded ``mujoco.rollout`` runner (:class:`robomorph.sim.open_loop.ThreadedRollout`).
+        scratch: an ``MjData`` of :attr:`model` for one-off computations (a state's gravity, a forward pass).
+        feedback: what the formulation adds to the torque at each frame start: ``catalogue`` (the catalogue
+            arm's gravity compensation, commands to a ``nominal_model`` arm), ``own`` (the simulated robot's,
+            total torques of a ``true_model`` arm) or None (open loop).
+    """
+
+    def __init__(self, model: mujoco.MjModel, copies: int, nthread: int, feedback: str | None):
+        self.model, self.feedback = model, feedback
+        self.models = [copy.deepcopy(model) for _ in range(max(1, copies))]
+        self.rollout = ThreadedRollout(model, min(nthread, len(self.models)))
+        self.scratch = mujoco.MjData(model)
+
+    def close(self) -> None:
+        self.rollout.close()
 
 
 class Identifier:
@@ -218,23 +242,20 @@ class Identifier:
         self.space = ParameterSpace.of(self.randomizer, recipe.randomization, self.config.kinds)
         # What the formulation adds to the torque at each frame start (see the module docstring).
         if inputs == "command" and recipe.gravity_compensation == "nominal_model":
-            self._feedback = "catalogue"
+            feedback = "catalogue"
         elif inputs == "total" and in_actuators:
-            self._feedback = "own"
+            feedback = "own"
         else:
-            self._feedback = None
-        self._catalogue_gravity = None
-        if self._feedback == "catalogue":
+            feedback = None
+        self.catalogue_gravity = None  # the catalogue arm's gravity compensation the commands lack, where it adds one
+        if feedback == "catalogue":
             from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
 
-            self._catalogue_gravity = NominalGravity(recipe)
-        self._models = [copy.deepcopy(self.model) for _ in range(max(1, len(self.space)))]
-        nthread = min(self.config.nthread or os.cpu_count() or 1, len(self._models))
-        self._rollout = ThreadedRollout(self.model, nthread)
-        self._scratch = mujoco.MjData(self.model)
+            self.catalogue_gravity = NominalGravity(recipe)
+        self.engine = RolloutEngine(self.model, len(self.space), self.config.nthread or os.cpu_count() or 1, feedback)
 
     def close(self) -> None:
-        self._rollout.close()
+        self.engine.close()
 
     def __enter__(self) -> "Identifier":
         return self
@@ -262,7 +283,7 @@ class Identifier:
             raise IdentificationError(f"identify needs (T >= 3, {nj}) joint positions and torques of the same shape, "
                                       f"got {q.shape} and {torque.shape}")
         sp, cfg = self.space, self.config
-        problem = _Problem(self, base, q, torque, np.asarray(qvel0, dtype=np.float64))
+        problem = ContextProblem(self, base, q, torque, np.asarray(qvel0, dtype=np.float64))
         prior = np.clip(sp.to_unit(base[sp.index]), -1.0, 1.0)
         # Strictly inside (a start on a bound stalls), and rounding noise snapped to the
         # middle: scipy sizes its first trust region by |z0|, 1 when z0 is exactly zero.
@@ -288,14 +309,14 @@ class Identifier:
         return problem.result(sol.x, int(sol.njev or 0), int(sol.nfev), t0, sol.status > 0, rms_start)
 
 
-class _Problem:
+class ContextProblem:
     """One context: the rollouts of parameter vectors and their joint errors."""
 
     def __init__(self, ident: Identifier, base: np.ndarray, q: np.ndarray, torque: np.ndarray, qvel0: np.ndarray):
         self.ident, self.base, self.q = ident, base, q
         self.frames = len(q) - 1  # frames simulated: rows 1..T-1 are compared
         m, ss = ident.model, ident.substeps
-        d = ident._scratch
+        d = ident.engine.scratch
         mujoco.mj_resetData(m, d)
         nj = ident.randomizer.nj
         d.qpos[:nj] = q[0]
@@ -304,11 +325,11 @@ class _Problem:
         mujoco.mj_getState(m, d, self.x0, _STATE)
         self.torque = torque[:self.frames]
         self._gravity = None
-        if ident._feedback == "catalogue":
-            self.torque = self.torque + np.stack([ident._catalogue_gravity(qt) for qt in q[:self.frames]])
-        elif ident._feedback == "own":
+        if ident.engine.feedback == "catalogue":
+            self.torque = self.torque + np.stack([ident.catalogue_gravity(qt) for qt in q[:self.frames]])
+        elif ident.engine.feedback == "own":
             # The centres of mass are not fitted: those of ``base`` are the fitted robot's.
-            gm = ident._models[0]
+            gm = ident.engine.models[0]
             ident.randomizer.apply(gm, base)
             self._gravity = _gravity_terms(gm, d, q[:self.frames], ident.randomizer.index.body_ids)
         # state[k] is the state after physics step k: row t is the end of step t*ss - 1.
@@ -326,7 +347,7 @@ class _Problem:
     def joint_error(self, zs: np.ndarray) -> np.ndarray:
         """(k, frames * 7) simulated minus recorded joint positions for each row of ``zs`` (k, n)."""
         ident, k = self.ident, len(zs)
-        models = ident._models[:k]
+        models = ident.engine.models[:k]
         masses = []
         for model, z in zip(models, zs):
             p = self.params(z)
@@ -338,7 +359,7 @@ class _Problem:
             ctrl = self.torque[None] - g_fixed[None] - np.einsum("tbj,kb->ktj", per_link, np.asarray(masses))
         control = np.repeat(ctrl, ident.substeps, axis=1)
         state = np.empty((k, self.nstep, len(self.x0)))
-        ident._rollout(models, self.x0, control, state=state)
+        ident.engine.rollout(models, self.x0, control, state=state)
         self.rollouts += k
         nq = ident.randomizer.nj
         qsim = state[:, self.rows, 1:1 + nq]  # FULLPHYSICS: time, qpos, qvel, ...
@@ -351,6 +372,11 @@ class _Problem:
             self._cache = {key: err[0]}
             self._qvel_end = {key: self.last_qvel_end[0].copy()}
         return err
+
+    def end_velocity(self, z: np.ndarray) -> np.ndarray:
+        """(nj,) where the rollout of ``z`` (unit coordinates) ends in velocity: the last single rollout's."""
+        self.cached(z)
+        return self._qvel_end[z.tobytes()]
 
     def cached(self, z: np.ndarray) -> np.ndarray:
         key = z.tobytes()

@@ -308,11 +308,11 @@ def smooth_windows(backbone, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.nd
     for b in progress(range(b_n), "smoothing", unit="window"):  # seconds each
         p = params[min(b, len(params) - 1)]
         frames = FrameMap(backbone.ident.model, lambda m, p=p: randomizer.apply(m, p), backbone.substeps,
-                          in_actuators, backbone.ident._rollout)
+                          in_actuators, backbone.ident.engine.rollout)
         smoother = Smoother(frames, config)
         q[b, 1:], cov[b] = smoother(q_ctx[b, -1], v_last[b], torque[b], decoder[b, :, cols], decoder_std[b, :, cols])
         staged += smoother.grown
-    out = signed(backbone._outputs(q), quat_last)[:, 1:]
+    out = signed(backbone.outputs(q), quat_last)[:, 1:]
     bad = ~np.isfinite(out).all(axis=(1, 2))
     out[bad] = decoder[bad]
     box = joint_box(backbone.ident.model, nj, backbone.recipe.filters.joint_margin)
@@ -367,8 +367,8 @@ def output_std(backbone, q: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """(N, T, n_y) standard deviations of the outputs for joint positions ``q`` (N, T, 7) with
     covariances ``cov`` (N, T, 7, 7): the kinematics linearized (differences of 1e-6 rad)."""
     step = 1e-6
-    y0 = backbone._outputs(q)
-    jac = np.stack([(backbone._outputs(q + step * np.eye(q.shape[-1])[j]) - y0) / step
+    y0 = backbone.outputs(q)
+    jac = np.stack([(backbone.outputs(q + step * np.eye(q.shape[-1])[j]) - y0) / step
                     for j in range(q.shape[-1])], axis=-1)  # (N, T, n_y, 7)
     var = np.einsum("ntcj,ntjk,ntck->ntc", jac, cov, jac)
     return np.sqrt(np.maximum(var, 0.0))

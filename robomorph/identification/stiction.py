@@ -47,9 +47,9 @@ class FrictionMixture:
         space = ident.space
         if int(members) < 2:
             raise ValueError(f"a friction mixture needs at least 2 members, got {members}")
-        if int(members) > len(ident._models):
+        if int(members) > len(ident.engine.models):
             raise ValueError(f"a friction mixture of {members} members needs as many models; the identifier "
-                             f"has {len(ident._models)}")
+                             f"has {len(ident.engine.models)}")
         self.ident, self.members = ident, int(members)
         # joint -> (position in the full vector, low, high) of its friction loss
         self.friction: dict[int, tuple[int, float, float]] = {}
@@ -86,11 +86,11 @@ class FrictionMixture:
         Returns:
             ``(members (K, P), weights (K,) summing to 1, qvel_end (K, nj))``.
         """
-        from robomorph.identification.identify import _Problem  # noqa: PLC0415
+        from robomorph.identification.identify import ContextProblem  # noqa: PLC0415
 
         members = self.candidates(params, held)
         space = self.ident.space
-        problem = _Problem(self.ident, np.asarray(params, dtype=np.float64), np.asarray(q_ctx, dtype=np.float64),
+        problem = ContextProblem(self.ident, np.asarray(params, dtype=np.float64), np.asarray(q_ctx, dtype=np.float64),
                            np.asarray(torque_ctx, dtype=np.float64), np.asarray(qvel_start, dtype=np.float64))
         err = problem.joint_error(space.to_unit(members[:, space.index]))
         mse = np.mean(err ** 2, axis=1)

@@ -66,14 +66,14 @@ def one_frame_maps(bb, robots: list, states: np.ndarray, torque: np.ndarray, eve
     rest = np.setdiff1d(np.arange(frames), at)
     x0 = np.concatenate([x0.reshape(-1, x0.shape[2]), states[rest]])
     ctrl = np.concatenate([ctrl.reshape(-1, nj), torque[rest]])
-    models = bb.ident._models[:len(robots)]
+    models = bb.ident.engine.models[:len(robots)]
     for model, params in zip(models, robots):
         bb.ident.randomizer.apply(model, params)
         model.opt.timestep = bb.dt / substeps
     n = len(x0)
     end = np.empty((len(robots) * n, substeps, x0.shape[1]))
     try:
-        bb.ident._rollout([m for m in models for _ in range(n)], np.ascontiguousarray(np.tile(x0, (len(robots), 1))),
+        bb.ident.engine.rollout([m for m in models for _ in range(n)], np.ascontiguousarray(np.tile(x0, (len(robots), 1))),
                           np.repeat(np.tile(ctrl, (len(robots), 1))[:, None], substeps, axis=1), state=end)
     finally:
         for model in models:

@@ -312,7 +312,7 @@ def _exclude_base(spec: mujoco.MjSpec, first_joint) -> None:
         spec.add_exclude(bodyname1=base.name, bodyname2=first.name)
 
 
-def _build_spec(arm: Arm, timestep: float, gravity_compensation: bool) -> mujoco.MjSpec:
+def build_spec(arm: Arm, timestep: float, gravity_compensation: bool) -> mujoco.MjSpec:
     spec = mujoco.MjSpec.from_file(robosuite_xml(arm.folder))
     spec.modelname = f"robomorph_{arm.name}"
     _strip(spec)
@@ -346,7 +346,7 @@ def _build_spec(arm: Arm, timestep: float, gravity_compensation: bool) -> mujoco
 @functools.lru_cache(maxsize=16)
 def _compiled(name: str, timestep: float, gravity_compensation: bool) -> mujoco.MjModel:
     arm = ARMS[name]
-    model = _build_spec(arm, timestep, gravity_compensation).compile()
+    model = build_spec(arm, timestep, gravity_compensation).compile()
     if model.nq != arm.n_joint or model.nv != arm.n_joint or model.nu != arm.n_joint:
         raise RuntimeError(f"{name}: expected {arm.n_joint} joints and motors, got nq={model.nq}, "
                            f"nv={model.nv}, nu={model.nu}")

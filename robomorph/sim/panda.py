@@ -124,7 +124,7 @@ def _build_mjcf(timestep: float, gravity_compensation: bool):
 
 
 @functools.lru_cache(maxsize=8)
-def _compiled_xml(timestep: float, gravity_compensation: bool):
+def compiled_xml(timestep: float, gravity_compensation: bool):
     root = _build_mjcf(timestep, gravity_compensation)
     return root.to_xml_string(), root.get_assets()
 
@@ -142,7 +142,7 @@ def build_model(substeps: int = 8, dt: float = 1 / 60, gravity_compensation: boo
     """
     if substeps < 1:
         raise ValueError(f"substeps must be >= 1, got {substeps}")
-    xml, assets = _compiled_xml(float(dt) / substeps, bool(gravity_compensation))
+    xml, assets = compiled_xml(float(dt) / substeps, bool(gravity_compensation))
     return mujoco.MjModel.from_xml_string(xml, assets=assets)
 
 

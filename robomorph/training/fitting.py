@@ -119,7 +119,7 @@ class RoboMorphCLI(LightningCLI):
         # The folder is made by fit() once the pre-flight checks pass, not here: a refused
         # fit leaves nothing behind.
         cfg, run = self.config, self.run_dir()
-        self._run = run
+        self.rundir = run  # the run folder this fit writes (RunDir)
         ckpt_dir = run.checkpoints
         callbacks = [
             # The file names are RunDir's: best.ckpt, and Lightning's last.ckpt.
@@ -275,11 +275,11 @@ def lightning_refusals():
 def _run_lock(cli: RoboMorphCLI):
     """One writer per run folder (two would mix their logs and configs). DDP workers re-run
     this script: the launching process (global rank 0) holds the lock for them all."""
-    return exclusive(cli._run.path, "run folder") if cli.trainer.is_global_zero else contextlib.nullcontext()
+    return exclusive(cli.rundir.path, "run folder") if cli.trainer.is_global_zero else contextlib.nullcontext()
 
 
 def _fit(cli: RoboMorphCLI) -> FitResult:
-    run, trainer, module = cli._run, cli.trainer, cli.model
+    run, trainer, module = cli.rundir, cli.trainer, cli.model
     ckpt = _resume_path(cli, run)
     _preflight(cli, ckpt)
     module.resuming = ckpt is not None

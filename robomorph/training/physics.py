@@ -39,7 +39,7 @@ def physics_layout(dm) -> dict:
     """
     from robomorph.identification.backbone import parameter_layout, same_layout  # noqa: PLC0415
 
-    sources = dm._open()
+    sources = dm.open_sources()
     layouts = [parameter_layout(src.attrs) for src in sources]
     for src, lay in zip(sources[1:], layouts[1:]):
         if not same_layout(layouts[0], lay):

@@ -23,7 +23,7 @@ def _frames(bb, params):
     from robomorph.identification.smoother import FrameMap
 
     return FrameMap(bb.ident.model, lambda m: bb.ident.randomizer.apply(m, params), bb.substeps, True,
-                    bb.ident._rollout)
+                    bb.ident.engine.rollout)
 
 
 def _run(frames, q0, u, n):

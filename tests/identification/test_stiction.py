@@ -5,7 +5,7 @@ import pytest
 
 from robomorph.data.store import open_store
 from robomorph.identification.backbone import PhysicsBackbone, parameter_layout
-from robomorph.identification.identify import _Problem
+from robomorph.identification.identify import ContextProblem
 from robomorph.identification.regressor import RegressorIdentifier
 from robomorph.identification.stiction import FrictionMixture
 from tests.identification.test_regressor import CONTEXT
@@ -28,7 +28,7 @@ def fitted(simulated_store):
 
 
 def _context_rms(bb, params, y, u) -> float:
-    problem = _Problem(bb.ident, params, y[:, 7:], u, np.zeros(7))
+    problem = ContextProblem(bb.ident, params, y[:, 7:], u, np.zeros(7))
     return float(np.sqrt(np.mean(problem.joint_error(bb.ident.space.to_unit(params[bb.ident.space.index])[None]) ** 2)))
 
 
@@ -61,7 +61,7 @@ def test_members_span_the_held_joints_range_and_keep_the_rest():
 
         space = ParameterSpace(("damping_q0", "frictionloss_q0", "frictionloss_q1"), np.array([2, 5, 6]),
                                np.array([1.0, 0.2, 0.4]), np.array([3.0, 1.2, 2.4]))
-        _models = [None] * 9
+        engine = type("Engine", (), {"models": [None] * 9})()
 
     mix = FrictionMixture(Ident(), 4)
     params = np.arange(8, dtype=np.float64)

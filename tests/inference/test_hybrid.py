@@ -76,7 +76,7 @@ def test_fewer_physics_substeps_simulate_the_later_horizon_at_a_coarser_step(com
         bb.FINE_STEPS = 20  # the test's horizon is shorter than the default's second
         coarse = bb.simulate(params, yc[..., 7:], uc, uq, np.zeros((len(uc), 7)), yc[:, -1, 3:7])
         assert bb.ident.model.opt.timestep == pytest.approx(attrs["dt"] / ss)
-        assert all(m.opt.timestep == bb.ident.model.opt.timestep for m in bb.ident._models)  # restored
+        assert all(m.opt.timestep == bb.ident.model.opt.timestep for m in bb.ident.engine.models)  # restored
     np.testing.assert_allclose(coarse[:, :20], yq[:, :20], atol=2e-6)  # float32 storage
     joints = (coarse - yq)[:, 20:, 7:]
     assert np.abs(joints).max() > 1e-7 and np.sqrt(np.mean(joints ** 2)) < 3e-4

@@ -10,9 +10,9 @@ from tests.inference.test_hybrid import _windows, command_store, hybrid_ckpt  # 
 def test_batched_context_velocities_equal_the_fits_rollouts(command_store):
     """The velocity each horizon starts from is the end of its context simulated from the first
     sample: computed for all windows in one threaded batch, it equals the identification's own
-    rollout of each context (:class:`robomorph.identification.identify._Problem`)."""
+    rollout of each context (:class:`robomorph.identification.identify.ContextProblem`)."""
     from robomorph.identification.backbone import PhysicsBackbone, parameter_layout
-    from robomorph.identification.identify import _Problem
+    from robomorph.identification.identify import ContextProblem
 
     uc, yc, _, _, params, attrs = _windows(command_store, n=4)
     q = yc[..., 7:].astype(np.float64)
@@ -21,7 +21,7 @@ def test_batched_context_velocities_equal_the_fits_rollouts(command_store):
         batched = bb.context_velocity(params, q, uc.astype(np.float64), qvel0)
         space = bb.ident.space
         for b in range(len(q)):
-            problem = _Problem(bb.ident, params[b], q[b], uc[b].astype(np.float64), qvel0[b])
+            problem = ContextProblem(bb.ident, params[b], q[b], uc[b].astype(np.float64), qvel0[b])
             problem.joint_error(space.to_unit(params[b][space.index])[None])
             np.testing.assert_allclose(batched[b], problem.last_qvel_end[0], rtol=0, atol=1e-12)
     assert np.abs(batched).max() > 1e-3  # the robots move: a zero velocity would not pass

@@ -269,10 +269,8 @@ def test_the_hybrid_identifies_and_simulates_every_arm_with_no_training(tmp_path
     err = np.sqrt(np.mean((pred[..., 7:] - y[:, c:, 7:]) ** 2))
     assert err < 0.2 * np.sqrt(np.mean((nominal[..., 7:] - y[:, c:, 7:]) ** 2))
     # An arm compensating its gravity with the catalogue model takes its commands, undebiased (measured worse).
-    from robomorph.inference.hybrid_std import debiasing
-
-    assert debiasing(Predictor.from_arm("kinova3")) and not debiasing(
-        Predictor.from_arm("kinova3", gravity_compensation="nominal_model"))
+    assert Predictor.from_arm("kinova3").settings_in_effect.debias
+    assert not Predictor.from_arm("kinova3", gravity_compensation="nominal_model").settings_in_effect.debias
     with pytest.raises(BackboneError, match="simulated stores of a registered arm") as info:
         parameter_layout({**ds.attrs, "domain": "real"})
     assert "\n" not in str(info.value)
