@@ -38,6 +38,7 @@ from common import print_provenance
 from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, write_rows
 from robomorph.evaluation.calibrating import calibrate
+from robomorph.evaluation.requests import CalibrateConfig
 from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.windows import load_window
 from robomorph.inference.calibration import METHODS, StdCalibration
@@ -90,7 +91,8 @@ def main(argv=None) -> None:
             step = int(read_model(ckpt).get("global_step", 0))
             cals = {"none": None}
             for method in a.methods.split(","):
-                report = calibrate(ckpt, a.cal_data, os.path.join(tmp, f"{name}-{method}.ckpt"), a.n, method=method)
+                report = calibrate(CalibrateConfig(ckpt=ckpt, data=a.cal_data, out=os.path.join(tmp, f"{name}-{method}.ckpt"),
+                                                   n=a.n, method=method))
                 cals[method] = StdCalibration.from_dict(report["calibration"])
                 print(f"{name}: {method} fitted on {report['calibration']['source']['n']} windows",
                       file=sys.stderr)

@@ -95,9 +95,11 @@ def score_heldout(ckpt: str, test: str, out: str, name: str, minutes: float | No
     ``<out>/quality_horizons_<offset>.csv``."""
     from robomorph.evaluation.evaluator import evaluate  # noqa: PLC0415
     from robomorph.evaluation.horizons import horizon_markdown  # noqa: PLC0415
+    from robomorph.evaluation.requests import EvaluateConfig  # noqa: PLC0415
 
-    res = evaluate(ckpt, test, os.path.join(out, "eval", f"{name}-{offset}"), context_len=context, horizon=horizon,
-                   baselines=("hold",), samples=0, offset=offset, seed=seed)
+    res = evaluate(EvaluateConfig(data=test, ckpt=ckpt, out=os.path.join(out, "eval", f"{name}-{offset}"),
+                                  context_len=context, horizon=horizon, baselines=("hold",), samples=0, offset=offset,
+                                  seed=seed))
     h, r2 = res["horizons"], res["approach1"]["mean"]["r2"]["mean"]
     r2_hold = res["baselines"]["hold"]["approach1"]["mean"]["r2"]["mean"]
     where = "the trajectory start" if offset == "start" else f"random offsets (seed {seed})"

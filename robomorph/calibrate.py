@@ -1,6 +1,8 @@
 """``python -m robomorph.calibrate`` (or ``robomorph calibrate``): a Gaussian head's std, rescaled by horizon.
 
-The door only; the machinery is :mod:`robomorph.evaluation.calibrating`.
+The door only: it builds one :class:`robomorph.evaluation.requests.CalibrateConfig` (or, with ``--blend``,
+a :class:`~robomorph.evaluation.requests.BlendConfig`) from the options and calls
+:mod:`robomorph.evaluation.calibrating`.
 """
 
 from __future__ import annotations
@@ -10,7 +12,9 @@ import sys
 
 from robomorph.core.errors import run_command
 from robomorph.evaluation import calibrating
-from robomorph.inference.calibration import METHODS, CalibrationError
+from robomorph.evaluation.requests import PHYSICS_CHOICES, BlendConfig, CalibrateConfig
+from robomorph.inference.blending import PHYSICS_MODES as BLEND_PHYSICS
+from robomorph.inference.calibration import METHODS, POINTS, CalibrationError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizons", help="steps shown in the report, as evaluate's --horizons")
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
-    p.add_argument("--physics", choices=("regression", "learned", "fused", "refined", "blend", "smoothed", "none"),
+    p.add_argument("--physics", choices=PHYSICS_CHOICES,
                    help="a hybrid model's physics mode to calibrate (default: its default mode); each mode keeps its "
                         "own calibration (with --remove: drop that mode's only)")
     p.add_argument("--observer", choices=("on", "off"),
@@ -46,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a command-formulation hybrid: its regression's bias, measured on the estimate's simulated "
                         "context, taken off (on by default for models trained since 2026-11-27) or not, recorded in "
                         "the checkpoint; each setting keeps its own calibrations")
-    p.add_argument("--points", choices=("columns", "draws", "observed"),
+    p.add_argument("--points", choices=POINTS,
                    help="a hybrid whose std is a spread of robots around its estimate: one per column of the "
                         "estimate's covariance (deterministic), those and the start velocity moved joint by joint "
                         "by the observer's correction (observed: the default for a command model not calibrated "
@@ -56,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--blend", action="store_true",
                    help="fit the per-step weights of the model's physics prediction against its decoder's instead "
                         "(physics early, decoder late: the total-torque formulation's default once fitted)")
-    p.add_argument("--blend-physics", choices=("smoothed", "regression"),
+    p.add_argument("--blend-physics", choices=BLEND_PHYSICS,
                    help="with --blend: the physics prediction blended: the identified robot smoothed against the "
                         "decoder over the whole horizon (the default for a model with a Gaussian head), or "
                         "simulated forward (the default otherwise)")
@@ -73,16 +77,17 @@ def run(a: argparse.Namespace) -> int:
         print(f"{'removed the ' + what + ' from' if had else 'no ' + what + ' in'} {a.ckpt}"
               + (f" (written: {a.out})" if a.out else ""))
         return 0
+    window = {"ckpt": a.ckpt, "data": a.data, "out": a.out, "n": a.n, "context_len": a.context_len,
+              "horizon": a.horizon, "offset": a.offset, "seed": a.seed, "device": a.device, "horizons_spec": a.horizons}
     if a.blend:
-        report = calibrating.blend(a.ckpt, a.data, a.out, a.n, a.context_len, a.horizon, a.offset, a.seed,
-                                   min(a.batch_size, 16), a.device, a.horizons, a.blend_physics)
+        # Each window of a blend runs a simulation as well as the network: smaller batches.
+        report = calibrating.blend(BlendConfig(**window, batch_size=min(a.batch_size, 16), physics=a.blend_physics))
         print(calibrating.blend_text(report))
         return 0
-    report = calibrating.calibrate(a.ckpt, a.data, a.out, a.n, a.context_len, a.horizon, a.offset, a.seed, a.method,
-                                   a.batch_size, a.device, a.horizons, a.physics,
-                                   None if a.observer is None else a.observer == "on", a.points,
-                                   None if a.springs is None else a.springs == "on",
-                                   None if a.debias is None else a.debias == "on")
+    switches = {name: None if getattr(a, name) is None else getattr(a, name) == "on"
+                for name in ("observer", "springs", "debias")}
+    report = calibrating.calibrate(CalibrateConfig(**window, method=a.method, batch_size=a.batch_size,
+                                                   physics=a.physics, points=a.points, **switches))
     print(calibrating.report_text(report))
     return 0
 

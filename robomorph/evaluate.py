@@ -1,6 +1,7 @@
 """``python -m robomorph.evaluate`` (or ``robomorph evaluate``): a trained meta-model on a store, beside the baselines.
 
-The door only; the machinery is :mod:`robomorph.evaluation.evaluator`.
+The door only: it builds one :class:`robomorph.evaluation.requests.EvaluateConfig` from the options
+and calls :func:`robomorph.evaluation.evaluator.evaluate`.
 """
 
 from __future__ import annotations
@@ -12,13 +13,17 @@ from robomorph.core.errors import UsageError, run_command
 from robomorph.core.names import INPUTS, NORMALIZATIONS
 from robomorph.evaluation import evaluator
 from robomorph.evaluation.baselines import BASELINES, CEILINGS, OPT_IN
+from robomorph.evaluation.requests import PHYSICS_CHOICES, EvaluateConfig
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m robomorph.evaluate", description=evaluator.__doc__.split("\n")[0])
-    p.add_argument("--ckpt", required=True, help="checkpoint written by robomorph.fit")
+    p.add_argument("--ckpt", help="checkpoint written by robomorph.fit (or a folder written by robomorph export)")
+    p.add_argument("--arm", help="instead of --ckpt: a registered arm whose catalogue hybrid, untrained, is "
+                                 "evaluated with the recipe the store records (needs --context-len and --horizon)")
     p.add_argument("--data", required=True, help="store to evaluate on (.zarr)")
-    p.add_argument("--out", help="output folder (default: <run>/eval/<store name>)")
+    p.add_argument("--out", help="output folder (default: <run>/eval/<store name>; with --arm "
+                                 "results/catalogue/<arm>/eval/<store name>)")
     p.add_argument("--context-len", type=int, help="context steps (default: the checkpoint's)")
     p.add_argument("--horizon", type=int, help="predicted steps (default: the checkpoint's)")
     p.add_argument("--n", type=int, help="evaluate only the first N trajectories")
@@ -41,10 +46,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--normalization", choices=NORMALIZATIONS,
                    help="require the checkpoint to have been trained with this normalization (default: its own)")
     p.add_argument("--inputs", choices=INPUTS,
-                   help="input formulation of the data (default: the checkpoint's; a different one is refused)")
+                   help="input formulation of the data (default: the checkpoint's; a different one is refused; "
+                        "with --arm the formulation its hybrid takes, default command)")
     p.add_argument("--compare", action="append", default=[], metavar="NAME=CKPT",
                    help="another checkpoint scored beside the baselines (repeatable), e.g. scratch=runs/a/checkpoints/best.ckpt")
-    p.add_argument("--physics", choices=("regression", "learned", "fused", "refined", "blend", "smoothed", "none"),
+    p.add_argument("--physics", choices=PHYSICS_CHOICES,
                    help="how a model with a physics backbone predicts: its robot identified by linear solves "
                         "(regression, the default for commands), read by the network (learned), both (fused), "
                         "fused then a few Gauss-Newton steps (refined), the regression's simulation and the decoder "
@@ -70,16 +76,22 @@ def _compare(items: list[str]) -> dict[str, str]:
     return compare
 
 
-def run(a: argparse.Namespace) -> int:
+def config(a: argparse.Namespace) -> EvaluateConfig:
+    """The request the options make (validated as it is built)."""
     baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
-    out = a.out or evaluator.default_out(a.ckpt, a.data)
-    res = evaluator.evaluate(a.ckpt, a.data, out, a.context_len, a.horizon, a.n, baselines, a.sweep_horizon,
-                             a.sweep_context, a.batch_size, a.device, a.samples, _orders(a.arx_orders), a.seed,
-                             a.normalization, horizons_spec=a.horizons, offset=a.offset, inputs=a.inputs,
-                             arx_train_data=[s.strip() for s in a.arx_train_data.split(",") if s.strip()]
-                             if a.arx_train_data else None, compare=_compare(a.compare),
-                             physics=a.physics)
-    print(evaluator.summary_text(res, out))
+    return EvaluateConfig(
+        data=a.data, ckpt=a.ckpt, arm=a.arm, out=a.out, context_len=a.context_len, horizon=a.horizon, n=a.n,
+        baselines=baselines, sweep_horizon_spec=a.sweep_horizon, sweep_context_spec=a.sweep_context,
+        batch_size=a.batch_size, device=a.device, samples=a.samples, arx_orders=_orders(a.arx_orders), seed=a.seed,
+        normalization=a.normalization, horizons_spec=a.horizons, offset=a.offset, inputs=a.inputs,
+        arx_train_data=tuple(s.strip() for s in (a.arx_train_data or "").split(",") if s.strip()),
+        compare=tuple(_compare(a.compare).items()), physics=a.physics)
+
+
+def run(a: argparse.Namespace) -> int:
+    cfg = config(a)
+    res = evaluator.evaluate(cfg)
+    print(evaluator.summary_text(res, cfg.out_dir))
     return 0
 
 

@@ -18,7 +18,7 @@ from robomorph.sim import arms
 from robomorph.core.errors import run_command
 from robomorph.core.locks import output_folder
 from robomorph.core.names import PHYSICS_MODES
-from robomorph.core.options import Parser, integer, number
+from robomorph.core.options import DeprecatedAlias, Parser, integer, number
 
 _WORKER: dict = {}
 # Bounds of the options: far beyond any useful run, and short of what would exhaust memory or
@@ -66,9 +66,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--context", type=integer(1, 100_000), default=d.context, help="context frames of the in-context model")
     p.add_argument("--reidentify", type=integer(0, 1_000_000), default=d.reidentify,
                    help="frames between a hybrid model's identifications from the rolling context (0: once)")
-    p.add_argument("--physics-mode", choices=(*PHYSICS_MODES, "none"),
+    p.add_argument("--physics", dest="physics_mode", choices=(*PHYSICS_MODES, "none"),
                    help="a hybrid model's physics mode (regression, fused, refined, learned, blend, smoothed, or "
-                        "none for its black-box decoder; default: the model's)")
+                        "none for its black-box decoder; default: the model's), as evaluate's --physics")
+    # The name before evaluate and calibrate agreed on --physics: kept one release.
+    p.add_argument("--physics-mode", dest="physics_mode", choices=(*PHYSICS_MODES, "none"), action=DeprecatedAlias,
+                   new="--physics", help=argparse.SUPPRESS)
     p.add_argument("--workers", type=integer(1, 1024), default=os.cpu_count() or 1, help="episodes run in parallel")
     return p
 
@@ -77,7 +80,7 @@ def load_model(ckpt: str, physics_mode: str | None):
     from robomorph.inference.predictor import Predictor  # noqa: PLC0415
 
     predictor = Predictor.from_checkpoint(ckpt, device="cpu")
-    predictor.use_physics(physics_mode, "--physics-mode")
+    predictor.use_physics(physics_mode, "--physics")
     return predictor
 
 

@@ -4,7 +4,8 @@ A door declares each numeric option with :func:`integer` or :func:`number` and i
 so ``--noise inf``, ``--duration 1e9`` or ``--seed -1`` never reach the machinery (where
 they would run for hours, exhaust memory or be read as something else). :class:`Parser`
 reports a refused option as every command reports bad input: one ``error:`` line naming the
-option, what it takes and what was given, and exit code 2.
+option, what it takes and what was given, and exit code 2. An option renamed so that every
+command names one concept alike keeps its old name one release as a :class:`DeprecatedAlias`.
 """
 
 from __future__ import annotations
@@ -65,3 +66,18 @@ def integer(low: int | None = None, high: int | None = None) -> Callable[[str], 
 
     parse.__name__ = "integer"
     return parse
+
+
+class DeprecatedAlias(argparse.Action):
+    """An option's old name, kept one release: it stores into the new option's ``dest`` and says, on
+    stderr, which name to use (``add_argument("--physics-mode", action=DeprecatedAlias, new="--physics",
+    dest="physics", help=argparse.SUPPRESS)``)."""
+
+    def __init__(self, option_strings, dest, new: str, **kwargs):
+        super().__init__(option_strings, dest, **kwargs)
+        self.new = new
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"warning: {option_string} is deprecated and will be removed: use {self.new} (the same values)",
+              file=sys.stderr)
+        setattr(namespace, self.dest, values)

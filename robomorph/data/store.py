@@ -24,6 +24,7 @@ from __future__ import annotations
 import datetime as _dt
 import os
 from dataclasses import dataclass
+from importlib import metadata
 from typing import Any
 
 import numpy as np
@@ -32,7 +33,6 @@ from zarr.codecs import BloscCodec, Crc32cCodec
 from zarr.storage import LocalStore
 
 import robomorph.data.chunks as chunks  # not via the package: its __init__ imports this module
-from robomorph import __version__
 from robomorph.core.errors import MissingInputError, OutputExistsError, RoboMorphError, describe_os_error
 from robomorph.core.inputs import INPUT_ARRAYS, InputsError, check_inputs
 from robomorph.data.chunks import StoreDamagedError  # noqa: F401  (part of this module's API)
@@ -169,11 +169,21 @@ def _create(path: str, n: int, steps: int, u_names: list[str], y_names: list[str
         "capacity": int(n),
         "n": 0,
         "status": STATUS_IN_PROGRESS,
-        "package_version": __version__,
+        "package_version": package_version(),
         "created": _now(),
     }
     group.attrs.update(meta)
     return DatasetWriter(path, group)
+
+
+def package_version() -> str:
+    """The installed package's version (pyproject's), from its metadata rather than ``robomorph.__version__``:
+    the data room imports nothing above it (the package's top level reaches the Predictor). ``unknown`` when
+    the code runs from a checkout that was never installed."""
+    try:
+        return metadata.version("robomorph")
+    except metadata.PackageNotFoundError:
+        return "unknown"
 
 
 def _create_arrays(group: zarr.Group, n: int, steps: int, chunk: int, widths: list[tuple[str, int]],

@@ -22,6 +22,7 @@ with the blend by default. Calibrate its std afterwards with a plain run.
 
 from __future__ import annotations
 
+import copy
 import os
 import time
 from dataclasses import replace
@@ -31,22 +32,30 @@ import numpy as np
 from robomorph.core.atomic import check_replaceable
 from robomorph.evaluation import training_data
 from robomorph.evaluation.horizons import error_curve, groups_for, parse_horizons
+from robomorph.evaluation.requests import BlendConfig, CalibrateConfig, legacy
 from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.tables import POINTS_TEXT
-from robomorph.evaluation.windows import (EvaluationError, Window, check_counts, check_patch, load_window, parse_offset,
-                                          start_joints)
+from robomorph.evaluation.windows import EvaluationError, Window, check_patch, load_window, start_joints
 from robomorph.inference.calibration import (CALIBRATION_KEY, POWER_MIN_WINDOWS, CalibrationError, calibration_key,
                                          calibrations_entry, fit, outside_bands, read_calibrations)
 
 
-def _predictor(ckpt: str, device: str | None, need_std: bool = True):
-    from robomorph.inference.predictor import Predictor  # noqa: PLC0415  (torch only here)
+def _read(ckpt: str, device: str | None, need_std: bool = True) -> tuple:
+    """The checkpoint's Predictor and its record, from one read of the file (the record is what is written
+    back, with the calibration or the blend added)."""
+    from robomorph.inference.checkpoint import trained_of  # noqa: PLC0415  (torch only here)
+    from robomorph.inference.predictor import Predictor  # noqa: PLC0415
+    from robomorph.model.files import read_model  # noqa: PLC0415  (a checkpoint or a model folder)
 
-    predictor = Predictor.from_checkpoint(ckpt, device=device)
+    record = read_model(ckpt)
+    model, info = trained_of(record, ckpt)
+    # As Predictor.from_checkpoint builds it, with its own copy of the data record: the switches a calibration
+    # writes into the record reach the Predictor through its settings only, as they did with two reads.
+    predictor = Predictor(model, device, copy.deepcopy(info))
     if need_std and not predictor.has_std:
         raise CalibrationError(f"{ckpt} has no Gaussian head, so it predicts no standard deviation to calibrate; "
                                "train one with --model.gaussian true --model.loss nll")
-    return predictor
+    return predictor, record
 
 
 def _sources(ckpt_dict: dict, data: str | None) -> tuple[list[tuple[str, np.ndarray | None]], str]:
@@ -107,62 +116,59 @@ def _fitting_windows(ckpt: str, predictor, sources, split: str, n, context_len, 
     return w, source
 
 
-def calibrate(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,
-              context_len: int | None = None, horizon: int | None = None, offset: str | int = "start",
-              seed: int = 0, method: str = "power", batch_size: int = 64, device: str | None = None,
-              horizons_spec: str | None = None, physics: str | None = None, observer: bool | None = None,
-              points: str | None = None, springs: bool | None = None, debias: bool | None = None) -> dict:
-    """Fits the calibration and writes the checkpoint with it to ``out`` (default: in place).
+def calibrate(config: CalibrateConfig, *args, **kwargs) -> dict:
+    """Fits the calibration and writes the checkpoint with it to ``config.out`` (default: in place).
+
+    Each physics mode of a hybrid keeps its own calibration (a hybrid's std depends on how the robot is
+    identified), and so does each setting of its observer, springs and debiasing, and each window kind:
+    windows from the start, and windows that do not open their trajectory (``offset`` random or a step).
+    Calibrating one leaves the others' in place.
 
     Args:
-        data: a held-out store (default: the checkpoint's validation split).
-        n: at most this many windows.
-        context_len, horizon: the window (default: the checkpoint's training window).
-        offset, seed: where each window starts (``start``, ``random`` or a step), as in evaluate.
-        method: ``power`` (default), ``coverage``, ``nll`` or ``quantile`` (:mod:`robomorph.inference.calibration`).
-        horizons_spec: the steps the report shows (evaluate's ``--horizons``).
-        physics: a hybrid's physics mode to calibrate (default: its default mode); each mode keeps
-            its own calibration, so calibrating one leaves the others' in place. A hybrid keeps one
-            per window kind too: windows from the start, and windows that do not open their
-            trajectory (``offset`` random or a step), each applied to its own kind.
-        observer, springs, debias: a command-formulation hybrid's observer, regression of the joints' springs and
-            debiased regression (:attr:`Predictor.physics_observer`, ``physics_springs``, ``physics_debias``) set in
-            the checkpoint's record before fitting (None: as recorded); each setting's calibrations are kept apart.
-        points: a hybrid's std's robots, ``columns`` or ``draws`` (:func:`robomorph.inference.hybrid_std.spread_points`).
+        config: the request, its fields documented there (:class:`robomorph.evaluation.requests.CalibrateConfig`);
+            the call of earlier releases, ``calibrate(ckpt, data, ...)``, still works with a DeprecationWarning.
 
     Returns:
         A report: the calibration's provenance, and the ±1σ/±2σ coverage of the calibration
         windows before and after at the reported steps.
     """
-    from robomorph.inference.hybrid_std import debiasing, drawn_points, observing, springing  # noqa: PLC0415
+    from robomorph.inference.hybrid_std import drawn_points  # noqa: PLC0415
 
-    check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
-    offset = parse_offset(offset)
-    predictor, ckpt_dict = _calibrated_predictor(ckpt, device, physics, points, observer, springs, debias)
-    sources, split = _sources(ckpt_dict, data)
-    w, source = _fitting_windows(ckpt, predictor, sources, split, n, context_len, horizon, offset, seed,
+    c = _request(CalibrateConfig, config, args, kwargs, "calibrate")
+    predictor, ckpt_dict = _calibrated_predictor(c)
+    sources, split = _sources(ckpt_dict, c.data)
+    w, source = _fitting_windows(c.ckpt, predictor, sources, split, c.n, c.context_len, c.horizon, c.offset, c.seed,
                                  "calibration window")
-    if getattr(predictor, "physics", None) and offset != "start":
-        w = moving_windows(w, offset)
+    if getattr(predictor, "physics", None) and c.offset != "start":
+        w = moving_windows(w, c.offset)
         source["n"] = int(len(w.u))
     horizon = source["horizon"]
-    steps = parse_horizons(horizons_spec, horizon, w.dt)
+    steps = parse_horizons(c.horizons_spec, horizon, w.dt)
     with predictor.raw_std():
-        before = score_windows(predictor, w, (), steps, batch_size=batch_size)
+        before = score_windows(predictor, w, (), steps, batch_size=c.batch_size)
         points = drawn_points(predictor)  # the spread fitted on (the stored calibrations' or the one chosen)
     mean, std = before.preds["model"], before.std
     source["normalization"] = predictor.normalization
     if getattr(predictor, "physics", None):
         # A hybrid's std depends on how it identifies the robot: the calibration is that mode's.
-        source["physics_mode"], source["observer"] = predictor.physics_mode, observing(predictor)
-        source["springs"], source["debias"] = springing(predictor), debiasing(predictor)
-    cal = fit(before.y, mean, std, method, source=source, end=dense_at_end(predictor), points=points)
+        s = predictor.settings_in_effect
+        source.update(physics_mode=s.mode, observer=s.observer, springs=s.springs, debias=s.debias)
+    cal = fit(before.y, mean, std, c.method, source=source, end=dense_at_end(predictor), points=points)
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
-    report = _report(ckpt, out, cal, w.dt, horizon, steps, before, after)
+    report = _report(c.ckpt, c.out, cal, w.dt, horizon, steps, before, after)
     ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
                                                      calibration_key(cal): cal})
-    _write(ckpt_dict, out or ckpt)
+    _write(ckpt_dict, c.out or c.ckpt)
     return report
+
+
+def _request(cls, config, args: tuple, kwargs: dict, what: str):
+    """The request, from a config or from the keyword call of earlier releases."""
+    if isinstance(config, cls):
+        if args or kwargs:
+            raise TypeError(f"{what}(config) takes the {cls.__name__} alone: set the other values in it")
+        return config
+    return legacy(cls, (config, *args), kwargs, what)
 
 
 def dense_at_end(predictor) -> bool:
@@ -194,23 +200,23 @@ def _report(ckpt: str, out: str | None, cal, dt: float, horizon: int, steps: lis
     return report
 
 
-def _calibrated_predictor(ckpt: str, device, physics, points, observer, springs, debias) -> tuple:
-    """The predictor to calibrate, set up as asked: the observer's, the springs' and the debiasing's settings written
-    into the physics record of the checkpoint read (refused where they cannot apply)."""
-    from robomorph.model.files import DATA_INFO_KEY, read_model  # noqa: PLC0415  (a checkpoint or a model folder)
+def _calibrated_predictor(c: CalibrateConfig) -> tuple:
+    """The predictor to calibrate, set up as asked, and the checkpoint's record: the observer's, the springs'
+    and the debiasing's settings written into its physics record (refused where they cannot apply)."""
+    from robomorph.model.files import DATA_INFO_KEY  # noqa: PLC0415
 
-    predictor = _predictor(ckpt, device)
-    predictor.use_physics(physics)
-    predictor.physics_points = points
-    ckpt_dict = read_model(ckpt)
+    predictor, ckpt_dict = _read(c.ckpt, c.device)
+    predictor.use_physics(c.physics)
+    predictor.configure(points=c.points)
     record = (ckpt_dict.get(DATA_INFO_KEY) or {}).get("physics") if predictor.model.config.n_params else None
-    for name, on in (("observer", observer), ("springs", springs), ("debias", debias)):
+    for name in ("observer", "springs", "debias"):
+        on = getattr(c, name)
         if on is None:
             continue
         if not record or predictor.inputs != "command":
             raise CalibrationError(f"--{name} needs a command-formulation model trained with --model.physics amortized")
         record[name] = bool(on)
-        setattr(predictor, f"physics_{name}", bool(on))
+        predictor.configure(**{name: bool(on)})
     return predictor, ckpt_dict
 
 
@@ -225,53 +231,49 @@ def moving_windows(w: Window, offset) -> Window:
     return w.rows(rows)
 
 
-def blend(ckpt: str, data: str | None = None, out: str | None = None, n: int | None = None,
-          context_len: int | None = None, horizon: int | None = None, offset: str | int = "start", seed: int = 0,
-          batch_size: int = 16, device: str | None = None, horizons_spec: str | None = None,
-          physics: str | None = None) -> dict:
+def blend(config: BlendConfig, *args, **kwargs) -> dict:
     """Fits the physics/decoder blend (:mod:`robomorph.inference.blending`) and writes the checkpoint
-    with it to ``out`` (default: in place); arguments as :func:`calibrate`. ``physics``: the physics
-    prediction blended (:data:`robomorph.inference.blending.PHYSICS_MODES`; ``smoothed`` needs a model
-    with a Gaussian head; None: ``smoothed`` where it has one, else ``regression``).
+    with it to ``config.out`` (default: in place); the request is a
+    :class:`robomorph.evaluation.requests.BlendConfig` (the call of earlier releases, ``blend(ckpt, ...)``,
+    still works with a :class:`DeprecationWarning`). Its ``physics``: the physics prediction blended
+    (:data:`robomorph.inference.blending.PHYSICS_MODES`; ``smoothed`` needs a model with a Gaussian head;
+    None: ``smoothed`` where it has one, else ``regression``).
 
     Returns:
         A report: where it was fitted, the weights and the joints' RMS error of the physics,
         the decoder and the blend on the fitting windows at the reported steps.
     """
     from robomorph.evaluation.sources import predict  # noqa: PLC0415
-    from robomorph.inference.blending import BLEND_KEY, PHYSICS_MODES, HorizonBlend, fit_blend  # noqa: PLC0415
-    from robomorph.model.files import read_model  # noqa: PLC0415
+    from robomorph.inference.blending import BLEND_KEY, HorizonBlend, fit_blend  # noqa: PLC0415
 
-    if physics is not None and physics not in PHYSICS_MODES:
-        raise CalibrationError(f"--blend-physics must be one of {', '.join(PHYSICS_MODES)}, got {physics!r}")
-    check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
-    offset = parse_offset(offset)
-    predictor = _predictor(ckpt, device, need_std=False)
+    c = _request(BlendConfig, config, args, kwargs, "blend")
+    ckpt, batch_size = c.ckpt, c.batch_size
+    predictor, ckpt_dict = _read(ckpt, c.device, need_std=False)
     if predictor.leaks_query_statistics:
         raise CalibrationError(f"{ckpt} rescales each window with its query outputs (paper_window): a blend needs a "
                                "model that can be deployed; train with data.normalization=train_stats")
-    ckpt_dict = read_model(ckpt)
-    sources, split = _sources(ckpt_dict, data)
+    sources, split = _sources(ckpt_dict, c.data)
     layout = _blend_layout(predictor, sources[0][0])
-    w, source = _fitting_windows(ckpt, predictor, sources, split, n, context_len, horizon, offset, seed,
+    w, source = _fitting_windows(ckpt, predictor, sources, split, c.n, c.context_len, c.horizon, c.offset, c.seed,
                                  "window to fit a blend on")
     u_ctx, y_ctx, u_q, y_q = w.split()
     rest = w.starts == 0 if len(w.starts) == len(w.u) else None
-    predictor.physics_mode = "none"
+    predictor.configure(mode="none")
     anchor = start_joints(w)  # where each robot started, as the scoring path gives it
     decoder = predict(predictor, u_ctx, y_ctx, u_q, batch_size, "decoder", at_rest=rest)
     # The physics alone: a blend that weights it fully (the decoder where a simulation diverged).
     gaussian = bool(getattr(predictor.model, "gaussian", False))
-    physics = physics or ("smoothed" if gaussian else "regression")
+    physics = c.physics or ("smoothed" if gaussian else "regression")
     if physics == "smoothed" and not gaussian:
         raise CalibrationError(f"{ckpt} has no Gaussian head, which the smoothed physics weighs its decoder by: "
                                "use --blend-physics regression")
     predictor.model.blend = HorizonBlend((1,), (tuple([1.0] * predictor.n_y),), physics=layout, physics_mode=physics)
-    predictor.physics, predictor.physics_mode, predictor.has_std = layout, "blend", False
+    predictor.physics, predictor.has_std = layout, False  # the blend brings the backbone
+    predictor.configure(mode="blend")
     sim = predict(predictor, u_ctx, y_ctx, u_q, batch_size, "physics", at_rest=rest, anchor=anchor)
     own = (predictor.data_info or {}).get("physics") and predictor.model.config.n_params  # its record has it
     fitted = fit_blend(y_q, sim, decoder, source=source, layout=None if own else layout, physics_mode=physics)
-    steps = parse_horizons(horizons_spec, source["horizon"], w.dt)
+    steps = parse_horizons(c.horizons_spec, source["horizon"], w.dt)
     mixed = fitted.combine(sim, decoder)[0]
     joints = next(g for g in groups_for(w.y_names) if g.name == "joints")
     rms = {k: [float(error_curve(y_q, v, joints)[s - 1]) for s in steps]
@@ -279,9 +281,9 @@ def blend(ckpt: str, data: str | None = None, out: str | None = None, n: int | N
     fitted.source["joint_rms_mrad"] = {"steps": steps, **rms}
     fitted.source["gated_windows"] = int(fitted.gated(sim, decoder)[:, -1].sum())
     ckpt_dict[BLEND_KEY] = fitted.to_dict()
-    _write(ckpt_dict, out or ckpt)
+    _write(ckpt_dict, c.out or ckpt)
     weights = fitted.weights(source["horizon"])[:, list(joints.channels)]
-    return {"ckpt": ckpt, "out": out or ckpt, "blend": fitted.to_dict(), "steps": steps,
+    return {"ckpt": ckpt, "out": c.out or ckpt, "blend": fitted.to_dict(), "steps": steps,
             "seconds": [s * w.dt for s in steps], "weight": [float(np.mean(weights[s - 1])) for s in steps],
             "rms": rms}
 

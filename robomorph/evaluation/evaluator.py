@@ -34,13 +34,11 @@ from robomorph.core.locks import output_folder
 from robomorph.core.normalizations import NormalizationError
 from robomorph.core.progress import progress
 from robomorph.core.results import provenance
-from robomorph.core.rundir import RunDir
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation import references, training_data
-from robomorph.evaluation.baselines import BASELINES
 from robomorph.evaluation.horizons import horizon_markdown, parse_horizons
+from robomorph.evaluation.requests import EvaluateConfig, default_out, legacy  # noqa: F401  (default_out: re-exported)
 from robomorph.evaluation.scoring import Scores, score_windows
-from robomorph.evaluation.sources import check_baselines
 from robomorph.evaluation.tables import (cost_note, diverged_note, smoothing_note, write_csv, write_horizons_csv,
                                          write_table)
 
@@ -48,7 +46,6 @@ from robomorph.evaluation.tables import (cost_note, diverged_note, smoothing_not
 from robomorph.evaluation.windows import (  # noqa: F401
     EvaluationError,
     Window,
-    check_counts,
     check_patch,
     load_window,
     parse_offset,
@@ -76,72 +73,84 @@ def sweep_context(predictor, w: Window, contexts: list[int], batch_size: int) ->
     return rows
 
 
-def evaluate(ckpt: str, data: str, out: str, context_len: int | None = None, horizon: int | None = None,
-             n: int | None = None, baselines: tuple[str, ...] = BASELINES, sweep_horizon_spec: str | None = None,
-             sweep_context_spec: str | None = None, batch_size: int = 64, device: str | None = None,
-             samples: int = 3, arx_orders: tuple[int, int] = (2, 2), seed: int = 0,
-             normalization: str | None = None, horizons_spec: str | None = None,
-             offset: str | int | None = "start", inputs: str | None = None,
-             arx_train_data: list[str] | None = None, compare: dict[str, str] | None = None,
-             physics: str | None = None) -> dict:
-    """Evaluates a checkpoint on a store and writes every output file into ``out``.
+def evaluate(config: EvaluateConfig, *args, **kwargs) -> dict:
+    """Evaluates a checkpoint (or a catalogue arm's untrained hybrid) on a store and writes every output
+    file into ``config.out_dir``.
 
     ``arx_train`` is fitted on the checkpoint's training split (read back from its stores),
-    or on the whole of the ``arx_train_data`` stores when given. ``compare`` maps names to
-    other checkpoints (e.g. ``{"scratch": ...}``) scored beside the baselines on the same data.
+    or on the whole of the ``arx_train_data`` stores when given (an arm has no training split).
+    ``compare`` names other checkpoints scored beside the baselines on the same data. The
+    checkpoint is read once: the model and the training split both come from that one record.
 
     Args:
-        normalization: when given, the normalization the checkpoint must have been trained
-            with (``train_stats`` or ``paper_window``); default: whatever it was trained with.
-        horizons_spec: the steps of the per-horizon errors (:func:`parse_horizons`; default
-            first step, 0.25 s, 1 s, 5 s and the end of the horizon).
-        offset: where each window starts (:func:`parse_offset`): ``start``, ``random``
-            (seeded by ``seed``) or a fixed step.
-        inputs: when given, the input formulation the checkpoint must have been trained on
-            (``total``: the store's ``u``, ``command``: its ``u_cmd``); the store's input
-            array is always the checkpoint's, and a store without ``u_cmd`` is refused for a
-            command model with a message saying to regenerate it.
+        config: the request (:class:`robomorph.evaluation.requests.EvaluateConfig`, validated when built).
+            The call of earlier releases, ``evaluate(ckpt, data, out, n=..., ...)``, still works with a
+            :class:`DeprecationWarning`, its arguments named as the config's fields.
 
     Returns:
         The ``metrics.json`` content.
     """
-    check_counts(context_len=context_len, horizon=horizon, n=n, batch_size=batch_size)
-    offset = parse_offset(offset)
-    predictor = _checked_predictor(ckpt, device, baselines, inputs, normalization, physics)
+    cfg = _config(config, args, kwargs)
+    predictor, record = _checked_predictor(cfg)
     info = predictor.data_info
-    context_len = context_len or (info or {}).get("context_len")
-    horizon = horizon or (info or {}).get("horizon")
+    context_len = cfg.context_len or (info or {}).get("context_len")
+    horizon = cfg.horizon or (info or {}).get("horizon")
     if context_len is None or horizon is None:
-        raise EvaluationError(f"{ckpt} does not record its training window: pass --context-len and --horizon")
-    w = load_window(data, int(context_len), int(horizon), n, info, predictor.n_u, predictor.n_y, offset, seed,
-                    predictor.inputs)
-    check_arm(predictor, w.attrs, data)
+        raise EvaluationError(f"{cfg.ckpt} does not record its training window: pass --context-len and --horizon")
+    w = load_window(cfg.data, int(context_len), int(horizon), cfg.n, _window_info(cfg, predictor), predictor.n_u,
+                    predictor.n_y, cfg.offset, cfg.seed, predictor.inputs)
+    check_arm(predictor, w.attrs, cfg.data)
     predictor.channels = (w.u_names, w.y_names)  # an arm with fewer joints than a multi-arm model: padded
-    steps = parse_horizons(horizons_spec, w.horizon, w.dt)
-    horizons = parse_range(sweep_horizon_spec, 1, w.horizon, "horizon")
-    contexts = parse_range(sweep_context_spec, 1, w.context_len, "context")
+    steps = parse_horizons(cfg.horizons_spec, w.horizon, w.dt)
+    horizons = parse_range(cfg.sweep_horizon_spec, 1, w.horizon, "horizon")
+    contexts = parse_range(cfg.sweep_context_spec, 1, w.context_len, "context")
     check_patch(predictor.patch, [w.context_len, *contexts])
     # Checked before the output folder is made: a refused --compare leaves nothing behind.
-    others = {name: references.load_other(name, other, w, device) for name, other in (compare or {}).items()}
-    with output_folder(out, "evaluation") as tmp:  # refused, locked, and written whole or not at all
-        return _score_and_write(predictor, w, tmp, ckpt, data, baselines, steps, others, arx_orders,
-                                arx_train_data, batch_size, offset, seed, info, compare, horizons, contexts, samples)
+    others = {name: references.load_other(name, other, w, cfg.device) for name, other in cfg.compare}
+    train_blocks = training_data.reader(record, list(cfg.arx_train_data) or None, predictor.inputs,
+                                        "a catalogue arm's hybrid" if cfg.arm else "the checkpoint")
+    with output_folder(cfg.out_dir, "evaluation") as tmp:  # refused, locked, and written whole or not at all
+        return _score_and_write(predictor, w, tmp, cfg, steps, others, train_blocks, info, horizons, contexts)
 
 
-def _score_and_write(predictor, w: Window, out: str, ckpt: str, data: str, baselines, steps, others, arx_orders,
-                     arx_train_data, batch_size: int, offset, seed: int, info, compare, horizons, contexts,
-                     samples: int) -> dict:
+def _window_info(cfg: EvaluateConfig, predictor) -> dict | None:
+    """The record a store's channels and sample time are checked against: the model's. A catalogue arm's
+    record names its inputs ``tau*`` whatever the formulation (:func:`robomorph.inference.catalogue.arm_record`),
+    where a command store, as a command model's record, names them ``cmd*``: the arm's names in the
+    formulation asked for are checked instead, so a store of that arm is read and no other is."""
+    info = predictor.data_info
+    if cfg.arm is None or info is None:
+        return info
+    from robomorph.sim import arms  # noqa: PLC0415
+
+    spec = arms.get(cfg.arm)
+    return {**info, "u_names": list(spec.u_cmd_names if predictor.inputs == "command" else spec.u_names)}
+
+
+def _config(config, args: tuple, kwargs: dict) -> EvaluateConfig:
+    """The request, from a config or from the keyword call of earlier releases."""
+    if isinstance(config, EvaluateConfig):
+        if args or kwargs:
+            raise TypeError("evaluate(config) takes the EvaluateConfig alone: set the other values in it")
+        return config
+    return legacy(EvaluateConfig, (config, *args), kwargs, "evaluate")
+
+
+def _score_and_write(predictor, w: Window, out: str, cfg: EvaluateConfig, steps, others, train_blocks, info,
+                     horizons, contexts) -> dict:
     """Scores the model and the baselines on ``w`` and writes every output file into ``out``."""
-    scores = score_windows(predictor, w, tuple(baselines), steps, others=others, arx_orders=arx_orders,
-                           train_blocks=training_data.reader(ckpt, arx_train_data), batch_size=batch_size)
+    scores = score_windows(predictor, w, cfg.baselines, steps, others=others, arx_orders=cfg.arx_orders,
+                           train_blocks=train_blocks, batch_size=cfg.batch_size)
     result = scores.result
-    result["meta"] = {"ckpt": ckpt, "data": data, **result["meta"], "offset": offset, "seed": seed,
-                      **in_sample(info, data), **_smoothing(predictor), **_physics(predictor)}  # (before the sweeps)
-    result["meta"]["baseline_notes"].update({name: {"ckpt": path} for name, path in (compare or {}).items()})
+    result["meta"] = {"ckpt": cfg.model, "data": cfg.data, **result["meta"], "offset": cfg.offset, "seed": cfg.seed,
+                      **in_sample(info, cfg.data), **_smoothing(predictor), **_physics(predictor)}  # (before the sweeps)
+    if cfg.arm:  # what was evaluated, beside the "arm:<name>" that stands for the checkpoint
+        result["meta"]["catalogue_arm"] = cfg.arm
+    result["meta"]["baseline_notes"].update({name: {"ckpt": path} for name, path in cfg.compare})
     # A result folder says what made it (command, commit, date, machine), as every result file does.
     result["provenance"] = provenance()
-    result["sweeps"] = _sweeps(predictor, w, horizons, contexts, _baseline_preds(scores), batch_size, out)
-    eval_plots.write_all(out, w.split()[1], scores.y, scores.preds, w.y_names, w.dt, samples, seed,
+    result["sweeps"] = _sweeps(predictor, w, horizons, contexts, _baseline_preds(scores), cfg.batch_size, out)
+    eval_plots.write_all(out, w.split()[1], scores.y, scores.preds, w.y_names, w.dt, cfg.samples, cfg.seed,
                          std=scores.std, steps=result["horizons"]["steps"], y_units=w.attrs.get("y_units"))
     _write_files(out, result)
     return result
@@ -168,20 +177,52 @@ def check_arm(predictor, attrs: dict, where: str) -> None:
                               f"{arm.name} (or on stores of several arms including it)")
 
 
-def _checked_predictor(ckpt: str, device: str | None, baselines, inputs: str | None, normalization: str | None,
-                       physics: str | None = None):
-    """The checkpoint's Predictor, once the baselines, inputs and normalization asked for fit it,
-    predicting in the physics mode asked for (a hybrid model's)."""
-    from robomorph.inference.predictor import Predictor  # noqa: PLC0415  (torch only here)
+def _checked_predictor(cfg: EvaluateConfig):
+    """The Predictor asked for, once the inputs and normalization asked for fit it, predicting in the physics
+    mode asked for (a hybrid model's); and the checkpoint's record without its weights (None for an arm): what
+    the training split is read back from, so the file is read once."""
+    from robomorph.inference.checkpoint import trained_of  # noqa: PLC0415  (torch only here)
+    from robomorph.inference.predictor import Predictor  # noqa: PLC0415
+    from robomorph.model.files import read_model  # noqa: PLC0415
 
-    check_baselines(baselines)
-    predictor = Predictor.from_checkpoint(ckpt, device=device)
-    predictor.check_inputs(inputs)
-    if normalization is not None and normalization != predictor.normalization:
-        raise NormalizationError(f"{ckpt} was trained with normalization {predictor.normalization!r}, not "
-                                 f"{normalization!r}: the normalization is fixed at training time (data.normalization)")
-    predictor.use_physics(physics)
-    return predictor
+    if cfg.arm:
+        predictor, record = _arm_predictor(cfg), None
+    else:
+        record = read_model(cfg.ckpt)
+        model, info = trained_of(record, cfg.ckpt)
+        predictor = Predictor(model, cfg.device, info)  # as Predictor.from_checkpoint builds it
+        record = {k: v for k, v in record.items() if k != "state_dict"}  # the weights live in the model now
+    predictor.check_inputs(cfg.inputs)
+    if cfg.normalization is not None and cfg.normalization != predictor.normalization:
+        raise NormalizationError(f"{cfg.ckpt} was trained with normalization {predictor.normalization!r}, not "
+                                 f"{cfg.normalization!r}: the normalization is fixed at training time "
+                                 "(data.normalization)")
+    predictor.use_physics(cfg.physics)
+    return predictor, record
+
+
+def _arm_predictor(cfg: EvaluateConfig):
+    """The catalogue hybrid of ``cfg.arm`` built with the recipe the store records (its physics step, gravity
+    compensation and randomization ranges), once the store is a simulation of that arm."""
+    from robomorph.data.store import open_store  # noqa: PLC0415
+    from robomorph.inference.predictor import Predictor  # noqa: PLC0415
+    from robomorph.sim import arms  # noqa: PLC0415
+
+    attrs = dict(open_store(cfg.data, allow_incomplete=True).attrs)
+    arm, recipe = arms.of_store(attrs), attrs.get("config")
+    if arm is None or not isinstance(recipe, dict):
+        raise EvaluationError(f"--arm {cfg.arm}: {cfg.data} is not a store simulated from a registered arm's recipe "
+                              f"(domain {attrs.get('domain')!r}): the catalogue hybrid needs the recipe its data "
+                              "follow; evaluate a model trained on these data with --ckpt")
+    if arm.name != cfg.arm:
+        raise EvaluationError(f"--arm {cfg.arm}: {cfg.data} is of the {arm.name}; its hybrid would predict another "
+                              f"robot's dynamics: use --arm {arm.name}")
+    inputs = cfg.inputs or "command"
+    if inputs == "command" and "u_cmd" not in open_store(cfg.data, allow_incomplete=True).arrays:
+        raise EvaluationError(f"--arm {cfg.arm}: {cfg.data} holds no u_cmd (the command formulation the catalogue "
+                              "hybrid takes by default): regenerate the store, or pass --inputs total")
+    # The recipe's fields as the store records them (its robot included): the hybrid a store of it would train.
+    return Predictor.from_arm(cfg.arm, device=cfg.device, inputs=inputs, **recipe)
 
 
 def _write_files(out: str, result: dict) -> None:
@@ -195,22 +236,21 @@ def _physics(predictor) -> dict:
     """``{"physics": how a hybrid predicted}`` (mode, observer, friction-mixture members and whether the mode
     uses the mixture, physics steps per sample after the first second, None: the default; the robots its std
     is the spread of, None: none drawn), else {} (a black-box model, or its decoder)."""
-    if not getattr(predictor, "physics", None) or predictor.physics_mode == "none":
+    if not getattr(predictor, "physics", None) or predictor.settings.mode == "none":
         return {}
     from robomorph.inference.hybrid import MIXED_MODES  # noqa: PLC0415
-    from robomorph.inference.hybrid_std import debiasing, drawn_points, observing, springing  # noqa: PLC0415
+    from robomorph.inference.hybrid_std import drawn_points  # noqa: PLC0415
 
-    mixture = predictor.inputs == "command" and predictor.physics_mode in MIXED_MODES and predictor.physics_members > 1
-    return {"physics": {"mode": predictor.physics_mode, "observer": observing(predictor), "springs": springing(predictor),
-                        "debias": debiasing(predictor), "mixture": mixture,
-                        "members": predictor.physics_members, "substeps": predictor.physics_substeps,
-                        "points": drawn_points(predictor)}}
+    s = predictor.settings_in_effect
+    mixture = predictor.inputs == "command" and s.mode in MIXED_MODES and s.members > 1
+    return {"physics": {"mode": s.mode, "observer": s.observer, "springs": s.springs, "debias": s.debias,
+                        "mixture": mixture, "members": s.members, "substeps": s.substeps,
+                        "points": drawn_points(predictor), "key": s.key}}
 
 
 def _smoothing(predictor) -> dict:
     """``{"smoothing": tally}`` where the smoothed physics predicted (a copy), else {}."""
-    # The hybrid exists once a physics mode has predicted (it is built on first use).
-    tally = getattr(getattr(predictor, "_hybrid", None), "smoothing", None)
+    tally = getattr(predictor, "smoothing", None)  # None before its hybrid smoothed (and for baselines)
     return {"smoothing": copy.deepcopy(tally)} if tally and tally["windows"] else {}
 
 
@@ -247,11 +287,6 @@ def in_sample(info: dict | None, data: str) -> dict:
 
 IN_SAMPLE_NOTE = ("in-sample: this store is one the model was trained on ({store}), so these scores include "
                   "robots it has seen; evaluate on held-out robots for generalization")
-
-
-def default_out(ckpt: str, data: str) -> str:
-    """``<run>/eval/<store name>`` for a checkpoint in ``<run>/checkpoints/`` (or a model folder in ``<run>/``)."""
-    return RunDir.of_checkpoint(os.path.join(ckpt, "config.json") if os.path.isdir(ckpt) else ckpt).eval_dir(data)
 
 
 def summary_text(res: dict, out: str, horizons: bool = True) -> str:

@@ -88,13 +88,24 @@ def blocks(rows: list[tuple[str, np.ndarray]], limit: int = MAX_TRAJECTORIES,
             yield ds.read_inputs(inputs, sel), ds.read("y", sel)
 
 
-def reader(ckpt_path: str, stores: list[str] | None = None) -> Callable[[], Iterator[tuple[np.ndarray, np.ndarray]]]:
-    """A function that reads the training blocks of a checkpoint when called (only a
-    baseline that needs them pays for the reading)."""
-    def read() -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        from robomorph.model.files import read_model  # noqa: PLC0415  (torch only here)
+def reader(ckpt: dict | None, stores: list[str] | None = None, inputs: str = "total",
+           owner: str = "the checkpoint") -> Callable[[], Iterator[tuple[np.ndarray, np.ndarray]]]:
+    """A function that reads the training blocks when called (only a baseline that needs them pays for
+    the reading).
 
-        ckpt = read_model(ckpt_path)
-        inputs = (ckpt.get("datamodule_hyper_parameters") or {}).get("inputs") or "total"
-        return blocks(training_rows(ckpt, stores), inputs=inputs)
+    Args:
+        ckpt: the checkpoint's record as :func:`robomorph.model.files.read_model` read it (its weights may be
+            left out: only the DataModule's arguments are read), or None for a model with no training data
+            (a catalogue arm's hybrid): ``stores`` are then the only training data.
+        stores: stores read whole instead (``--arx-train-data``).
+        inputs: the input formulation read where ``ckpt`` does not record it (None ``ckpt``).
+        owner: what has no training data, in the message of a None ``ckpt`` without ``stores``.
+    """
+    def read() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        if ckpt is None:
+            if not stores:
+                raise TrainingDataUnavailable(f"{owner} has no training data: pass --arx-train-data")
+            return blocks(training_rows({}, stores), inputs=inputs)
+        kind = (ckpt.get("datamodule_hyper_parameters") or {}).get("inputs") or "total"
+        return blocks(training_rows(ckpt, stores), inputs=kind)
     return read

@@ -189,7 +189,12 @@ def load_trained(path: str) -> tuple[TrainedModel, dict | None]:
         CheckpointError: the file is missing, unreadable, refused as unsafe, or not a model
             written by ``fit``.
     """
-    ckpt = read_model(path)
+    return trained_of(read_model(path), path)
+
+
+def trained_of(ckpt: dict, path: str) -> tuple[TrainedModel, dict | None]:
+    """:func:`load_trained` of a record :func:`read_model` read already (a command that needs the record too
+    reads the file once); ``path`` names it in the errors. The record is not changed."""
     hp = ckpt["hyper_parameters"]
     if hp.get("n_u") is None or hp.get("n_y") is None:
         raise CheckpointError(f"{path} lacks n_u/n_y: it was not written by robomorph fit")

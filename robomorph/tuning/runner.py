@@ -208,10 +208,11 @@ def _regime_args(space: Space, values: dict, regime: str | None, run: str, runs_
 
 def _evaluate(trial: optuna.Trial, space: Space, ckpt: str | None, out: str) -> float:
     from robomorph.evaluation.evaluator import evaluate  # noqa: PLC0415
+    from robomorph.evaluation.requests import EvaluateConfig  # noqa: PLC0415
 
     if not ckpt:
         raise RuntimeError("nothing to evaluate: the trial trained no checkpoint and the space names no init_ckpt")
-    res = evaluate(ckpt, space.eval_data, out, baselines=(), samples=0)
+    res = evaluate(EvaluateConfig(data=space.eval_data, ckpt=ckpt, out=out, baselines=(), samples=0))
     trial.set_user_attr("eval", {m: v["mean"] for m, v in res["approach1"]["mean"].items()})
     return float(res["approach1"]["mean"][space.metric]["mean"])
 

@@ -11,6 +11,7 @@ import pytest
 from robomorph.data.splits import split_rows
 from robomorph.evaluation.calibrating import calibrate, remove
 from robomorph.evaluation.evaluator import evaluate
+from robomorph.evaluation.requests import CalibrateConfig, EvaluateConfig
 from robomorph.evaluation.sources import predict
 from robomorph.evaluation.windows import load_window
 from robomorph.inference.calibration import CALIBRATION_KEY, fit
@@ -48,7 +49,7 @@ def _query(store: str, rows=slice(0, 6)):
 def test_it_fits_on_the_validation_robots_only_and_the_predictor_uses_it(gaussian, tmp_path):
     store, best = gaussian
     ckpt = _copy(best, tmp_path)
-    report = calibrate(ckpt, method="quantile")
+    report = calibrate(CalibrateConfig(ckpt=ckpt, method="quantile"))
     src = report["calibration"]["source"]
     val = split_rows(ROBOTS, (0.8, 0.1, 0.1), 0, 0)["val"]
     assert (src["split"], src["data"], src["n"]) == ("val", [store], len(val))
@@ -72,7 +73,7 @@ def test_it_fits_on_the_validation_robots_only_and_the_predictor_uses_it(gaussia
         np.testing.assert_allclose(pred.simulate(u_ctx, y_ctx, u_q, return_std=True)[1], s0, rtol=1e-6)
     assert pred.calibration is not None  # restored after the block
     # Calibrating again fits on the head's own std, not on the calibrated one: same scales.
-    again = calibrate(ckpt, method="quantile")
+    again = calibrate(CalibrateConfig(ckpt=ckpt, method="quantile"))
     np.testing.assert_allclose(again["calibration"]["scale"], report["calibration"]["scale"], rtol=1e-6)
     assert again["before"] == report["before"] and len(again["after"]["1sigma"]) == len(again["steps"])
 
@@ -80,12 +81,12 @@ def test_it_fits_on_the_validation_robots_only_and_the_predictor_uses_it(gaussia
 def test_evaluate_scores_the_calibrated_std_and_says_where_it_was_fitted(gaussian, tmp_path, simulated_store):
     store, best = gaussian
     ckpt = _copy(best, tmp_path)
-    calibrate(ckpt)
+    calibrate(CalibrateConfig(ckpt=ckpt))
     test = simulated_store(robots=8, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=7)
-    res = evaluate(ckpt, test, str(tmp_path / "eval"), baselines=("hold",), samples=0)
+    res = evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "eval"), baselines=("hold",), samples=0))
     meta = res["meta"]["std_calibration"]
     assert meta["split"] == "val" and meta["method"] == "power" and meta["data"] == [store]
-    plain = evaluate(best, test, str(tmp_path / "eval0"), baselines=("hold",), samples=0)
+    plain = evaluate(EvaluateConfig(ckpt=best, data=test, out=str(tmp_path / "eval0"), baselines=("hold",), samples=0))
     assert plain["meta"]["std_calibration"] is None
     assert res["approach1"] == plain["approach1"]  # the mean prediction is unchanged
     assert res["horizons"]["calibration"] != plain["horizons"]["calibration"]
@@ -96,7 +97,7 @@ def test_remove_and_out_leave_the_original_as_it_was(gaussian, tmp_path):
     ckpt = _copy(best, tmp_path)
     before = open(ckpt, "rb").read()
     out = str(tmp_path / "calibrated.ckpt")
-    calibrate(ckpt, out=out)
+    calibrate(CalibrateConfig(ckpt=ckpt, out=out))
     assert open(ckpt, "rb").read() == before and CALIBRATION_KEY in load_checkpoint_file(out)
     assert remove(out) is True and CALIBRATION_KEY not in load_checkpoint_file(out)
     assert load_trained(out)[0].calibration is None
@@ -165,7 +166,7 @@ def test_the_brief_summary_is_one_line_of_the_reports_coverage(gaussian, tmp_pat
     from robomorph.reproduction.demo import brief_text
 
     _, best = gaussian
-    report = calibrate(_copy(best, tmp_path), method="coverage")
+    report = calibrate(CalibrateConfig(ckpt=_copy(best, tmp_path), method="coverage"))
     line = brief_text(report)
     assert "\n" not in line and len(report_text(report).splitlines()) > 5
     n = report["calibration"]["source"]["n"]

@@ -10,6 +10,7 @@ from robomorph.core.results import read_provenance, read_rows
 from robomorph.data.store import create_store
 from robomorph.evaluate import main
 from robomorph.evaluation.evaluator import evaluate, parse_range
+from robomorph.evaluation.requests import EvaluateConfig
 from robomorph.predictor import Predictor
 from tests.conftest import CKPT_CONTEXT as C
 from tests.conftest import CKPT_HORIZON as H
@@ -32,8 +33,9 @@ def test_checkpoint_records_its_training_data(setup):
 def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
     _, ckpt, test = setup
     out = str(tmp_path / "ev")
-    res = evaluate(ckpt, test, out, sweep_horizon_spec="20:60:20", sweep_context_spec="10,30", samples=2,
-                   arx_orders=(1, 1))
+    res = evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=out,
+                                  sweep_horizon_spec="20:60:20", sweep_context_spec="10,30", samples=2,
+                                  arx_orders=(1, 1)))
     names = res["meta"]["y_names"]
     for f in ("metrics.json", "metrics.csv", "horizons.csv", "table.md", "error_growth.png", "r2_distribution.png",
               "sweep_horizon.png", "sweep_context.png"):
@@ -76,7 +78,7 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
 
 def test_hold_baseline_scores_match_a_direct_computation(setup, tmp_path):
     _, ckpt, test = setup
-    res = evaluate(ckpt, test, str(tmp_path / "h"), baselines=("hold",), samples=0)
+    res = evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "h"), baselines=("hold",), samples=0))
     from robomorph.core import metrics
     from robomorph.data.store import open_store
 
@@ -104,12 +106,12 @@ def test_real_logs_skip_nominal_physics_with_the_reason(setup, tmp_path):
     ds = open_store(test)
     path = write_store(tmp_path / "real.zarr", ds.read("u"), ds.read("y"), u_names=ds.u_names, y_names=ds.y_names,
                        attrs={"dt": ds.dt, "domain": "real"})
-    res = evaluate(ckpt, path, str(tmp_path / "r"), samples=0,
-                   baselines=("hold", "nominal_physics", "true_physics"))
+    res = evaluate(EvaluateConfig(ckpt=ckpt, data=path, out=str(tmp_path / "r"), samples=0,
+                                  baselines=("hold", "nominal_physics", "true_physics")))
     assert set(res["baselines"]) == {"hold"}
     assert "domain" in res["skipped_baselines"]["nominal_physics"]
     assert "domain" in res["skipped_baselines"]["true_physics"]
-    sim = evaluate(ckpt, test, str(tmp_path / "t"), samples=0, baselines=("true_physics",))
+    sim = evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "t"), samples=0, baselines=("true_physics",)))
     assert set(sim["baselines"]) == {"true_physics"}
 
 
@@ -141,13 +143,13 @@ def test_bad_input_gives_clear_errors(setup, tmp_path, capsys):
     cases.append((empty, "no trajectories"))
     for store, msg in cases:
         with pytest.raises((ValueError, FileNotFoundError), match=msg):
-            evaluate(ckpt, store, str(tmp_path / "bad"), samples=0)
+            evaluate(EvaluateConfig(ckpt=ckpt, data=store, out=str(tmp_path / "bad"), samples=0))
     with pytest.raises(ValueError, match="must fit"):
-        evaluate(ckpt, test, str(tmp_path / "bad"), horizon=500, samples=0)
+        evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "bad"), horizon=500, samples=0))
     with pytest.raises(ValueError, match=r"multiples of the model's patch \(5 steps per token\): \[12\]"):
-        evaluate(ckpt, test, str(tmp_path / "bad"), sweep_context_spec="10,12", samples=0)
+        evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "bad"), sweep_context_spec="10,12", samples=0))
     with pytest.raises(ValueError, match="unknown baseline"):
-        evaluate(ckpt, test, str(tmp_path / "bad"), baselines=("oracle",))
+        evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "bad"), baselines=("oracle",)))
     for argv, message in [
         (["--horizon", "999"], "must fit"),
         (["--offset", "later"], "--offset takes 'start', 'random' or a step number"),
@@ -174,15 +176,17 @@ def test_arx_train_is_fitted_on_the_checkpoints_training_split(setup, tmp_path):
 
     train_store = Predictor.from_checkpoint(ckpt, device="cpu").data_info["stores"][0]
 
-    res = evaluate(ckpt, test, str(tmp_path / "a"), baselines=("arx_train",), samples=0, arx_orders=(1, 1))
+    res = evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "a"),
+                                  baselines=("arx_train",), samples=0, arx_orders=(1, 1)))
     train_rows = split_rows(24, (0.8, 0.1, 0.1), 0, 0)["train"]  # the fit's stores, split and seed
     assert res["meta"]["baseline_notes"]["arx_train"]["trajectories"] == len(train_rows) < 24
     assert set(res["baselines"]) == {"arx_train"}
-    whole = evaluate(ckpt, test, str(tmp_path / "b"), baselines=("arx_train",), samples=0, arx_orders=(1, 1),
-                     arx_train_data=[train_store])
+    whole = evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "b"),
+                                    baselines=("arx_train",), samples=0, arx_orders=(1, 1),
+                                    arx_train_data=[train_store]))
     assert whole["meta"]["baseline_notes"]["arx_train"]["trajectories"] == 24
-    gone = evaluate(ckpt, test, str(tmp_path / "c"), baselines=("hold", "arx_train"), samples=0,
-                    arx_train_data=[str(tmp_path / "moved.zarr")])
+    gone = evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "c"), baselines=("hold", "arx_train"), samples=0,
+                                   arx_train_data=[str(tmp_path / "moved.zarr")]))
     assert set(gone["baselines"]) == {"hold"} and "--arx-train-data" in gone["skipped_baselines"]["arx_train"]
 
 
@@ -191,7 +195,8 @@ def test_a_diverged_baseline_says_so_in_the_printed_table(setup, tmp_path):
     from robomorph.evaluation.evaluator import summary_text
     from robomorph.evaluation.tables import table_markdown
 
-    res = evaluate(ckpt, test, str(tmp_path / "d"), baselines=("hold", "arx"), samples=0, arx_orders=(1, 1))
+    res = evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "d"),
+                                  baselines=("hold", "arx"), samples=0, arx_orders=(1, 1)))
     res["meta"]["baseline_notes"]["arx"]["diverged_held"] = 0
     assert "diverged" not in summary_text(res, "x") and "diverged" not in table_markdown(res)
     res["meta"]["baseline_notes"]["arx"]["diverged_held"] = 2  # as ARX reports two blow-ups
@@ -215,17 +220,18 @@ def test_plots_label_channels_with_the_stores_units(setup, tmp_path, monkeypatch
     titles, save = [], Figure.savefig
     monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: (titles.extend(ax.get_title() for ax in fig.axes),
                                                                 save(fig, *a, **k))[1])
-    evaluate(ckpt, path, str(tmp_path / "u"), baselines=("hold",), samples=1)
+    evaluate(EvaluateConfig(ckpt=ckpt, data=path, out=str(tmp_path / "u"), baselines=("hold",), samples=1))
     assert {"ee_x [m]", "ee_qx", "q0 [rad]"} <= set(titles)
 
 
 def test_compare_scores_another_checkpoint_beside_the_baselines(setup, tmp_path):
     _, ckpt, test = setup
-    res = evaluate(ckpt, test, str(tmp_path / "c"), baselines=("hold",), samples=0, compare={"again": ckpt})
+    res = evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "c"),
+                                  baselines=("hold",), samples=0, compare={"again": ckpt}))
     assert set(res["baselines"]) == {"hold", "again"} and res["meta"]["baseline_notes"]["again"]["ckpt"] == ckpt
     assert res["baselines"]["again"]["approach1"] == res["approach1"]  # the same model scores the same
     with pytest.raises(ValueError, match="names a baseline"):
-        evaluate(ckpt, test, str(tmp_path / "d"), baselines=(), samples=0, compare={"hold": ckpt})
+        evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "d"), baselines=(), samples=0, compare={"hold": ckpt}))
 @pytest.mark.parametrize("flag, value", [("--context-len", "0"), ("--context-len", "-5"), ("--horizon", "0"),
                                          ("--n", "0"), ("--batch-size", "0")])
 def test_non_positive_lengths_are_refused(setup, tmp_path, flag, value, capsys):
@@ -256,8 +262,8 @@ def test_evaluate_reports_errors_by_horizon_from_random_offsets(setup, tmp_path)
     from robomorph.data.store import open_store
 
     out = str(tmp_path / "off")
-    res = evaluate(ckpt, test, out, context_len=20, horizon=30, baselines=("hold",), samples=1,
-                   horizons_spec="1,0.25s,end", offset="random", seed=4)
+    res = evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=out, context_len=20, horizon=30, baselines=("hold",), samples=1,
+                                  horizons_spec="1,0.25s,end", offset="random", seed=4))
     starts = np.array(res["window_starts"])
     assert res["meta"]["offset"] == "random" and len(starts) == 6
     assert starts.min() >= 0 and starts.max() <= C + H - 50 and len(set(starts.tolist())) > 1
@@ -273,7 +279,7 @@ def test_evaluate_reports_errors_by_horizon_from_random_offsets(setup, tmp_path)
     assert rows[0] == "source,quantity,unit,step,seconds,metric,value" and len(rows) == 1 + 2 * 3 * 3
     assert "RMS error by horizon" in open(os.path.join(out, "table.md")).read()
     with pytest.raises(ValueError, match="outside the evaluated horizon"):
-        evaluate(ckpt, test, str(tmp_path / "bad"), horizon=30, horizons_spec="5s", samples=0)
+        evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "bad"), horizon=30, horizons_spec="5s", samples=0))
 
 
 class StandIn:
@@ -352,20 +358,21 @@ def paper_window_ckpt(simulated_store, tmp_path_factory):
 def test_paper_window_evaluation_says_it_leaks_everywhere(setup, paper_window_ckpt, tmp_path):
     _, ckpt, test = setup
     out = str(tmp_path / "pw")
-    res = evaluate(paper_window_ckpt, test, out, baselines=("hold",), samples=0, sweep_horizon_spec="30,60")
+    res = evaluate(EvaluateConfig(ckpt=paper_window_ckpt, data=test, out=out, baselines=("hold",), samples=0,
+                                  sweep_horizon_spec="30,60"))
     disk = json.load(open(os.path.join(out, "metrics.json")))
     assert disk["leaks_query_statistics"] is True and disk["meta"]["normalization"] == "paper_window"
     assert np.isfinite(res["approach1"]["mean"]["r2"]["mean"]) and len(disk["sweeps"]["horizon"]) == 2
     table = open(os.path.join(out, "table.md")).read()
     assert "**⚠ Normalization paper_window (the paper's protocol)" in table.split("| channel")[0]
     assert {r["normalization"] for r in read_rows(os.path.join(out, "metrics.csv"))} == {"paper_window"}
-    clean = evaluate(ckpt, test, str(tmp_path / "ts"), baselines=("hold",), samples=0)
+    clean = evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "ts"), baselines=("hold",), samples=0))
     assert clean["leaks_query_statistics"] is False and clean["meta"]["normalization"] == "train_stats"
     assert "Normalization train_stats" in open(tmp_path / "ts" / "table.md").read()
     from robomorph.core.normalizations import NormalizationError
 
     with pytest.raises(NormalizationError, match="trained with normalization 'train_stats', not 'paper_window'"):
-        evaluate(ckpt, test, str(tmp_path / "x"), normalization="paper_window", samples=0)
+        evaluate(EvaluateConfig(ckpt=ckpt, data=test, out=str(tmp_path / "x"), normalization="paper_window", samples=0))
 
 
 @pytest.mark.parametrize("normalization", ["train_stats", "paper_window"])
@@ -407,8 +414,9 @@ def test_a_checkpoint_refuses_the_other_input_formulation(setup, cmd_ckpt, tmp_p
     with pytest.raises(InputsError, match="trained on inputs=command.*given inputs=total"):
         cmd.simulate(u, y, u[:10], inputs="total")
     with pytest.raises(InputsError, match="trained on inputs=total"):
-        evaluate(total_ckpt, test, str(tmp_path / "no"), baselines=(), inputs="command")
-    res = evaluate(cmd_ckpt, test, str(tmp_path / "ev"), baselines=("hold", "true_physics"), samples=0)
+        evaluate(EvaluateConfig(ckpt=total_ckpt, data=test, out=str(tmp_path / "no"), baselines=(), inputs="command"))
+    res = evaluate(EvaluateConfig(ckpt=cmd_ckpt, data=test, out=str(tmp_path / "ev"),
+                                  baselines=("hold", "true_physics"), samples=0))
     assert res["meta"]["inputs"] == "command" and res["meta"]["u_names"][0] == "cmd0"
     # true_physics simulates the command on the arm compensating its own gravity: near exact.
     assert res["baselines"]["true_physics"]["approach1"]["mean"]["r2"]["mean"] > 0.99
@@ -426,4 +434,4 @@ def test_a_command_checkpoint_says_to_regenerate_a_store_without_u_cmd(setup, cm
     w.append(src.read("u"), src.read("y"), src.read("params"))
     w.finalize()
     with pytest.raises(InputsError, match="no command inputs.*[Rr]egenerate"):
-        evaluate(cmd_ckpt, old, str(tmp_path / "ev"), baselines=())
+        evaluate(EvaluateConfig(ckpt=cmd_ckpt, data=old, out=str(tmp_path / "ev"), baselines=()))

@@ -129,10 +129,11 @@ def _benchmark(name: str):
 
 def test_evaluate_and_the_ablation_benchmark_give_the_same_numbers(tiny_checkpoint, simulated_store, tmp_path):
     from robomorph.evaluation.evaluator import evaluate
+    from robomorph.evaluation.requests import EvaluateConfig
     from robomorph.predictor import Predictor
 
     test = simulated_store(robots=6, steps=C + H, seed=2)
-    res = evaluate(tiny_checkpoint, test, str(tmp_path / "ev"), baselines=("hold",), samples=0)
+    res = evaluate(EvaluateConfig(ckpt=tiny_checkpoint, data=test, out=str(tmp_path / "ev"), baselines=("hold",), samples=0))
     bench = _benchmark("horizon_ablation").score(Predictor.from_checkpoint(tiny_checkpoint, device="cpu"), test,
                                                  context=C, horizon=H, random_horizon=20)
     h = res["horizons"]

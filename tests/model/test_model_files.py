@@ -73,10 +73,11 @@ def test_a_checkpoint_of_an_earlier_version_exports_and_predicts_as_it_did(tmp_p
 
 def test_the_calibration_travels_with_the_export_and_calibrate_writes_into_a_folder(trained, tmp_path):
     from robomorph.evaluation.calibrating import calibrate, remove
+    from robomorph.evaluation.requests import CalibrateConfig
 
     _, best = trained
     ckpt = _copy(best, tmp_path / "model.ckpt")
-    calibrate(ckpt)
+    calibrate(CalibrateConfig(ckpt=ckpt))
     folder = str(tmp_path / "model")
     export(ckpt, folder)
     assert Predictor.from_pretrained(folder, "cpu").calibration == Predictor.from_checkpoint(ckpt, "cpu").calibration
@@ -84,7 +85,7 @@ def test_the_calibration_travels_with_the_export_and_calibrate_writes_into_a_fol
     weights = open(os.path.join(folder, WEIGHTS_FILE), "rb").read()
     assert remove(folder) is True
     assert Predictor.from_pretrained(folder, "cpu").calibration is None
-    report = calibrate(folder, method="quantile")
+    report = calibrate(CalibrateConfig(ckpt=folder, method="quantile"))
     stored = json.load(open(os.path.join(folder, CONFIG_FILE)))[CALIBRATION_KEY]
     assert [stored[k] for k in ("knots", "scale", "method")] == [report["calibration"][k]
                                                                   for k in ("knots", "scale", "method")]
