@@ -45,7 +45,7 @@ def kind_calibrations(predictor) -> tuple:
 
 def spread_points(predictor, strict: bool = True) -> str:
     """The points (:data:`POINTS`) behind a hybrid's std: ``Predictor.settings.points`` where set, else
-    those its mode's stored calibrations were fitted on, else :func:`default_points`. ``strict`` False: the choice
+    those its mode's stored calibrations were fitted on, else :func:`robomorph.inference.hybrid_spread.default_points` (the observer's where it runs). ``strict`` False: the choice
     (or the default) instead of the errors below, for predictions that ask for no std.
 
     Raises: CalibrationError: an unknown name, a choice other than the stored calibrations', or calibrations of
@@ -54,7 +54,7 @@ def spread_points(predictor, strict: bool = True) -> str:
         try:
             return spread_points(predictor)
         except CalibrationError:
-            return predictor.settings.points or default_points(predictor)
+            return predictor.settings.points or hybrid_spread.default_points(observing(predictor))
     chosen = predictor.settings.points  # (a name of POINTS: the settings check it)
     cals = {c.points or "draws": c for c in kind_calibrations(predictor) if c is not None}
     if len(cals) > 1:
@@ -66,12 +66,7 @@ def spread_points(predictor, strict: bool = True) -> str:
         raise CalibrationError(f"the stored std calibration was fitted on the spread of {fitted!r}, not "
                                f"{chosen!r}: leave the points unset (configure(points=None)), or calibrate again with "
                                f"--points {chosen}")
-    return chosen or fitted or default_points(predictor)
-
-
-def default_points(predictor) -> str:
-    """The points of a std no calibration was fitted on yet (:func:`robomorph.inference.hybrid_spread.default_points`)."""
-    return hybrid_spread.default_points(observing(predictor))
+    return chosen or fitted or hybrid_spread.default_points(observing(predictor))
 
 
 def drawn_points(predictor) -> str | None:
