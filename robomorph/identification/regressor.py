@@ -38,6 +38,17 @@ its motion. So where a joint held, the solves are repeated from the low end of i
 range (two more solves, three passes), where its column is the Coulomb force's, and that fit is
 kept if it explains the context's torques much better (:data:`SLIP_RATIO`); a joint that truly
 held fits worse from below, a constant Coulomb force where a varying holding force was needed.
+
+Two terms a real arm has and the parameter vector does not (``offsets``, ``coulomb``): a constant torque
+per joint (a torque sensor's offset; the asymmetric part of a friction that differs by direction; the
+mean of an unknown payload's gravity over the context) and a Coulomb friction per joint beyond the
+catalogue box's friction loss (``Fc tanh(v / COULOMB_VELOCITY)``, the realism recipes' law without its
+Stribeck hump). Both are linear, so they are further columns of the same solve, bounded and pulled
+toward zero like the rest; they are not entries of the robot's vector (:meth:`extra`), and a backbone
+simulates them as a change of the torque it is given (:mod:`robomorph.identification.extra_terms`).
+With noisy joints (``noise``, measured in the context: :mod:`robomorph.identification.noise`) the
+joints and the torques are smoothed alike before the differences, and the data's weight falls with
+the noise (module ``noise``'s docstring gives the rule and its measurement).
 """
 
 from __future__ import annotations
@@ -47,6 +58,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
+from robomorph.identification import extra_terms, noise as encoder
 from robomorph.identification.stacked import StackedInverse, carried_bodies
 
 # A re-tried fit of the joints that held (:meth:`RegressorIdentifier._slipped`) replaces the fit
@@ -82,7 +94,7 @@ class RegressorIdentifier:
     """
 
     def __init__(self, recipe, space, randomizer, inputs: str = "command", prior: float = 0.03, sigma: float = 0.05,
-                 exact_columns: bool = False, iterations: int = 3):
+                 exact_columns: bool = False, iterations: int = 3, extras: tuple[str, ...] = ()):
         from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
         from robomorph.identification.identify import lean_model, lean_spec  # noqa: PLC0415
 
@@ -116,9 +128,14 @@ class RegressorIdentifier:
         self._half = (space.high - space.low) / 2
         self._mid = (space.high + space.low) / 2
         self._friction = _friction_entries(space, randomizer)
+        # The terms beside the robot's vector (:mod:`robomorph.identification.extra_terms`): their columns' scale
+        # (half their bounds' width, per joint) and the last fit's values [N m] (zeros where off).
+        self.extras = extra_terms.check(extras)
+        self._extra_half = extra_terms.half_ranges(self.extras, recipe.arm.limits)
+        self.last_extra = extra_terms.zeros(self._nj)
 
     def fit(self, base: np.ndarray, q: np.ndarray, torque: np.ndarray, prior_mean: np.ndarray | None = None,
-            prior_std: np.ndarray | None = None) -> np.ndarray:
+            prior_std: np.ndarray | None = None, noise: float = 0.0) -> np.ndarray:
         """The full parameter vector ``base`` with the identified entries solved for.
 
         Args:
@@ -130,9 +147,22 @@ class RegressorIdentifier:
                 coordinates (a learned estimate, :mod:`robomorph.inference.hybrid`); the solve is
                 then the posterior mode, the data weighted by their residual variance.
                 Default: the weak pull toward ``base`` (``prior``).
+            noise: the encoder noise std [rad] measured in the context (:func:`robomorph.identification.noise.encoder_noise`):
+                above :data:`robomorph.identification.noise.NOISE_FLOOR` the joints and torques are smoothed alike
+                before the differences and the torque error's unit grows with it; below, nothing changes.
         """
         if self._catalogue_gravity is not None:
             torque = np.asarray(torque, dtype=np.float64) + np.stack([self._catalogue_gravity(qt) for qt in q])
+        sigma = self.sigma
+        if noise > encoder.NOISE_FLOOR:
+            q, torque = encoder.smooth_pair(q, torque, noise)
+            self.sigma = encoder.torque_sigma(self.sigma, noise, self.dt)
+        try:
+            return self._fit(base, q, torque, prior_mean, prior_std)
+        finally:
+            self.sigma = sigma
+
+    def _fit(self, base: np.ndarray, q: np.ndarray, torque: np.ndarray, prior_mean, prior_std) -> np.ndarray:
         data = _differences(q, torque, self.dt)
         base = np.asarray(base, dtype=np.float64)
         z_base = self._unit(base)
@@ -141,12 +171,18 @@ class RegressorIdentifier:
         if prior_mean is None and self.last_held.any():
             fit = self._slipped(fit, z_base, data)
         params, self.last_fit = fit.params, fit
-        n = len(fit.b_z)
+        self.last_extra = extra_terms.values(self.extras, fit.x_extra * self._extra_half if len(fit.x_extra) else None,
+                                             self._nj)
+        n, m = len(fit.b_z), len(z_base)
         # The estimate's covariance in unit coordinates (Gauss-Markov, the residual's variance):
-        # what the draws behind the hybrid's standard deviation sample from.
-        s2 = float(np.einsum("i,i->", fit.err, fit.err)) / max(1, n - len(z_base))
-        self.last_cov = s2 * np.linalg.inv(fit.gram + n * self.prior ** 2 * np.eye(len(z_base)))
+        # what the draws behind the hybrid's standard deviation sample from (the robot's entries: the
+        # extra terms' marginalized out).
+        s2 = float(np.einsum("i,i->", fit.err, fit.err)) / max(1, n - len(fit.gram))
+        self.last_cov = (s2 * np.linalg.inv(fit.gram + n * self.prior ** 2 * np.eye(len(fit.gram))))[:m, :m]
         if prior_mean is not None:
+            if len(fit.x_extra):
+                raise ValueError("a prior on the robot's entries (the fused mode) takes no extra terms: build the "
+                                 "regressor without extras")
             # The posterior mode under the prior: data in units of their residual spread.
             mu = np.asarray(prior_mean, dtype=np.float64)
             w = 1.0 / np.maximum(np.asarray(prior_std, dtype=np.float64), 1e-3)
@@ -171,7 +207,13 @@ class RegressorIdentifier:
         landed; all pulled toward ``z_base``. ``cols``: the regressor of an earlier fit, whose
         columns other than the friction losses' are kept (they do not depend on where they are taken)."""
         qs, v, a, tau = data
-        index, params, z_lin = self.space.index, params.copy(), self._unit(params)
+        index, params = self.space.index, params.copy()
+        extra_cols = self._extra_columns(v)  # (T * nj, e): fixed, they depend on the recorded motion alone
+        e = extra_cols.shape[1]
+        # The linearization point: the robot's entries where the estimate is, the extra terms at zero (the torque
+        # the inverse dynamics gives holds none of theirs, so each solve finds them whole).
+        z_lin = np.r_[self._unit(params), np.zeros(e)]
+        z_pull = np.r_[z_base, np.zeros(e)]  # the extra terms are pulled toward none
         for it in range(iterations):
             # The torque linearized at the current estimate: exact in the masses, damping and armature;
             # the friction loss is piecewise linear (Coulomb where its constraint saturates, no dependence
@@ -183,11 +225,21 @@ class RegressorIdentifier:
             # the others read from the torque's own pass, a pass fewer each.
             tau0, bodies, signs = self._inverse(params, qs, v, a, fresh and not self.exact_columns, it < iterations - 1)
             cols = self._columns(params, qs, v, a, tau0, None if fresh else cols, bodies, signs)
-            A_z = cols.reshape(-1, len(index)) * (self._half / self.sigma)[None, :]
-            x, b_z, gram, atb = _solve(A_z, (tau - tau0).ravel() / self.sigma, z_lin, z_base, self.prior)
-            params[index] = self._mid + x * self._half
-            z_lin = x
-        return _Fit(params, cols, b_z, gram, atb, np.einsum("ij,j->i", A_z, x) - b_z, z_base)
+            A_z = self._design(cols, extra_cols)
+            x, b_z, gram, atb = _solve(A_z, (tau - tau0).ravel() / self.sigma, z_lin, z_pull, self.prior)
+            params[index] = self._mid + x[:len(index)] * self._half
+            z_lin = np.r_[x[:len(index)], np.zeros(e)]
+        return _Fit(params, cols, b_z, gram, atb, np.einsum("ij,j->i", A_z, x) - b_z, z_base, x[len(index):])
+
+    def _design(self, cols: np.ndarray, extra_cols: np.ndarray) -> np.ndarray:
+        """(T * nj, n + e) the solve's matrix in unit coordinates and units of ``sigma``: the robot's regressor
+        ``cols`` (T, nj, n), then the extra terms' columns (already per unit coordinate)."""
+        A_z = cols.reshape(-1, len(self.space.index)) * (self._half / self.sigma)[None, :]
+        return np.concatenate([A_z, extra_cols / self.sigma], axis=1) if extra_cols.shape[1] else A_z
+
+    def _extra_columns(self, v: np.ndarray) -> np.ndarray:
+        """(T * nj, e) the extra terms' torque per unit coordinate at the context's states (velocities ``v``)."""
+        return extra_terms.columns(self.extras, v, self._extra_half)
 
     def _slipped(self, fit: "_Fit", z_base: np.ndarray, data: tuple) -> "_Fit":
         """The fit again, the friction losses of the joints that held at its estimate started at
@@ -282,10 +334,14 @@ class RegressorIdentifier:
         if len(qs) != len(fit.cols):
             raise ValueError(f"shift: the pieces hold {len(qs)} inner samples, the fit read {len(fit.cols)}")
         resid = (tau - self._inverse(fit.params, qs, v, a)[0]).ravel() / self.sigma
-        A_z = fit.cols.reshape(-1, len(self.space.index)) * (self._half / self.sigma)[None, :]
-        n, pull = len(resid), self.prior ** 2
-        z = self._unit(fit.params)  # the solve's normal equations with these torques' residual, less its own at z
-        return np.linalg.solve(fit.gram / n + pull * np.eye(len(z)), A_z.T @ resid / n - pull * (z - fit.z_base))
+        A_z = self._design(fit.cols, self._extra_columns(v))
+        n, pull, m = len(resid), self.prior ** 2, len(self.space.index)
+        # The solve's normal equations with these torques' residual, less its own at z. The torques given are
+        # taken to be the robot's own (any extra terms already taken off them): those terms are at zero here, and
+        # only the robot's entries' move is returned.
+        e = len(fit.gram) - m
+        z, z_base = np.r_[self._unit(fit.params), np.zeros(e)], np.r_[fit.z_base, np.zeros(e)]
+        return np.linalg.solve(fit.gram / n + pull * np.eye(len(z)), A_z.T @ resid / n - pull * (z - z_base))[:m]
 
     def _bumped(self, params: np.ndarray, k: int, step: float, states: tuple,
                 tau0: np.ndarray) -> np.ndarray:
@@ -313,6 +369,7 @@ class _Fit(NamedTuple):
     atb: np.ndarray
     err: np.ndarray
     z_base: np.ndarray  # where the solves were pulled toward (unit coordinates)
+    x_extra: np.ndarray  # the extra terms' estimate in unit coordinates (empty without them)
 
 
 def _friction_entries(space, randomizer) -> list[tuple[int, int]]:

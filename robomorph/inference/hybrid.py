@@ -85,6 +85,8 @@ class Hybrid:
         self._stiction = None
         self._held: np.ndarray | None = None  # (B, nj) of the last regression: joints that held still
         self._covs: list[np.ndarray] = []  # of the last regression: each window's estimate covariance
+        self._offsets: np.ndarray | None = None  # (B, nj) of the last regression, where it identified them
+        self._noise: np.ndarray | None = None  # (B,) the encoder noise measured in the last contexts (denoise)
         self._cov_space: tuple = ()  # the entries those cover: their indices in a parameter vector, their bounds
         self.smoothing = new_report()  # what mode ``smoothed`` did so far (robomorph.identification.smoother)
         self.last_fits: list = []
@@ -145,6 +147,7 @@ class Hybrid:
         params, z, z_std = self._identify(u_ctx[one], y_ctx[one], mode, anchor[one], qvel_start[one])
         if solves_whole_horizon(self.model, mode):
             return self._smoothed(u_ctx, y_ctx, u_query, params, mode, return_std, calibration)
+        uc, uq, q_ctx = self._as_identified(params, uc, uq, q_ctx, qvel_start, one)
         mixture = self._mixture(mode, params, q_ctx[one], uc[one], qvel_start[one])
         if mixture is not None:
             # The std's parameter draws go around each window's most likely member.
@@ -174,6 +177,22 @@ class Hybrid:
         # The parameters' uncertainty about the most likely member, and the friction's between members.
         std = np.sqrt(self._spread(mode, params, z, z_std, horizon(params), horizon, None) ** 2 + mix_var)
         return mean, std if calibration is None else calibration.scaled(std)
+
+    def _as_identified(self, params: np.ndarray, uc: np.ndarray, uq: np.ndarray, q_ctx: np.ndarray,
+                       qvel_start: np.ndarray, one: slice) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The torques and context joints the identified robots are simulated with: less the offsets the
+        regression found (``settings.offsets``), and with the contexts' ends denoised where noise was measured
+        (``settings.denoise``, :func:`robomorph.identification.noise.denoised_context`); as given otherwise."""
+        from robomorph.identification import extra_terms, noise  # noqa: PLC0415
+
+        offsets = self._offsets
+        if offsets is not None:
+            full = offsets if len(offsets) == len(uc) else np.repeat(offsets, len(uc), axis=0)  # a shared context
+            uc, uq = extra_terms.corrected(uc, full), extra_terms.corrected(uq, full)
+        if self._noise is not None and np.any(self._noise > noise.NOISE_FLOOR):
+            clean = noise.denoised_context(self.backbone, params, q_ctx[one], uc[one], qvel_start[one], self._noise)
+            q_ctx = clean if len(clean) == len(q_ctx) else np.repeat(clean, len(q_ctx), axis=0)
+        return uc, uq, q_ctx
 
     @property
     def covariances(self) -> list[np.ndarray]:
@@ -228,7 +247,11 @@ class Hybrid:
             z, z_std = self.parameters(u_ctx, y_ctx, u_ctx[:, :1])
         # The springs are anchored where the robot started: the first context sample when the context opens it.
         params = self.backbone.full_params(z, anchor)
-        self._held = None
+        self._held, self._offsets, self._noise = None, None, None
+        if self.settings.denoise and mode != "learned":
+            from robomorph.identification.noise import encoder_noise  # noqa: PLC0415
+
+            self._noise = np.array([encoder_noise(q) for q in q_ctx])
         if mode != "learned":
             prior = (z, z_std) if mode == "fused" else None
             params = self._regress(params, q_ctx, uc, prior, anchor, qvel_start)
@@ -268,13 +291,21 @@ class Hybrid:
         # centimetre moves it by ~0.1 N m), except under the head's prior, which does not name them.
         gravity = self.inputs == "total" and prior is None
         kinds = (GRAVITY_KINDS if gravity else KINDS) + (SPRING_KINDS if self.settings.springs and prior is None else ())
-        if self._regressor is None or self._regressor_kinds != kinds:
+        # What a real arm has beyond the robot's vector (robomorph.identification.extra_terms): the offsets' columns,
+        # the friction beyond the box; not under the head's prior, which does not name them.
+        extras = ("offsets",) if self.settings.offsets and prior is None else ()
+        wide = self.settings.coulomb and prior is None
+        if self._regressor is None or self._regressor_kinds != (kinds, extras, wide):
+            from robomorph.identification.extra_terms import friction_space  # noqa: PLC0415
+
             ident = self.backbone.ident
             space = ParameterSpace.of(ident.randomizer, self.backbone.recipe.randomization, kinds) \
                 if kinds != KINDS else ident.space
+            if wide:
+                space = friction_space(space, ident.randomizer, self.backbone.recipe.randomization)
             self._regressor = RegressorIdentifier(self.backbone.recipe, space, ident.randomizer, self.inputs,
-                                                    iterations=self.settings.iterations)
-            self._regressor_kinds = kinds
+                                                    iterations=self.settings.iterations, extras=extras)
+            self._regressor_kinds = (kinds, extras, wide)
         self._regressor.iterations = self.settings.iterations
         base = np.stack([self.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
         out, self._covs, held = [], [], []
@@ -286,18 +317,32 @@ class Hybrid:
         space = self._regressor.space
         keep = np.r_[np.arange(n), np.flatnonzero([k.startswith(SPRING_KINDS) for k in space.names])]
         self._cov_space = (space.index[keep], space.low[keep], space.high[keep])
+        noise = np.zeros(len(params)) if self._noise is None else self._noise
+        offsets = []
         for b in range(len(params)):
-            out.append(self._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ())))
+            out.append(self._regressor.fit(base[b], q_ctx[b], u_ctx[b], *((prior[0][b], prior[1][b]) if prior else ()),
+                                           noise=float(noise[b])))
             self._covs.append(self._regressor.last_cov[np.ix_(keep, keep)])
             held.append(self._regressor.last_held)
+            offsets.append(self._regressor.last_extra["offsets"])
             if debias:
                 fits.append(self._regressor.last_fit)
         self._held = np.stack(held)
+        self._offsets = np.stack(offsets) if extras else None
+        out = np.stack(out)
         if debias:
+            from robomorph.identification.extra_terms import corrected  # noqa: PLC0415
+            from robomorph.identification.noise import NOISE_FLOOR  # noqa: PLC0415
             from robomorph.inference.debias import debiased  # noqa: PLC0415
 
-            return debiased(self.backbone, self._regressor, np.stack(out), q_ctx, u_ctx, qvel_start, fits)
-        return np.stack(out)
+            # The bias is measured on the estimate's robot simulated under the torques it feels (less its offsets),
+            # by the same solve; a noisy context's solve smooths what the simulated one would not: left as it is.
+            rows = np.flatnonzero(noise <= NOISE_FLOOR)
+            if len(rows):
+                torque = corrected(u_ctx[rows], None if self._offsets is None else self._offsets[rows])
+                out[rows] = debiased(self.backbone, self._regressor, out[rows], q_ctx[rows], torque, qvel_start[rows],
+                                     [fits[i] for i in rows])
+        return out
 
     def record(self) -> tuple:
         """What the last call left about its windows: ``(held joints or None, estimate covariances, refined

@@ -10,7 +10,7 @@ one from outside.
 Two names come from it:
 
 - :attr:`HybridSettings.key`, the settings that change a prediction in one line,
-  ``MODE[@K][~M][/S][+obs][+springs][+debias][+tangent]`` (K regression solves, M members of the
+  ``MODE[@K][~M][/S][+obs][+springs][+debias][+tangent][+offsets][+coulomb][+denoise]`` (K regression solves, M members of the
   friction mixture, S physics steps per sample after the first second), read back by
   :meth:`HybridSettings.from_key`: what benchmarks and tables name a setting by;
 - :attr:`HybridSettings.calibration_key`, under which a model stores the std calibration of these
@@ -36,7 +36,7 @@ CANDIDATES = ("exact", "tangent")
 # The modes in which the regression identifies the robot without the parameter head's prior: where its
 # own switches (the springs, the debiasing) apply.
 _REGRESSING = ("regression", "refined", "blend", "smoothed")
-_FLAGS = ("obs", "springs", "debias", "tangent")
+_FLAGS = ("obs", "springs", "debias", "tangent", "offsets", "coulomb", "denoise")
 
 
 class SettingsError(PredictionError):
@@ -73,6 +73,14 @@ class HybridSettings:
         debias: commands: the regression's bias, measured on the estimate's simulated context, taken off
             (:mod:`robomorph.inference.debias`).
         candidates: many horizons on one context: ``exact`` or ``tangent``.
+        offsets: the regression identifies a constant torque per joint beside the robot (a sensor's offset, a
+            friction's asymmetry, an unknown payload's mean gravity), and the horizon is simulated with it taken
+            off the torques (:mod:`robomorph.identification.extra_terms`).
+        coulomb: the regression's friction losses and damping may leave the randomization box (a real joint's
+            Coulomb and viscous friction: :func:`robomorph.identification.extra_terms.friction_space`).
+        denoise: commands: the encoder noise measured in each context (:mod:`robomorph.identification.noise`)
+            smooths the regression's differences and the horizon's start; a context measured noise-free
+            predicts as without it.
         workers: hybrids that share a batch of many windows on threads (1: one does them all).
         iterations: solves of the regression, each linearized where the previous one landed.
         refine_iters: most cost evaluations of the ``refined`` mode's rollout fit.
@@ -91,6 +99,9 @@ class HybridSettings:
     springs: bool = False
     debias: bool = False
     candidates: str = "exact"
+    offsets: bool = False
+    coulomb: bool = False
+    denoise: bool = False
     workers: int = field(default_factory=default_workers)
     iterations: int = 3
     refine_iters: int = 3
@@ -110,7 +121,7 @@ class HybridSettings:
                                 "calibration's)")
         if self.candidates not in CANDIDATES:
             raise SettingsError(f"candidates must be one of {list(CANDIDATES)}, got {self.candidates!r}")
-        for name in ("observer", "springs", "debias"):
+        for name in ("observer", "springs", "debias", "offsets", "coulomb", "denoise"):
             if not isinstance(getattr(self, name), bool):
                 raise SettingsError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if not _whole(self.seed, 0):
@@ -146,12 +157,16 @@ class HybridSettings:
         formulation; the springs and debiasing outside it too, and in modes whose robot is not the
         regression's alone (``learned``, ``fused``, ``none``); the debiasing on an arm that compensates its
         gravity with its catalogue model, where it measured worse (simulated kinova3, 4 robots, joint RMS at
-        steps 1 / 15 / 60 / 300: 0.15 / 8.2 / 54 / 256 mrad with it, 0.055 / 2.1 / 10 / 57 without)."""
+        steps 1 / 15 / 60 / 300: 0.15 / 8.2 / 54 / 256 mrad with it, 0.055 / 2.1 / 10 / 57 without). The offsets
+        and the wider friction in any mode whose robot is the regression's alone, in either formulation (a total
+        torque's sensor has offsets too); the denoising with the commands' observer."""
         command = inputs == "command"
         regressing = command and self.mode in _REGRESSING
+        alone = self.mode in _REGRESSING
         return dataclasses.replace(
             self, observer=self.observer and command, springs=self.springs and regressing,
-            debias=self.debias and regressing and gravity_compensation != "nominal_model")
+            debias=self.debias and regressing and gravity_compensation != "nominal_model",
+            offsets=self.offsets and alone, coulomb=self.coulomb and alone, denoise=self.denoise and regressing)
 
     @property
     def calibration_key(self) -> str:
@@ -160,11 +175,14 @@ class HybridSettings:
         if self.mode == "none":
             return "none"
         return self.mode + "".join(f"+{flag}" for flag, on in (("obs", self.observer), ("springs", self.springs),
-                                                                 ("debias", self.debias)) if on)
+                                                                 ("debias", self.debias), ("offsets", self.offsets),
+                                                                 ("coulomb", self.coulomb), ("denoise", self.denoise))
+                                   if on)
 
     @property
     def key(self) -> str:
-        """The settings that change a prediction, in one line: ``MODE[@K][~M][/S][+obs][+springs][+debias][+tangent]``
+        """The settings that change a prediction, in one line: ``MODE[@K][~M][/S][+obs][+springs][+debias][+tangent]
+        [+offsets][+coulomb][+denoise]``
         (the defaults left out), read back by :meth:`from_key`."""
         default = HybridSettings()
         out = self.mode
@@ -172,7 +190,8 @@ class HybridSettings:
         out += f"~{self.members}" if self.members != default.members else ""
         out += f"/{self.substeps}" if self.substeps is not None else ""
         flags = {"obs": self.observer, "springs": self.springs, "debias": self.debias,
-                 "tangent": self.candidates == "tangent"}
+                 "tangent": self.candidates == "tangent", "offsets": self.offsets, "coulomb": self.coulomb,
+                 "denoise": self.denoise}
         return out + "".join(f"+{flag}" for flag in _FLAGS if flags[flag])
 
     @classmethod
@@ -196,5 +215,6 @@ class HybridSettings:
         return base.replace(mode=mode, iterations=numbers_.get("iterations", default.iterations),
                             members=numbers_.get("members", default.members), substeps=numbers_.get("substeps"),
                             observer="obs" in flags, springs="springs" in flags, debias="debias" in flags,
-                            candidates="tangent" if "tangent" in flags else "exact")
+                            candidates="tangent" if "tangent" in flags else "exact", offsets="offsets" in flags,
+                            coulomb="coulomb" in flags, denoise="denoise" in flags)
 

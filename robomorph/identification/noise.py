@@ -1,0 +1,103 @@
+"""Encoder noise: measured in a context, and what the identification and the start state do about it.
+
+A real arm's joint angles carry its encoders' noise (1e-5 to 1e-4 rad: docs/guide/realism.md). The
+regression (:mod:`robomorph.identification.regressor`) reads accelerations as second differences of the
+joints, which multiply that noise by ``sqrt(6) / dt^2`` (1e-4 rad at 60 Hz: 0.9 rad/s^2, more than
+most of the motion's), and the horizon starts from the last sample, which carries the noise whole.
+
+- :func:`encoder_noise`: the noise's std, from the context alone. A fourth difference of a smooth
+  motion sampled at 60 Hz is tiny (clean contexts: below 0.5e-6 rad), while white noise's is
+  ``sqrt(70)`` times its std; the median absolute value is robust to the motion's few sharp bends.
+- :func:`smooth_pair`: a Savitzky-Golay filter (cubic, :func:`window`) over the joints *and* the
+  torques alike, so that the differences of the smoothed joints still match the (smoothed) torques
+  (parallel filtering, as in the identification literature); the ends, where the filter extrapolates,
+  are dropped.
+- :func:`denoised_end`: the context's last samples replaced by the identified robot's simulation of
+  the context plus a quadratic fitted to what it misses (recorded less simulated) over the last
+  :data:`END_WINDOW` samples: the simulation carries the dynamics, the fit only a slow drift, so the
+  start of the horizon has a fraction of the noise.
+
+Below :data:`NOISE_FLOOR` none of this runs, so clean contexts predict exactly what they did.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Below this measured std [rad] a context counts as noise-free (clean simulated contexts measure 0.02e-6 to
+# 0.41e-6 rad; 1e-5 rad of noise measures 0.95e-5 to 1.1e-5, 32 windows of the sensitivity stores).
+NOISE_FLOOR = 2e-6
+# Samples of the quadratic fitted to the simulated context's miss at its end (1 s at 60 Hz).
+END_WINDOW = 60
+
+
+def encoder_noise(q: np.ndarray) -> float:
+    """The joint angles' noise std [rad] measured in a context ``q`` (T, nj) (T >= 5; 0 when shorter)."""
+    q = np.asarray(q, dtype=np.float64)
+    if len(q) < 5:
+        return 0.0
+    d4 = np.diff(q, 4, axis=0)  # white noise: std sqrt(70) sigma; a smooth motion: next to nothing
+    return float(np.median(np.abs(d4)) / 0.6745 / np.sqrt(70.0))
+
+
+def window(noise: float) -> int:
+    """The smoothing window [samples] for a noise std: odd, 9 at 1e-5 rad, growing as noise^(2/9) (a cubic's
+    bias in the acceleration grows as window^4, the noise's variance there falls as window^-5), at most 41."""
+    w = 9.0 * (max(noise, NOISE_FLOOR) / 1e-5) ** (2 / 9)
+    return int(min(41, max(5, 2 * round(w / 2) + 1)))
+
+
+def smooth_pair(q: np.ndarray, torque: np.ndarray, noise: float) -> tuple[np.ndarray, np.ndarray]:
+    """Joints (T, nj) and torques (T, nj) smoothed by the same cubic Savitzky-Golay filter, less the
+    half-windows at both ends (where the filter extrapolates); unchanged when the context is too short."""
+    from scipy.signal import savgol_filter  # noqa: PLC0415
+
+    w = window(noise)
+    h = w // 2
+    if len(q) < 2 * w + 3:
+        return np.asarray(q, dtype=np.float64), np.asarray(torque, dtype=np.float64)
+    qs = savgol_filter(np.asarray(q, dtype=np.float64), w, 3, axis=0)[h:-h]
+    ts = savgol_filter(np.asarray(torque, dtype=np.float64), w, 3, axis=0)[h:-h]
+    return qs, ts
+
+
+def torque_sigma(sigma: float, noise: float, dt: float) -> float:
+    """The regression's torque error unit [N m] under joint noise ``noise``: ``sigma`` and the torque that the
+    smoothed accelerations' noise makes on a unit inertia (kg m^2), added in quadrature, so the prior's pull
+    (in units of it) grows as the data's information falls."""
+    w = window(noise)
+    # A cubic Savitzky-Golay second derivative's noise gain over w samples (least squares): about sqrt(720 / w^5).
+    accel = noise * np.sqrt(720.0 / w ** 5) / dt ** 2
+    return float(np.hypot(sigma, accel))
+
+
+def denoised_end(residual: np.ndarray, simulated: np.ndarray, window_: int = END_WINDOW) -> np.ndarray:
+    """(W, nj) the last ``W`` joint positions: ``simulated`` (T, nj) plus a quadratic least-squares fit of
+    ``residual`` (T, nj), recorded less simulated, over them (W = min(window_, T))."""
+    w = min(window_, len(residual))
+    t = np.arange(w, dtype=np.float64) - (w - 1)
+    basis = np.stack([np.ones(w), t, t * t], axis=1)[:, :min(3, w)]
+    coef, *_ = np.linalg.lstsq(basis, residual[-w:], rcond=None)
+    return simulated[-w:] + basis @ coef
+
+
+def denoised_context(backbone, params: np.ndarray, q_ctx: np.ndarray, torque_ctx: np.ndarray,
+                     qvel_start: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """(B, T, nj) the contexts with their last :data:`END_WINDOW` joint samples denoised
+    (:func:`denoised_end`) where their measured ``noise`` (B,) is above :data:`NOISE_FLOOR`: each robot
+    ``params`` (B, P) simulated over its context from the first sample (velocity ``qvel_start``) in the
+    formulation's own way (:class:`robomorph.identification.identify.ContextProblem`)."""
+    from robomorph.identification.identify import ContextProblem  # noqa: PLC0415
+
+    out = np.array(q_ctx, dtype=np.float64, copy=True)
+    space = backbone.ident.space
+    for b in np.flatnonzero(np.asarray(noise) > NOISE_FLOOR):
+        problem = ContextProblem(backbone.ident, params[b], out[b], np.asarray(torque_ctx[b], dtype=np.float64),
+                                 np.asarray(qvel_start[b], dtype=np.float64))
+        z = space.to_unit(params[b][space.index])
+        simulated = out[b, 1:] + problem.joint_error(z[None]).reshape(-1, out.shape[2])  # rows 1.. of the context
+        if not np.all(np.isfinite(simulated)) or np.abs(simulated - out[b, 1:]).max() > 0.1:
+            continue  # a simulation that left the context far behind says nothing of its end
+        w = min(END_WINDOW, len(simulated))
+        out[b, -w:] = denoised_end(out[b, 1:] - simulated, simulated, w)
+    return out
