@@ -8,6 +8,11 @@ mean over the context of a gravity the controller does not compensate (an unconf
 A backbone simulates it by taking it off the torques it is given (:func:`corrected`): the motion
 under torque ``u`` of a robot whose joints also feel ``-b`` is the robot's under ``u - b``.
 
+``payload`` is not a column either: a mass fixed to the flange is the flange body's mass and centre of
+mass changed (:func:`payload_space`), which the regression fits as it fits the links' (their gravity
+is linear in the masses and in the centres of mass) and the backbone simulates; its inertia about its
+own centre is left out (a point mass's, second order in the centre's offset).
+
 ``coulomb`` is not a column: MuJoCo's friction loss *is* a Coulomb friction (a soft constraint),
 so a real joint's larger Coulomb and viscous friction are the friction loss and the damping with
 bounds beyond the randomization box (:func:`friction_space`), which the backbone then simulates as
@@ -31,6 +36,10 @@ OFFSET_FRACTION = 0.05
 # Panda's second joint; and 0-0.2 N m s/rad of viscous friction beside the 5-10 of damping.
 COULOMB_SCALE = 5.0
 DAMPING_SCALE = 1.5
+# ``payload``: the flange body's mass may grow by this much [kg] and its centre of mass move this far [m] per axis
+# (the realism recipes' payloads: up to 1 kg, its centre of mass within 5 cm of the flange per axis).
+PAYLOAD_MASS = 1.5
+PAYLOAD_COM = 0.06
 
 
 def check(extras) -> tuple[str, ...]:
@@ -93,4 +102,25 @@ def friction_space(space, randomizer, recipe_cfg):
             low[c], high[c] = 0.0, COULOMB_SCALE * randomizer.friction0[j]
         elif kind == "damping":
             high[c] = DAMPING_SCALE * recipe_cfg.damping[1] * gain[j]
+    return dataclasses.replace(space, low=low, high=high)
+
+
+def flange_entries(space, randomizer, model) -> tuple[list[int], list[int]]:
+    """(mass, centre-of-mass) positions in ``space`` of the body that carries the ``ee`` site."""
+    body = int(model.site_bodyid[randomizer.index.ee_site])
+    k = int(np.flatnonzero(randomizer.index.body_ids == body)[0])
+    name = randomizer.names[k][len("mass_"):]  # the vector names a body's entries mass_<body>, com_<body>_<axis>
+    mass = [c for c, n in enumerate(space.names) if n == f"mass_{name}"]
+    com = [c for c, n in enumerate(space.names) if n.startswith(f"com_{name}_")]
+    return mass, com
+
+
+def payload_space(space, randomizer, model):
+    """``space`` with the flange body's mass bounds raised by :data:`PAYLOAD_MASS` and its centre of mass's widened
+    by :data:`PAYLOAD_COM` each way: an unknown payload, in the robot's own entries."""
+    low, high = space.low.copy(), space.high.copy()
+    mass, com = flange_entries(space, randomizer, model)
+    high[mass] += PAYLOAD_MASS
+    low[com] -= PAYLOAD_COM
+    high[com] += PAYLOAD_COM
     return dataclasses.replace(space, low=low, high=high)

@@ -94,7 +94,8 @@ class RegressorIdentifier:
     """
 
     def __init__(self, recipe, space, randomizer, inputs: str = "command", prior: float = 0.03, sigma: float = 0.05,
-                 exact_columns: bool = False, iterations: int = 3, extras: tuple[str, ...] = ()):
+                 exact_columns: bool = False, iterations: int = 3, extras: tuple[str, ...] = (),
+                 relinearize_com: bool = False):
         from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
         from robomorph.identification.identify import lean_model, lean_spec  # noqa: PLC0415
 
@@ -131,6 +132,9 @@ class RegressorIdentifier:
         # The terms beside the robot's vector (:mod:`robomorph.identification.extra_terms`): their columns' scale
         # (half their bounds' width, per joint) and the last fit's values [N m] (zeros where off).
         self.extras = extra_terms.check(extras)
+        # The centres of mass's columns taken again at every solve (where a mass moves far, as a payload's does, its
+        # centre's column, proportional to it, moves with it); else once, where the first solve starts.
+        self.relinearize_com = bool(relinearize_com)
         self._extra_half = extra_terms.half_ranges(self.extras, recipe.arm.limits)
         self.last_extra = extra_terms.zeros(self._nj)
 
@@ -272,7 +276,8 @@ class RegressorIdentifier:
         for c, k in enumerate(index):
             kind, _, joint = self.randomizer.names[k].rpartition("_q")
             j = int(joint) if joint.isdigit() else -1
-            if previous is not None and kind != "frictionloss":
+            com = self.randomizer.names[k].startswith("com_")
+            if previous is not None and kind != "frictionloss" and not (com and self.relinearize_com):
                 continue
             if self.exact_columns and j >= 0:
                 kind = "bump"
@@ -288,7 +293,7 @@ class RegressorIdentifier:
                 cols[:, j, c] = qs[:, j] - anchor[j]
             elif kind == "frictionloss":
                 friction.append((c, k, j))
-            elif self.randomizer.names[k].startswith("com_"):  # total torques (see COM_STEP)
+            elif com:  # gravity in the torque (see COM_STEP)
                 cols[:, :, c] = self._bumped(params, k, COM_STEP, (qs, v, a), tau0)
             elif bodies is not None:
                 # The torque is linear in a link's mass (its inertia scales with it, its centre of

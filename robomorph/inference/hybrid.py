@@ -289,23 +289,30 @@ class Hybrid:
 
         # Total torques pay gravity in the torque: the centres of mass are solved for as well (a
         # centimetre moves it by ~0.1 N m), except under the head's prior, which does not name them.
-        gravity = self.inputs == "total" and prior is None
+        # With ``payload``, also commands to an arm that compensates with its catalogue model: the rest of gravity is
+        # in the motion there.
+        nominal = self.backbone.recipe.gravity_compensation == "nominal_model"
+        payload = self.settings.payload and prior is None
+        gravity = (self.inputs == "total" or (payload and nominal)) and prior is None
         kinds = (GRAVITY_KINDS if gravity else KINDS) + (SPRING_KINDS if self.settings.springs and prior is None else ())
         # What a real arm has beyond the robot's vector (robomorph.identification.extra_terms): the offsets' columns,
         # the friction beyond the box; not under the head's prior, which does not name them.
         extras = ("offsets",) if self.settings.offsets and prior is None else ()
         wide = self.settings.coulomb and prior is None
-        if self._regressor is None or self._regressor_kinds != (kinds, extras, wide):
-            from robomorph.identification.extra_terms import friction_space  # noqa: PLC0415
+        if self._regressor is None or self._regressor_kinds != (kinds, extras, wide, payload):
+            from robomorph.identification.extra_terms import friction_space, payload_space  # noqa: PLC0415
 
             ident = self.backbone.ident
             space = ParameterSpace.of(ident.randomizer, self.backbone.recipe.randomization, kinds) \
                 if kinds != KINDS else ident.space
             if wide:
                 space = friction_space(space, ident.randomizer, self.backbone.recipe.randomization)
+            if payload:
+                space = payload_space(space, ident.randomizer, ident.model)
             self._regressor = RegressorIdentifier(self.backbone.recipe, space, ident.randomizer, self.inputs,
-                                                    iterations=self.settings.iterations, extras=extras)
-            self._regressor_kinds = (kinds, extras, wide)
+                                                    iterations=self.settings.iterations, extras=extras,
+                                                    relinearize_com=payload)
+            self._regressor_kinds = (kinds, extras, wide, payload)
         self._regressor.iterations = self.settings.iterations
         base = np.stack([self.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
         out, self._covs, held = [], [], []

@@ -10,7 +10,7 @@ one from outside.
 Two names come from it:
 
 - :attr:`HybridSettings.key`, the settings that change a prediction in one line,
-  ``MODE[@K][~M][/S][+obs][+springs][+debias][+tangent][+offsets][+coulomb][+denoise]`` (K regression solves, M members of the
+  ``MODE[@K][~M][/S][+obs][+springs][+debias][+tangent][+offsets][+coulomb][+payload][+denoise]`` (K regression solves, M members of the
   friction mixture, S physics steps per sample after the first second), read back by
   :meth:`HybridSettings.from_key`: what benchmarks and tables name a setting by;
 - :attr:`HybridSettings.calibration_key`, under which a model stores the std calibration of these
@@ -36,7 +36,7 @@ CANDIDATES = ("exact", "tangent")
 # The modes in which the regression identifies the robot without the parameter head's prior: where its
 # own switches (the springs, the debiasing) apply.
 _REGRESSING = ("regression", "refined", "blend", "smoothed")
-_FLAGS = ("obs", "springs", "debias", "tangent", "offsets", "coulomb", "denoise")
+_FLAGS = ("obs", "springs", "debias", "tangent", "offsets", "coulomb", "payload", "denoise")
 
 
 class SettingsError(PredictionError):
@@ -78,6 +78,10 @@ class HybridSettings:
             off the torques (:mod:`robomorph.identification.extra_terms`).
         coulomb: the regression's friction losses and damping may leave the randomization box (a real joint's
             Coulomb and viscous friction: :func:`robomorph.identification.extra_terms.friction_space`).
+        payload: the regression's flange body may carry an unknown payload (its mass and centre of mass beyond
+            the box: :func:`robomorph.identification.extra_terms.payload_space`), and where gravity is in the
+            problem (total torques; commands to an arm compensating with its catalogue model) the links' centres
+            of mass are fitted too.
         denoise: commands: the encoder noise measured in each context (:mod:`robomorph.identification.noise`)
             smooths the regression's differences and the horizon's start; a context measured noise-free
             predicts as without it.
@@ -101,6 +105,7 @@ class HybridSettings:
     candidates: str = "exact"
     offsets: bool = False
     coulomb: bool = False
+    payload: bool = False
     denoise: bool = False
     workers: int = field(default_factory=default_workers)
     iterations: int = 3
@@ -121,7 +126,7 @@ class HybridSettings:
                                 "calibration's)")
         if self.candidates not in CANDIDATES:
             raise SettingsError(f"candidates must be one of {list(CANDIDATES)}, got {self.candidates!r}")
-        for name in ("observer", "springs", "debias", "offsets", "coulomb", "denoise"):
+        for name in ("observer", "springs", "debias", "offsets", "coulomb", "payload", "denoise"):
             if not isinstance(getattr(self, name), bool):
                 raise SettingsError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if not _whole(self.seed, 0):
@@ -166,7 +171,8 @@ class HybridSettings:
         return dataclasses.replace(
             self, observer=self.observer and command, springs=self.springs and regressing,
             debias=self.debias and regressing and gravity_compensation != "nominal_model",
-            offsets=self.offsets and alone, coulomb=self.coulomb and alone, denoise=self.denoise and regressing)
+            offsets=self.offsets and alone, coulomb=self.coulomb and alone, payload=self.payload and alone,
+            denoise=self.denoise and regressing)
 
     @property
     def calibration_key(self) -> str:
@@ -176,13 +182,14 @@ class HybridSettings:
             return "none"
         return self.mode + "".join(f"+{flag}" for flag, on in (("obs", self.observer), ("springs", self.springs),
                                                                  ("debias", self.debias), ("offsets", self.offsets),
-                                                                 ("coulomb", self.coulomb), ("denoise", self.denoise))
+                                                                 ("coulomb", self.coulomb), ("payload", self.payload),
+                                                                 ("denoise", self.denoise))
                                    if on)
 
     @property
     def key(self) -> str:
         """The settings that change a prediction, in one line: ``MODE[@K][~M][/S][+obs][+springs][+debias][+tangent]
-        [+offsets][+coulomb][+denoise]``
+        [+offsets][+coulomb][+payload][+denoise]``
         (the defaults left out), read back by :meth:`from_key`."""
         default = HybridSettings()
         out = self.mode
@@ -191,7 +198,7 @@ class HybridSettings:
         out += f"/{self.substeps}" if self.substeps is not None else ""
         flags = {"obs": self.observer, "springs": self.springs, "debias": self.debias,
                  "tangent": self.candidates == "tangent", "offsets": self.offsets, "coulomb": self.coulomb,
-                 "denoise": self.denoise}
+                 "payload": self.payload, "denoise": self.denoise}
         return out + "".join(f"+{flag}" for flag in _FLAGS if flags[flag])
 
     @classmethod
@@ -216,5 +223,5 @@ class HybridSettings:
                             members=numbers_.get("members", default.members), substeps=numbers_.get("substeps"),
                             observer="obs" in flags, springs="springs" in flags, debias="debias" in flags,
                             candidates="tangent" if "tangent" in flags else "exact", offsets="offsets" in flags,
-                            coulomb="coulomb" in flags, denoise="denoise" in flags)
+                            coulomb="coulomb" in flags, payload="payload" in flags, denoise="denoise" in flags)
 
