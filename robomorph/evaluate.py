@@ -1,4 +1,4 @@
-"""``python -m robomorph.evaluate`` (or ``robomorph evaluate``): a trained meta-model on a store, beside the baselines.
+"""``python -m robomorph.evaluate`` (or ``robomorph evaluate``): a trained or catalogue model on a store, beside the baselines.
 
 The door only: it builds one :class:`robomorph.evaluation.requests.EvaluateConfig` from the options
 and calls :func:`robomorph.evaluation.evaluator.evaluate`.

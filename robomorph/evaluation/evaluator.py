@@ -1,4 +1,4 @@
-"""``python -m robomorph.evaluate``: a trained meta-model on a store, beside the baselines.
+"""``python -m robomorph.evaluate``: a trained meta-model, or a catalogue arm's untrained hybrid, beside the baselines.
 
     python -m robomorph.evaluate --ckpt results/runs/ms/checkpoints/best.ckpt \\
         --data data/ms_test.zarr --out results/runs/ms/eval/ms_test \\
@@ -198,6 +198,10 @@ def _checked_predictor(cfg: EvaluateConfig):
                                  f"{cfg.normalization!r}: the normalization is fixed at training time "
                                  "(data.normalization)")
     predictor.use_physics(cfg.physics)
+    if cfg.arm:
+        from robomorph.inference.catalogue import check_network_free  # noqa: PLC0415
+
+        check_network_free(predictor)  # a mode that reads a network: refused before any folder is made
     return predictor, record
 
 

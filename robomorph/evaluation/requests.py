@@ -41,7 +41,11 @@ def _whole(error: type[Exception], option: str, value, low: int) -> None:
 
 
 def _window(error: type[Exception], cfg) -> None:
-    """The checks every request shares: counts, the window's start, the seed, the device's name."""
+    """The checks every request shares: the counts, the window's start and the seed."""
+    for name in ("context_len", "horizon", "n", "batch_size"):
+        value = getattr(cfg, name)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
+            raise error(f"--{name.replace('_', '-')} must be a whole number, got {value!r}")
     try:
         check_counts(context_len=cfg.context_len, horizon=cfg.horizon, n=cfg.n, batch_size=cfg.batch_size)
         # Stored parsed (a frozen field set once, on construction): "0" and "start" are one offset.

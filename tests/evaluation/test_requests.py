@@ -27,6 +27,7 @@ def arm_store(simulated_store):
     ({"ckpt": "a.ckpt", "arm": "panda"}, r"exactly one of them; got both$"),
     ({"ckpt": "a.ckpt", "n": 0}, r"^--n 0: give a positive number"),
     ({"ckpt": "a.ckpt", "batch_size": -1}, r"^--batch-size -1"),
+    ({"ckpt": "a.ckpt", "context_len": "30"}, r"^--context-len must be a whole number, got '30'$"),
     ({"ckpt": "a.ckpt", "seed": -3}, r"^--seed must be a whole number >= 0, got -3$"),
     ({"ckpt": "a.ckpt", "samples": -1}, r"^--samples must be a whole number >= 0"),
     ({"ckpt": "a.ckpt", "offset": "middle"}, r"^--offset takes 'start', 'random' or a step number"),
@@ -149,6 +150,8 @@ def test_evaluate_arm_refuses_another_arms_or_formulations_store_in_one_line(arm
         (["--arm", "ur5e", "--data", arm_store], r"--arm ur5e: .* is of the panda; .* use --arm panda$"),
         (["--arm", "panda", "--data", linear_store()], r"is not a store simulated from a registered arm's recipe"),
         (["--arm", "panda", "--data", no_cmd], r"holds no u_cmd .* regenerate the store, or pass --inputs total$"),
+        (["--arm", "panda", "--data", arm_store, "--physics", "learned"],
+         r"physics mode 'learned' reads a trained network.*Predictor.from_arm"),
     )
     for args, said in cases:
         assert main([*args, "--context-len", "30", "--horizon", "30", "--out", str(tmp_path / "o")]) == 2
