@@ -56,7 +56,6 @@ import datetime
 import os
 import platform
 import shutil
-import sys
 import time
 from dataclasses import dataclass
 
@@ -130,7 +129,8 @@ def prepared_store(plan: Plan, key: str, target: str) -> str:
         say(target, f"data {key}: complete ({recipe.robots} robots x {s.steps} steps), kept")
     else:
         say(target, f"data {key}: generating {recipe.robots} {recipe.task_label} robots x {s.steps} steps ({state}) ...")
-        skip.ensure_store(recipe, path, workers=plan.workers, progress=sys.stderr.isatty(), need_command=need)
+        # progress on: generate draws a bar on a terminal and writes a line every few seconds in a log.
+        skip.ensure_store(recipe, path, workers=plan.workers, progress=True, need_command=need)
     return path
 
 
@@ -151,7 +151,10 @@ def base_args(plan: Plan, depth: int, stores: list[str], run: str, steps: int) -
                   "warmup_steps": s.warmup_steps, "max_context": s.context_len, "max_horizon": s.horizon,
                   "loss": "huber", "compile": s.compile},
         "trainer": {"max_steps": steps, "val_check_interval": min(s.val_every, steps), "accelerator": s.accelerator,
-                    "devices": 1, "max_time": s.max_time, "enable_progress_bar": sys.stderr.isatty(),
+                    "devices": 1, "max_time": s.max_time,
+                    # fit's step bar on a terminal, and in a log a line every few seconds (minutes between
+                    # validations would be silent otherwise).
+                    "enable_progress_bar": True,
                     "enable_model_summary": False},
         "run": plan.run_name(run), "runs_dir": plan.path("runs"), "wandb": plan.wandb,
     }

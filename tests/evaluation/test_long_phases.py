@@ -1,8 +1,10 @@
-"""No phase of evaluate or calibrate is silent: with a fake slow step in the model (each call several times
-the progress interval), lines reach stderr while every slow call runs, and never 15 s apart."""
+"""No phase of a long command is silent (evaluate and its sweeps, calibrate, identified physics, control's
+episodes, reproduce's data): with a fake slow step (each call several times the progress interval), lines
+reach stderr while every slow call runs, and never 15 s apart."""
 
 import re
 import shutil
+import sys
 import time
 
 import pytest
@@ -104,3 +106,65 @@ def test_the_sweeps_predict_means_alone_and_score_as_with_the_std(gaussian, monk
     with_std = score_windows(pred, w.cut(horizon=30), (), [])
     assert any(asked) and with_std.std is not None  # the default scores the std, so the comparison means something
     assert rows[0]["model"] == with_std.summary()
+
+
+def _slowed(monkeypatch, owner, name: str) -> list:
+    """``owner.name`` sleeps SLOW seconds before doing its real work; returns the calls' (start, end)."""
+    real, spans = getattr(owner, name), []
+
+    def slow(*args, **kwargs):
+        start = time.monotonic()
+        time.sleep(SLOW)
+        out = real(*args, **kwargs)
+        spans.append((start, time.monotonic()))
+        return out
+
+    monkeypatch.setattr(owner, name, slow)
+    return spans
+
+
+def test_identified_physics_reports_progress(tiny_checkpoint, simulated_store, tmp_path, monkeypatch):
+    """The per-window parameter fit of ``identified_physics`` (seconds a window): a line per window while each runs."""
+    from robomorph.evaluate import main
+    from robomorph.evaluation.identified import IdentifiedPhysics
+
+    data = simulated_store(robots=6, steps=C + H, seed=2)
+    spans = _slowed(monkeypatch, IdentifiedPhysics, "__call__")
+    stderr = stamped(monkeypatch, "0.2")
+    start = time.monotonic()
+    assert main(["--ckpt", tiny_checkpoint, "--data", data, "--out", str(tmp_path / "ev"), "--n", "3",
+                 "--baselines", "hold,identified_physics", "--samples", "1"]) == 0
+    # The phase up to its last window (the plots written after it are evaluate's, checked above).
+    _check(stderr, spans, start, spans[-1][1], ("identified physics",))
+
+
+def test_control_episodes_report_progress(tmp_path, monkeypatch):
+    """``robomorph control``: a line per few seconds with the episodes done, while each episode runs."""
+    from robomorph.cli import main
+    from robomorph.control import cli as control_cli
+
+    spans = _slowed(monkeypatch, control_cli, "_job")
+    monkeypatch.setattr(sys, "argv", list(sys.argv))  # robomorph.cli.main sets it for the door it runs
+    stderr = stamped(monkeypatch, "0.2")
+    start = time.monotonic()
+    assert main(["control", "--controllers", "osc", "--robots", "2", "--duration", "0.5", "--workers", "1",
+                 "--out", str(tmp_path / "ctl")]) == 0
+    _check(stderr, spans, start, time.monotonic(), ("control circle",))
+
+
+def test_reproduce_generates_in_a_log_with_progress_lines(tmp_path, monkeypatch):
+    """``robomorph reproduce`` in a log (stderr not a terminal): its stores' generation reports lines (it was
+    silent there, the bar being for terminals only), and its trainings ask for fit's step lines."""
+    from robomorph.data import generation
+    from robomorph.reproduction import pipeline
+    from robomorph.reproduction.scales import SCALES
+
+    spans = _slowed(monkeypatch, generation, "_simulate")
+    plan = pipeline.Plan(SCALES["ci"], str(tmp_path / "work"), str(tmp_path / "out"), "test", workers=1)
+    stderr = stamped(monkeypatch, "0.2")
+    start = time.monotonic()
+    path = pipeline.prepared_store(plan, "ms_test0", "table1")
+    _check(stderr, spans, start, time.monotonic(), ("generate multisine",))
+    assert path.endswith("ms_test0.zarr")
+    args = pipeline.base_args(plan, 1, [path], "r", 10)
+    assert args["trainer"]["enable_progress_bar"] is True  # fit's StepBar: a bar on a terminal, lines in a log
