@@ -164,6 +164,18 @@ def sources(metrics: dict) -> list[tuple[str, Any]]:
     return [("model", metrics)] + [(name, res) for name, res in named if isinstance(res, dict)]
 
 
+def diverged_share(metrics: dict, name: str) -> tuple[int, int] | None:
+    """(windows on which baseline ``name`` diverged and was held, windows scored), or None where it never did."""
+    k, n = dig(metrics, "meta", "baseline_notes", name, "diverged_held"), dig(metrics, "meta", "n")
+    return (int(k), int(n)) if isinstance(k, int) and k > 0 and isinstance(n, int) and n > 0 else None
+
+
+def source_label(metrics: dict, name: str) -> str:
+    """A source's name in the tables, marked where it diverged: ``arx (diverged on 14/64, held)``."""
+    share = diverged_share(metrics, name)
+    return f"{name} (diverged on {share[0]}/{share[1]}, held)" if share else name
+
+
 def channel_names(metrics: dict) -> list[str]:
     """Every channel named by any source or approach, in first-seen order."""
     names: dict[str, None] = {}
@@ -189,7 +201,8 @@ def channel_grid(metrics: dict) -> Table:
     The last row is the mean over channels.
     """
     srcs = sources(metrics)
-    top = (Head("channel", "name", rowspan=2), *(Head(name, "model", colspan=4) for name, _ in srcs))
+    top = (Head("channel", "name", rowspan=2),
+           *(Head(source_label(metrics, name), "model", colspan=4) for name, _ in srcs))
     rows = []
     for channel in channel_names(metrics):
         cells = [Cell(channel, cls="name")]
@@ -217,7 +230,7 @@ def _row_values(values: Any, width: int) -> list[float | None] | None:
     return [num(v) for v in values]
 
 
-def _horizon_rows(h: dict, width: int) -> list[Row]:
+def _horizon_rows(h: dict, width: int, metrics: dict) -> list[Row]:
     rms, rows = h["rms"], []
     for q, info in h["quantities"].items():
         unit = dig(info, "unit")
@@ -227,7 +240,7 @@ def _horizon_rows(h: dict, width: int) -> list[Row]:
             values = _row_values(dig(rms, src, q), width)
             if values is None:
                 continue
-            cells = [label, Cell(str(src), cls="name")]
+            cells = [label, Cell(source_label(metrics, str(src)), cls="name")]
             for j, v in enumerate(values):
                 colour = None
                 if src == "model" and hold and v is not None and hold[j] is not None:
@@ -264,7 +277,7 @@ def horizon_grid(metrics: dict) -> tuple[str, Table] | None:
     note = ("RMS error by horizon over the test trajectories, in physical units; step k is k dt after the last "
             "context sample (green: the model beats hold, red: it does not)."
             + _calibration_note(dig(metrics, "meta", "std_calibration")))
-    return note, Table(head, tuple(_horizon_rows(h, len(steps))))
+    return note, Table(head, tuple(_horizon_rows(h, len(steps), metrics)))
 
 
 def horizon_table(metrics: dict) -> str:
@@ -277,7 +290,9 @@ def _calibration_note(cal) -> str:
     """Where the scored standard deviation was recalibrated (``robomorph.calibrate``), if it was."""
     if not isinstance(cal, dict):
         return ""
-    where = "the training run's validation robots" if cal.get("split") == "val" else "a held-out store"
+    data = cal.get("data")
+    where = ("the training run's validation robots" if cal.get("split") == "val"
+             else ", ".join(map(str, data)) if isinstance(data, list) and data else "a held-out store")
     return (f" The standard deviation was recalibrated by horizon ({cal.get('method', '?')}) on "
             f"{cal.get('n', '?')} windows of {where}.")
 
@@ -307,12 +322,18 @@ def horizon_cell(metrics: dict) -> Cell:
 def best_baseline(metrics: dict) -> tuple[str, float] | None:
     """(name, mean approach-1 FIT) of the baseline with the highest such FIT, if any has one.
 
-    ``true_physics`` reads parameters no predictor gets (a ceiling), so it never competes.
+    ``true_physics`` reads parameters no predictor gets (a ceiling), so it never competes; nor does a
+    baseline that diverged on most windows (held there: its scores are mostly hold's, not its own).
     """
     scored = [(name, mean_stat(src, "approach1", "fit")[0]) for name, src in sources(metrics)[1:]
-              if name != "true_physics"]
+              if name != "true_physics" and not _mostly_diverged(metrics, name)]
     scored = [(name, fit) for name, fit in scored if fit is not None and math.isfinite(fit)]
     return max(scored, key=lambda item: item[1]) if scored else None
+
+
+def _mostly_diverged(metrics: dict, name: str) -> bool:
+    share = diverged_share(metrics, name)
+    return share is not None and 2 * share[0] > share[1]
 
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

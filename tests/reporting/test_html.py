@@ -154,3 +154,17 @@ def test_horizon_table_shows_how_well_the_std_ranks_the_errors_where_it_can():
     # A std that is the same everywhere ranks nothing, and a metrics file from before has no skill: no row.
     assert "rank corr." not in horizon_table({"horizons": _horizons(True)})
     assert "rank corr." not in horizon_table({"horizons": {k: v for k, v in h.items() if k != "skill"}})
+
+
+def test_a_diverged_baseline_is_marked_in_the_tables_and_out_of_the_best_when_mostly_diverged():
+    m = _metrics()
+    rng = np.random.default_rng(1)
+    y = rng.normal(size=(3, 20, 2))
+    m["baselines"]["arx"] = {"approach1": metrics.approach1(y, y + 0.01, ["a", "<b>"])}  # near perfect...
+    m["meta"] = {"n": 3, "baseline_notes": {"arx": {"diverged_held": 2}, "hold": {"diverged_held": 0}}}
+    assert "arx (diverged on 2/3, held)" in channel_table(m) and "hold (diverged" not in channel_table(m)
+    assert best_baseline(m)[0] == "hold"  # ...but held on 2 of 3 windows: not the best baseline
+    m["meta"]["baseline_notes"]["arx"]["diverged_held"] = 1  # on a minority: marked, still in the running
+    assert "arx (diverged on 1/3, held)" in channel_table(m) and best_baseline(m)[0] == "arx"
+    h = {"horizons": _horizons(False), "meta": {"n": 4, "baseline_notes": {"hold": {"diverged_held": 3}}}}
+    assert '<td class="name">hold (diverged on 3/4, held)</td>' in horizon_table(h)
