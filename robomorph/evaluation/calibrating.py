@@ -32,7 +32,7 @@ import numpy as np
 from robomorph.core.atomic import check_replaceable
 from robomorph.evaluation import training_data
 from robomorph.evaluation.horizons import error_curve, groups_for, parse_horizons
-from robomorph.evaluation.requests import BlendConfig, CalibrateConfig, legacy
+from robomorph.evaluation.requests import BlendConfig, CalibrateConfig, as_request
 from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.tables import POINTS_TEXT
 from robomorph.evaluation.windows import EvaluationError, Window, check_patch, load_window, start_joints
@@ -134,7 +134,7 @@ def calibrate(config: CalibrateConfig, *args, **kwargs) -> dict:
     """
     from robomorph.inference.hybrid_std import drawn_points  # noqa: PLC0415
 
-    c = _request(CalibrateConfig, config, args, kwargs, "calibrate")
+    c = as_request(CalibrateConfig, config, args, kwargs, "calibrate")
     predictor, ckpt_dict = _calibrated_predictor(c)
     sources, split = _sources(ckpt_dict, c.data)
     w, source = _fitting_windows(c.ckpt, predictor, sources, split, c.n, c.context_len, c.horizon, c.offset, c.seed,
@@ -160,15 +160,6 @@ def calibrate(config: CalibrateConfig, *args, **kwargs) -> dict:
                                                      calibration_key(cal): cal})
     _write(ckpt_dict, c.out or c.ckpt)
     return report
-
-
-def _request(cls, config, args: tuple, kwargs: dict, what: str):
-    """The request, from a config or from the keyword call of earlier releases."""
-    if isinstance(config, cls):
-        if args or kwargs:
-            raise TypeError(f"{what}(config) takes the {cls.__name__} alone: set the other values in it")
-        return config
-    return legacy(cls, (config, *args), kwargs, what)
 
 
 def dense_at_end(predictor) -> bool:
@@ -246,7 +237,7 @@ def blend(config: BlendConfig, *args, **kwargs) -> dict:
     from robomorph.evaluation.sources import predict  # noqa: PLC0415
     from robomorph.inference.blending import BLEND_KEY, HorizonBlend, fit_blend  # noqa: PLC0415
 
-    c = _request(BlendConfig, config, args, kwargs, "blend")
+    c = as_request(BlendConfig, config, args, kwargs, "blend")
     ckpt, batch_size = c.ckpt, c.batch_size
     predictor, ckpt_dict = _read(ckpt, c.device, need_std=False)
     if predictor.leaks_query_statistics:

@@ -37,7 +37,7 @@ from robomorph.core.results import provenance
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation import references, training_data
 from robomorph.evaluation.horizons import horizon_markdown, parse_horizons
-from robomorph.evaluation.requests import EvaluateConfig, default_out, legacy  # noqa: F401  (default_out: re-exported)
+from robomorph.evaluation.requests import EvaluateConfig, as_request, default_out  # noqa: F401  (default_out: re-exported)
 from robomorph.evaluation.scoring import Scores, score_windows
 from robomorph.evaluation.tables import (cost_note, diverged_note, smoothing_note, write_csv, write_horizons_csv,
                                          write_table)
@@ -90,7 +90,7 @@ def evaluate(config: EvaluateConfig, *args, **kwargs) -> dict:
     Returns:
         The ``metrics.json`` content.
     """
-    cfg = _config(config, args, kwargs)
+    cfg = as_request(EvaluateConfig, config, args, kwargs, "evaluate")
     predictor, record = _checked_predictor(cfg)
     info = predictor.data_info
     context_len = cfg.context_len or (info or {}).get("context_len")
@@ -125,15 +125,6 @@ def _window_info(cfg: EvaluateConfig, predictor) -> dict | None:
 
     spec = arms.get(cfg.arm)
     return {**info, "u_names": list(spec.u_cmd_names if predictor.inputs == "command" else spec.u_names)}
-
-
-def _config(config, args: tuple, kwargs: dict) -> EvaluateConfig:
-    """The request, from a config or from the keyword call of earlier releases."""
-    if isinstance(config, EvaluateConfig):
-        if args or kwargs:
-            raise TypeError("evaluate(config) takes the EvaluateConfig alone: set the other values in it")
-        return config
-    return legacy(EvaluateConfig, (config, *args), kwargs, "evaluate")
 
 
 def _score_and_write(predictor, w: Window, out: str, cfg: EvaluateConfig, steps, others, train_blocks, info,

@@ -260,11 +260,26 @@ class BlendConfig:
         _choice(CalibrationError, "--blend-physics", self.physics, PHYSICS_MODES)
 
 
+def as_request(cls, config, args: tuple, kwargs: dict, what: str):
+    """The ``cls`` request a function was called with: ``config`` itself, or one built from the keyword call
+    of earlier releases (``evaluate(ckpt, data, out, n=...)``; see :func:`legacy`).
+
+    Raises:
+        TypeError: a config given with other arguments beside it.
+    """
+    if isinstance(config, cls):
+        if args or kwargs:
+            raise TypeError(f"{what}(config) takes the {cls.__name__} alone: set the other values in it")
+        return config
+    return legacy(cls, (config, *args), kwargs, what)
+
+
 def legacy(cls, args: tuple, kwargs: dict, what: str):
     """A config from the keyword call that came before it (``evaluate(ckpt, data, out, n=...)``), with a
     :class:`DeprecationWarning`: kept one release for the callers outside this room."""
     import warnings  # noqa: PLC0415
 
+    # Pointing at the caller of evaluate/calibrate/blend (through as_request), whose call is to change.
     warnings.warn(f"{what}(ckpt, data, ...) with arguments is deprecated: pass one {cls.__name__}",
                   DeprecationWarning, stacklevel=4)
     names = [f.name for f in dataclasses.fields(cls)]
@@ -275,4 +290,4 @@ def legacy(cls, args: tuple, kwargs: dict, what: str):
     return cls(**dict(zip(names, args)), **kwargs)
 
 
-__all__ = ["PHYSICS_CHOICES", "BlendConfig", "CalibrateConfig", "EvaluateConfig", "default_out", "legacy"]
+__all__ = ["PHYSICS_CHOICES", "BlendConfig", "CalibrateConfig", "EvaluateConfig", "as_request", "default_out", "legacy"]
