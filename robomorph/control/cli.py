@@ -6,9 +6,12 @@ The door only; the machinery is :mod:`robomorph.control.runner`.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import os
+import signal
 import sys
+import threading
 
 from robomorph.control.dynamics import ControlError
 from robomorph.control.mppi import MPPIConfig
@@ -102,7 +105,7 @@ def check_model(predictor, cfg: ControlConfig, ckpt: str) -> None:
     if cfg.context > cfg_m.max_context or cfg.context < max(cfg_m.patch, cfg_m.n_init):
         raise ControlError(f"--context {cfg.context}: the model takes {max(cfg_m.patch, cfg_m.n_init)} to "
                            f"{cfg_m.max_context} frames")
-    decoder = not (predictor.physics and predictor.physics_mode != "none")
+    decoder = not (predictor.physics and predictor.settings.mode != "none")
     if decoder and cfg.context % cfg_m.patch:
         # The decoder reads whole patches: a context between two would be cut without a word.
         raise ControlError(f"--context {cfg.context}: the model reads contexts in patches of {cfg_m.patch} frames; "
@@ -168,6 +171,25 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def _interrupts_ignored():
+    """Ctrl-C ignored while the workers are started (in the main thread; elsewhere signals cannot be set).
+
+    A spawned interpreter that starts with SIGINT ignored keeps it ignored (Python installs its
+    KeyboardInterrupt handler only over the default one), so a Ctrl-C that arrives while a worker
+    is still importing, before its initializer runs, no longer prints that worker's traceback. The
+    parent's own handler is back as soon as the processes exist (milliseconds) and stops the run.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _episodes(cfg: ControlConfig, controllers: tuple[str, ...], ckpt: str | None, physics_mode: str | None,
               workers: int) -> list:
     """Every (robot, controller) episode, in ``workers`` processes, with a progress report."""
@@ -188,7 +210,9 @@ def _episodes(cfg: ControlConfig, controllers: tuple[str, ...], ckpt: str | None
             pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_init_pool_worker,
                                        initargs=(ckpt, physics_mode))
             try:
-                for fut in as_completed([pool.submit(_job, cfg, r, c) for r, c in jobs]):
+                with _interrupts_ignored():  # the submissions start the workers
+                    futures = [pool.submit(_job, cfg, r, c) for r, c in jobs]
+                for fut in as_completed(futures):
                     results.append(fut.result())
                     bar.update()
             finally:  # on a Ctrl-C or a failed episode, the queued episodes are not run

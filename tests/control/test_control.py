@@ -251,3 +251,23 @@ def test_bad_options_get_one_line_and_exit_code_2(hybrid_ckpt, tiny_checkpoint, 
         lines = [line for line in err.strip().splitlines() if line.strip()]
         assert len(lines) == 1 and expected in lines[0], (args, err)
     assert not (tmp_path / "x").exists()
+
+
+def test_workers_start_with_ctrl_c_ignored_and_the_parent_keeps_its_handler():
+    """A Ctrl-C stops a run in the parent; a worker ignores it from its first instruction, so one that
+    arrives while the worker still imports prints no traceback (a spawned interpreter keeps an ignored
+    SIGINT ignored). Negative control: a worker started outside the block has Python's handler."""
+    import multiprocessing as mp
+    import signal
+    from concurrent.futures import ProcessPoolExecutor
+
+    from robomorph.control.cli import _interrupts_ignored
+
+    before = signal.getsignal(signal.SIGINT)
+    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as pool:
+        with _interrupts_ignored():
+            ignored = pool.submit(signal.getsignal, signal.SIGINT)
+        assert signal.getsignal(signal.SIGINT) is before
+        assert ignored.result(timeout=120) == signal.SIG_IGN
+    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as pool:
+        assert pool.submit(signal.getsignal, signal.SIGINT).result(timeout=120) == signal.default_int_handler
