@@ -242,7 +242,7 @@ def params_plot_path(path: str) -> str:
     return f"{root}_params{ext or '.png'}"
 
 
-def plot(dataset: Dataset, path: str, n_traj: int = 3, seed: int = 0) -> list[str]:
+def plot(dataset: Dataset, path: str, n_traj: int = 3, seed: int = 0, params: bool = True) -> list[str]:
     """Plots trajectories to ``path`` and parameter histograms to :func:`params_plot_path`.
 
     Args:
@@ -250,6 +250,8 @@ def plot(dataset: Dataset, path: str, n_traj: int = 3, seed: int = 0) -> list[st
         path: image for the trajectories (format from the extension, PNG by default).
         n_traj: how many trajectories to draw, chosen at random without replacement.
         seed: seed of that choice, so the same call draws the same trajectories.
+        params: draw the histograms too (a Panda's 67 panels take seconds to draw: a caller
+            plotting several stores of one randomization draws them once).
 
     Returns:
         The paths written (the histogram image only when the store has parameters).
@@ -263,7 +265,7 @@ def plot(dataset: Dataset, path: str, n_traj: int = 3, seed: int = 0) -> list[st
     idx = np.sort(rng.choice(dataset.n, size=min(n_traj, dataset.n), replace=False))
     _plot_trajectories(dataset, path, idx)
     written = [path]
-    if dataset.param_names:
+    if params and dataset.param_names:
         _plot_params(dataset, params_plot_path(path))
         written.append(params_plot_path(path))
     return written

@@ -13,11 +13,19 @@ that mode, the same to the bit (a test checks it against a trained checkpoint).
 
 What it cannot do, because there is no network: the modes that read one (``learned`` and
 ``fused``: a parameter head; ``blend`` and ``smoothed``: the decoder; ``none``: the decoder
-alone) are refused with one line. Its standard deviation is the raw spread over robots
-around the estimate, with no calibration (``robomorph calibrate`` fits one on a trained
-checkpoint; :attr:`Predictor.calibration` is None here). There are no training statistics,
+alone) are refused with one line. There are no training statistics,
 so the range check of :attr:`Predictor.max_input_std` is off: check the torques' units
 yourself (N m, the command without gravity compensation).
+
+Its standard deviation is the spread over the robots the context allows, scaled by a shipped
+calibration where one was fitted for the arm and the recipe asked for: ``arm_calibrations/<arm>.json``
+beside this module, fitted by ``benchmarks/arm_calibration.py`` on simulated robots of the
+``multisine`` recipe (the generator's defaults) that no store of the docs or the demo holds, one
+calibration for windows that open their trajectory and one for the others, with the command,
+commit and held-out coverage recorded in it (:attr:`Predictor.calibration` then has its record).
+Another arm, recipe, physics step or input formulation has none: its std is the raw spread, not
+calibrated, and :attr:`Predictor.calibration` is None (``robomorph calibrate`` fits one on a
+trained checkpoint).
 
 Every registered arm has a catalogue physics backbone (:func:`robomorph.identification.backbone.parameter_layout`).
 ``inputs="total"`` takes the total joint torque a real arm's sensors log, gravity included (with the
@@ -27,6 +35,8 @@ recipe's ``gravity_compensation="none"``).
 from __future__ import annotations
 
 import dataclasses
+import json
+import os
 
 import torch
 
@@ -34,6 +44,12 @@ from robomorph.core.errors import RoboMorphError
 
 # The modes that read no network.
 NETWORK_FREE_MODES = ("regression", "refined")
+# The recipe the shipped calibrations are fitted on (benchmarks/arm_calibration.py), and where they lie.
+CALIBRATION_RECIPE = "multisine"
+CALIBRATION_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "arm_calibrations")
+# Recipe fields that change the data drawn but not the robots' distribution or their physics: a
+# calibration fitted on 256 robots of seed 55 holds for 4 robots of seed 1.
+_SAMPLING_FIELDS = ("robots", "seed", "steps", "chunk", "max_attempts_factor")
 
 
 class NoNetworkError(RoboMorphError, ValueError):
@@ -109,23 +125,65 @@ def arm_record(arm: str = "panda", recipe: str | None = None, inputs: str = "com
     attrs = {"domain": spec.name, "config": rec.to_dict(), "param_names": param_names(spec.name)}
     # As a model trained today records it (robomorph.training.module): the observer, the springs and the debiasing on.
     physics = {**parameter_layout(attrs), "mode": "catalogue", "observer": True, "springs": True, "debias": True}
-    return {"u_names": list(spec.u_names), "y_names": list(spec.y_names), "dt": float(rec.dt),
-            "inputs": check_inputs(inputs),
+    inputs = check_inputs(inputs)
+    # The input channels as a store names them (robomorph.data.store.Store.input_names): a trained model's
+    # record has the same, so a window of a store is checked against them alike.
+    u_names = spec.u_cmd_names if inputs == "command" else spec.u_names
+    return {"u_names": list(u_names), "y_names": list(spec.y_names), "dt": float(rec.dt),
+            "inputs": inputs,
             "stores": [], "physics": physics, "arm": spec.name}
 
+
+
+def calibration_path(arm: str) -> str:
+    """Where the shipped std calibration of ``arm``'s untrained hybrid lies (it may not exist)."""
+    return os.path.join(CALIBRATION_DIR, f"{arm}.json")
+
+
+def calibration_scope(info: dict) -> dict | None:
+    """What a shipped calibration must share with a hybrid to scale its std: the arm, the input formulation,
+    the physics step and the recipe's robots (randomization ranges, gravity compensation, signal), as plain
+    JSON values; not the counts or the seed (:data:`_SAMPLING_FIELDS`). ``info`` is :func:`arm_record`'s or
+    a trained model's record (its ``arms``); None for a record of several arms or of no simulated recipe."""
+    arms = [info["arm"]] if info.get("arm") else list(info.get("arms") or [])
+    recipe = ((info.get("physics") or {}).get("recipe")) or None
+    if len(arms) != 1 or recipe is None:
+        return None
+    recipe = {k: v for k, v in recipe.items() if k not in _SAMPLING_FIELDS}
+    return json.loads(json.dumps({"arm": arms[0], "inputs": info.get("inputs", "total"), "dt": info.get("dt"),
+                                  "recipe": recipe}))
+
+
+def shipped_calibrations(info: dict) -> dict:
+    """The shipped calibrations that apply to the hybrid of record ``info`` (:func:`arm_record`'s, or a trained
+    command hybrid's, whose default mode predicts as :func:`from_arm`'s), keyed as a trained model keeps its
+    own (:func:`robomorph.inference.calibration.calibration_key`); {} where none applies."""
+    from robomorph.inference.calibration import StdCalibration, calibration_key  # noqa: PLC0415
+
+    scope = calibration_scope(info)
+    path = calibration_path(scope["arm"]) if scope else None
+    if path is None or not os.path.isfile(path):
+        return {}
+    with open(path) as f:
+        doc = json.load(f)
+    if doc.get("scope") != scope:
+        return {}
+    cals = [StdCalibration.from_dict(entry) for entry in doc["calibrations"].values()]
+    return {calibration_key(c): c for c in cals}
 
 
 def check_network_free(predictor) -> None:
     """Refuses, in one line, a physics mode that reads a network, asked of a Predictor that has none
     (called by :func:`robomorph.inference.predictor_checks.check_settings` before anything runs)."""
     free = getattr(predictor.model, "network_free_modes", None)
-    if free is not None and predictor.physics_mode not in free:
-        raise NoNetworkError(f"physics mode {predictor.physics_mode!r} reads a trained network, and this Predictor "
+    if free is not None and predictor.settings.mode not in free:
+        raise NoNetworkError(f"physics mode {predictor.settings.mode!r} reads a trained network, and this Predictor "
                              f"was built from the arm alone (Predictor.from_arm): use {' or '.join(map(repr, free))}, "
                              "or load a trained checkpoint (Predictor.from_checkpoint)")
 
 
-def from_arm(cls, arm: str = "panda", recipe: str | None = None, device=None, inputs: str = "command", **overrides):
+def from_arm(cls, arm: str = "panda", recipe: str | None = None, device=None, inputs: str = "command",
+             calibrated: bool = True, **overrides):
     """:meth:`robomorph.inference.predictor.Predictor.from_arm`: a ``cls`` (the Predictor) with no network.
 
     Args:
@@ -134,16 +192,21 @@ def from_arm(cls, arm: str = "panda", recipe: str | None = None, device=None, in
             data follow (a shipped name such as ``multisine`` or a YAML path; default the generator's defaults).
         device: where tensors are returned (the simulation runs on the CPU).
         inputs: ``command`` or ``total`` (see :func:`arm_record`).
+        calibrated: scale the std by the arm's shipped calibration where one applies (module docstring);
+            False: the raw spread (what a calibration is fitted on).
         overrides: recipe fields changed, e.g. ``dt=0.01``.
 
     Raises:
         NoNetworkError: an arm that is not registered.
     """
     info = arm_record(arm, recipe, inputs, **overrides)
-    pred = cls(NoNetwork(len(info["u_names"]), len(info["y_names"])), device, info)
+    model = NoNetwork(len(info["u_names"]), len(info["y_names"]))
+    if calibrated:
+        model.calibrations = shipped_calibrations(info)
+    pred = cls(model, device, info)
     # The record a trained command hybrid carries, set here: a model without a parameter head takes no
     # backbone from its record (Predictor.__init__), and this one has no model at all.
-    pred.physics, pred.physics_mode, pred.has_std = info["physics"], "regression", True
-    pred.physics_observer = pred.physics_springs = pred.physics_debias = True
+    pred.physics, pred.has_std = info["physics"], True
+    pred.configure(mode="regression", observer=True, springs=True, debias=True)
     pred.max_input_std = None  # no training statistics to compare the inputs with
     return pred

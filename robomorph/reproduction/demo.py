@@ -7,24 +7,29 @@
    formulation by default: the hybrid model (``physics: auto`` in ``train_cpu.yaml``),
    whose predictions simulate the robot identified from the context
    (:mod:`robomorph.inference.hybrid`); ``--inputs total`` trains on the paper's total torque.
-3. Recalibrates the model's predicted standard deviation (a hybrid's: the spread over robots
-   around the identified one, for windows from the start and for windows of a moving robot) by horizon
-   on the training run's validation robots (``robomorph.calibrate``), then evaluates the model on held-out robots it never saw
-   (context alone), beside the baselines, with the horizon and context sweeps, and prints
-   the per-channel table.
-4. Writes the HTML report of all runs (``results/report.html``) and prints its path.
-5. Ends with the RMS errors by horizon in physical units (joint angles [mrad], end-effector
-   position [mm] and orientation [mrad]) of the model, ``hold``, ``nominal_physics`` and
-   ``identified_physics`` (with its fitting cost per window).
+3. Gives the model's predicted standard deviation its calibration by horizon. A hybrid's default
+   mode predicts what ``Predictor.from_arm("panda")`` predicts, to the bit, so the calibration
+   shipped for that one (fitted on 256 other simulated robots, :mod:`robomorph.inference.catalogue`)
+   is its own, and is copied into the checkpoint; otherwise (``--inputs total``, or a recipe the
+   shipped one was not fitted on) ``robomorph calibrate`` fits one on the training run's validation
+   robots (a total-torque model first gets its physics/decoder blend).
+4. Evaluates the model on held-out robots it never saw (context alone), beside the baselines, with
+   short horizon and context sweeps, and writes the HTML report of all runs (``results/report.html``).
+5. Ends with one table, the RMS errors by horizon in physical units (joint angles [mrad],
+   end-effector position [mm] and orientation [mrad]) of the model, ``hold``, ``nominal_physics``
+   and ``identified_physics`` (when asked for), and the paths of what it wrote. The per-channel
+   table and the calibration's are in the evaluation folder (``table.md``, ``metrics.json``) and the
+   report, and printed with ``--verbose``.
 
-Re-running skips datasets that are complete and resumes the training run.
+Every long phase reports its progress on stderr. Re-running skips datasets that are complete and
+resumes the training run.
 """
 
 from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from robomorph.core.errors import UsageError
 from robomorph.core.names import TASKS
@@ -36,13 +41,22 @@ from robomorph.model.files import CheckpointError
 from robomorph.reproduction.skip import ensure_store
 from robomorph.sim.recipe import load_recipe
 
+# The evaluation's sweeps: each setting re-runs the model on every held-out window, so the demo
+# sweeps three settings of each (the paper's have 8 and 10): the trend, at a quarter of the passes.
+SWEEP_HORIZONS = "200,400,800"
+SWEEP_CONTEXTS = "40,120,200"
+HELD_OUT_ROBOTS = 32
+
 
 def make_data(out_dir: str, robots: int, steps: int, workers: int | None = None) -> list[str]:
     """Generates, summarizes and plots one small dataset per task; returns the store paths.
 
     Each store's full summary (channels, parameter ranges, attributes) goes to ``<task>.txt`` beside it
-    (what ``robomorph inspect`` prints); the terminal gets its first line and the files' paths."""
+    (what ``robomorph inspect`` prints), and a plot of three trajectories to ``<task>.png``; the terminal
+    gets one line and the files' paths. Every task draws its robots from the same randomization, so the
+    parameter histograms (seconds to draw) are drawn once, for the first store."""
     from robomorph.core.atomic import write_text  # noqa: PLC0415
+    from robomorph.data.summary import params_plot_path  # noqa: PLC0415
 
     os.makedirs(out_dir, exist_ok=True)
     paths = []
@@ -51,9 +65,10 @@ def make_data(out_dir: str, robots: int, steps: int, workers: int | None = None)
         path = _generate(task, os.path.join(out_dir, f"{task}.zarr"), {"robots": robots, "steps": steps}, workers)
         ds, base = open_store(path), os.path.join(out_dir, task)
         write_text(f"{base}.txt", summarize(ds) + "\n")
-        plot(ds, f"{base}.png", n_traj=3)
+        written = plot(ds, f"{base}.png", n_traj=3, params=not paths)
+        extra = f", parameters: {params_plot_path(base + '.png')}" if len(written) > 1 else ""
         print(f"{path}: {ds.n} robots x {ds.steps} steps in {time.time() - t0:.0f} s "
-              f"(summary: {base}.txt, plots: {base}.png)")
+              f"(summary: {base}.txt, plots: {base}.png{extra})", flush=True)
         paths.append(path)
     return paths
 
@@ -71,12 +86,15 @@ def train(out_dir: str, robots: int, minutes: float, runs_dir: str, inputs: str 
 
     t0 = time.time()
     train = _generate("multisine", os.path.join(out_dir, "ms_train.zarr"), {"robots": robots, "seed": 0}, None)
-    test = _generate("multisine", os.path.join(out_dir, "ms_heldout.zarr"), {"robots": 64, "seed": 1}, None)
-    print(f"training robots: {train} ({robots}), held-out robots: {test} (64), in {time.time() - t0:.0f} s")
+    test = _generate("multisine", os.path.join(out_dir, "ms_heldout.zarr"), {"robots": HELD_OUT_ROBOTS, "seed": 1},
+                     None)
+    print(f"training robots: {train} ({robots}), held-out robots: {test} ({HELD_OUT_ROBOTS}), in "
+          f"{time.time() - t0:.0f} s", flush=True)
     run = "demo" if inputs == "command" else "demo-total"
+    # A tenth of the robots validate: the curves of the report, and a total-torque model's blend and calibration.
     args = ["--config", locate("datamodules/train_cpu.yaml"), "--data.stores", train, "--data.test_store", test,
-            "--data.split", "[0.95, 0.05, 0.0]", "--trainer.max_time", _ddhhmmss(minutes * 60),
-            "--trainer.val_check_interval", "200", "--data.inputs", inputs, "--run", run, "--runs_dir", runs_dir]
+            "--data.split", "[0.9, 0.1, 0.0]", "--trainer.max_time", _ddhhmmss(minutes * 60),
+            "--trainer.val_check_interval", "50", "--data.inputs", inputs, "--run", run, "--runs_dir", runs_dir]
     try:
         result = fit(args)
     except CheckpointError as exc:
@@ -87,37 +105,17 @@ def train(out_dir: str, robots: int, minutes: float, runs_dir: str, inputs: str 
     ckpt = result.best_ckpt or result.last_ckpt
     if ckpt is None:  # a budget too short to reach the first validation
         raise UsageError(f"training stopped after {result.global_step} steps without a checkpoint (the first "
-                         "is written at the first validation, step 200): give it more --minutes")
+                         "is written at the first validation, step 50): give it more --minutes")
     return result.run_dir, ckpt, test
 
 
-def evaluate_and_report(ckpt: str, test: str, runs_dir: str, identified: bool = False) -> tuple[str, str, dict]:
-    """Scores held-out robots (model and baselines, both sweeps) and builds the HTML report.
-
-    ``identified`` adds the opt-in ``identified_physics`` baseline: a per-window fit of the
-    robot's parameters that costs seconds per window (minutes over the demo's 64 robots).
-    """
-    from robomorph.evaluation.baselines import BASELINES, OPT_IN  # noqa: PLC0415
-    from robomorph.evaluation.evaluator import evaluate, summary_text  # noqa: PLC0415
-    from robomorph.reporting.dashboard import build_report, default_out  # noqa: PLC0415
-
-    calibrate_std(ckpt)
-    out = RunDir.of_checkpoint(ckpt).eval_dir(test)
-    # Four horizons and five contexts (the paper's sweeps have 8 and 10): the same trends at half the passes.
-    res = evaluate(ckpt, test, out, baselines=BASELINES + (OPT_IN if identified else ()), sweep_horizon_spec="200:800:200",
-                   sweep_context_spec="40:200:40")
-    with open(os.path.join(out, "table.md")) as f:
-        print("\n" + f.read())
-    print(summary_text(res, out, horizons=False))  # the demo closes with the horizon table
-    report = build_report(runs_dir, default_out(runs_dir))
-    return out, report, res
-
-
-def calibrate_std(ckpt: str) -> bool:
-    """Recalibrates a Gaussian head's std by horizon on the fit's validation robots (in place);
-    False for a model without one. A total-torque model first gets its physics/decoder blend; a
-    hybrid also gets the calibration of windows that do not open their trajectory."""
-    from robomorph.evaluation.calibrating import blend, blend_text, calibrate  # noqa: PLC0415
+def calibrate_std(ckpt: str, verbose: bool = False) -> bool:
+    """Gives a Gaussian head's or a hybrid's std its calibration by horizon, in place; False for a model
+    without one. A command hybrid takes the shipped calibration of the catalogue arm's (:func:`shipped_std`)
+    where it applies; otherwise ``robomorph calibrate`` fits one on the fit's validation robots, and a
+    total-torque model first gets its physics/decoder blend."""
+    from robomorph.evaluation.calibrating import blend, blend_text, calibrate, report_text  # noqa: PLC0415
+    from robomorph.evaluation.requests import BlendConfig, CalibrateConfig  # noqa: PLC0415
     from robomorph.inference.calibration import CalibrationError  # noqa: PLC0415
     from robomorph.inference.checkpoint import load_trained  # noqa: PLC0415
 
@@ -125,20 +123,49 @@ def calibrate_std(ckpt: str) -> bool:
     if (info or {}).get("inputs") == "total" and model.blend is None:
         # Total torques: the identified robot's simulation for the first second, the decoder after
         # (robomorph calibrate --blend); the std below is then the blend's.
-        print("\n" + blend_text(blend(ckpt, n=64)))
+        text = blend_text(blend(BlendConfig(ckpt, n=64)))
+        print("\n" + text if verbose else "physics/decoder blend fitted on the validation robots", flush=True)
     hybrid = bool(model.config.n_params and (info or {}).get("physics"))
     if not model.gaussian and not hybrid:
         return False
-    # One line each: the table by step, and its advice, are `robomorph calibrate`'s (a newcomer cannot act on it here).
-    print("\n" + brief_text(calibrate(ckpt)))
+    if hybrid and (line := shipped_std(ckpt)):
+        print(line, flush=True)
+        return True
+    show = report_text if verbose else brief_text
+    print(show(calibrate(CalibrateConfig(ckpt))), flush=True)
     if hybrid:
         # What a controller sends: contexts of a robot already moving, whose own calibration this is
         # (windows at random offsets, with room for them: three quarters of the training horizon).
         try:
-            print(brief_text(calibrate(ckpt, horizon=max(1, 3 * int(info["horizon"]) // 4), offset="random")))
+            moving = CalibrateConfig(ckpt, horizon=max(1, 3 * int(info["horizon"]) // 4), offset="random")
+            print(show(calibrate(moving)), flush=True)
         except CalibrationError as exc:
-            print(f"\n(no calibration for windows of a moving robot: {exc}; the start windows' serves them)")
+            print(f"(no calibration for windows of a moving robot: {exc}; the start windows' serves them)")
     return True
+
+
+def shipped_std(ckpt: str) -> str | None:
+    """Copies the shipped calibrations of the catalogue arm's hybrid (:func:`robomorph.inference.catalogue.
+    shipped_calibrations`) into a command hybrid's checkpoint, in place, when they apply to it: its default mode
+    then predicts what ``Predictor.from_arm`` predicts, mean and spread, so their calibration is its own, fitted on
+    more robots than its validation split holds and at no cost here. Returns the line to print, or None (none
+    applies: another arm, recipe or physics step)."""
+    from robomorph.inference.calibration import CALIBRATION_KEY, calibrations_entry, read_calibrations  # noqa: PLC0415
+    from robomorph.inference.catalogue import shipped_calibrations  # noqa: PLC0415
+    from robomorph.model.files import DATA_INFO_KEY, read_model, write_model  # noqa: PLC0415
+
+    record = read_model(ckpt)
+    shipped = shipped_calibrations(record.get(DATA_INFO_KEY) or {})
+    if not shipped:
+        return None
+    record[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(record.get(CALIBRATION_KEY)), **shipped})
+    write_model(record, ckpt)
+    src = next(c.source for key, c in shipped.items() if not key.endswith("/moving"))
+    after = src["held_out"]["after"]
+    span = lambda v: f"{min(v):.0%}-{max(v):.0%}"  # noqa: E731
+    return (f"std: the {src['arm']}'s shipped calibration (fitted on {src['robots']} simulated robots; on "
+            f"{src['held_out']['robots']} others ±1σ covers {span(after['1sigma'])}, ±2σ {span(after['2sigma'])} of "
+            "the joints' errors over the horizon; ideal 68 % / 95 %)")
 
 
 def brief_text(report: dict) -> str:
@@ -150,6 +177,30 @@ def brief_text(report: dict) -> str:
     return (f"std calibrated ({report['calibration']['method']}) on {src['n']} {where}: ±1σ covers "
             f"{span(b['1sigma'])} -> {span(a['1sigma'])}, ±2σ {span(b['2sigma'])} -> {span(a['2sigma'])} of them "
             "over the horizon (ideal 68 % / 95 %)")
+
+
+def evaluate_and_report(ckpt: str, test: str, runs_dir: str, identified: bool = False,
+                        verbose: bool = False) -> tuple[str, str, dict]:
+    """Scores held-out robots (model and baselines, both sweeps) and builds the HTML report.
+
+    ``identified`` adds the opt-in ``identified_physics`` baseline: a per-window fit of the
+    robot's parameters that costs seconds per window (minutes over the demo's held-out robots).
+    """
+    from robomorph.evaluation.baselines import BASELINES, OPT_IN  # noqa: PLC0415
+    from robomorph.evaluation.evaluator import evaluate, summary_text  # noqa: PLC0415
+    from robomorph.evaluation.requests import EvaluateConfig  # noqa: PLC0415
+    from robomorph.reporting.dashboard import build_report, default_out  # noqa: PLC0415
+
+    calibrate_std(ckpt, verbose)
+    out = RunDir.of_checkpoint(ckpt).eval_dir(test)
+    res = evaluate(EvaluateConfig(test, ckpt=ckpt, out=out, baselines=BASELINES + (OPT_IN if identified else ()),
+                                  sweep_horizon_spec=SWEEP_HORIZONS, sweep_context_spec=SWEEP_CONTEXTS))
+    if verbose:
+        with open(os.path.join(out, "table.md")) as f:
+            print("\n" + f.read())
+        print(summary_text(res, out, horizons=False))
+    report = build_report(runs_dir, default_out(runs_dir))
+    return out, report, res
 
 
 def _set_aside(path: str) -> str:
@@ -176,16 +227,21 @@ class DemoResult:
     eval_dir: str
     report: str
     result: dict  # the evaluation's metrics.json content
+    seconds: dict = field(default_factory=dict)  # wall-clock seconds of each step
 
 
-def run_demo(out_dir: str = "data/demo", robots: int = 32, steps: int = 1000, train_robots: int = 1024,
-             minutes: float = 6.0, runs_dir: str = "results/runs", workers: int | None = None,
-             identified: bool = False, inputs: str = "command") -> DemoResult:
-    """The three steps of the module docstring, in order."""
+def run_demo(out_dir: str = "data/demo", robots: int = 16, steps: int = 1000, train_robots: int = 256,
+             minutes: float = 2.0, runs_dir: str = "results/runs", workers: int | None = None,
+             identified: bool = False, inputs: str = "command", verbose: bool = False) -> DemoResult:
+    """The steps of the module docstring, in order."""
+    t0 = time.time()
     paths = make_data(out_dir, robots, steps, workers)
+    t1 = time.time()
     run_dir, ckpt, test = train(out_dir, train_robots, minutes, runs_dir, inputs)
-    eval_dir, report, res = evaluate_and_report(ckpt, test, runs_dir, identified)
-    return DemoResult(paths, run_dir, eval_dir, report, res)
+    t2 = time.time()
+    eval_dir, report, res = evaluate_and_report(ckpt, test, runs_dir, identified, verbose)
+    seconds = {"data": t1 - t0, "training": t2 - t1, "evaluation": time.time() - t2}
+    return DemoResult(paths, run_dir, eval_dir, report, res, seconds)
 
 
 def horizon_summary(res: dict) -> str:

@@ -32,13 +32,19 @@ def test_it_predicts_what_a_trained_command_hybrid_predicts_to_the_bit(store, tm
                              model={"physics": "amortized", "anchor": True})).best_ckpt
     trained = Predictor.from_checkpoint(ckpt, device="cpu")
     uc, yc, uq, _, attrs = _windows(store)
-    arm = Predictor.from_arm("panda", **attrs["config"])  # the recipe the store was generated with
+    # The recipe the store was generated with; calibrated=False: the raw spread, as the uncalibrated checkpoint's.
+    arm = Predictor.from_arm("panda", calibrated=False, **attrs["config"])
     assert (arm.settings.mode, arm.inputs) == (trained.settings.mode, trained.inputs) == ("regression", "command")
     want = trained.simulate(uc, yc, uq, return_std=True, at_rest=True)
     got = arm.simulate(uc, yc, uq, return_std=True, at_rest=True)
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
     assert arm.calibration is None and trained.calibration is None  # neither was calibrated
+    # By default the shipped calibration scales that same spread (the store's recipe is the one it was fitted on).
+    shipped = Predictor.from_arm("panda", **attrs["config"])
+    mean, std = shipped.simulate(uc, yc, uq, return_std=True, at_rest=True)
+    np.testing.assert_array_equal(mean, want[0])
+    np.testing.assert_allclose(std, shipped.calibration.scaled(want[1]), rtol=1e-5)
 
 
 def test_with_the_generators_defaults_it_follows_the_recorded_robot_far_better_than_hold(store):
@@ -66,3 +72,74 @@ def test_what_needs_a_network_is_refused_in_one_line(store):
     assert pred.simulate(uc, yc, uq).shape == uq.shape[:2] + (14,)
     with pytest.raises(NoNetworkError, match=r"unknown arm 'ur6'.*choose one of panda, ur5e"):
         Predictor.from_arm("ur6")
+
+
+# --- the shipped calibration of the std ---------------------------------------------------------------
+
+
+def test_the_shipped_calibration_scales_the_std_and_records_where_it_was_fitted(store):
+    import json
+
+    from robomorph.inference.catalogue import calibration_path
+
+    uc, yc, uq, _, _ = _windows(store)
+    raw = Predictor.from_arm("panda", calibrated=False)
+    pred = Predictor.from_arm("panda")  # the quick start's: the generator's defaults, the recipe it was fitted on
+    assert raw.calibration is None and pred.calibration is not None
+    mean_raw, std_raw = raw.simulate(uc, yc, uq, return_std=True, at_rest=True)
+    mean, std = pred.simulate(uc, yc, uq, return_std=True, at_rest=True)
+    np.testing.assert_array_equal(mean, mean_raw)  # the mean is untouched
+    np.testing.assert_allclose(std, pred.calibration.scaled(std_raw), rtol=1e-5)
+    assert not np.allclose(std, std_raw)
+    with open(calibration_path("panda")) as f:
+        doc = json.load(f)
+    src = pred.calibration.source
+    assert (src["arm"], src["recipe"], src["offset"]) == ("panda", "multisine", "start")
+    assert src["robots"] >= 128 and src["seed"] not in (0, 1)  # not the seeds of the docs' and the demo's stores
+    assert doc["provenance"]["commit"] and "arm_calibration.py" in doc["provenance"]["command"]
+    assert set(doc["calibrations"]) == {"start", "random"}  # windows that open their trajectory, and the others
+
+
+def test_the_shipped_calibration_covers_held_out_robots_near_a_gaussians_shares():
+    """Recorded by benchmarks/arm_calibration.py on robots of another seed than those it was fitted on: the
+    joints' ±1σ / ±2σ coverage at the first step, 0.25 s, 1 s, 5 s and 10 s, before and after."""
+    import json
+
+    from robomorph.inference.calibration import StdCalibration
+    from robomorph.inference.catalogue import calibration_path
+
+    with open(calibration_path("panda")) as f:
+        doc = json.load(f)
+    for kind, entry in doc["calibrations"].items():
+        held = StdCalibration.from_dict(entry).source["held_out"]
+        assert held["n"] >= 64 and held["seed"] != entry["source"]["seed"], kind
+        one, two = held["after"]["1sigma"], held["after"]["2sigma"]
+        assert all(0.58 <= c <= 0.78 for c in one) and all(0.88 <= c <= 0.99 for c in two), (kind, one, two)
+        before = held["before"]["1sigma"]
+        assert max(abs(c - 0.6827) for c in one) < max(abs(c - 0.6827) for c in before), kind
+
+
+def test_another_recipe_arm_or_formulation_is_uncalibrated():
+    assert Predictor.from_arm("panda").calibration is not None
+    assert Predictor.from_arm("panda", dt=0.01).calibration is None  # another physics step: another spread
+    assert Predictor.from_arm("panda", "spiral").calibration is None  # fitted on multi-sine torques only
+    assert Predictor.from_arm("panda", inputs="total", gravity_compensation="none").calibration is None
+    assert Predictor.from_arm("ur5e").calibration is None  # no calibration shipped for it
+
+
+def test_the_quick_starts_first_prediction_runs_as_written(tmp_path, monkeypatch, capsys):
+    """docs/guide/quickstart.md's first block, exactly as shown: a prediction with no training, in seconds."""
+    import sys
+
+    from tests.docs.examples import ROOT, blocks
+
+    (first, *_) = blocks(ROOT / "docs" / "guide" / "quickstart.md", "python")
+    assert "Predictor.from_arm" in first.code and not first.skip_reason
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", list(sys.argv))  # robomorph.cli.main sets it for the door it runs
+    namespace: dict = {"__name__": "__quickstart__"}
+    exec(compile(first.code, first.where, "exec"), namespace)
+    shape, rms = capsys.readouterr().out.strip().splitlines()[-2:]  # after generate's one line
+    assert shape == "(4, 200, 14)"
+    assert float(rms) < 1.0  # joint RMS error [mrad]: "a fraction of one", as the page says
+    assert namespace["pred"].calibration is not None and np.all(namespace["std"] > 0)
