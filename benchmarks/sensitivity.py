@@ -146,7 +146,8 @@ def score_condition(name: str, spec: tuple, folder: str, args) -> list[dict]:
     w = load_window(path, CONTEXT, HORIZON, args.n, None, 7, 14, "start", 0, "command")
     w = noisy_context(w, noise)
     others, seconds = {}, {}
-    for label, variant in [("hybrid", {})] + [parse_variant(v) for v in args.variant]:
+    hybrids = [] if args.no_hybrid else [("hybrid", {})] + [parse_variant(v) for v in args.variant]
+    for label, variant in hybrids:
         others[label], seconds[label] = hybrid_scores(w, variant)
     baselines = ["hold", "constant_velocity", "nominal_physics"] + (["identified_physics"] if args.identified else [])
     t0 = time.perf_counter()
@@ -189,6 +190,7 @@ def main(argv=None) -> int:
     p.add_argument("--identified", action="store_true", help="score identified_physics too (seconds per window)")
     p.add_argument("--variant", action="append", default=[], metavar="NAME=VALUE[,NAME=VALUE]",
                    help="a hybrid with these settings changed, scored beside the default (repeatable)")
+    p.add_argument("--no-hybrid", action="store_true", help="score the baselines alone (with --identified: its table)")
     p.add_argument("--md", help="write the tables (with provenance) here, and the rows beside it as CSV")
     args = p.parse_args(argv)
     prov = provenance()

@@ -47,8 +47,8 @@ Stribeck hump). Both are linear, so they are further columns of the same solve, 
 toward zero like the rest; they are not entries of the robot's vector (:meth:`extra`), and a backbone
 simulates them as a change of the torque it is given (:mod:`robomorph.identification.extra_terms`).
 With noisy joints (``noise``, measured in the context: :mod:`robomorph.identification.noise`) the
-joints and the torques are smoothed alike before the differences, and the data's weight falls with
-the noise (module ``noise``'s docstring gives the rule and its measurement).
+joints and the torques are smoothed alike before the differences, over a window the noise sets
+(module ``noise``'s docstring gives the rule and its measurement).
 """
 
 from __future__ import annotations
@@ -153,18 +153,13 @@ class RegressorIdentifier:
                 Default: the weak pull toward ``base`` (``prior``).
             noise: the encoder noise std [rad] measured in the context (:func:`robomorph.identification.noise.encoder_noise`):
                 above :data:`robomorph.identification.noise.NOISE_FLOOR` the joints and torques are smoothed alike
-                before the differences and the torque error's unit grows with it; below, nothing changes.
+                before the differences, over a window that grows with it; below, nothing changes.
         """
         if self._catalogue_gravity is not None:
             torque = np.asarray(torque, dtype=np.float64) + np.stack([self._catalogue_gravity(qt) for qt in q])
-        sigma = self.sigma
         if noise > encoder.NOISE_FLOOR:
             q, torque = encoder.smooth_pair(q, torque, noise)
-            self.sigma = encoder.torque_sigma(self.sigma, noise, self.dt)
-        try:
-            return self._fit(base, q, torque, prior_mean, prior_std)
-        finally:
-            self.sigma = sigma
+        return self._fit(base, q, torque, prior_mean, prior_std)
 
     def _fit(self, base: np.ndarray, q: np.ndarray, torque: np.ndarray, prior_mean, prior_std) -> np.ndarray:
         data = _differences(q, torque, self.dt)
