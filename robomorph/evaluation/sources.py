@@ -70,7 +70,7 @@ def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
     Asked of the first trajectory: a predictor without the keyword, one that refuses it
     (a model without a Gaussian head) or one that answers ``(mean, None)`` gives none.
     """
-    kept = copy.deepcopy(getattr(getattr(predictor, "_hybrid", None), "smoothing", None))
+    kept = copy.deepcopy(getattr(predictor, "smoothing", None))  # a hybrid's tally of smoothed windows
     try:
         params = inspect.signature(predictor.simulate).parameters
         if "return_std" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
@@ -82,10 +82,10 @@ def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
         return False
     finally:
         # The probe is not one of the windows: a hybrid's tally of smoothed windows forgets it.
-        if (hybrid := getattr(predictor, "_hybrid", None)) is not None and hasattr(hybrid, "smoothing"):
+        if getattr(predictor, "smoothing", None) is not None:
             from robomorph.identification.smoother import new_report  # noqa: PLC0415
 
-            hybrid.smoothing = kept or new_report()
+            predictor.smoothing = kept or new_report()
     return isinstance(out, tuple) and len(out) == 2 and out[1] is not None
 
 
