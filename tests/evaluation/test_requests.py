@@ -159,3 +159,20 @@ def test_evaluate_arm_refuses_another_arms_or_formulations_store_in_one_line(arm
         assert err.startswith("error: ") and "\n" not in err
         assert __import__("re").search(said, err), err
     assert not os.path.exists(tmp_path / "o")
+
+
+@pytest.mark.skipif(__import__("importlib").util.find_spec("robosuite") is None,
+                    reason="robosuite (the `arms` extra) is not installed")
+def test_evaluate_arm_runs_on_another_registered_arm(simulated_store, tmp_path):
+    """Nothing Panda-specific on the way: a UR5e store (6 joints) scored by the UR5e's catalogue hybrid."""
+    from robomorph.evaluate import main
+
+    store = simulated_store(robots=3, steps=60, seed=1, robot="ur5e")
+    out = tmp_path / "ur5e"
+    assert main(["--arm", "ur5e", "--data", store, "--context-len", "30", "--horizon", "30", "--samples", "0",
+                 "--baselines", "hold", "--device", "cpu", "--out", str(out)]) == 0
+    res = json.loads((out / "metrics.json").read_text())
+    meta = res["meta"]
+    assert (meta["catalogue_arm"], meta["domain"], len(meta["u_names"])) == ("ur5e", "ur5e", 6)
+    model, hold = res["approach1"]["mean"]["rmse"]["mean"], res["baselines"]["hold"]["approach1"]["mean"]["rmse"]["mean"]
+    assert model < 0.2 * hold
