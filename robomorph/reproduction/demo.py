@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 from robomorph.core.errors import UsageError
 from robomorph.core.names import TASKS
+from robomorph.core.progress import Phase
 from robomorph.core.recipes import locate
 from robomorph.core.rundir import RunDir
 from robomorph.data.store import open_store
@@ -64,8 +65,10 @@ def make_data(out_dir: str, robots: int, steps: int, workers: int | None = None)
         t0 = time.time()
         path = _generate(task, os.path.join(out_dir, f"{task}.zarr"), {"robots": robots, "steps": steps}, workers)
         ds, base = open_store(path), os.path.join(out_dir, task)
-        write_text(f"{base}.txt", summarize(ds) + "\n")
-        written = plot(ds, f"{base}.png", n_traj=3, params=not paths)
+        # Drawing takes seconds, a minute on a loaded machine: reported as any long phase.
+        with Phase(f"{task}: summary and plots", total=1, unit="store"):
+            write_text(f"{base}.txt", summarize(ds) + "\n")
+            written = plot(ds, f"{base}.png", n_traj=3, params=not paths)
         extra = f", parameters: {params_plot_path(base + '.png')}" if len(written) > 1 else ""
         print(f"{path}: {ds.n} robots x {ds.steps} steps in {time.time() - t0:.0f} s "
               f"(summary: {base}.txt, plots: {base}.png{extra})", flush=True)
@@ -193,13 +196,18 @@ def evaluate_and_report(ckpt: str, test: str, runs_dir: str, identified: bool = 
 
     calibrate_std(ckpt, verbose)
     out = RunDir.of_checkpoint(ckpt).eval_dir(test)
-    res = evaluate(EvaluateConfig(test, ckpt=ckpt, out=out, baselines=BASELINES + (OPT_IN if identified else ()),
-                                  sweep_horizon_spec=SWEEP_HORIZONS, sweep_context_spec=SWEEP_CONTEXTS))
+    request = EvaluateConfig(test, ckpt=ckpt, out=out, baselines=BASELINES + (OPT_IN if identified else ()),
+                             sweep_horizon_spec=SWEEP_HORIZONS, sweep_context_spec=SWEEP_CONTEXTS)
+    # evaluate reports its model batches and sweeps; this outer line covers what it does between them
+    # (the baselines, reading the training data for arx_train, the plots: tens of seconds on a loaded machine).
+    with Phase("evaluation", total=1, unit="store"):
+        res = evaluate(request)
     if verbose:
         with open(os.path.join(out, "table.md")) as f:
             print("\n" + f.read())
         print(summary_text(res, out, horizons=False))
-    report = build_report(runs_dir, default_out(runs_dir))
+    with Phase("report", total=1, unit="page"):
+        report = build_report(runs_dir, default_out(runs_dir))
     return out, report, res
 
 

@@ -168,3 +168,15 @@ def test_reproduce_generates_in_a_log_with_progress_lines(tmp_path, monkeypatch)
     assert path.endswith("ms_test0.zarr")
     args = pipeline.base_args(plan, 1, [path], "r", 10)
     assert args["trainer"]["enable_progress_bar"] is True  # fit's StepBar: a bar on a terminal, lines in a log
+
+
+def test_the_demos_summaries_and_plots_report_progress(tmp_path, monkeypatch):
+    """make demo draws each showcase store (a minute on a loaded machine): lines while the drawing runs."""
+    from robomorph.reproduction import demo
+
+    monkeypatch.setattr(demo, "TASKS", ("multisine",))  # one store is enough to see the phase
+    spans = _slowed(monkeypatch, demo, "plot")
+    stderr = stamped(monkeypatch, "0.2")
+    start = time.monotonic()
+    demo.make_data(str(tmp_path), robots=2, steps=40, workers=1)
+    _check(stderr, spans, start, time.monotonic(), ("multisine: summary and plots",))
