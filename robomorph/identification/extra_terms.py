@@ -106,8 +106,14 @@ def friction_space(space, randomizer, recipe_cfg):
 
 
 def flange_entries(space, randomizer, model) -> tuple[list[int], list[int]]:
-    """(mass, centre-of-mass) positions in ``space`` of the body that carries the ``ee`` site."""
+    """(mass, centre-of-mass) positions in ``space`` of the randomized body that carries the ``ee`` site: the site's
+    own, or the nearest one above it (some arms hang the site on a massless body fixed to the flange); none where
+    no randomized body carries it."""
     body = int(model.site_bodyid[randomizer.index.ee_site])
+    while body > 0 and body not in randomizer.index.body_ids:
+        body = int(model.body_parentid[body])
+    if body not in randomizer.index.body_ids:
+        return [], []
     k = int(np.flatnonzero(randomizer.index.body_ids == body)[0])
     name = randomizer.names[k][len("mass_"):]  # the vector names a body's entries mass_<body>, com_<body>_<axis>
     mass = [c for c, n in enumerate(space.names) if n == f"mass_{name}"]
