@@ -238,8 +238,8 @@ class DemoResult:
     seconds: dict = field(default_factory=dict)  # wall-clock seconds of each step
 
 
-def run_demo(out_dir: str = "data/demo", robots: int = 16, steps: int = 1000, train_robots: int = 256,
-             minutes: float = 2.0, runs_dir: str = "results/runs", workers: int | None = None,
+def run_demo(out_dir: str = "data/demo", robots: int = 16, steps: int = 1000, train_robots: int = 128,
+             minutes: float = 1.5, runs_dir: str = "results/runs", workers: int | None = None,
              identified: bool = False, inputs: str = "command", verbose: bool = False) -> DemoResult:
     """The steps of the module docstring, in order."""
     t0 = time.time()
