@@ -102,7 +102,8 @@ class FrictionMixture:
             from robomorph.identification.backbone import observed_velocity  # noqa: PLC0415
 
             dt = self.ident.substeps * self.ident.model.opt.timestep
-            qvel_end = observed_velocity(qvel_end, -err.reshape(len(members), -1, q_ctx.shape[1]), dt)
+            recorded = np.broadcast_to(np.asarray(q_ctx, dtype=np.float64), (len(members), *np.shape(q_ctx)))
+            qvel_end = observed_velocity(qvel_end, -err.reshape(len(members), -1, q_ctx.shape[1]), dt, None, recorded)
         return members, w / w.sum(), qvel_end
 
 
