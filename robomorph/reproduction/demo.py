@@ -66,9 +66,10 @@ def make_data(out_dir: str, robots: int, steps: int, workers: int | None = None)
         path = _generate(task, os.path.join(out_dir, f"{task}.zarr"), {"robots": robots, "steps": steps}, workers)
         ds, base = open_store(path), os.path.join(out_dir, task)
         # Drawing takes seconds, a minute on a loaded machine: reported as any long phase.
-        with Phase(f"{task}: summary and plots", total=1, unit="store"):
+        with Phase(f"{task}: summary and plots", total=1, unit="store") as phase:
             write_text(f"{base}.txt", summarize(ds) + "\n")
             written = plot(ds, f"{base}.png", n_traj=3, params=not paths)
+            phase.update()
         extra = f", parameters: {params_plot_path(base + '.png')}" if len(written) > 1 else ""
         print(f"{path}: {ds.n} robots x {ds.steps} steps in {time.time() - t0:.0f} s "
               f"(summary: {base}.txt, plots: {base}.png{extra})", flush=True)
@@ -200,14 +201,16 @@ def evaluate_and_report(ckpt: str, test: str, runs_dir: str, identified: bool = 
                              sweep_horizon_spec=SWEEP_HORIZONS, sweep_context_spec=SWEEP_CONTEXTS)
     # evaluate reports its model batches and sweeps; this outer line covers what it does between them
     # (the baselines, reading the training data for arx_train, the plots: tens of seconds on a loaded machine).
-    with Phase("evaluation", total=1, unit="store"):
+    with Phase("evaluation", total=1, unit="store") as phase:
         res = evaluate(request)
+        phase.update()
     if verbose:
         with open(os.path.join(out, "table.md")) as f:
             print("\n" + f.read())
         print(summary_text(res, out, horizons=False))
-    with Phase("report", total=1, unit="page"):
+    with Phase("report", total=1, unit="page") as phase:
         report = build_report(runs_dir, default_out(runs_dir))
+        phase.update()
     return out, report, res
 
 

@@ -180,6 +180,7 @@ def test_the_demos_summaries_and_plots_report_progress(tmp_path, monkeypatch):
     start = time.monotonic()
     demo.make_data(str(tmp_path), robots=2, steps=40, workers=1)
     _check(stderr, spans, start, time.monotonic(), ("multisine: summary and plots",))
+    assert stderr.lines[-1][1].startswith("multisine: summary and plots: 1/1 store in ")  # done, counted
 
 
 def test_blend_reports_progress(tiny_checkpoint, slow_model, tmp_path, monkeypatch):
