@@ -183,10 +183,10 @@ def main(argv=None) -> None:
             spreads[p] = cached[p]
             continue
         if p is not None:  # POINTS[+springs][+debias]: the regression fits the joints' springs too; its bias taken off
-            points, *extra = p.split("+")
+            name, *extra = p.split("+")
             if set(extra) - {"springs", "debias"}:
                 raise SystemExit(f"error: --points takes POINTS[+springs][+debias], got {p!r}")
-            pred.configure(points=points, springs="springs" in extra, debias="debias" in extra)
+            pred.configure(points=name, springs="springs" in extra, debias="debias" in extra)
         spreads[p] = tuple(_predict(pred, w, steps, a.batch, others=not a.points) for w in (cal_w, test_w))
     if a.cache and a.points:
         _save_cache(a.cache, key, spreads)
