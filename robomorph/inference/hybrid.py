@@ -271,10 +271,14 @@ class Hybrid:
     def _refine(self, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, qvel_start: np.ndarray) -> np.ndarray:
         from robomorph.identification.identify import Identifier, IdentifyConfig  # noqa: PLC0415
 
-        if self._identifier is None or self._identifier.config.max_iters != self.settings.refine_iters:
+        from robomorph.identification.identify import KINDS  # noqa: PLC0415
+
+        kinds = KINDS if self.settings.refine_all else REFINE_KINDS
+        if self._identifier is None or self._identifier.config.max_iters != self.settings.refine_iters \
+                or self._identifier.config.kinds != kinds:
             if self._identifier is not None:
                 self._identifier.close()
-            config = IdentifyConfig(kinds=REFINE_KINDS, max_iters=self.settings.refine_iters)
+            config = IdentifyConfig(kinds=kinds, max_iters=self.settings.refine_iters)
             self._identifier = Identifier(self.backbone.recipe, self.inputs, config)
         self.last_fits = [self._identifier.fit(params[b], q_ctx[b], u_ctx[b], qvel_start[b]) for b in range(len(params))]
         return np.stack([f.params for f in self.last_fits])
