@@ -79,3 +79,35 @@ def test_the_end_of_a_noisy_context_is_denoised_by_the_simulation_and_a_slow_fit
     assert np.sqrt(np.mean(np.square(errors))) < 0.75e-4
     assert noise.end_window(1e-4) == noise.END_WINDOW > noise.end_window(1e-5) >= 8
     assert noise.window(1e-4) > noise.window(1e-5) >= 5 and noise.window(1e-4) % 2 == 1
+
+
+def test_the_new_terms_are_settings_named_by_the_key_and_validated():
+    from robomorph.inference.settings import HybridSettings, SettingsError
+
+    s = HybridSettings(mode="refined", offsets=True, coulomb=True, payload=True, denoise=True, refine_all=True)
+    assert s.key == "refined+offsets+coulomb+payload+denoise+refineall"
+    assert HybridSettings.from_key(s.key) == s.replace(workers=HybridSettings().workers)
+    assert not HybridSettings().denoise and not HybridSettings().offsets  # off unless asked for
+    with pytest.raises(SettingsError, match="denoise"):
+        HybridSettings(denoise=1)
+    # the denoising follows the commands' observer; the offsets apply to total torques too
+    total = s.in_effect("total")
+    assert not total.denoise and total.offsets and total.payload
+
+
+@pytest.mark.slow
+def test_on_noisy_contexts_the_denoised_hybrid_beats_the_plain_one_and_refining_every_kind_beats_both(simulated_store):
+    from robomorph.inference.predictor import Predictor
+
+    ds = open_store(simulated_store(robots=4, steps=CONTEXT + 60, seed=15))
+    y, u = ds.read("y").astype(np.float64), ds.read("u_cmd").astype(np.float64)
+    noisy = y.copy()
+    noisy[:, :CONTEXT, 7:] += np.random.default_rng(3).normal(0, 1e-4, noisy[:, :CONTEXT, 7:].shape)
+    truth = y[:, CONTEXT:, 7:]
+    errors = {}
+    for name, changes in (("plain", {}), ("denoise", {"denoise": True}),
+                          ("refined", {"denoise": True, "mode": "refined", "refine_iters": 8, "refine_all": True})):
+        pred = Predictor.from_arm("panda", calibrated=False).configure(**changes)
+        out = pred.simulate(u[:, :CONTEXT], noisy[:, :CONTEXT], u[:, CONTEXT:], at_rest=np.ones(len(u), bool))
+        errors[name] = float(np.sqrt(np.mean((np.asarray(out)[:, -1, 7:] - truth[:, -1]) ** 2)))
+    assert errors["denoise"] < errors["plain"] and errors["refined"] < errors["denoise"]
