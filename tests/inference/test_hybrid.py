@@ -373,13 +373,18 @@ def test_windows_that_open_their_trajectory_and_the_others_each_get_their_kinds_
     assert Predictor.from_checkpoint(out).model.calibrations == {}
 
 
-def test_the_demo_calibrates_a_hybrid_for_start_windows_and_for_a_moving_robot(hybrid_ckpt, tmp_path, capsys):
-    """make demo's calibration step: the start windows' calibration, then the one for windows of a
-    robot already moving (what a controller sends), both on the fit's validation robots."""
+def test_the_demo_calibrates_a_hybrid_for_start_windows_and_for_a_moving_robot(hybrid_ckpt, tmp_path, capsys,
+                                                                              monkeypatch):
+    """make demo's calibration step where no shipped calibration applies (tests/reproduction/test_demo.py has the
+    one that does): the start windows' calibration, then the one for windows of a robot already moving (what a
+    controller sends), both on the fit's validation robots."""
     import shutil
 
+    from robomorph.inference import catalogue
     from robomorph.inference.predictor import Predictor
     from robomorph.reproduction.demo import calibrate_std
+
+    monkeypatch.setattr(catalogue, "CALIBRATION_DIR", str(tmp_path / "none shipped"))
 
     ckpt = str(tmp_path / "best.ckpt")
     shutil.copy(hybrid_ckpt, ckpt)
