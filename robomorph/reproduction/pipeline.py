@@ -189,6 +189,7 @@ def scored(plan: Plan, target: str, ckpt: str, data: str, name: str, sweeps: boo
     reproduction's dashboard (:func:`write_report`) shows every score beside its training run.
     """
     from robomorph.evaluation.evaluator import evaluate  # noqa: PLC0415
+    from robomorph.evaluation.requests import EvaluateConfig  # noqa: PLC0415
 
     layout = RunDir.of_checkpoint(ckpt)
     run, out = layout.name, layout.eval_dir(name)
@@ -199,9 +200,11 @@ def scored(plan: Plan, target: str, ckpt: str, data: str, name: str, sweeps: boo
     if skip.stale_evaluation(out):
         shutil.rmtree(out)  # evaluate writes its folder whole and refuses one it cannot recognise
     s = plan.scale
-    return evaluate(ckpt, data, out, n=s.eval_n, baselines=("hold",), batch_size=64, device=plan.device,
-                    samples=s.samples, sweep_horizon_spec=s.sweep_horizon if sweeps else None,
-                    sweep_context_spec=s.sweep_context if sweeps else None, normalization=plan.normalization)
+    return evaluate(EvaluateConfig(data=data, ckpt=ckpt, out=out, n=s.eval_n, baselines=("hold",), batch_size=64,
+                                   device=plan.device, samples=s.samples,
+                                   sweep_horizon_spec=s.sweep_horizon if sweeps else None,
+                                   sweep_context_spec=s.sweep_context if sweeps else None,
+                                   normalization=plan.normalization))
 
 
 def table1_ckpt(plan: Plan, depth: int, train_store: str, target: str = "table1") -> str:

@@ -35,9 +35,9 @@ def spied():
         calls["fit"].append(args["run"])
         return real_fit(args, callbacks)
 
-    def evaluate(ckpt, data, out, *args, **kwargs):
-        calls["evaluate"].append(out)
-        return real_evaluate(ckpt, data, out, *args, **kwargs)
+    def evaluate(config, *args, **kwargs):
+        calls["evaluate"].append(config.out)
+        return real_evaluate(config, *args, **kwargs)
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(fitting, "fit", fit)
