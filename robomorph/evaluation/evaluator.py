@@ -32,7 +32,7 @@ import os
 from robomorph.core.atomic import write_json
 from robomorph.core.locks import output_folder
 from robomorph.core.normalizations import NormalizationError
-from robomorph.core.progress import progress
+from robomorph.core.progress import Phase, progress
 from robomorph.core.results import provenance
 from robomorph.evaluation import plots as eval_plots
 from robomorph.evaluation import references, training_data
@@ -141,8 +141,10 @@ def _score_and_write(predictor, w: Window, out: str, cfg: EvaluateConfig, steps,
     # A result folder says what made it (command, commit, date, machine), as every result file does.
     result["provenance"] = provenance()
     result["sweeps"] = _sweeps(predictor, w, horizons, contexts, _baseline_preds(scores), cfg.batch_size, out)
-    eval_plots.write_all(out, w.split()[1], scores.y, scores.preds, w.y_names, w.dt, cfg.samples, cfg.seed,
-                         std=scores.std, steps=result["horizons"]["steps"], y_units=w.attrs.get("y_units"))
+    # Matplotlib takes tens of seconds on a loaded machine: a phase of its own, so nothing is silent.
+    with Phase("plots", total=None, unit="figure"):
+        eval_plots.write_all(out, w.split()[1], scores.y, scores.preds, w.y_names, w.dt, cfg.samples, cfg.seed,
+                             std=scores.std, steps=result["horizons"]["steps"], y_units=w.attrs.get("y_units"))
     _write_files(out, result)
     return result
 

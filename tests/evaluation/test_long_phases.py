@@ -193,3 +193,21 @@ def test_blend_reports_progress(tiny_checkpoint, slow_model, tmp_path, monkeypat
     start = time.monotonic()
     assert main(["--ckpt", ckpt, "--blend"]) == 0
     _check(stderr, slow_model, start, time.monotonic(), ("decoder",))  # the decoder predictions the blend weighs
+
+
+def test_evaluates_plots_report_progress(tiny_checkpoint, simulated_store, tmp_path, monkeypatch):
+    """Writing evaluate's figures (tens of seconds on a loaded machine): its own phase, lines while it runs."""
+    from robomorph.evaluate import main
+    from robomorph.evaluation import plots
+
+    data = simulated_store(robots=6, steps=C + H, seed=2)
+    spans = _slowed(monkeypatch, plots, "write_all")
+    stderr = stamped(monkeypatch, "0.2")
+    start = time.monotonic()
+    assert main(["--ckpt", tiny_checkpoint, "--data", data, "--out", str(tmp_path / "ev"), "--n", "3",
+                 "--baselines", "hold", "--samples", "1"]) == 0
+    assert len(spans) == 1
+    assert max(stderr.gaps(start, time.monotonic())) < LIMIT
+    (a, b), = spans
+    during = [line for t, line in stderr.lines if a <= t <= b]
+    assert any(line.startswith("plots: ") and " elapsed" in line for line in during), stderr.lines
