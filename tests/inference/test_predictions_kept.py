@@ -22,3 +22,4 @@ def test_the_kept_cases_differ_from_each_other_so_the_check_can_fail():
     assert not np.array_equal(kept["command/regression/moving/mean"], kept["command/members=1/moving/mean"])
     assert not np.array_equal(kept["command/regression/moving/mean"], kept["command/learned/moving/mean"])
     assert not np.array_equal(kept["total_smoothed/smoothed/rest/mean"], kept["total_smoothed/none/rest/mean"])
+    assert not np.array_equal(kept["command/points=draws/moving/std"], kept["command/points=draws,samples=4/moving/std"])
