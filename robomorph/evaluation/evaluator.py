@@ -97,7 +97,7 @@ def evaluate(config: EvaluateConfig, *args, **kwargs) -> dict:
     horizon = cfg.horizon or (info or {}).get("horizon")
     if context_len is None or horizon is None:
         raise EvaluationError(f"{cfg.ckpt} does not record its training window: pass --context-len and --horizon")
-    w = load_window(cfg.data, int(context_len), int(horizon), cfg.n, _window_info(cfg, predictor), predictor.n_u,
+    w = load_window(cfg.data, int(context_len), int(horizon), cfg.n, predictor.data_info, predictor.n_u,
                     predictor.n_y, cfg.offset, cfg.seed, predictor.inputs)
     check_arm(predictor, w.attrs, cfg.data)
     predictor.channels = (w.u_names, w.y_names)  # an arm with fewer joints than a multi-arm model: padded
@@ -111,20 +111,6 @@ def evaluate(config: EvaluateConfig, *args, **kwargs) -> dict:
                                         "a catalogue arm's hybrid" if cfg.arm else "the checkpoint")
     with output_folder(cfg.out_dir, "evaluation") as tmp:  # refused, locked, and written whole or not at all
         return _score_and_write(predictor, w, tmp, cfg, steps, others, train_blocks, info, horizons, contexts)
-
-
-def _window_info(cfg: EvaluateConfig, predictor) -> dict | None:
-    """The record a store's channels and sample time are checked against: the model's. A catalogue arm's
-    record names its inputs ``tau*`` whatever the formulation (:func:`robomorph.inference.catalogue.arm_record`),
-    where a command store, as a command model's record, names them ``cmd*``: the arm's names in the
-    formulation asked for are checked instead, so a store of that arm is read and no other is."""
-    info = predictor.data_info
-    if cfg.arm is None or info is None:
-        return info
-    from robomorph.sim import arms  # noqa: PLC0415
-
-    spec = arms.get(cfg.arm)
-    return {**info, "u_names": list(spec.u_cmd_names if predictor.inputs == "command" else spec.u_names)}
 
 
 def _score_and_write(predictor, w: Window, out: str, cfg: EvaluateConfig, steps, others, train_blocks, info,
