@@ -36,8 +36,8 @@ from robomorph.evaluation.requests import BlendConfig, CalibrateConfig, as_reque
 from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.tables import POINTS_TEXT
 from robomorph.evaluation.windows import EvaluationError, Window, check_patch, load_window, start_joints
-from robomorph.inference.calibration import (CALIBRATION_KEY, POWER_MIN_WINDOWS, CalibrationError, calibration_key,
-                                         calibrations_entry, fit, outside_bands, read_calibrations)
+from robomorph.inference.calibration import (CALIBRATION_KEY, POWER_MIN_WINDOWS, CalibrationError, SPREAD_SWITCHES,
+                                         calibration_key, calibrations_entry, fit, outside_bands, read_calibrations)
 
 
 def _read(ckpt: str, device: str | None, need_std: bool = True) -> tuple:
@@ -152,7 +152,7 @@ def calibrate(config: CalibrateConfig, *args, **kwargs) -> dict:
     if getattr(predictor, "physics", None):
         # A hybrid's std depends on how it identifies the robot: the calibration is that mode's.
         s = predictor.settings_in_effect
-        source.update(physics_mode=s.mode, observer=s.observer, springs=s.springs, debias=s.debias)
+        source.update(physics_mode=s.mode, **{name: getattr(s, name) for _, name in SPREAD_SWITCHES})
     cal = fit(before.y, mean, std, c.method, source=source, end=dense_at_end(predictor), points=points)
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
     report = _report(c.ckpt, c.out, cal, w.dt, horizon, steps, before, after)

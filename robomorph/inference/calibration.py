@@ -201,21 +201,26 @@ def calibration_key(calibration: StdCalibration) -> str:
     knows which windows open theirs (``at_rest``) and applies each kind's to its own; a black-box
     model has one calibration whatever its windows."""
     src = calibration.source
-    mode = mode_key(str(src.get("physics_mode", "none")), bool(src.get("observer")), bool(src.get("springs")),
-                    bool(src.get("debias")))
+    mode = mode_key(str(src.get("physics_mode", "none")), **{name: bool(src.get(name)) for _, name in SPREAD_SWITCHES})
     start = calibration.source.get("offset", "start") in ("start", 0)
     return mode if mode == "none" or start else f"{mode}/moving"
 
 
-def mode_key(mode: str, observer: bool, springs: bool = False, debias: bool = False) -> str:
-    """A physics mode's calibration key: ``+obs`` when its horizons start from the observer's velocity
-    (:func:`robomorph.identification.backbone.observed_velocity`), whose spread near the start is another, ``+springs``
-    when its regression fits the joints' springs, whose spread late in the horizon is another, ``+debias`` when
-    the regression's bias is taken off (:mod:`robomorph.inference.debias`), whose errors are others (none: the
-    decoder's std, which none of them touches)."""
+# The hybrid's switches that change its spread, as (flag in a calibration key, HybridSettings field), in key order:
+# ``+obs`` horizons from the observer's velocity (another spread near the start), ``+springs`` the joints' springs
+# fitted (another late in the horizon), ``+debias`` the regression's bias taken off (other errors), and the
+# identification terms of robomorph.inference.settings (offsets, friction beyond the box, a payload, denoising).
+SPREAD_SWITCHES = (("obs", "observer"), ("springs", "springs"), ("debias", "debias"), ("offsets", "offsets"),
+                   ("coulomb", "coulomb"), ("payload", "payload"), ("denoise", "denoise"))
+
+
+def mode_key(mode: str, **switches: bool) -> str:
+    """A physics mode's calibration key: the mode, then ``+flag`` for each of :data:`SPREAD_SWITCHES` on in
+    ``switches`` (named as HybridSettings' fields); the decoder's std (``none``), which none of them touches, has
+    none."""
     if mode == "none":
         return mode
-    return mode + ("+obs" if observer else "") + ("+springs" if springs else "") + ("+debias" if debias else "")
+    return mode + "".join(f"+{flag}" for flag, name in SPREAD_SWITCHES if switches.get(name))
 
 
 def read_calibrations(entry: dict | None) -> dict[str, StdCalibration]:

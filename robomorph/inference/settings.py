@@ -25,7 +25,7 @@ import os
 from dataclasses import dataclass, field
 
 from robomorph.core.names import PHYSICS_MODES
-from robomorph.inference.calibration import POINTS
+from robomorph.inference.calibration import POINTS, SPREAD_SWITCHES, mode_key
 from robomorph.inference.predictor_checks import PredictionError
 
 # The modes a Predictor predicts in: the decoder alone (``none``) or a hybrid mode.
@@ -183,14 +183,9 @@ class HybridSettings:
     @property
     def calibration_key(self) -> str:
         """Where a model stores the std calibration of these settings (take it of :meth:`in_effect`'s):
-        ``+obs``, ``+springs``, ``+debias`` each change the spread; the decoder's is ``none``."""
-        if self.mode == "none":
-            return "none"
-        return self.mode + "".join(f"+{flag}" for flag, on in (("obs", self.observer), ("springs", self.springs),
-                                                                 ("debias", self.debias), ("offsets", self.offsets),
-                                                                 ("coulomb", self.coulomb), ("payload", self.payload),
-                                                                 ("denoise", self.denoise))
-                                   if on)
+        each switch of :data:`robomorph.inference.calibration.SPREAD_SWITCHES` on changes the spread; the
+        decoder's is ``none``."""
+        return mode_key(self.mode, **{name: getattr(self, name) for _, name in SPREAD_SWITCHES})
 
     @property
     def key(self) -> str:

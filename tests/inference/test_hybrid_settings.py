@@ -81,3 +81,15 @@ def test_configure_replaces_the_predictors_settings_and_the_old_names_warn():
     assert p.settings.members == 3
     with pytest.warns(DeprecationWarning, match="settings.mode"):
         assert p.physics_mode == "refined"
+
+
+@pytest.mark.parametrize("switch", ["observer", "springs", "debias", "offsets", "coulomb", "payload", "denoise"])
+def test_a_calibration_fitted_with_a_switch_on_is_stored_where_those_settings_look_for_it(switch):
+    """What calibrate records of the settings (their mode and switches) keys the calibration as the settings
+    key their lookup: one builder of the key for both, whatever switch is on."""
+    from robomorph.inference.calibration import SPREAD_SWITCHES, StdCalibration, calibration_key
+
+    s = HybridSettings(mode="regression").replace(**{switch: True})
+    source = {"physics_mode": s.mode, "offset": "start", **{name: getattr(s, name) for _, name in SPREAD_SWITCHES}}
+    cal = StdCalibration(knots=(1,), scale=((1.0,),), source=source)
+    assert calibration_key(cal) == s.calibration_key != HybridSettings(mode="regression").calibration_key
