@@ -10,6 +10,7 @@ COMMANDS = {
     "inspect": "what a store holds (counts, channels, ranges, plots)",
     "ingest": "a real robot's logs into a store",
     "merge": "shards of one generation into one store",
+    "priors": "the hybrid's predictions over windows of a store, for a residual model",
     "fit": "train a meta-model",
     "evaluate": "a checkpoint on a store, beside the baselines",
     "calibrate": "a Gaussian head's standard deviation, rescaled by horizon on held-out robots",

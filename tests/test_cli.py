@@ -23,6 +23,7 @@ BAD_INPUT = [
     ("ingest", ["{tmp}/none.csv", "--u-cols", "a", "--y-cols", "b", "--steps", "5", "--dt", "0.1",
                 "--out", "{tmp}/o.zarr"], "log file not found"),
     ("merge", ["{tmp}/missing.zarr", "--out", "{tmp}/m.zarr"], "dataset not found"),
+    ("priors", ["{tmp}/missing.zarr", "--out", "{tmp}/p.zarr"], "dataset not found"),
     ("fit", ["--data.stores", "{tmp}/missing.zarr", "--data.context_len", "0", "--runs_dir", "{tmp}/runs",
              "--wandb", "disabled"], "context_len must be >= 1"),
     ("evaluate", ["--ckpt", "{tmp}/missing.ckpt", "--data", "{tmp}/missing.zarr", "--out", "{tmp}/eval"],

@@ -4,6 +4,9 @@ Batches are dicts of float32 tensors in physical units::
 
     u_ctx (B, Tc, n_u), y_ctx (B, Tc, n_y), u_query (B, Th, n_u), y_query (B, Th, n_y)
 
+and, from prior stores (:mod:`robomorph.data.priors`), ``prior_query`` (B, Th, n_y): a physics
+prior's prediction of the query outputs, which a residual model corrects.
+
 Normalization belongs to the model (:class:`robomorph.model.normalization.Normalizer`), fed with
 ``datamodule.stats``: statistics of the training split only.
 
@@ -28,6 +31,7 @@ from robomorph.core.inputs import check_inputs
 from robomorph.core.names import INPUTS, NORMALIZATIONS
 from robomorph.core.normalizations import check_normalization
 
+from robomorph.data.priors import check_prior_windows, prior_error_rms
 from robomorph.data.channel_sets import ColumnAccumulator, channel_set, last_joint, layouts, pads_any
 
 # DataError re-exported: callers catch it from here.
@@ -126,6 +130,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         sources = self.open_sources()
         check_lengths(sources, self.context_len, self.horizon)
         self._check_context_min()
+        self.prior = check_prior_windows([s.prior_record for s in sources], [s.path for s in sources],
+                                         self.context_len, self.horizon, self.window, self.context_min,
+                                         self.inputs)
         total = sum(s.nbytes for s in sources)
         self.loaded = self.in_memory if self.in_memory is not None else total <= MEMORY_BUDGET_BYTES
         if self.loaded:
@@ -173,6 +180,11 @@ class RoboMorphDataModule(L.LightningDataModule):
             stop = src.steps if self.window == "random" else self.context_len + self.horizon
             scan(src, self.splits[k]["train"], stop, ColumnAccumulator(acc, src.layout) if k < len(self.stores) else None)
         self.stats: Stats = acc.finalize()
+        # A residual model counts its correction in the prior's RMS error per step and channel (training rows only).
+        self.prior_error = None if self.prior is None else prior_error_rms(
+            [(np.stack([src.window(int(i), self.context_len, self.context_len + self.horizon)[1]
+                        for i in self.splits[k]["train"]]), src.prior[self.splits[k]["train"]])
+             for k, src in enumerate(sources[:len(self.stores)])], self.horizon)
 
     @property
     def u_names(self) -> list[str]:
@@ -190,6 +202,12 @@ class RoboMorphDataModule(L.LightningDataModule):
         ``joint_dropout`` hides some, or ``channels`` names the set (a multi-arm model's, to
         fine-tune it: its architecture reads the mask): robomorph fit links it."""
         return pads_any(self.open_sources()) or self.joint_dropout > 0 or self.channels is not None
+
+    @property
+    def residual(self) -> bool:
+        """True when the stores are prior stores (:mod:`robomorph.data.priors`): the model then learns the
+        correction of the prior and its batches carry ``prior_query`` (B, Th, n_y); robomorph fit links it."""
+        return any(s.prior_record is not None for s in self.open_sources())
 
     @property
     def layouts(self) -> list[dict[str, list[str]]]:
@@ -238,6 +256,8 @@ class RoboMorphDataModule(L.LightningDataModule):
         self.train_set, self.val_set, self.test_set = (WindowDataset(sources, p, ctx, h) for p in (train, val, test))
         if self.joint_dropout > 0:
             self.train_set.hidden_cols = last_joint(self.u_names, self.y_names)
+        for dataset in (self.train_set, self.val_set, self.test_set):
+            dataset.with_prior = self.prior is not None
         self.train_sampler = self._train_sampler(sources, len(train))
 
     def _loader(self, split: str) -> DataLoader:
@@ -341,6 +361,6 @@ class RoboMorphDataModule(L.LightningDataModule):
             "context_min": self.context_min, "horizon_min": self.horizon_min,
             "n_u": self.n_u, "n_y": self.n_y, "dt": self.dt, "in_memory": bool(self.loaded),
             "seed": self.seed, "split": list(self.split), "normalization": self.normalization,
-            "inputs": self.inputs, "channel_mask": self.channel_mask,
+            "inputs": self.inputs, "channel_mask": self.channel_mask, "residual": self.prior is not None,
         }
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from robomorph.core.channels import pad_columns
 from robomorph.core.errors import RoboMorphError
+from robomorph.data.priors import PRIOR_ARRAY, prior_record
 from robomorph.data.splits import RECORDING_ARRAY
 from robomorph.data.statistics import StatsAccumulator
 from robomorph.data.store import open_store
@@ -39,6 +40,11 @@ class Source:
         self.attrs = dict(ds.attrs)
         self.params = ds.read("params").astype(np.float64) if "params" in ds.arrays and self.attrs.get(
             "param_names") else None
+        # A prior store's priors of each row's query (robomorph.data.priors): small, read whole.
+        self.prior_record = prior_record(self.attrs)
+        self.prior = ds.read(PRIOR_ARRAY) if self.prior_record is not None and PRIOR_ARRAY in ds.arrays else None
+        if self.prior_record is not None and self.prior is None:
+            raise DataError(f"{path} records priors but holds no '{PRIOR_ARRAY}' array: write it again (robomorph priors)")
         self.u: np.ndarray | None = None
         self.y: np.ndarray | None = None
         self._ds, self._pid = ds, os.getpid()

@@ -42,6 +42,8 @@ class WindowDataset(Dataset):
         # (:meth:`add_params`); the sequence model never reads them.
         self.with_params = False
         self.hidden_cols: tuple[list[int], list[int]] | None = None
+        # A residual model's prior of each window's query (prior stores, robomorph.data.priors).
+        self.with_prior = False
 
     def __len__(self) -> int:
         return len(self.pairs)
@@ -63,6 +65,9 @@ class WindowDataset(Dataset):
         # Copies: a batch must not keep a view of a whole in-memory store alive.
         out = {k: torch.from_numpy(np.array(v, dtype=np.float32))
                for k, v in (("u_ctx", u[:c]), ("y_ctx", y[:c]), ("u_query", u[c:]), ("y_query", y[c:]))}
+        if self.with_prior:
+            # Prior stores hold fixed windows (offset 0, the record's context): the prior's first h steps.
+            out["prior_query"] = torch.from_numpy(np.array(self.sources[s].prior[int(i), :h], dtype=np.float32))
         if self.with_params:
             out["params"] = torch.from_numpy(np.array(self.sources[s].params[int(i)], dtype=np.float64))
         return out

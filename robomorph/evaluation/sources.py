@@ -40,9 +40,11 @@ def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "mode
     for s in progress(range(0, len(u_ctx), batch_size), desc, unit="batch"):
         part = slice(s, s + batch_size)
         kwargs = _extra(predictor, y_query, part, with_std)
-        if at_rest is not None and getattr(predictor, "physics", None):
+        # A hybrid takes them, and a residual model hands them to its hybrid.
+        hybrid = getattr(predictor, "physics", None) or getattr(predictor, "residual", None) is not None
+        if at_rest is not None and hybrid:
             kwargs["at_rest"] = np.asarray(at_rest)[part]
-        if anchor is not None and getattr(predictor, "physics", None):
+        if anchor is not None and hybrid:
             kwargs["anchor"] = np.asarray(anchor)[part]
         out = predictor.simulate(u_ctx[part], y_ctx[part], u_query[part], **kwargs)
         mean = out[0] if with_std else out

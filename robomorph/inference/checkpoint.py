@@ -40,15 +40,20 @@ def model_config(hparams: dict) -> ModelConfig:
 
 
 def predict_normalized_dist(net: MetaModel, anchor: bool, uc: torch.Tensor, yc: torch.Tensor, uq: torch.Tensor,
-                            integrate: bool = False) -> tuple[torch.Tensor, torch.Tensor | None]:
+                            integrate: bool = False, prior: torch.Tensor | None = None
+                            ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Normalized mean (B, Th, n_y) and log-variance (or None without a Gaussian head) from
     normalized inputs.
 
     With ``anchor`` the network predicts the deviation from the last context output, which is
     added back (a context value: nothing of the query leaks). With ``integrate`` it predicts
     per-step changes (scaled by :data:`INTEGRATE_SCALE`), summed from the last context output.
+    A residual model (``prior``, the normalized prior prediction) predicts a correction in units of
+    its ``prior_scale`` per step and channel, added to the prior.
     """
-    mean, logvar = net.forward_dist(uc, yc, uq)
+    mean, logvar = net.forward_dist(uc, yc, uq, prior)
+    if prior is not None:
+        return prior + mean * net.prior_scale[:mean.shape[1]], logvar
     if integrate:
         # A running sum over steps <= t: causal, like the decoder it follows.
         mean = INTEGRATE_SCALE * mean.cumsum(dim=1)
@@ -73,11 +78,13 @@ def simulate(net: MetaModel, normalizer: Normalizer, anchor: bool, u_ctx: torch.
 
 
 def simulate_dist(net: MetaModel, normalizer: Normalizer, anchor: bool, u_ctx: torch.Tensor,
-                  y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None, integrate: bool = False
-                  ) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """Mean and standard deviation (None without a Gaussian head) in physical units."""
+                  y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None, integrate: bool = False,
+                  prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Mean and standard deviation (None without a Gaussian head) in physical units; a residual
+    model's ``prior`` (B, Th, n_y) in physical units, normalized here as the outputs are."""
     uc, yc, uq = normalizer.encode(u_ctx, y_ctx, u_query, y_query_stats)
-    mean, logvar = predict_normalized_dist(net, anchor, uc, yc, uq, integrate)
+    prior_n = None if prior is None else normalizer.encode_target(prior, y_ctx, y_query_stats)
+    mean, logvar = predict_normalized_dist(net, anchor, uc, yc, uq, integrate, prior_n)
     # Recentring and anchoring shift the outputs; only the z-score scales them.
     std = None if logvar is None else torch.exp(0.5 * logvar) * normalizer.decode_scale(
         y_ctx, y_query_stats, u_query.shape[1])
@@ -117,24 +124,26 @@ class TrainedModel(nn.Module):
         self.normalizer = Normalizer(n_u=config.n_u, n_y=config.n_y, recenter=recenter, normalization=normalization)
 
     def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
-                y_query_stats=None) -> torch.Tensor:
-        """(B, Tc, n_u), (B, Tc, n_y), (B, Th, n_u) in physical units -> (B, Th, n_y)."""
-        return self.forward_dist(u_ctx, y_ctx, u_query, y_query_stats)[0]
+                y_query_stats=None, prior: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, Tc, n_u), (B, Tc, n_y), (B, Th, n_u) in physical units -> (B, Th, n_y); a residual
+        model's ``prior`` (B, Th, n_y) in physical units."""
+        return self.forward_dist(u_ctx, y_ctx, u_query, y_query_stats, prior)[0]
 
     def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
-                     y_query_stats=None) -> tuple[torch.Tensor, torch.Tensor | None]:
+                     y_query_stats=None, prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Mean (B, Th, n_y) and standard deviation (or None without a Gaussian head), physical units;
         the standard deviation recalibrated by horizon when the model carries a calibration."""
-        mean, std = self.forward_dist_raw(u_ctx, y_ctx, u_query, y_query_stats)
+        mean, std = self.forward_dist_raw(u_ctx, y_ctx, u_query, y_query_stats, prior)
         if std is not None and self.calibration is not None:
             std = self.calibration.apply(std)
         return mean, std
 
     def forward_dist_raw(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
-                         y_query_stats=None) -> tuple[torch.Tensor, torch.Tensor | None]:
+                         y_query_stats=None, prior: torch.Tensor | None = None
+                         ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """:meth:`forward_dist` without the calibration: the head's own standard deviation."""
         return simulate_dist(self.net, self.normalizer, self.anchor, u_ctx, y_ctx, u_query, y_query_stats,
-                             self.integrate)
+                             self.integrate, prior)
 
     @property
     def calibration(self) -> StdCalibration | None:

@@ -26,7 +26,7 @@ import torch
 from robomorph.core.errors import DeviceError, RoboMorphError
 from robomorph.core.inputs import check_model_inputs
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
-from robomorph.inference import catalogue
+from robomorph.inference import catalogue, residual
 from robomorph.model.channels import arm_columns, pad, select
 from robomorph.inference.checkpoint import CheckpointError, TrainedModel, load_trained
 from robomorph.inference.hybrid_std import calibrated_rows, kind_calibrations, spread_points
@@ -91,6 +91,8 @@ class Predictor:
             are deprecated aliases of its fields.
         channels: ``(u_names, y_names)`` of an arm's arrays for a model of several arms (padded inside, its
             outputs alone returned: :mod:`robomorph.model.channels`); None: found by their widths.
+        residual: a residual model's record of how its priors are made (:mod:`robomorph.inference.residual`:
+            ``simulate`` runs that hybrid, :attr:`prior_predictor`, and adds the network's correction), else None.
     """
 
     def __init__(self, model: TrainedModel, device: str | torch.device | None = None, data_info: dict | None = None):
@@ -105,10 +107,22 @@ class Predictor:
         self.inputs: str = (data_info or {}).get("inputs", "total")
         self.physics = _backbone(model, data_info)
         self.channels = None
+        self.residual = (data_info or {}).get("residual", {}) if getattr(model.config, "residual", False) else None
+        self._prior_predictor = None
         self._settings = HybridSettings.of_record(self.physics, self.inputs, getattr(model, "blend", None))
         self._pool = None  # the hybrids (robomorph.inference.hybrid_split.HybridPool), built on first use
         if self.physics:
             self.has_std = True  # the spread over robots around the estimate
+
+    @property
+    def prior_predictor(self) -> "Predictor":
+        """A residual model's hybrid (built on first use), whose prediction its network corrects; change its
+        settings with ``prior_predictor.configure`` only as the model's priors were made."""
+        if self.residual is None:
+            raise PredictionError("this model corrects no prior (it is not a residual model)")
+        if self._prior_predictor is None:
+            self._prior_predictor = residual.prior_predictor(type(self), self.residual)
+        return self._prior_predictor
 
     @property
     def settings(self) -> HybridSettings:
@@ -241,7 +255,7 @@ class Predictor:
 
     @torch.no_grad()
     def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, inputs: str | None = None,
-                 return_std: bool = False, at_rest=None, anchor=None):
+                 return_std: bool = False, at_rest=None, anchor=None, prior=None):
         """Predicts the outputs over the query horizon.
 
         Args:
@@ -258,6 +272,9 @@ class Predictor:
                 (a hybrid's: the spread over robots around its estimate, ``settings.points``, by window kind).
             at_rest, anchor: hybrid models only: bool or (B,) bools, the context opens its trajectory (default
                 False); (B, 7) where each robot started (its springs' rest pose; default: the first context sample).
+                A residual model hands them to its hybrid.
+            prior: residual models only: the hybrid's prediction (Th, n_y) or (B, Th, n_y) made already (that of
+                :attr:`prior_predictor` on the same arrays); default: computed here.
 
         Returns:
             y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``;
@@ -290,7 +307,11 @@ class Predictor:
                 mean, std = (None if t is None else torch.as_tensor(t) for t in (mean, std))
                 std = None if std is None else calibrated_rows(self, std, at_rest)
             else:
-                mean, std = self.model.forward_dist_raw(*tensors, stats)
+                if prior is not None and self.residual is None:
+                    raise PredictionError("prior: this model corrects no prior (it is not a residual model); drop it")
+                if self.residual is not None:
+                    prior = residual.query_prior(self, tensors, prior, at_rest, anchor)
+                mean, std = self.model.forward_dist_raw(*tensors, stats, prior=prior)
                 std = std if std is None or self.calibration is None else self.calibration.apply(std)
         except RoboMorphError:
             raise

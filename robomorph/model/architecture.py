@@ -44,6 +44,9 @@ class ModelConfig:
             channel set): NaN marks an absent channel; it enters as 0 and a learned
             embedding of which channels are absent is added to every token. False: the
             original model (its checkpoints load unchanged).
+        residual: The decoder also reads a prior prediction of the query outputs (``n_y`` more
+            channels per query step, e.g. the physics hybrid's), and the network's output is a
+            correction added to it (:mod:`robomorph.inference.residual`). False: the original model.
     """
 
     n_u: int = 7
@@ -61,6 +64,7 @@ class ModelConfig:
     gaussian: bool = False
     n_params: int = 0
     channel_mask: bool = False
+    residual: bool = False
 
     def __post_init__(self) -> None:
         for name in ("n_u", "n_y", "d_model", "n_head", "n_layer", "max_context", "max_horizon", "patch"):
@@ -71,7 +75,7 @@ class ModelConfig:
             raise ConfigError(f"ModelConfig.d_model ({self.d_model}) must be divisible by n_head ({self.n_head})")
         if isinstance(self.dropout, bool) or not isinstance(self.dropout, (int, float)) or not 0 <= self.dropout < 1:
             raise ConfigError(f"ModelConfig.dropout must be a number in [0, 1), got {self.dropout!r}")
-        for name in ("bias", "gaussian", "channel_mask"):
+        for name in ("bias", "gaussian", "channel_mask", "residual"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"ModelConfig.{name} must be true or false, got {getattr(self, name)!r}")
         if isinstance(self.n_params, bool) or not isinstance(self.n_params, int) or self.n_params < 0:
@@ -79,6 +83,9 @@ class ModelConfig:
         if self.channel_mask and self.n_params:
             raise ConfigError("ModelConfig.channel_mask (stores of several arms) and a parameter head (n_params, "
                               "the Panda's physics) do not go together: train the hybrid on Panda stores")
+        if self.residual and (self.channel_mask or self.n_params or self.gaussian):
+            raise ConfigError("ModelConfig.residual (a correction of a physics prior) goes with neither channel_mask, "
+                              "a parameter head (n_params) nor a Gaussian head (gaussian)")
         if isinstance(self.n_init, bool) or not isinstance(self.n_init, int) or self.n_init < 0:
             raise ConfigError(f"ModelConfig.n_init must be a non-negative integer, got {self.n_init!r}")
         if self.n_init % self.patch or self.n_init > self.max_context:
@@ -92,6 +99,11 @@ class ModelConfig:
     def decoder_layers(self) -> int:
         """Number of decoder blocks."""
         return self.n_layer if self.n_layer_dec is None else self.n_layer_dec
+
+    @property
+    def n_prior(self) -> int:
+        """Prior channels per query step the decoder reads (``n_y`` with ``residual``, else 0)."""
+        return self.n_y if self.residual else 0
 
     @property
     def context_tokens(self) -> int:

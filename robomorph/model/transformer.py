@@ -52,6 +52,14 @@ mean, in normalized units) and ``absent``, a learned ``Linear(n_u + n_y -> d)`` 
 the network knows a 0 that is missing from a 0 that was measured. The head still emits every
 output channel; the loss and the metrics skip the absent ones.
 
+Residual (``residual=True``): the decoder also reads a prior prediction of the query outputs
+(normalized as the outputs are), concatenated to the query inputs step by step, so its embedding
+takes ``k * (n_u + n_y)`` values per token; the head's output (zero at initialization) is then a correction, in units of
+``prior_scale`` (a buffer, (max_horizon, n_y): the prior's RMS error per query step and channel on
+the training data, normalized), that the caller adds to the prior (:func:`robomorph.inference.checkpoint.predict_normalized_dist`). A prior is a
+prediction from the context and the query inputs alone (the physics hybrid's), so no query output
+reaches the network through it. With ``residual=False`` nothing changes.
+
 Parameter names (for transfer and freezing): ``encoder.{embed,pos,absent,blocks,ln_f}``,
 ``decoder.{embed,pos,absent,init_embed,init_pos,blocks,ln_f}``, ``head``.
 """
@@ -96,12 +104,12 @@ class Encoder(nn.Module):
 
 
 class Decoder(nn.Module):
-    """Query tokens (B, Nq, k*n_u), optional initial-condition tokens (B, Ni, k*(n_u+n_y))
+    """Query tokens (B, Nq, k*(n_u+n_prior)), optional initial-condition tokens (B, Ni, k*(n_u+n_y))
     and memory (B, Nc, d) -> features of the query tokens (B, Nq, d)."""
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
-        self.embed = nn.Linear(cfg.patch * cfg.n_u, cfg.d_model, bias=cfg.bias)
+        self.embed = nn.Linear(cfg.patch * (cfg.n_u + cfg.n_prior), cfg.d_model, bias=cfg.bias)
         self.pos = nn.Embedding(cfg.horizon_tokens, cfg.d_model)
         if cfg.channel_mask:
             self.absent = nn.Linear(cfg.n_u + cfg.n_y, cfg.d_model, bias=False)
@@ -147,13 +155,22 @@ class MetaModel(nn.Module):
         self.param_encoder = Encoder(dataclasses.replace(cfg, n_y=3 * cfg.n_y)) if cfg.n_params else None
         self.param_head = parameter_head.mlp(cfg) if cfg.n_params else None
         self.apply(_init_weights)
+        if cfg.residual:
+            # An untrained correction is zero: the residual model starts as its prior.
+            nn.init.zeros_(self.head.weight)
+            if self.head.bias is not None:
+                nn.init.zeros_(self.head.bias)
+            # The unit of the correction per query step and channel (normalized outputs): the prior's typical
+            # error there on the training data, set by the training module; a buffer, so the checkpoint keeps it.
+            self.register_buffer("prior_scale", torch.ones(cfg.max_horizon, cfg.n_y))
         # GPT-2: residual projections shrink with depth so the stream's variance stays put.
         for stack, n_layers in ((self.encoder, cfg.n_layer), (self.decoder, cfg.decoder_layers)):
             for name, p in stack.named_parameters():
                 if name.endswith("c_proj.weight"):
                     nn.init.normal_(p, mean=0.0, std=0.02 / math.sqrt(2 * n_layers))
 
-    def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor) -> torch.Tensor:
+    def forward(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
+                prior: torch.Tensor | None = None) -> torch.Tensor:
         """Predict the outputs over the query horizon.
 
         Args:
@@ -161,17 +178,20 @@ class MetaModel(nn.Module):
                 and at least ``n_init``.
             y_ctx: Context outputs (B, Tc, n_y).
             u_query: Query inputs (B, Th, n_u), Th at most ``max_horizon``.
+            prior: A residual model's prior prediction of the query outputs (B, Th, n_y), normalized;
+                required with ``residual`` and refused without it.
 
         Returns:
-            Predicted query outputs (B, Th, n_y) (the mean of a Gaussian head).
+            Predicted query outputs (B, Th, n_y) (the mean of a Gaussian head); a residual model's
+            correction to add to ``prior``.
 
         Raises:
             ValueError: On a wrong shape or a length the positional tables or patch do not admit.
         """
-        return self.forward_dist(u_ctx, y_ctx, u_query)[0]
+        return self.forward_dist(u_ctx, y_ctx, u_query, prior)[0]
 
-    def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor
-                     ) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def forward_dist(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor,
+                     prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Mean (B, Th, n_y) and log-variance (B, Th, n_y), or None without a Gaussian head."""
         cfg = self.cfg
         B, Tc, Th = self._check_inputs(u_ctx, y_ctx, u_query)
@@ -179,13 +199,15 @@ class MetaModel(nn.Module):
         absent = None
         if cfg.channel_mask:
             u_ctx, y_ctx, u_query, absent = absent_channels(u_ctx, y_ctx, u_query)
+        if cfg.residual or prior is not None:
+            u_query = torch.cat([u_query, self._check_prior(prior, B, Th)], dim=-1)  # (B, Th, n_u + n_y)
         ctx = torch.cat([u_ctx, y_ctx], dim=-1)  # (B, Tc, n_u + n_y)
         ctx = ctx.reshape(B, Tc // k, k * (cfg.n_u + cfg.n_y))  # (B, Nc, k*(n_u+n_y))
         init = ctx[:, Tc // k - cfg.init_tokens:] if cfg.n_init else None  # (B, Ni, k*(n_u+n_y))
         pad = -Th % k
         if pad:
             u_query = F.pad(u_query, (0, 0, 0, pad))  # zeros after the last step
-        query = u_query.reshape(B, (Th + pad) // k, k * cfg.n_u)  # (B, Nq, k*n_u)
+        query = u_query.reshape(B, (Th + pad) // k, k * (cfg.n_u + cfg.n_prior))  # (B, Nq, k*(n_u+n_prior))
         memory = self._encode(ctx, absent)  # (B, Nc, d)
         h = self.decoder(query, memory, init, absent)  # (B, Nq, d)
         m = 2 if cfg.gaussian else 1
@@ -195,6 +217,16 @@ class MetaModel(nn.Module):
         mean, logvar = y.split(cfg.n_y, dim=-1)
         # Bounded so that exp() can neither overflow nor divide by zero in the NLL.
         return mean, logvar.clamp(LOGVAR_MIN, LOGVAR_MAX)
+
+    def _check_prior(self, prior: torch.Tensor | None, B: int, Th: int) -> torch.Tensor:
+        if not self.cfg.residual:
+            raise ValueError("this model takes no prior (ModelConfig.residual is false): drop prior")
+        if prior is None:
+            raise ValueError("a residual model needs the prior prediction of the query outputs: pass prior "
+                             f"(B, Th, {self.cfg.n_y})")
+        if prior.shape != (B, Th, self.cfg.n_y):
+            raise ValueError(f"prior must have shape (B, Th, n_y) = ({B}, {Th}, {self.cfg.n_y}), got {tuple(prior.shape)}")
+        return prior
 
     def _encode(self, ctx: torch.Tensor, absent: torch.Tensor | None) -> torch.Tensor:
         """The encoder's memory; candidates on one context (model-predictive control: every row

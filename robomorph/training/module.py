@@ -36,7 +36,7 @@ from robomorph.training.pretrained import apply_freeze, start_from
 from robomorph.training.steps import Steps
 
 # Constructor arguments that the data decide: robomorph fit links them from the datamodule.
-FROM_DATA = ("n_u", "n_y", "context_len", "channel_mask")
+FROM_DATA = ("n_u", "n_y", "context_len", "channel_mask", "residual")
 # Checkpoint entry holding the trainer's max_steps, so a resume can say how the schedule changes.
 SCHEDULE_KEY = "robomorph_schedule"
 
@@ -101,6 +101,9 @@ class MetaModule(Steps, L.LightningModule):
             device, eager on a CPU), ``off``, or a ``torch.compile`` mode (``default``,
             ``reduce-overhead``, ``max-autotune``); see :mod:`robomorph.training.compiling`.
             It changes the speed of training, not the model or its checkpoint.
+        residual: the network learns the correction of a physics prior (prior stores,
+            :mod:`robomorph.data.priors`): its decoder reads the prior's query prediction and its output
+            is added to it (:mod:`robomorph.inference.residual`); linked from the datamodule.
     """
 
     def __init__(
@@ -144,15 +147,19 @@ class MetaModule(Steps, L.LightningModule):
         n_params: int | None = None,
         channel_mask: bool = False,
         compile: Literal[COMPILE_MODES] = "auto",
+        residual: bool = False,
     ):
         super().__init__()
+        if residual and (anchor or integrate or physics == "amortized"):
+            raise ModelSettingsError("a residual model (prior stores) corrects the prior's prediction: it goes with "
+                                     "neither --model.anchor, --model.integrate nor --model.physics amortized")
         check_physics(physics, param_weight, decoder_loss)
         check_loss(loss, gaussian, horizon_weight, horizon_tau)
         _check_training(freeze, normalization_from, lr, min_lr_ratio, warmup_steps, huber_delta, compile)
         check_context(context_len, patch, max_context)
         check_normalization(normalization, recenter)
         self.save_hyperparameters()
-        self.hparams.n_params = _n_params(physics, channel_mask)
+        self.hparams.n_params = 0 if residual else _n_params(physics, channel_mask)
         self._physics_on, self._layout = physics == "amortized", None  # set by setup from the data
         self.net, self.normalizer = None, None  # MetaModel and Normalizer, built by _build
         # Set by robomorph.fit when it resumes a run: the checkpoint then supplies the
@@ -188,8 +195,15 @@ class MetaModule(Steps, L.LightningModule):
         if dm is None:
             return
         check_channels(dm, self.hparams.n_u, self.hparams.n_y, self.hparams.get("channel_mask", False))
+        if bool(getattr(dm, "residual", False)) != bool(self.hparams.get("residual", False)):
+            raise ModelSettingsError("a residual model trains on prior stores (robomorph priors) and only there: "
+                                     f"the data {'are' if getattr(dm, 'residual', False) else 'are not'} prior stores, "
+                                     f"--model.residual is {self.hparams.get('residual', False)} (robomorph fit links it)")
         if stage == "fit" or self.data_info is None:
             self.data_info = data_info(dm)
+            if getattr(dm, "prior", None) is not None:
+                # What the Predictor needs to make the same prior at inference (robomorph.inference.residual).
+                self.data_info = {**self.data_info, "residual": dm.prior}
         self._physics_on, self._layout = resolve_physics(self.hparams.physics if self.hparams.n_params else "none",
                                                          dm, stage)
         if self._physics_on:
@@ -204,6 +218,8 @@ class MetaModule(Steps, L.LightningModule):
         if not bool(self.stats_ready):
             # A resumed or transferred model keeps the statistics it was trained with.
             self.normalizer.set_stats(dm.stats)
+            if self.net.cfg.residual:
+                set_prior_scale(self.net, dm.prior_error, dm.stats.y_std)
             self.stats_ready.fill_(True)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
@@ -245,6 +261,17 @@ class MetaModule(Steps, L.LightningModule):
     def configure_gradient_clipping(self, optimizer, gradient_clip_val=None, gradient_clip_algorithm=None) -> None:
         if not clip_fused(self, optimizer, gradient_clip_val, gradient_clip_algorithm):
             super().configure_gradient_clipping(optimizer, gradient_clip_val, gradient_clip_algorithm)
+
+
+def set_prior_scale(net: MetaModel, error: "np.ndarray", y_std: "np.ndarray") -> None:
+    """A residual network's ``prior_scale``: the prior's RMS error (horizon, n_y) per step and channel, in
+    normalized outputs, held at its last step beyond the training horizon and floored (a channel the prior
+    gets exactly right still divides the loss)."""
+    scale = torch.as_tensor(error / y_std, dtype=net.prior_scale.dtype).clamp_min(1e-6)
+    n = min(len(scale), len(net.prior_scale))
+    with torch.no_grad():
+        net.prior_scale[:n] = scale[:n]
+        net.prior_scale[n:] = scale[n - 1]
 
 
 def _n_params(physics: str, channel_mask: bool) -> int:

@@ -36,13 +36,20 @@ class Steps:
         uc, yc, uq = self.normalizer.encode(batch["u_ctx"], batch["y_ctx"], batch["u_query"], qs)
         target = self.normalizer.encode_target(batch["y_query"], batch["y_ctx"], qs)
         loss, pred, param_error = torch.zeros((), device=uc.device), None, None
+        # A residual model's prior, normalized as the target: the network learns target - prior.
+        prior = self.normalizer.encode_target(batch["prior_query"], batch["y_ctx"], qs) if self.net.cfg.residual else None
         if not self._physics_on or h.decoder_loss:
-            pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate)
+            pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate, prior)
             weights = horizon_weights(target.shape[1], h.horizon_weight, h.horizon_tau, target.device)
+            fit, goal = pred, target
+            if prior is not None:
+                # The loss in units of the prior's typical error at each step and channel: every step counts.
+                scale = self.net.prior_scale[:target.shape[1]]
+                fit, goal = (pred - prior) / scale, (target - prior) / scale
             if self.net.cfg.channel_mask:  # stores of several arms: absent outputs are NaN, skipped
-                loss = masked_loss(h.loss, pred, logvar, target, weights, h.huber_delta)
+                loss = masked_loss(h.loss, fit, logvar, goal, weights, h.huber_delta)
             else:
-                loss = (elementwise_loss(h.loss, pred, logvar, target, h.huber_delta) * weights[:, None]).mean()
+                loss = (elementwise_loss(h.loss, fit, logvar, goal, h.huber_delta) * weights[:, None]).mean()
         if self._physics_on:
             param_error = param_loss(self.net, self._layout, batch, uc, yc)
             loss = loss + h.param_weight * param_error[0]

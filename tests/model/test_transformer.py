@@ -101,7 +101,8 @@ def test_query_padding_does_not_reach_earlier_patches():
 
 def test_forward_takes_no_query_outputs():
     params = list(inspect.signature(MetaModel.forward).parameters)
-    assert params == ["self", "u_ctx", "y_ctx", "u_query"]
+    # prior: a residual model's prior prediction, made from the context and the query inputs alone (the hybrid's)
+    assert params == ["self", "u_ctx", "y_ctx", "u_query", "prior"]
 
 
 @pytest.mark.parametrize("which", ["u_ctx", "y_ctx"])

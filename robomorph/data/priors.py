@@ -1,0 +1,96 @@
+"""Prior stores: windows of a store with a physics prior's prediction of their query outputs.
+
+A prior store is an ordinary store (:mod:`robomorph.data.store`) whose rows are fixed windows of
+``context + horizon`` steps cut from a source store, with three extra arrays:
+
+- ``prior`` (N, horizon, n_y): the prior's prediction of the window's query outputs, made from the
+  window's context and query inputs alone (the physics hybrid's,
+  :func:`robomorph.evaluation.priors.write_priors` writes them);
+- ``source_row`` (N,) and ``offset`` (N,): where the window was cut (trajectory row and first step);
+- ``y_first`` (N, n_y): the first output of that trajectory (where the robot started, which the
+  hybrid is given for windows that do not open their trajectory).
+
+``attrs["prior"]`` records how (:data:`PRIOR_ATTR`): the source store, the hybrid's settings key and
+fields, the context and horizon, the offsets, the arm and the input formulation. A residual model
+(:class:`robomorph.model.architecture.ModelConfig` ``residual``) trains on such a store: the
+DataModule hands it the prior of each window's query beside the window (``prior_query``), and the
+model learns the correction ``y - prior``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from robomorph.core.errors import RoboMorphError
+
+PRIOR_ARRAY = "prior"
+PRIOR_ATTR = "prior"
+# Extra arrays of a prior store beside the prior: where each window was cut.
+WINDOW_ARRAYS = ("source_row", "offset", "y_first")
+
+
+class PriorError(RoboMorphError, ValueError):
+    """A prior store that cannot feed the run as asked; the message names the fix."""
+
+
+def prior_record(attrs: dict) -> dict | None:
+    """The store's prior record (``attrs["prior"]``), or None for a store without priors."""
+    record = attrs.get(PRIOR_ATTR)
+    return dict(record) if isinstance(record, dict) else None
+
+
+def check_prior_windows(records: list[dict | None], paths: list[str], context_len: int, horizon: int,
+                        window: str, context_min: int | None, inputs: str) -> dict | None:
+    """The training stores' common prior record, after checking the run's windows against it.
+
+    A prior predicts the query that follows the store's own context, so a run over prior stores
+    takes its context whole (``context_len`` = the record's, ``context_min`` off), its windows from
+    the start of each row (``window: start``) and a horizon within the record's. Stores without
+    priors give None (all of them: a run mixes none with prior stores).
+
+    Raises:
+        PriorError: a mix of stores with and without priors, priors of different settings, or
+            windows the priors do not cover.
+    """
+    have = [r is not None for r in records]
+    if not any(have):
+        return None
+    if not all(have):
+        lacking = [p for p, h in zip(paths, have) if not h]
+        raise PriorError(f"{lacking[0]} holds no priors while other stores of this run do: a residual model "
+                         "trains on prior stores only (robomorph priors writes them)")
+    first = records[0]
+    for path, rec in zip(paths[1:], records[1:]):
+        for key in ("settings", "context", "arm", "inputs"):
+            if rec.get(key) != first.get(key):
+                raise PriorError(f"{path} has priors with {key} {rec.get(key)!r}, {paths[0]} with {first.get(key)!r}: "
+                                 "the stores of one residual run share the prior's settings and window")
+    if context_len != first["context"]:
+        raise PriorError(f"--data.context_len {context_len}: the priors of {paths[0]} follow a context of "
+                         f"{first['context']} steps; use --data.context_len {first['context']}")
+    if horizon > first["horizon"]:
+        raise PriorError(f"--data.horizon {horizon} exceeds the {first['horizon']} query steps the priors of "
+                         f"{paths[0]} cover; use --data.horizon {first['horizon']} or less")
+    if inputs != first.get("inputs", "command"):
+        raise PriorError(f"--data.inputs {inputs}: the priors of {paths[0]} were predicted from the "
+                         f"{first.get('inputs', 'command')} formulation, which the residual model must read too; use "
+                         f"--data.inputs {first.get('inputs', 'command')}")
+    if window != "start" or context_min is not None:
+        raise PriorError("prior stores hold fixed windows: use --data.window start and no --data.context_min "
+                         "(the prior follows the whole context)")
+    return first
+
+
+
+def prior_error_rms(pairs: list[tuple[np.ndarray, np.ndarray]], horizon: int) -> np.ndarray:
+    """(horizon, n_y) RMS of ``y_query - prior`` per query step and channel over ``pairs`` of
+    (y_query (k, >= horizon, n_y), prior (k, >= horizon, n_y)): the unit a residual model's correction
+    is counted in (the training rows' only)."""
+    total, count = None, 0
+    for y_query, prior in pairs:
+        err = (y_query[:, :horizon].astype(np.float64) - prior[:, :horizon].astype(np.float64)) ** 2
+        total = err.sum(axis=0) if total is None else total + err.sum(axis=0)
+        count += len(err)
+    if not count:
+        raise PriorError("no training windows to measure the prior's error on")
+    return np.sqrt(total / count)

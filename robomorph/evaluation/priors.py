@@ -1,0 +1,163 @@
+"""Writing prior stores: the physics hybrid's predictions over fixed windows of a store.
+
+:func:`write_priors` cuts windows of ``context + horizon`` steps from a source store (each
+trajectory at each of ``offsets``), runs the catalogue arm's hybrid (``Predictor.from_arm`` with the
+source store's own recipe, no training) on each window's context and query inputs, and writes the
+windows with the hybrid's query prediction as a prior store (:mod:`robomorph.data.priors`), on which
+``robomorph fit`` trains a residual model. The work is resumable: rows are written in batches in a
+fixed order, and a store left in progress by an interrupted run is continued where it stopped
+(same source, settings and windows, checked).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import yaml
+
+from robomorph.core.errors import RoboMorphError
+from robomorph.core.progress import progress
+from robomorph.data.priors import PRIOR_ARRAY, PRIOR_ATTR, PriorError
+from robomorph.data.store import DatasetWriter, create_store, open_store
+from robomorph.evaluation.sources import predict
+from robomorph.evaluation.windows import load_window, start_joints
+from robomorph.inference.predictor import Predictor
+from robomorph.inference.residual import hybrid_of
+
+# The hybrid's settings a prior is made with unless told otherwise: the payload, the wider friction
+# and the denoising on (results/benchmarks/sensitivity.md, the realistic recipe).
+PRIOR_SETTINGS = {"payload": True, "coulomb": True, "denoise": True}
+
+
+@dataclass(frozen=True)
+class PriorRequest:
+    """What :func:`write_priors` writes.
+
+    Attributes:
+        source: the source store (simulated, with ``u_cmd`` and its recipe in ``attrs["config"]``).
+        out: the prior store to write.
+        context, horizon: the window's context and query steps.
+        offsets: first steps of the windows cut from each trajectory.
+        n: at most this many source trajectories (None: all).
+        settings: changes of the hybrid's settings (:class:`HybridSettings` field names).
+        batch: windows per batch (rows written at once: the unit of resuming).
+        overwrite: replace a complete store at ``out``.
+    """
+
+    source: str
+    out: str
+    context: int = 200
+    horizon: int = 300
+    offsets: tuple[int, ...] = (0,)
+    n: int | None = None
+    settings: tuple[tuple[str, object], ...] = tuple(PRIOR_SETTINGS.items())
+    batch: int = 16
+    overwrite: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("context", "horizon", "batch"):
+            if isinstance(getattr(self, name), bool) or int(getattr(self, name)) < 1:
+                raise PriorError(f"--{name} must be a positive number of steps, got {getattr(self, name)!r}")
+        if not self.offsets or any(int(o) < 0 for o in self.offsets) or len(set(self.offsets)) != len(self.offsets):
+            raise PriorError(f"--offsets must be distinct steps >= 0, got {list(self.offsets)}")
+        if self.n is not None and self.n < 1:
+            raise PriorError(f"--n must be >= 1, got {self.n}")
+
+
+def write_priors(req: PriorRequest) -> dict:
+    """Writes (or resumes) the prior store of ``req``; returns its prior record.
+
+    Raises:
+        PriorError: a source without commands or recipe, windows that do not fit, or a store in progress
+            at ``out`` that was begun with other arguments.
+    """
+    src = open_store(req.source)
+    if "u_cmd" not in src.arrays:
+        raise PriorError(f"{req.source} has no commands (u_cmd): the hybrid predicts from the command formulation; "
+                         "generate the store with this version")
+    length = req.context + req.horizon
+    if max(req.offsets) + length > src.steps:
+        raise PriorError(f"offset {max(req.offsets)} + context {req.context} + horizon {req.horizon} exceed the "
+                         f"store's T={src.steps} steps: use smaller --offsets or a shorter window")
+    n_src = min(req.n or src.n, src.n)
+    settings = dict(req.settings)
+    hybrid, arm = hybrid_of(Predictor, src.attrs.get("config"), settings)
+    key = hybrid.settings.key
+    record = {"source": os.path.abspath(req.source), "source_n": n_src, "source_seed": src.attrs.get("seed"),
+              "settings": key,
+              "fields": {k: _plain(v) for k, v in settings.items()}, "context": req.context, "horizon": req.horizon,
+              "offsets": [int(o) for o in req.offsets], "arm": arm, "inputs": "command",
+              "recipe": _recipe(src.attrs.get("config"))}
+    rows = [(i, int(o)) for o in req.offsets for i in range(n_src)]  # window order: by offset, then row
+    writer = _writer(req, src, record, len(rows), length)
+    for b in progress(range(writer.n, len(rows), req.batch), "priors", unit="batch"):
+        part = rows[b:b + req.batch]
+        _write_batch(writer, req, src, hybrid, part)
+    if writer.n == writer.capacity and writer.attrs.get("status") != "complete":
+        writer.finalize()
+    return record
+
+
+def _window(req: PriorRequest, src, rows: np.ndarray, offset: int, inputs: str):
+    """The windows of trajectories ``rows`` from step ``offset``, with ``inputs``' torques."""
+    return load_window(req.source, req.context, req.horizon, None, None, len(src.u_names), len(src.y_names),
+                       offset, 0, inputs, rows=rows)
+
+
+def _write_batch(writer: DatasetWriter, req: PriorRequest, src, hybrid, part: list[tuple[int, int]]) -> None:
+    """Windows ``part`` ((row, offset) pairs, grouped by offset) with the hybrid's prior, appended."""
+    cols: dict[str, list[np.ndarray]] = {k: [] for k in ("u", "u_cmd", "y", "params", PRIOR_ARRAY, "source_row",
+                                                         "offset", "y_first")}
+    for offset in dict.fromkeys(o for _, o in part):
+        idx = np.array([i for i, o in part if o == offset], dtype=np.int64)
+        w = _window(req, src, idx, offset, "command")
+        u_ctx, y_ctx, u_q, _ = w.split()
+        # The hybrid reads the context and the query's commands only: the query outputs never reach the prior.
+        prior = predict(hybrid, u_ctx, y_ctx, u_q, len(idx), desc="hybrid", at_rest=w.starts == 0,
+                        anchor=start_joints(w))
+        for k, v in (("u", _window(req, src, idx, offset, "total").u), ("u_cmd", w.u), ("y", w.y),
+                     ("params", w.params), (PRIOR_ARRAY, prior), ("source_row", idx),
+                     ("offset", np.full(len(idx), offset)), ("y_first", w.y_first)):
+            cols[k].append(v)
+    out = {k: np.concatenate(v) for k, v in cols.items()}
+    extras = {k: out[k].astype(np.int64 if k in ("source_row", "offset") else np.float32)
+              for k in ("u_cmd", PRIOR_ARRAY, "source_row", "offset", "y_first")}
+    writer.append(out["u"].astype(np.float32), out["y"].astype(np.float32), out["params"].astype(np.float32), extras)
+
+
+def _writer(req: PriorRequest, src, record: dict, n_rows: int, length: int) -> DatasetWriter:
+    """A new store at ``req.out``, or the one in progress there when it was begun with the same record."""
+    if os.path.exists(req.out) and not req.overwrite:
+        try:
+            done = open_store(req.out, allow_incomplete=True)
+        except RoboMorphError:
+            done = None
+        if done is not None and done.attrs.get("status") != "complete":
+            if done.attrs.get(PRIOR_ATTR) != record:
+                raise PriorError(f"{req.out} is a prior store in progress begun with other arguments "
+                                 f"({done.attrs.get(PRIOR_ATTR)}); pass --overwrite to start it again")
+            return DatasetWriter.reopen(req.out)
+    n_y = len(src.y_names)
+    attrs = {k: v for k, v in src.attrs.items() if k in _KEPT_ATTRS}
+    extras = {"u_cmd": ((length, len(src.u_names)), "float32"), PRIOR_ARRAY: ((req.horizon, n_y), "float32"),
+              "source_row": ((), "int64"), "offset": ((), "int64"), "y_first": ((n_y,), "float32")}
+    return create_store(req.out, n_rows, length, src.u_names, src.y_names, list(src.attrs.get("param_names", [])),
+                        {**attrs, PRIOR_ATTR: record}, extras, chunk=64, overwrite=req.overwrite,
+                        u_cmd_names=list(src.attrs.get("u_cmd_names", [f"cmd{i}" for i in range(len(src.u_names))])))
+
+
+# The source store's attributes a prior store keeps (what its windows are and how they were made).
+_KEPT_ATTRS = ("dt", "domain", "task", "task_names", "config", "seed", "substeps", "gravity_compensation",
+               "u_cmd_compensation", "robot", "joint_names", "torque_limits", "realism_names", "original_dt")
+
+
+def _recipe(config) -> dict:
+    """The source's generator recipe as a plain dict (stored with the priors: the Predictor rebuilds the hybrid)."""
+    return yaml.safe_load(config) if isinstance(config, str) else dict(config or {})
+
+
+def _plain(value):
+    """A settings value as YAML/JSON writes it."""
+    return value.item() if isinstance(value, np.generic) else value
