@@ -44,7 +44,7 @@ from robomorph.core.errors import RoboMorphError
 
 # The modes that read no network.
 NETWORK_FREE_MODES = ("regression", "refined")
-# The recipe the shipped calibrations are fitted on (benchmarks/arm_calibration.py), and where they lie.
+# The recipe benchmarks/arm_calibration.py fits on by default (the generator's defaults), and where the calibrations lie.
 CALIBRATION_RECIPE = "multisine"
 CALIBRATION_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "arm_calibrations")
 # Recipe fields that change the data drawn but not the robots' distribution or their physics: a
@@ -135,9 +135,32 @@ def arm_record(arm: str = "panda", recipe: str | None = None, inputs: str = "com
 
 
 
-def calibration_path(arm: str) -> str:
-    """Where the shipped std calibration of ``arm``'s untrained hybrid lies (it may not exist)."""
-    return os.path.join(CALIBRATION_DIR, f"{arm}.json")
+def calibration_path(arm: str, recipe: str = CALIBRATION_RECIPE) -> str:
+    """Where ``benchmarks/arm_calibration.py`` writes the std calibration of ``arm``'s untrained hybrid fitted on
+    robots of ``recipe`` (a shipped name, or a YAML path: its file's stem); it may not exist."""
+    name = os.path.splitext(os.path.basename(recipe))[0]
+    return os.path.join(CALIBRATION_DIR, f"{arm}-{name}.json")
+
+
+def calibration_files(arm: str) -> list[str]:
+    """The shipped calibration files of ``arm``: one per recipe fitted on (``<arm>-<recipe>.json``), and
+    ``<arm>.json`` as the first release named its one."""
+    names = sorted(os.listdir(CALIBRATION_DIR)) if os.path.isdir(CALIBRATION_DIR) else []
+    return [os.path.join(CALIBRATION_DIR, n) for n in names
+            if n == f"{arm}.json" or (n.startswith(f"{arm}-") and n.endswith(".json"))]
+
+
+def shipped_calibration_file(info: dict) -> str | None:
+    """The shipped calibration file whose scope (:func:`calibration_scope`) is that of the hybrid of record
+    ``info``: fitted on the same arm, formulation, physics step and recipe robots; None where there is none."""
+    scope = calibration_scope(info)
+    if scope is None:
+        return None
+    for path in calibration_files(scope["arm"]):
+        with open(path) as f:
+            if json.load(f).get("scope") == scope:
+                return path
+    return None
 
 
 def calibration_scope(info: dict) -> dict | None:
@@ -160,14 +183,11 @@ def shipped_calibrations(info: dict) -> dict:
     own (:func:`robomorph.inference.calibration.calibration_key`); {} where none applies."""
     from robomorph.inference.calibration import StdCalibration, calibration_key  # noqa: PLC0415
 
-    scope = calibration_scope(info)
-    path = calibration_path(scope["arm"]) if scope else None
-    if path is None or not os.path.isfile(path):
+    path = shipped_calibration_file(info)
+    if path is None:
         return {}
     with open(path) as f:
         doc = json.load(f)
-    if doc.get("scope") != scope:
-        return {}
     cals = [StdCalibration.from_dict(entry) for entry in doc["calibrations"].values()]
     return {calibration_key(c): c for c in cals}
 
