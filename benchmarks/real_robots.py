@@ -66,6 +66,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "benchmark into DATA/nonlinear_benchmarks first, unless a clone of its copy is there")
     p.add_argument("--model", action="append", default=[], metavar="NAME=CKPT",
                    help="a checkpoint scored as NAME on every robot whose store it reads (repeatable)")
+    p.add_argument("--hybrid", action="append", default=[], metavar="KEY",
+                   help="also score both hybrids with these settings, named by their key (HybridSettings.key, e.g. "
+                        "regression+obs+springs+debias+payload+coulomb+denoise; repeatable)")
     p.add_argument("--md", help="write the tables (with provenance) to this Markdown file")
     p.add_argument("--plots", help="write each robot's error growth (joint RMS against time, every predictor) as "
                    "PNG files into this folder (default with --md: the Markdown file's name as a folder beside it)")
@@ -82,6 +85,13 @@ def parse_args(argv=None) -> argparse.Namespace:
             p.error(f"--model takes NAME=CKPT, got {item!r}")
         models[name] = path
     args.model = models
+    from robomorph.inference.settings import HybridSettings, SettingsError  # noqa: PLC0415
+
+    for key in args.hybrid:
+        try:
+            HybridSettings.from_key(key)
+        except SettingsError as exc:
+            p.error(f"--hybrid: {exc}")
     if args.plots is None and args.md:
         args.plots = os.path.splitext(args.md)[0]
     return args
@@ -125,9 +135,11 @@ def _models(paths: dict[str, str], store: str) -> tuple[dict, dict]:
     return loaded, skipped
 
 
-def hybrid_predictions(arm: str, w) -> dict[str, np.ndarray]:
+def hybrid_predictions(arm: str, w, keys: list[str] = ()) -> dict[str, np.ndarray]:
     """The hybrid with no training on the windows, as a real arm's torques can be given to it:
-    the total torque, and the command of an arm compensating its gravity with the catalogue model."""
+    the total torque, and the command of an arm compensating its gravity with the catalogue model;
+    each with its default settings, then with each of ``keys`` (:meth:`HybridSettings.from_key`)."""
+    from robomorph.inference.settings import HybridSettings  # noqa: PLC0415
     from robomorph.inference.predictor import Predictor  # noqa: PLC0415
     from robomorph.sim import arms  # noqa: PLC0415
     from robomorph.sim.episode import NominalGravity  # noqa: PLC0415
@@ -138,11 +150,19 @@ def hybrid_predictions(arm: str, w) -> dict[str, np.ndarray]:
     out = {}
     total = Predictor.from_arm(arm, "multisine", inputs="total", dt=w.dt, gravity_compensation="none")
     out["hybrid (total)"] = total.simulate(u_ctx, y_ctx, u_q)
+    default_total = total.settings
+    for key in keys:
+        total.configure(HybridSettings.from_key(key, base=default_total))
+        out[f"hybrid (total) {key}"] = total.simulate(u_ctx, y_ctx, u_q)
     gravity = NominalGravity(load_recipe("multisine", {"robot": arm, "dt": w.dt}))
     cmd = w.u - np.stack([[gravity(q) for q in y[:, 7:7 + n]] for y in w.y.astype(np.float64)])
     c = w.context_len
     nominal = Predictor.from_arm(arm, "multisine", dt=w.dt, gravity_compensation="nominal_model")
     out["hybrid (nominal commands)"] = nominal.simulate(cmd[:, :c], y_ctx, cmd[:, c:])
+    default_nominal = nominal.settings
+    for key in keys:
+        nominal.configure(HybridSettings.from_key(key, base=default_nominal))
+        out[f"hybrid (nominal commands) {key}"] = nominal.simulate(cmd[:, :c], y_ctx, cmd[:, c:])
     return out
 
 
@@ -170,7 +190,7 @@ def score_robot(source: public_logs.PublicLog, args) -> dict:
             skipped_models[name] = str(exc)
             del models[name]
     if source.arm:
-        models.update(hybrid_predictions(source.arm, w))
+        models.update(hybrid_predictions(source.arm, w, args.hybrid))
 
     def train_blocks():
         for s in range(0, train.n, 256):

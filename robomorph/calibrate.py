@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from robomorph.core.errors import run_command
+from robomorph.core.names import RECORDED_SWITCHES
 from robomorph.evaluation import calibrating
 from robomorph.evaluation.requests import PHYSICS_CHOICES, BlendConfig, CalibrateConfig
 from robomorph.inference.blending import PHYSICS_MODES as BLEND_PHYSICS
@@ -50,6 +51,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a command-formulation hybrid: its regression's bias, measured on the estimate's simulated "
                         "context, taken off (on by default for models trained since 2026-11-27) or not, recorded in "
                         "the checkpoint; each setting keeps its own calibrations")
+    for name, what in (("payload", "its regression's flange may carry an unknown payload (and, where gravity is in "
+                                    "the problem, the links' centres of mass are fitted)"),
+                       ("coulomb", "its regression's friction losses and damping may leave the randomization box"),
+                       ("denoise", "a command-formulation hybrid: the encoder noise measured in each context smooths "
+                                   "the regression and the horizon's start")):
+        p.add_argument(f"--{name}", choices=("on", "off"),
+                       help=f"a hybrid: {what} (on by default for models trained since 2026-11-28) or not, recorded "
+                            "in the checkpoint; each setting keeps its own calibrations")
     p.add_argument("--points", choices=POINTS,
                    help="a hybrid whose std is a spread of robots around its estimate: one per column of the "
                         "estimate's covariance (deterministic), those and the start velocity moved joint by joint "
@@ -68,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run(a: argparse.Namespace) -> int:
-    for name in ("observer", "springs", "debias", "points"):
+    for name in (*RECORDED_SWITCHES, "points"):
         if getattr(a, name) and (a.remove or a.blend):
             raise CalibrationError(f"--{name} sets what a calibration is fitted on: drop --remove and --blend with it")
     if a.remove:
@@ -85,7 +94,7 @@ def run(a: argparse.Namespace) -> int:
         print(calibrating.blend_text(report))
         return 0
     switches = {name: None if getattr(a, name) is None else getattr(a, name) == "on"
-                for name in ("observer", "springs", "debias")}
+                for name in RECORDED_SWITCHES}
     report = calibrating.calibrate(CalibrateConfig(**window, method=a.method, batch_size=a.batch_size,
                                                    physics=a.physics, points=a.points, **switches))
     print(calibrating.report_text(report))

@@ -42,6 +42,17 @@ COMPILE_MODES = ("auto", "off", "default", "reduce-overhead", "max-autotune")
 
 # How a model with a physics backbone predicts (robomorph.inference.hybrid), besides ``none`` (its decoder).
 PHYSICS_MODES = ("learned", "regression", "fused", "refined", "blend", "smoothed")
+# The hybrid's on/off switches that a checkpoint's physics record carries (robomorph.inference.settings.HybridSettings
+# .of_record), which ``robomorph calibrate --NAME on|off`` sets before fitting.
+RECORDED_SWITCHES = ("observer", "springs", "debias", "payload", "coulomb", "denoise")
+# How a model trained today records the switches of its physics record (robomorph.training.module,
+# robomorph.inference.catalogue): every one of :data:`RECORDED_SWITCHES` on. A record written
+# before a switch existed lacks it and predicts as before (:meth:`HybridSettings.of_record`). The payload, the wider
+# friction and the denoising since 2026-11-28: on the held-out Pandas of results/benchmarks/sensitivity.md the three
+# together are within 4 % of the hybrid without them on clean data (2.78 against 2.80 mrad at 13.3 s), 2.6 times lower
+# with 1e-4 rad of encoder noise (6.86 against 17.7), and on the `realistic` recipe 0.067 / 1.27 / 5.6 / 28 / 195 mrad
+# at steps 1 / 15 / 60 / 300 / 800 against 0.132 / 5.0 / 31 / 330 / 422.
+TODAYS_RECORD = {name: True for name in RECORDED_SWITCHES}
 
 # Which parameters a fine-tuned model keeps fixed, and the transfer regimes of Table 2.
 FREEZE_MODES = ("none", "encoder", "all_but_head")

@@ -63,6 +63,9 @@ class Phase:
         # initial: items done before this session (a resumed run), counted but not in the rate.
         self.n = self.initial = int(initial)
         self.note = ""  # appended to each log line after " | " (settable: e.g. a generator's rejections)
+        # Settable: seconds left of a wall-clock cap (a trainer's max_time), or None; the time left shown is then the
+        # sooner of the cap and the count's own estimate (20000 steps at 10 s/step under a 90 s cap end in 90 s).
+        self.cap_left = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -106,8 +109,12 @@ class Phase:
         elapsed = time.monotonic() - self._started
         # No rate before the first item: "0 windows/s" would read as a stall, not as a start.
         parts = [self._count(), *([self._rate(elapsed)] if self.n > self.initial else []), f"{_clock(elapsed)} elapsed"]
-        if self.total and self.n > self.initial:
-            parts.append(f"~{_clock(elapsed / (self.n - self.initial) * (self.total - self.n))} left")
+        left = elapsed / (self.n - self.initial) * (self.total - self.n) if self.total and self.n > self.initial else None
+        cap = self.cap_left() if self.cap_left is not None else None
+        if cap is not None:
+            left = max(0.0, cap) if left is None else min(left, max(0.0, cap))
+        if left is not None:
+            parts.append(f"~{_clock(left)} left")
         return f"{self.desc}: " + ", ".join(parts) + (f" | {self.note}" if self.note else "")
 
     def _count(self) -> str:

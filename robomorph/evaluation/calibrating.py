@@ -30,6 +30,7 @@ from dataclasses import replace
 import numpy as np
 
 from robomorph.core.atomic import check_replaceable
+from robomorph.core.names import RECORDED_SWITCHES
 from robomorph.evaluation import training_data
 from robomorph.evaluation.horizons import error_curve, groups_for, parse_horizons
 from robomorph.evaluation.requests import BlendConfig, CalibrateConfig, as_request
@@ -192,20 +193,22 @@ def _report(ckpt: str, out: str | None, cal, dt: float, horizon: int, steps: lis
 
 
 def _calibrated_predictor(c: CalibrateConfig) -> tuple:
-    """The predictor to calibrate, set up as asked, and the checkpoint's record: the observer's, the springs'
-    and the debiasing's settings written into its physics record (refused where they cannot apply)."""
+    """The predictor to calibrate, set up as asked, and the checkpoint's record: the switches asked for
+    (:data:`robomorph.core.names.RECORDED_SWITCHES`) written into its physics record (refused where they cannot
+    apply)."""
     from robomorph.model.files import DATA_INFO_KEY  # noqa: PLC0415
 
     predictor, ckpt_dict = _read(c.ckpt, c.device)
     predictor.use_physics(c.physics)
     predictor.configure(points=c.points)
     record = (ckpt_dict.get(DATA_INFO_KEY) or {}).get("physics") if predictor.model.config.n_params else None
-    for name in ("observer", "springs", "debias"):
+    for name in RECORDED_SWITCHES:
         on = getattr(c, name)
         if on is None:
             continue
-        if not record or predictor.inputs != "command":
-            raise CalibrationError(f"--{name} needs a command-formulation model trained with --model.physics amortized")
+        if not record or (predictor.inputs != "command" and name not in ("payload", "coulomb")):
+            raise CalibrationError(f"--{name} needs a {'' if name in ('payload', 'coulomb') else 'command-formulation '}"
+                                   "model trained with --model.physics amortized")
         record[name] = bool(on)
         predictor.configure(**{name: bool(on)})
     return predictor, ckpt_dict
@@ -361,6 +364,9 @@ def report_text(report: dict) -> str:
              + (f", physics mode {src['physics_mode']}" if src.get("physics_mode") else "")
              + (" with the observer's start velocity" if src.get("observer") else "")
              + (", the springs fitted" if src.get("springs") else "") + (", its bias taken off" if src.get("debias") else "")
+             + (", offsets fitted" if src.get("offsets") else "")
+             + (", friction beyond the box" if src.get("coulomb") else "") + (", a payload fitted" if src.get("payload") else "")
+             + (", the context's noise smoothed" if src.get("denoise") else "")
              + (f", std over {POINTS_TEXT[p]}" if (p := report["calibration"].get("points")) in POINTS_TEXT else ""),
              markdown_table(["step", "seconds", "scale (median over channels)", *(["power (median)"] if power else []),
                              "±1σ before", "±1σ after", "±2σ before", "±2σ after",

@@ -19,7 +19,7 @@ import dataclasses
 import os
 from dataclasses import dataclass
 
-from robomorph.core.names import INPUTS, NORMALIZATIONS, PHYSICS_MODES
+from robomorph.core.names import INPUTS, NORMALIZATIONS, PHYSICS_MODES, RECORDED_SWITCHES
 from robomorph.core.rundir import RunDir
 from robomorph.evaluation.baselines import BASELINES
 from robomorph.evaluation.sources import check_baselines
@@ -188,8 +188,9 @@ class CalibrateConfig:
         device: ``cpu``, ``cuda``, ... (None: cuda when available).
         horizons_spec: the steps the report shows (evaluate's ``--horizons``).
         physics: a hybrid's physics mode to calibrate (None: its default mode).
-        observer, springs, debias: a command-formulation hybrid's switches set in its record before fitting
-            (None: as recorded); each setting keeps its own calibrations.
+        observer, springs, debias, payload, coulomb, denoise: a hybrid's switches
+            (:data:`robomorph.core.names.RECORDED_SWITCHES`) set in its record before fitting (None: as recorded);
+            each setting keeps its own calibrations.
         points: the robots a hybrid's std is the spread of: ``columns``, ``draws`` or ``observed`` (None: as stored).
     """
 
@@ -210,6 +211,9 @@ class CalibrateConfig:
     points: str | None = None
     springs: bool | None = None
     debias: bool | None = None
+    payload: bool | None = None
+    coulomb: bool | None = None
+    denoise: bool | None = None
 
     def __post_init__(self):
         # Here, not at the top: the calibration's names bring torch, which evaluate's parsing does without.
@@ -221,7 +225,7 @@ class CalibrateConfig:
         _choice(CalibrationError, "--method", self.method, METHODS)
         _choice(CalibrationError, "--physics", self.physics, PHYSICS_CHOICES)
         _choice(CalibrationError, "--points", self.points, POINTS)
-        for name in ("observer", "springs", "debias"):
+        for name in RECORDED_SWITCHES:
             if getattr(self, name) not in (None, True, False):
                 raise CalibrationError(f"--{name} takes on or off, got {getattr(self, name)!r}")
 

@@ -19,6 +19,10 @@ from robomorph.evaluation import references
 from robomorph.evaluation.baselines import ARX, BASELINES, CEILINGS, KINEMATIC, OPT_IN, AccelARX
 from robomorph.evaluation.windows import EvaluationError, Window, start_joints
 
+# Windows a hybrid predicts at once in an evaluation: each takes a second or more on a loaded machine, so progress
+# moves every few seconds (a batch of 32 showed "0/1 batch" for three minutes), and its two workers still share each.
+HYBRID_BATCH = 8
+
 
 def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "model", y_query=None,
             with_std: bool = False, at_rest=None, anchor=None):
@@ -37,22 +41,33 @@ def predict(predictor, u_ctx, y_ctx, u_query, batch_size: int, desc: str = "mode
     if leaks and y_query is None:
         raise NormalizationError("a paper_window model needs the query outputs' statistics: pass y_query to predict()")
     means, stds = [], []
-    for s in progress(range(0, len(u_ctx), batch_size), desc, unit="batch"):
-        part = slice(s, s + batch_size)
-        kwargs = _extra(predictor, y_query, part, with_std)
-        # A hybrid takes them, and a residual model hands them to its hybrid.
-        hybrid = getattr(predictor, "physics", None) or getattr(predictor, "residual", None) is not None
-        if at_rest is not None and hybrid:
-            kwargs["at_rest"] = np.asarray(at_rest)[part]
-        if anchor is not None and hybrid:
-            kwargs["anchor"] = np.asarray(anchor)[part]
-        out = predictor.simulate(u_ctx[part], y_ctx[part], u_query[part], **kwargs)
-        mean = out[0] if with_std else out
-        if with_std:
-            stds.append(out[1])
-        means.append(mean)
+    # A hybrid takes them, and a residual model hands them to its hybrid.
+    residual = getattr(predictor, "residual", None) is not None
+    hybrid = getattr(predictor, "physics", None) or residual
+    if residual or (hybrid and getattr(getattr(predictor, "settings", None), "mode", "none") != "none"):
+        # A second or more a window on a loaded machine: smaller batches, so that progress moves.
+        batch_size = min(batch_size, HYBRID_BATCH)
+    with Phase(desc, len(u_ctx), "window") as phase:
+        for s in range(0, len(u_ctx), batch_size):
+            part = slice(s, s + batch_size)
+            mean, std = _batch(predictor, u_ctx, y_ctx, u_query, part, y_query, with_std, at_rest, anchor, hybrid)
+            means.append(mean)
+            if with_std:
+                stds.append(std)
+            phase.update(len(mean))
     mean = np.concatenate(means).astype(np.float64)
     return (mean, np.concatenate(stds).astype(np.float64)) if with_std else mean
+
+
+def _batch(predictor, u_ctx, y_ctx, u_query, part: slice, y_query, with_std: bool, at_rest, anchor, hybrid: bool):
+    """One batch's (mean, std or None)."""
+    kwargs = _extra(predictor, y_query, part, with_std)
+    if at_rest is not None and hybrid:
+        kwargs["at_rest"] = np.asarray(at_rest)[part]
+    if anchor is not None and hybrid:
+        kwargs["anchor"] = np.asarray(anchor)[part]
+    out = predictor.simulate(u_ctx[part], y_ctx[part], u_query[part], **kwargs)
+    return (out[0], out[1]) if with_std else (out, None)
 
 
 def _extra(predictor, y_query, part: slice, with_std: bool) -> dict:
@@ -78,8 +93,9 @@ def gives_std(predictor, u_ctx, y_ctx, u_query, y_query=None) -> bool:
         if "return_std" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
             return False
         # A hybrid's one window can take seconds: reported like any other phase.
-        with Phase("model (std probe)", total=1, unit="window"):
+        with Phase("model (std probe)", total=1, unit="window") as phase:
             out = predictor.simulate(u_ctx[:1], y_ctx[:1], u_query[:1], **_extra(predictor, y_query, slice(0, 1), True))
+            phase.update()
     except (NotImplementedError, RoboMorphError, ValueError, TypeError):
         return False
     finally:

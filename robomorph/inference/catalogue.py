@@ -41,6 +41,7 @@ import os
 import torch
 
 from robomorph.core.errors import RoboMorphError
+from robomorph.core.names import TODAYS_RECORD
 
 # The modes that read no network.
 NETWORK_FREE_MODES = ("regression", "refined")
@@ -123,8 +124,8 @@ def arm_record(arm: str = "panda", recipe: str | None = None, inputs: str = "com
     rec = load_recipe(recipe, {"robot": arm, **overrides})
     spec = rec.arm
     attrs = {"domain": spec.name, "config": rec.to_dict(), "param_names": param_names(spec.name)}
-    # As a model trained today records it (robomorph.training.module): the observer, the springs and the debiasing on.
-    physics = {**parameter_layout(attrs), "mode": "catalogue", "observer": True, "springs": True, "debias": True}
+    # As a model trained today records it (robomorph.training.module): every recorded switch on.
+    physics = {**parameter_layout(attrs), "mode": "catalogue", **TODAYS_RECORD}
     inputs = check_inputs(inputs)
     # The input channels as a store names them (robomorph.data.store.Store.input_names): a trained model's
     # record has the same, so a window of a store is checked against them alike.
@@ -227,6 +228,6 @@ def from_arm(cls, arm: str = "panda", recipe: str | None = None, device=None, in
     # The record a trained command hybrid carries, set here: a model without a parameter head takes no
     # backbone from its record (Predictor.__init__), and this one has no model at all.
     pred.physics, pred.has_std = info["physics"], True
-    pred.configure(mode="regression", observer=True, springs=True, debias=True)
+    pred.configure(mode="regression", **TODAYS_RECORD)
     pred.max_input_std = None  # no training statistics to compare the inputs with
     return pred

@@ -24,7 +24,7 @@ import numbers
 import os
 from dataclasses import dataclass, field
 
-from robomorph.core.names import PHYSICS_MODES
+from robomorph.core.names import PHYSICS_MODES, RECORDED_SWITCHES
 from robomorph.inference.calibration import POINTS, SPREAD_SWITCHES, mode_key
 from robomorph.inference.predictor_checks import PredictionError
 
@@ -147,13 +147,11 @@ class HybridSettings:
     def of_record(cls, physics: dict | None, inputs: str, blend=None) -> "HybridSettings":
         """The defaults a checkpoint's record gives: the mode (``regression`` for commands; for total torques
         ``blend`` when the model has one, else ``none``: a total-torque simulation forward diverges within
-        seconds) and the observer, springs and debiasing as recorded (off in records written before them)."""
+        seconds) and the switches of :data:`robomorph.core.names.RECORDED_SWITCHES` as recorded (off in records written before them)."""
         if not physics:
             return cls()
         mode = "regression" if inputs == "command" else ("blend" if blend is not None else "none")
-        return cls(mode=mode, **{k: bool(physics.get(name, False))
-                                 for k, name in (("observer", "observer"), ("springs", "springs"),
-                                                 ("debias", "debias"))})
+        return cls(mode=mode, **{name: bool(physics.get(name, False)) for name in RECORDED_SWITCHES})
 
     def replace(self, **changes) -> "HybridSettings":
         """A copy with ``changes``, validated; an unknown name is refused with the names there are."""

@@ -17,6 +17,7 @@ from robomorph.core.names import (
     FREEZE_MODES,
     LOSSES,
     NORMALIZATIONS,
+    TODAYS_RECORD,
 )
 from robomorph.core.normalizations import check_normalization
 from robomorph.inference.checkpoint import (
@@ -207,11 +208,9 @@ class MetaModule(Steps, L.LightningModule):
         self._physics_on, self._layout = resolve_physics(self.hparams.physics if self.hparams.n_params else "none",
                                                          dm, stage)
         if self._physics_on:
-            # The observer's start velocity (robomorph.identification.backbone.observed_velocity): on for models trained
-            # since it was measured (first step 2.5x lower); older records lack it and predict as before. The regression's
-            # springs (robomorph.identification.identify.SPRING_KINDS) and its debiasing (robomorph.inference.debias): since 2026-11-27.
-            self.data_info = {**self.data_info, "physics": {**self._layout, "mode": "amortized", "observer": True,
-                                                            "springs": True, "debias": True}}
+            # The hybrid's switches as a model trained today records them (robomorph.inference.settings.TODAYS_RECORD,
+            # where each one's measurement is cited); older records lack the newer ones and predict as before.
+            self.data_info = {**self.data_info, "physics": {**self._layout, "mode": "amortized", **TODAYS_RECORD}}
         if stage == "fit" and self.hparams.init_ckpt and not self.resuming and not getattr(self, "_transferred", False):
             start_from(self, self.hparams.init_ckpt)
             self._transferred = True

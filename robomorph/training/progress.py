@@ -126,7 +126,10 @@ class StepBar(ProgressBar):
             self.bar = tqdm(total=self.budget.max_steps, initial=trainer.global_step, unit="step", desc="training",
                             file=sys.stderr, dynamic_ncols=True, disable=None, leave=True)
             if self.bar.disable:  # not a terminal: minutes between validation lines would be silent
-                self.phase = Phase("training", self.budget.max_steps, "step", initial=trainer.global_step).__enter__()
+                self.phase = Phase("training", self.budget.max_steps, "step", initial=trainer.global_step)
+                budget = self.budget
+                self.phase.cap_left = lambda: None if budget.cap is None else budget.cap - budget.elapsed()
+                self.phase.__enter__()
 
     def on_train_batch_end(self, trainer: L.Trainer, *args) -> None:
         if self.bar is None:

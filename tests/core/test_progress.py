@@ -100,3 +100,20 @@ def test_the_interval_comes_from_the_environment_and_bad_values_fall_back(monkey
     for bad in ("soon", "0", "-3"):
         monkeypatch.setenv(ENV_SECONDS, bad)
         assert interval() == 5.0
+
+
+def test_a_wall_clock_cap_bounds_the_time_left():
+    """20000 steps at 10 s a step under a 90 s cap end with the cap, not in 55 hours; without steps done, the cap
+    alone is the time left; a cap already spent says 0:00."""
+    phase = Phase("training", 20000, "step", enabled=False)
+    phase._started = time.monotonic() - 20.0  # private: the phase's clock, set back to make a rate of 10 s/step
+    phase.n = 2
+    assert re.fullmatch(r"training: 2/20000 steps, 10(\.\d+)? s/step, 0:20 elapsed, ~55:3\d:\d\d left", phase.line())
+    phase.cap_left = lambda: 70.0
+    assert re.fullmatch(r"training: 2/20000 steps, 10(\.\d+)? s/step, 0:20 elapsed, ~1:10 left", phase.line())
+    phase.n = 0
+    assert phase.line().endswith("0:20 elapsed, ~1:10 left")
+    phase.cap_left = lambda: -3.0
+    assert phase.line().endswith("~0:00 left")
+    phase.cap_left = lambda: None
+    assert phase.line() == "training: 0/20000 steps, 0:20 elapsed"

@@ -11,6 +11,9 @@ import torch
 
 from tests.conftest import CKPT_CONTEXT, CKPT_HORIZON, tiny_fit_args
 
+# The calibration key of a new command hybrid's default mode (every recorded switch on).
+KEY = "regression+obs+springs+debias+coulomb+payload+denoise"
+
 
 @pytest.fixture(scope="module")
 def command_store(simulated_store):
@@ -321,7 +324,7 @@ def test_each_physics_mode_keeps_its_own_std_calibration(hybrid_ckpt, simulated_
     assert main(["--ckpt", out, *common, "--physics", "learned"]) == 0
     assert "physics mode learned" in capsys.readouterr().out
     p = Predictor.from_checkpoint(out)
-    assert set(p.model.calibrations) == {"regression+obs+springs+debias", "learned+obs"}  # fitted with the observer on
+    assert set(p.model.calibrations) == {KEY, "learned+obs"}  # fitted with the observer on
     scales = {}
     for mode in ("regression", "learned", "fused"):
         p.use_physics(mode)
@@ -330,7 +333,7 @@ def test_each_physics_mode_keeps_its_own_std_calibration(hybrid_ckpt, simulated_
     assert Predictor.from_checkpoint(hybrid_ckpt).calibration is None  # --out left the original alone
     assert main(["--ckpt", out, "--remove", "--physics", "learned"]) == 0
     kept = Predictor.from_checkpoint(out)
-    assert set(kept.model.calibrations) == {"regression+obs+springs+debias"} and kept.calibration.scale == scales["regression"]
+    assert set(kept.model.calibrations) == {KEY} and kept.calibration.scale == scales["regression"]
     assert main(["--ckpt", out, "--remove", "--physics", "learned"]) == 0
     assert "no std calibration of physics mode learned" in capsys.readouterr().out
 
@@ -351,8 +354,8 @@ def test_windows_that_open_their_trajectory_and_the_others_each_get_their_kinds_
     only_start = Predictor.from_checkpoint(out)
     assert main(["--ckpt", out, *common, "--offset", "random", "--seed", "1"]) == 0
     p = Predictor.from_checkpoint(out)
-    assert set(p.model.calibrations) == {"regression+obs+springs+debias", "regression+obs+springs+debias/moving"}
-    start, moving = p.model.calibrations["regression+obs+springs+debias"], p.model.calibrations["regression+obs+springs+debias/moving"]
+    assert set(p.model.calibrations) == {KEY, KEY + "/moving"}
+    start, moving = p.model.calibrations[KEY], p.model.calibrations[KEY + "/moving"]
     assert start.scale != moving.scale and p.calibration is start
     uc, yc, uq, *_ = _windows(heldout, n=2)
     rest = np.array([True, False])
@@ -390,8 +393,8 @@ def test_the_demo_calibrates_a_hybrid_for_start_windows_and_for_a_moving_robot(h
     shutil.copy(hybrid_ckpt, ckpt)
     assert calibrate_std(ckpt) is True
     cals = Predictor.from_checkpoint(ckpt).model.calibrations
-    assert set(cals) == {"regression+obs+springs+debias", "regression+obs+springs+debias/moving"}
-    assert cals["regression+obs+springs+debias/moving"].source["offset"] == "random"
+    assert set(cals) == {KEY, KEY + "/moving"}
+    assert cals[KEY + "/moving"].source["offset"] == "random"
     out = [line for line in capsys.readouterr().out.splitlines() if line.strip()]
     assert len(out) == 2  # one line each (the demo's brief; robomorph calibrate prints the table)
     assert "validation windows from the start" in out[0] and "validation windows from random offsets" in out[1]
