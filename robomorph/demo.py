@@ -23,7 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=integer(1, 1_000_000), default=1000, help="steps per showcase trajectory")
     # Training holds out 10 % of these for validation: fewer than 20 leave it (nearly) empty.
     p.add_argument("--train-robots", type=integer(MIN_TRAIN_ROBOTS, 1_000_000), default=128,
-                   help=f"multi-sine robots to train on (at least {MIN_TRAIN_ROBOTS}: 10 %% of them validate)")
+                   help=f"robots of the realistic recipe to train on (at least {MIN_TRAIN_ROBOTS}: 10 %% of them validate)")
     p.add_argument("--minutes", type=number(0, 7 * 24 * 60, low_open=True), default=1.5,
                    help="training budget (wall clock; the hybrid's default mode reads no network, so its "
                         "predictions do not depend on it)")

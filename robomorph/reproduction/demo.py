@@ -3,7 +3,9 @@
 1. Generates a small dataset of every task (multi-sine, chirp, OSC circle and spiral) with
    the recipes in ``datamodules/``, writes each summary and a plot of its trajectories beside it,
    and prints one line for each.
-2. Trains the CPU-sized meta-model briefly on a multi-sine training set, in the command
+2. Trains the CPU-sized meta-model briefly on robots of the ``realistic`` recipe (encoder noise, torque
+   offsets, latency, payloads, real friction, feedback control: :mod:`robomorph.sim.realism`), and holds
+   out others of the same recipe, in the command
    formulation by default: the hybrid model (``physics: auto`` in ``train_cpu.yaml``),
    whose predictions simulate the robot identified from the context
    (:mod:`robomorph.inference.hybrid`); ``--inputs total`` trains on the paper's total torque.
@@ -46,7 +48,15 @@ from robomorph.sim.recipe import load_recipe
 # sweeps three settings of each (the paper's have 8 and 10): the trend, at a quarter of the passes.
 SWEEP_HORIZONS = "200,400,800"
 SWEEP_CONTEXTS = "40,120,200"
-HELD_OUT_ROBOTS = 32
+# 16: a hybrid on the realistic recipe's robots takes a second or more a window (the arm's compensation by its
+# catalogue model is simulated step by step, over each robot of the friction mixture), and the evaluation runs
+# every window seven times (the scores with their std, three horizons, three contexts).
+HELD_OUT_ROBOTS = 16
+# What the demo trains and evaluates on: robots as messy as real ones (robomorph.sim.realism), not the clean recipes
+# of the paper's tables. Measured on the real UR5's logs, zero-shot, two equal black-box UR5e models (7 minutes each):
+# trained on realistic data 67.2 / 103 / 358 / 1210 mrad at step 1 / 0.25 s / 1 s / 5 s, FIT 6.6 %, on clean data
+# 68.1 / 110 / 371 / 1220, FIT 4.0 % (CHANGELOG, 2026-11-28).
+TRAIN_RECIPE = "realistic"
 
 
 def make_data(out_dir: str, robots: int, steps: int, workers: int | None = None) -> list[str]:
@@ -85,13 +95,12 @@ def _generate(task: str, path: str, overrides: dict, workers: int | None) -> str
 
 
 def train(out_dir: str, robots: int, minutes: float, runs_dir: str, inputs: str = "command") -> tuple[str, str, str]:
-    """Trains on ``robots`` multi-sine robots; returns (run dir, best checkpoint, held-out store)."""
+    """Trains on ``robots`` robots of the ``realistic`` recipe; returns (run dir, best checkpoint, held-out store)."""
     from robomorph.training.fitting import fit  # noqa: PLC0415  (torch/lightning only when training)
 
     t0 = time.time()
-    train = _generate("multisine", os.path.join(out_dir, "ms_train.zarr"), {"robots": robots, "seed": 0}, None)
-    test = _generate("multisine", os.path.join(out_dir, "ms_heldout.zarr"), {"robots": HELD_OUT_ROBOTS, "seed": 1},
-                     None)
+    train = _generate(TRAIN_RECIPE, os.path.join(out_dir, "train.zarr"), {"robots": robots, "seed": 0}, None)
+    test = _generate(TRAIN_RECIPE, os.path.join(out_dir, "heldout.zarr"), {"robots": HELD_OUT_ROBOTS, "seed": 1}, None)
     print(f"training robots: {train} ({robots}), held-out robots: {test} ({HELD_OUT_ROBOTS}), in "
           f"{time.time() - t0:.0f} s", flush=True)
     run = "demo" if inputs == "command" else "demo-total"
