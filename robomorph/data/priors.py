@@ -7,6 +7,8 @@ A prior store is an ordinary store (:mod:`robomorph.data.store`) whose rows are 
   window's context and query inputs alone (the physics hybrid's,
   :func:`robomorph.evaluation.priors.write_priors` writes them);
 - ``source_row`` (N,) and ``offset`` (N,): where the window was cut (trajectory row and first step);
+  ``recording_index`` (N,), the same rows, so that the DataModule's splits keep a robot's windows
+  together (:data:`robomorph.data.splits.RECORDING_ARRAY`);
 - ``y_first`` (N, n_y): the first output of that trajectory (where the robot started, which the
   hybrid is given for windows that do not open their trajectory).
 

@@ -5,8 +5,8 @@ trajectory at each of ``offsets``), runs the catalogue arm's hybrid (``Predictor
 source store's own recipe, no training) on each window's context and query inputs, and writes the
 windows with the hybrid's query prediction as a prior store (:mod:`robomorph.data.priors`), on which
 ``robomorph fit`` trains a residual model. The work is resumable: rows are written in batches in a
-fixed order, and a store left in progress by an interrupted run is continued where it stopped
-(same source, settings and windows, checked).
+fixed order, a store left in progress by an interrupted run is continued where it stopped
+(same source, settings and windows, checked), and a complete store of the same request is left as it is.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import yaml
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.progress import progress
 from robomorph.data.priors import PRIOR_ARRAY, PRIOR_ATTR, PriorError
+from robomorph.data.splits import RECORDING_ARRAY
 from robomorph.data.store import DatasetWriter, create_store, open_store
 from robomorph.evaluation.sources import predict
 from robomorph.evaluation.windows import load_window, start_joints
@@ -91,6 +92,8 @@ def write_priors(req: PriorRequest) -> dict:
               "offsets": [int(o) for o in req.offsets], "arm": arm, "inputs": "command",
               "recipe": _recipe(src.attrs.get("config"))}
     rows = [(i, int(o)) for o in req.offsets for i in range(n_src)]  # window order: by offset, then row
+    if _done(req, record):
+        return record
     writer = _writer(req, src, record, len(rows), length)
     for b in progress(range(writer.n, len(rows), req.batch), "priors", unit="batch"):
         part = rows[b:b + req.batch]
@@ -124,7 +127,19 @@ def _write_batch(writer: DatasetWriter, req: PriorRequest, src, hybrid, part: li
     out = {k: np.concatenate(v) for k, v in cols.items()}
     extras = {k: out[k].astype(np.int64 if k in ("source_row", "offset") else np.float32)
               for k in ("u_cmd", PRIOR_ARRAY, "source_row", "offset", "y_first")}
+    extras[RECORDING_ARRAY] = extras["source_row"]  # a robot's windows stay in one split
     writer.append(out["u"].astype(np.float32), out["y"].astype(np.float32), out["params"].astype(np.float32), extras)
+
+
+def _done(req: PriorRequest, record: dict) -> bool:
+    """Whether ``req.out`` is a complete prior store of this very record (nothing left to do)."""
+    if req.overwrite or not os.path.exists(req.out):
+        return False
+    try:
+        done = open_store(req.out)
+    except RoboMorphError:
+        return False
+    return done.attrs.get(PRIOR_ATTR) == record
 
 
 def _writer(req: PriorRequest, src, record: dict, n_rows: int, length: int) -> DatasetWriter:
@@ -142,7 +157,8 @@ def _writer(req: PriorRequest, src, record: dict, n_rows: int, length: int) -> D
     n_y = len(src.y_names)
     attrs = {k: v for k, v in src.attrs.items() if k in _KEPT_ATTRS}
     extras = {"u_cmd": ((length, len(src.u_names)), "float32"), PRIOR_ARRAY: ((req.horizon, n_y), "float32"),
-              "source_row": ((), "int64"), "offset": ((), "int64"), "y_first": ((n_y,), "float32")}
+              "source_row": ((), "int64"), "offset": ((), "int64"), "y_first": ((n_y,), "float32"),
+              RECORDING_ARRAY: ((), "int64")}
     return create_store(req.out, n_rows, length, src.u_names, src.y_names, list(src.attrs.get("param_names", [])),
                         {**attrs, PRIOR_ATTR: record}, extras, chunk=64, overwrite=req.overwrite,
                         u_cmd_names=list(src.attrs.get("u_cmd_names", [f"cmd{i}" for i in range(len(src.u_names))])))
