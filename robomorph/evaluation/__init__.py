@@ -1,1 +1,2 @@
-"""Evaluation: metrics, FIT bands, baselines, physics baselines, plots, tables, evaluate()."""
+"""Evaluation: metrics, FIT bands, baselines, physics baselines, plots, tables, evaluate(), and the
+hybrid's predictions over a store's windows written as prior stores (``priors``)."""

@@ -105,3 +105,16 @@ def test_a_residual_model_trains_on_prior_stores_only(tmp_path):
         module.setup("fit")
     with pytest.raises(ModelSettingsError, match="--model.anchor"):
         MetaModule(n_u=2, n_y=3, residual=True, anchor=True)
+
+
+def test_an_exported_residual_model_predicts_the_same(residual_run, tmp_path):
+    from robomorph.model.files import export
+
+    store, result = residual_run
+    export(result.last_ckpt, str(tmp_path / "model"))
+    a, b = Predictor.from_checkpoint(result.last_ckpt), Predictor.from_pretrained(str(tmp_path / "model"))
+    assert b.residual == a.residual and torch.equal(b.model.net.prior_scale, a.model.net.prior_scale)
+    ds = open_store(store)
+    u, y, prior = ds.read("u")[:3], ds.read("y")[:3], ds.read("prior")[:3]
+    np.testing.assert_array_equal(a.simulate(u[:, :CONTEXT], y[:, :CONTEXT], u[:, CONTEXT:], prior=prior),
+                                  b.simulate(u[:, :CONTEXT], y[:, :CONTEXT], u[:, CONTEXT:], prior=prior))
