@@ -127,8 +127,9 @@ class PhysicsBackbone:
             :attr:`FINE_STEPS` (None: :func:`coarse_substeps`, 4 for the Panda recipe's 8; the
             recipe's own re-enacts the generator to the bit throughout). The context and the
             first second keep the recipe's step: there the prediction is most precise, and a
-            coarse step's error is largest against it. Closed-loop horizons (formulations with
-            state feedback) keep the recipe's step.
+            coarse step's error is largest against it. Closed-loop horizons (the commands of an
+            arm compensating its gravity with its catalogue model, whose g(q) is added at each
+            frame start) take the same coarse step after their first second.
 
     ``observe`` (settable; default: the layout's ``observer``, absent and so False in records written
     before 2026-11-26): commands start the horizon from :func:`observed_velocity` instead of the
@@ -166,7 +167,7 @@ class PhysicsBackbone:
 
     @property
     def coarse(self) -> int:
-        """Physics steps per sample of open-loop horizons after :attr:`FINE_STEPS` (settable; None: the default)."""
+        """Physics steps per sample of horizons after :attr:`FINE_STEPS` (settable; None: the default)."""
         return self._coarse
 
     @coarse.setter
@@ -334,7 +335,9 @@ class PhysicsBackbone:
         self.ident.randomizer.apply(model, params)
         torque = np.concatenate([torque, torque[-1:]], axis=0)  # a row per frame start, the start included
         control = formulation_controller(torque, self.inputs, in_actuators, nj, grav)
-        sens = simulate_closed_loop(model, data, qpos0, len(torque), self.substeps, control, qvel0)
+        # Row t is the state at frame t's start: the rows after FINE_STEPS frames come from the coarse step.
+        coarse = (self.FINE_STEPS, self.coarse) if self.coarse != self.substeps else None
+        sens = simulate_closed_loop(model, data, qpos0, len(torque), self.substeps, control, qvel0, coarse)
         return to_outputs(sens)[1][:, 7:7 + nj]
 
     def segments(self, frames: int) -> list[tuple[int, int, int]]:

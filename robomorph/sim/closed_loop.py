@@ -54,7 +54,7 @@ def reset_to(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.ndarray,
 
 def simulate_closed_loop(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.ndarray,
                          steps: int, substeps: int, controller: Controller,
-                         qvel0: np.ndarray | None = None) -> np.ndarray:
+                         qvel0: np.ndarray | None = None, coarse: tuple[int, int] | None = None) -> np.ndarray:
     """Simulates ``steps`` frames with one controller update per frame.
 
     Args:
@@ -65,6 +65,9 @@ def simulate_closed_loop(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.n
         steps: recorded frames T.
         substeps: physics steps per frame (the command is held over them).
         controller: ``(data, t) -> (nu,)`` torque command, see :data:`Controller`.
+        coarse: ``(frame, substeps)``: from that frame on, that many physics steps per frame, the
+            physics step lengthened to match (the frame's duration kept); the model's timestep is
+            restored before returning. None: ``substeps`` throughout.
 
     Returns:
         (T, nsensordata) float64 sensor data at the start of each frame. If the
@@ -76,19 +79,27 @@ def simulate_closed_loop(model: mujoco.MjModel, data: mujoco.MjData, qpos0: np.n
     out = np.empty((steps, model.nsensordata))
     reset_to(model, data, qpos0, qvel0)
     sens, ctrl = data.sensordata, data.ctrl
+    timestep = model.opt.timestep
+    switch, coarse_substeps = coarse if coarse is not None else (steps, substeps)
     rest = substeps - 1
-    for t in range(steps):
-        mujoco.mj_step1(model, data)
-        ctrl[:] = controller(data, t)
-        mujoco.mj_step2(model, data)
-        out[t] = sens
-        if rest:
-            mujoco.mj_step(model, data, nstep=rest)
-        # One counter check per frame: the row of a frame that diverged in its later
-        # substeps is kept out too, which errs on the side of rejecting.
-        if diverged(data):
-            out[t:] = np.nan
-            break
+    try:
+        for t in range(steps):
+            if t == switch and coarse_substeps != substeps:
+                model.opt.timestep = timestep * substeps / coarse_substeps
+                rest = coarse_substeps - 1
+            mujoco.mj_step1(model, data)
+            ctrl[:] = controller(data, t)
+            mujoco.mj_step2(model, data)
+            out[t] = sens
+            if rest:
+                mujoco.mj_step(model, data, nstep=rest)
+            # One counter check per frame: the row of a frame that diverged in its later
+            # substeps is kept out too, which errs on the side of rejecting.
+            if diverged(data):
+                out[t:] = np.nan
+                break
+    finally:
+        model.opt.timestep = timestep
     return out
 
 

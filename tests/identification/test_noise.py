@@ -105,7 +105,7 @@ def test_on_noisy_contexts_the_denoised_hybrid_beats_the_plain_one_and_refining_
     noisy[:, :CONTEXT, 7:] += np.random.default_rng(3).normal(0, 1e-4, noisy[:, :CONTEXT, 7:].shape)
     truth = y[:, CONTEXT:, 7:]
     errors = {}
-    for name, changes in (("plain", {}), ("denoise", {"denoise": True}),
+    for name, changes in (("plain", {"denoise": False}), ("denoise", {"denoise": True}),
                           ("refined", {"denoise": True, "mode": "refined", "refine_iters": 8, "refine_all": True})):
         pred = Predictor.from_arm("panda", calibrated=False).configure(**changes)
         out = pred.simulate(u[:, :CONTEXT], noisy[:, :CONTEXT], u[:, CONTEXT:], at_rest=np.ones(len(u), bool))
