@@ -2,8 +2,8 @@
 
 One held-out store of Panda robots (the ``realistic`` recipe, seed :data:`SEED`, which no training store
 may share: a model whose priors came from a store of this seed is refused), windows from each
-trajectory's start, context :data:`CONTEXT` and horizon ``--horizon`` (default :data:`HORIZON`), the
-command formulation. On the same windows:
+trajectory's start (or from step ``--offset``, mid-motion), context :data:`CONTEXT` and horizon
+``--horizon`` (default :data:`HORIZON`), the command formulation. On the same windows:
 
 - ``hold``, ``constant_velocity``, ``nominal_physics`` (the catalogue robot);
 - ``hybrid``: ``Predictor.from_arm`` with the store's recipe and the settings the models' priors were
@@ -16,7 +16,8 @@ Joint RMS error [mrad] at steps 1, 15, 60 and 300 (and 800 when the horizon reac
 residual model the share of windows whose joint error at the last of them is below the hybrid's.
 
     python benchmarks/residual.py --model residual=results/runs/residual-cpu/checkpoints/best.ckpt \\
-        --n 24 --md results/benchmarks/residual.md
+        --n 64 --md results/benchmarks/residual.md
+    python benchmarks/residual.py --model ... --n 64 --offset 300 --md results/benchmarks/residual_offset300.md
 """
 
 from __future__ import annotations
@@ -41,13 +42,15 @@ CONTEXT, HORIZON = 200, 300
 STEPS = (1, 15, 60, 300, 800)
 
 
-def held_out_store(folder: str, n: int, horizon: int) -> str:
-    """Generates (or finds, or resumes) the held-out store: ``n`` realistic Panda robots of :data:`SEED`."""
+def held_out_store(folder: str, n: int, horizon: int, offset: int = 0) -> str:
+    """Generates (or finds, or resumes) the held-out store: ``n`` realistic Panda robots of :data:`SEED`, long enough
+    for a window from step ``offset``."""
     from robomorph.data.generation import generate  # noqa: PLC0415
     from robomorph.sim.recipe import load_recipe  # noqa: PLC0415
 
-    path = os.path.join(folder, f"heldout_n{n}_t{CONTEXT + horizon}.zarr")
-    recipe = load_recipe("realistic", {"robots": n, "seed": SEED, "steps": CONTEXT + horizon, "chunk": min(n, 64)})
+    steps = offset + CONTEXT + horizon
+    path = os.path.join(folder, f"heldout_n{n}_t{steps}.zarr")
+    recipe = load_recipe("realistic", {"robots": n, "seed": SEED, "steps": steps, "chunk": min(n, 64)})
     t0 = time.perf_counter()
     generate(recipe, path, progress=False)
     print(f"held-out store {path}: {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
@@ -79,9 +82,9 @@ def run(args) -> str:
     # The first model's hybrid settings (those that change a prediction: the threads are this machine's).
     settings = {k: v for k, v in (next(iter(models.values())).residual.get("fields") or {}).items()
                 if k != "workers"} if models else None
-    path = held_out_store(args.work, args.n, args.horizon)
-    prior_path = os.path.join(args.work, f"heldout_n{args.n}_t{CONTEXT + args.horizon}_priors.zarr")
-    req = PriorRequest(path, prior_path, CONTEXT, args.horizon, (0,), args.n, overwrite=False,
+    path = held_out_store(args.work, args.n, args.horizon, args.offset)
+    prior_path = os.path.splitext(path)[0] + (f"_o{args.offset}" if args.offset else "") + "_priors.zarr"
+    req = PriorRequest(path, prior_path, CONTEXT, args.horizon, (args.offset,), args.n, overwrite=False,
                        **({"settings": tuple(settings.items())} if settings is not None else {}))
     t0 = time.perf_counter()
     record = write_priors(req)  # resumes, or finds it complete
@@ -89,7 +92,7 @@ def run(args) -> str:
     from robomorph.data.store import open_store  # noqa: PLC0415
 
     prior = open_store(prior_path).read("prior").astype(np.float64)
-    w = load_window(path, CONTEXT, args.horizon, args.n, None, 7, 14, "start", 0, "command")
+    w = load_window(path, CONTEXT, args.horizon, args.n, None, 7, 14, args.offset or "start", 0, "command")
     u_ctx, y_ctx, u_q, _ = w.split()
     others = {"hybrid": prior}
     for name, pred in models.items():
@@ -105,10 +108,11 @@ def run(args) -> str:
             for source in scores.preds]
     table = markdown_table(["source", *(f"step {k}" for k in steps), f"windows better than hybrid at step {last} [%]"],
                            rows, floatfmt=".3g")
+    where = f"windows from step {args.offset} (mid-motion)" if args.offset else "windows from the trajectory start"
     described = ", ".join(f"`{name}` = `{os.path.relpath(p.partition('=')[2])}`" for name, p in
                           zip(models, args.model)) or "none"
     return (f"# The learned residual against the hybrid alone\n\n{args.n} held-out Panda robots of the `realistic` "
-            f"recipe (seed {SEED}), windows from the trajectory start, context {CONTEXT}, horizon {args.horizon} at "
+            f"recipe (seed {SEED}), {where}, context {CONTEXT}, horizon {args.horizon} at "
             f"60 Hz, command formulation (`u_cmd`). Joint RMS error [mrad] at steps {' / '.join(map(str, steps))}. "
             f"`hybrid`: `{record['settings']}` (no training); the residual models ({described}) correct that very "
             f"prediction.\n\n{table}")
@@ -132,6 +136,7 @@ def main(argv=None) -> int:
     p.add_argument("--model", action="append", default=[], metavar="NAME=CKPT", help="a residual model (repeatable)")
     p.add_argument("--n", type=int, default=24, help="held-out robots")
     p.add_argument("--horizon", type=int, default=HORIZON, help="query steps scored")
+    p.add_argument("--offset", type=int, default=0, help="each window's first step (0: the trajectory start, at rest)")
     p.add_argument("--work", default="data/residual/bench", help="where the held-out store and its priors go")
     p.add_argument("--md", help="write the table (with provenance) here")
     args = p.parse_args(argv)

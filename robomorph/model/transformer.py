@@ -54,11 +54,12 @@ output channel; the loss and the metrics skip the absent ones.
 
 Residual (``residual=True``): the decoder also reads a prior prediction of the query outputs
 (normalized as the outputs are), concatenated to the query inputs step by step, so its embedding
-takes ``k * (n_u + n_y)`` values per token; the head's output (zero at initialization) is then a correction, in units of
-``prior_scale`` (a buffer, (max_horizon, n_y): the prior's RMS error per query step and channel on
-the training data, normalized), that the caller adds to the prior (:func:`robomorph.inference.checkpoint.predict_normalized_dist`). A prior is a
-prediction from the context and the query inputs alone (the physics hybrid's), so no query output
-reaches the network through it. With ``residual=False`` nothing changes.
+takes ``k * (n_u + n_y)`` values per token. The head's output (zero at initialization) is then a
+correction in units of ``prior_scale`` (a buffer, (max_horizon, n_y): the prior's RMS error per
+query step and channel on the training data, normalized) that the caller adds to the prior
+(:func:`robomorph.inference.checkpoint.predict_normalized_dist`). A prior is a prediction from the
+context and the query inputs alone (the physics hybrid's), so no query output reaches the network
+through it. With ``residual=False`` nothing changes.
 
 Parameter names (for transfer and freezing): ``encoder.{embed,pos,absent,blocks,ln_f}``,
 ``decoder.{embed,pos,absent,init_embed,init_pos,blocks,ln_f}``, ``head``.
