@@ -17,8 +17,11 @@ hybrid runs with from_arm's default settings, or those of ``--settings`` (a
 in effect, as a trained model keeps its own. It writes ``robomorph/inference/arm_calibrations/
 <arm>-<recipe>.json`` (read offline by ``Predictor.from_arm``, which takes the file whose scope is
 its own; the command, commit, date, machine, stores' seeds and the held-out coverage recorded in it)
-and prints the coverage table. ``--keep DIR`` also saves the windows' truths, means and raw stds
-(``<offset>_<fit|test>.npz``, with each window's trajectory row) for studying the coverage offline.
+and prints the coverage table. ``--offsets start`` fits the first kind alone (a hybrid then applies it to
+both). ``--work DIR`` keeps the stores and the windows' scores (truths, means and raw stds, with each
+window's trajectory row and start, ``<arm>-<recipe>_<seed>_<offset>.npz``) there, for studying the
+coverage offline: a rerun takes a complete store and the scores of the same windows and settings instead
+of generating and scoring them again (the realistic recipe's 192 robots cost an hour of two busy cores).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import argparse
 import os
 import sys
 import tempfile
+from contextlib import nullcontext
 
 import numpy as np
 from common import REPO, print_provenance
@@ -42,6 +46,7 @@ from robomorph.inference.calibration import SPREAD_SWITCHES, fit
 from robomorph.inference.hybrid_std import drawn_points
 from robomorph.inference.predictor import Predictor
 from robomorph.inference.settings import HybridSettings
+from robomorph.reproduction.skip import ensure_store
 from robomorph.sim.recipe import load_recipe
 
 CONTEXT, HORIZON, MOVING_HORIZON = 200, 800, 600
@@ -49,8 +54,8 @@ STEPS = "1,0.25s,1s,5s,10s"  # 10 s: the end of the random-offset windows (600 s
 
 
 def _store(folder: str, arm: str, recipe: str, robots: int, seed: int) -> str:
-    path = os.path.join(folder, f"{arm}_{seed}.zarr")
-    generate(load_recipe(recipe, {"robot": arm, "robots": robots, "seed": seed}), path)
+    path = os.path.join(folder, f"{arm}-{os.path.splitext(os.path.basename(recipe))[0]}_{seed}.zarr")
+    ensure_store(load_recipe(recipe, {"robot": arm, "robots": robots, "seed": seed}), path)  # a complete one is kept
     return path
 
 
@@ -68,11 +73,20 @@ def _coverage(scores) -> dict:
     return {"steps": scores.result["horizons"]["steps"], "1sigma": cal["1sigma"], "2sigma": cal["2sigma"]}
 
 
-def _keep(keep: str | None, name: str, scores, rows, starts) -> None:
-    if keep:
-        os.makedirs(keep, exist_ok=True)
-        np.savez_compressed(os.path.join(keep, f"{name}.npz"), y=scores.y, mean=scores.preds["model"],
-                            std=scores.std, rows=rows, starts=starts)
+def _scores(pred: Predictor, store: str, offset: str):
+    """The windows of ``offset`` in ``store`` scored by ``pred``: the scores kept beside the store for the same
+    windows and settings where there are (``--work``), else scored and kept there."""
+    w, rows = _windows(pred, store, offset)
+    kept, key = f"{os.path.splitext(store)[0]}_{offset}.npz", pred.settings_in_effect.key
+    if os.path.isfile(kept):
+        k = np.load(kept)
+        if (str(k["settings"]) == key and np.array_equal(k["rows"], rows) and np.array_equal(k["starts"], w.starts)
+                and np.array_equal(k["y"], w.split()[3])):
+            return w, rows, score_windows(Predictions(k["mean"], k["std"]), w, (), STEPS)
+    scores = score_windows(pred, w, (), STEPS, batch_size=64)
+    np.savez_compressed(kept, y=scores.y, mean=scores.preds["model"], std=scores.std, rows=rows, starts=w.starts,
+                        settings=key)
+    return w, rows, scores
 
 
 def _predictor(arm: str, recipe: str, settings: str | None) -> Predictor:
@@ -81,16 +95,16 @@ def _predictor(arm: str, recipe: str, settings: str | None) -> Predictor:
 
 
 def run(arm: str, recipe: str, robots: int, test_robots: int, seed: int, out: str, settings: str | None = None,
-        keep: str | None = None) -> dict:
+        work: str | None = None, offsets: tuple[str, ...] = ("start", "random")) -> dict:
     pred = _predictor(arm, recipe, settings)
     used = pred.settings_in_effect
     entries, rows = {}, []
-    with tempfile.TemporaryDirectory(prefix="arm_calibration-") as tmp:
+    if work:
+        os.makedirs(work, exist_ok=True)
+    with nullcontext(work) if work else tempfile.TemporaryDirectory(prefix="arm_calibration-") as tmp:
         fit_store, test_store = _store(tmp, arm, recipe, robots, seed), _store(tmp, arm, recipe, test_robots, seed + 1)
-        for offset in ("start", "random"):
-            w, fit_rows = _windows(pred, fit_store, offset)
-            raw = score_windows(pred, w, (), STEPS, batch_size=64)
-            _keep(keep, f"{offset}_fit", raw, fit_rows, w.starts)
+        for offset in offsets:
+            w, _, raw = _scores(pred, fit_store, offset)
             # As robomorph calibrate records a hybrid's (its mode and the switches in effect), so the calibration is
             # keyed as a trained model's would be; "data" says what it was fitted on.
             source = {"data": [f"{robots} simulated {arm} robots ({recipe}, seed {seed})"],
@@ -99,9 +113,7 @@ def run(arm: str, recipe: str, robots: int, test_robots: int, seed: int, out: st
                       "horizon": w.horizon, "offset": offset, "split": "whole", "physics_mode": used.mode,
                       **{name: bool(getattr(used, name)) for _, name in SPREAD_SWITCHES}}
             cal = fit(raw.y, raw.preds["model"], raw.std, "power", source=source, end=True, points=drawn_points(pred))
-            tw, test_rows = _windows(pred, test_store, offset)
-            before = score_windows(pred, tw, (), STEPS, batch_size=64)
-            _keep(keep, f"{offset}_test", before, test_rows, tw.starts)
+            tw, _, before = _scores(pred, test_store, offset)
             after = score_windows(Predictions(before.preds["model"], cal.scaled(before.std)), tw, (), STEPS)
             held_out = {"robots": test_robots, "seed": seed + 1, "n": int(len(tw.u)),
                         "before": _coverage(before), "after": _coverage(after)}
@@ -133,12 +145,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=55)
     p.add_argument("--settings", help="the hybrid's settings as a key (e.g. regression+obs+springs+debias+coulomb"
                                       "+payload+denoise); default from_arm's")
-    p.add_argument("--keep", help="a folder to save the windows' truths, means and raw stds in")
+    p.add_argument("--offsets", default="start,random", help="the kinds of windows fitted: start, random or both")
+    p.add_argument("--work", help="a folder keeping the stores and the windows' scores (a rerun reuses them); "
+                                  "default a temporary one")
     p.add_argument("--out", help="default: robomorph/inference/arm_calibrations/<arm>-<recipe>.json")
     args = p.parse_args(argv)
     print_provenance()
     run(args.arm, args.recipe, args.robots, args.test_robots, args.seed,
-        args.out or catalogue.calibration_path(args.arm, args.recipe), args.settings, args.keep)
+        args.out or catalogue.calibration_path(args.arm, args.recipe), args.settings, args.work,
+        tuple(o for o in args.offsets.split(",") if o))
     return 0
 
 
