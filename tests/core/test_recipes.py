@@ -55,7 +55,7 @@ def test_an_unknown_name_is_one_line_listing_the_shipped_names(elsewhere):
         locate("multisin")
     msg = str(exc.value)
     assert "\n" not in msg and "multisin is neither a file" in msg
-    assert "(shipped datamodules: arms, chirp, circle, mixture, multisine, realistic, spiral, train_cpu)" in msg
+    assert "(shipped datamodules: arms, chirp, circle, mixture, multisine, realistic, residual, spiral, train_cpu)" in msg
     with pytest.raises(RoboMorphError, match="shipped sweeps: architecture, architecture_cpu, ci,"):
         locate("sweeps/nope.yaml", "sweeps")
 

@@ -143,8 +143,8 @@ def test_a_wrong_option_in_an_example_is_caught(helps):
 
 # Flags appended to the README's quick start so that it runs in seconds (the last value of a flag wins).
 TINY = {
-    "generate": {"data/ms.zarr": ["--robots", "24", "--workers", "1", "--quiet"],
-                 "data/ms_test.zarr": ["--robots", "6", "--workers", "1", "--quiet"]},
+    "generate": {"data/train.zarr": ["--robots", "12", "--workers", "1", "--quiet"],
+                 "data/test.zarr": ["--robots", "4", "--workers", "1", "--quiet"]},
     "fit": ["--trainer.max_steps", "2", "--trainer.val_check_interval", "2", "--data.batch_size", "4",
             "--data.val_subset", "2", "--trainer.accelerator", "cpu", "--wandb", "disabled"],
     "evaluate": ["--n", "4", "--baselines", "hold", "--samples", "1"],
@@ -166,7 +166,7 @@ def test_readme_quickstart_runs(tmp_path):
             if isinstance(extra, dict):
                 extra = extra[call[call.index("--out") + 1]]
             assert main([*call, *extra]) == 0, call
-    assert (tmp_path / "results/runs/quick/eval/ms_test/metrics.json").is_file()
+    assert (tmp_path / "results/runs/quick/eval/test/metrics.json").is_file()
     assert (tmp_path / "results/report.html").is_file()
     _run_blocks(README, tmp_path)
 
