@@ -94,15 +94,22 @@ def _generate(task: str, path: str, overrides: dict, workers: int | None) -> str
     return path
 
 
-def train(out_dir: str, robots: int, minutes: float, runs_dir: str, inputs: str = "command") -> tuple[str, str, str]:
-    """Trains on ``robots`` robots of the ``realistic`` recipe; returns (run dir, best checkpoint, held-out store)."""
-    from robomorph.training.fitting import fit  # noqa: PLC0415  (torch/lightning only when training)
-
+def training_data(out_dir: str, robots: int) -> tuple[str, str]:
+    """Generates (or finds) ``robots`` training robots and :data:`HELD_OUT_ROBOTS` held-out ones of
+    :data:`TRAIN_RECIPE`; returns their stores' paths."""
     t0 = time.time()
     train = _generate(TRAIN_RECIPE, os.path.join(out_dir, "train.zarr"), {"robots": robots, "seed": 0}, None)
     test = _generate(TRAIN_RECIPE, os.path.join(out_dir, "heldout.zarr"), {"robots": HELD_OUT_ROBOTS, "seed": 1}, None)
-    print(f"training robots: {train} ({robots}), held-out robots: {test} ({HELD_OUT_ROBOTS}), in "
-          f"{time.time() - t0:.0f} s", flush=True)
+    print(f"training robots: {train} ({robots}), held-out robots: {test} ({HELD_OUT_ROBOTS}), {TRAIN_RECIPE} recipe, "
+          f"in {time.time() - t0:.0f} s", flush=True)
+    return train, test
+
+
+def train(train: str, test: str, minutes: float, runs_dir: str, inputs: str = "command") -> tuple[str, str]:
+    """Trains on the ``train`` store (:func:`training_data`'s), ``test`` the held-out one the run records; returns
+    (run dir, best checkpoint)."""
+    from robomorph.training.fitting import fit  # noqa: PLC0415  (torch/lightning only when training)
+
     run = "demo" if inputs == "command" else "demo-total"
     # A tenth of the robots validate: the curves of the report, and a total-torque model's blend and calibration.
     args = ["--config", locate("datamodules/train_cpu.yaml"), "--data.stores", train, "--data.test_store", test,
@@ -119,7 +126,7 @@ def train(out_dir: str, robots: int, minutes: float, runs_dir: str, inputs: str 
     if ckpt is None:  # a budget too short to reach the first validation
         raise UsageError(f"training stopped after {result.global_step} steps without a checkpoint (the first "
                          "is written at the first validation, step 50): give it more --minutes")
-    return result.run_dir, ckpt, test
+    return result.run_dir, ckpt
 
 
 def calibrate_std(ckpt: str, verbose: bool = False) -> bool:
@@ -256,8 +263,9 @@ def run_demo(out_dir: str = "data/demo", robots: int = 16, steps: int = 1000, tr
     """The steps of the module docstring, in order."""
     t0 = time.time()
     paths = make_data(out_dir, robots, steps, workers)
+    train_store, test = training_data(out_dir, train_robots)
     t1 = time.time()
-    run_dir, ckpt, test = train(out_dir, train_robots, minutes, runs_dir, inputs)
+    run_dir, ckpt = train(train_store, test, minutes, runs_dir, inputs)
     t2 = time.time()
     eval_dir, report, res = evaluate_and_report(ckpt, test, runs_dir, identified, verbose)
     seconds = {"data": t1 - t0, "training": t2 - t1, "evaluation": time.time() - t2}
