@@ -74,14 +74,28 @@ def test_what_needs_a_network_is_refused_in_one_line(store):
         Predictor.from_arm("ur6")
 
 
-# --- the shipped calibration of the std ---------------------------------------------------------------
+# --- the shipped calibrations of the std ---------------------------------------------------------------
+
+# The recipes benchmarks/arm_calibration.py was run on for the Panda: one file each, <arm>-<recipe>.json.
+SHIPPED = ("multisine", "realistic")
+# What the realistic recipe's calibration covers on held-out robots, as recorded (±1σ low, high, ±2σ low, high). Issue
+# 54's goal, 68 ± 5 / 95 ± 3 %, is missed there: ±1σ covers 67-75 % from the start and 75-82 % from random offsets,
+# ±2σ 86-92 %. The errors have heavier tails than a Gaussian's about the spread (a share of the windows, most of
+# them of the torque chirp and the OSC tasks, misses by several spreads), so no scale of the std meets both levels;
+# floors under the std did not move it either (docs/guide/predicting.md, CHANGELOG).
+REALISTIC_COVERAGE = (0.60, 0.85, 0.84, 0.97)
 
 
-def test_the_shipped_calibration_scales_the_std_and_records_where_it_was_fitted(store):
+def _shipped(recipe: str) -> dict:
     import json
 
     from robomorph.inference.catalogue import calibration_path
 
+    with open(calibration_path("panda", recipe)) as f:
+        return json.load(f)
+
+
+def test_the_shipped_calibration_scales_the_std_and_records_where_it_was_fitted(store):
     uc, yc, uq, _, _ = _windows(store)
     raw = Predictor.from_arm("panda", calibrated=False)
     pred = Predictor.from_arm("panda")  # the quick start's: the generator's defaults, the recipe it was fitted on
@@ -91,8 +105,7 @@ def test_the_shipped_calibration_scales_the_std_and_records_where_it_was_fitted(
     np.testing.assert_array_equal(mean, mean_raw)  # the mean is untouched
     np.testing.assert_allclose(std, pred.calibration.scaled(std_raw), rtol=1e-5)
     assert not np.allclose(std, std_raw)
-    with open(calibration_path("panda")) as f:
-        doc = json.load(f)
+    doc = _shipped("multisine")
     src = pred.calibration.source
     assert (src["arm"], src["recipe"], src["offset"]) == ("panda", "multisine", "start")
     assert src["robots"] >= 128 and src["seed"] not in (0, 1)  # not the seeds of the docs' and the demo's stores
@@ -100,21 +113,65 @@ def test_the_shipped_calibration_scales_the_std_and_records_where_it_was_fitted(
     assert set(doc["calibrations"]) == {"start", "random"}  # windows that open their trajectory, and the others
 
 
-def test_the_shipped_calibration_covers_held_out_robots_near_a_gaussians_shares():
-    """Recorded by benchmarks/arm_calibration.py on robots of another seed than those it was fitted on: the
-    joints' ±1σ / ±2σ coverage at the first step, 0.25 s, 1 s, 5 s and 10 s, before and after."""
+@pytest.mark.parametrize("recipe", SHIPPED)
+def test_each_recipes_calibration_is_found_for_that_recipe_with_from_arms_default_settings(recipe):
+    from robomorph.inference.calibration import calibration_key
+
+    pred = Predictor.from_arm("panda", recipe)
+    key = pred.settings_in_effect.calibration_key  # fitted with the switches from_arm runs with, keyed by them
+    kinds = set(_shipped(recipe)["calibrations"])  # start, and random where windows from random offsets were fitted
+    assert "start" in kinds and set(pred.model.calibrations) == {key if k == "start" else f"{key}/moving" for k in kinds}
+    assert {c.source["recipe"] for c in pred.model.calibrations.values()} == {recipe}
+    assert pred.calibration is pred.model.calibrations[key] and calibration_key(pred.calibration) == key
+    # The sampling fields (robots, seed, steps) do not change the robots drawn: a store of 8 robots of seed 1 of
+    # the recipe, as the demo trains on, takes the same calibration.
+    again = Predictor.from_arm("panda", recipe, robots=8, seed=1, steps=300)
+    assert again.calibration.to_dict() == pred.calibration.to_dict()
+
+
+def test_a_recipes_calibration_is_not_found_for_another_recipe():
+    clean, realistic = Predictor.from_arm("panda", "multisine"), Predictor.from_arm("panda", "realistic")
+    assert clean.calibration.source["recipe"] == "multisine" and realistic.calibration.source["recipe"] == "realistic"
+    # The realistic robots' noise, payload and friction make another spread: not the clean robots' calibration.
+    assert realistic.calibration.to_dict() != clean.calibration.to_dict()
+    # A recipe with one realism term changed is not the one fitted on, nor is one whose robots are clean but
+    # compensated by the nominal model as the realistic recipe's are.
+    assert Predictor.from_arm("panda", "realistic", realism={"widen": 1.0}).calibration is None
+    assert Predictor.from_arm("panda", gravity_compensation="nominal_model").calibration is None
+
+
+def test_a_calibration_file_is_taken_by_its_scope_not_its_name(tmp_path, monkeypatch):
+    """Read-compatible: the first release's <arm>.json is read as any other; a file's name never decides."""
     import json
 
-    from robomorph.inference.calibration import StdCalibration
-    from robomorph.inference.catalogue import calibration_path
+    from robomorph.inference import catalogue
 
-    with open(calibration_path("panda")) as f:
-        doc = json.load(f)
+    clean, realistic = _shipped("multisine"), _shipped("realistic")
+    monkeypatch.setattr(catalogue, "CALIBRATION_DIR", str(tmp_path))
+    assert Predictor.from_arm("panda").calibration is None  # no file at all
+    (tmp_path / "ur5e-multisine.json").write_text(json.dumps(clean))  # the Panda's, under another arm's name
+    assert Predictor.from_arm("panda").calibration is None
+    (tmp_path / "panda.json").write_text(json.dumps(clean))
+    (tmp_path / "panda-other.json").write_text(json.dumps(realistic))
+    assert Predictor.from_arm("panda").calibration.source["recipe"] == "multisine"
+    assert Predictor.from_arm("panda", "realistic").calibration.source["recipe"] == "realistic"
+    assert catalogue.shipped_calibration_file(catalogue.arm_record("panda", "spiral")) is None
+
+
+@pytest.mark.parametrize("recipe", SHIPPED)
+def test_the_shipped_calibration_records_its_held_out_coverage(recipe):
+    """Recorded by benchmarks/arm_calibration.py on robots of another seed than those it was fitted on: the
+    joints' ±1σ / ±2σ coverage at the first step, 0.25 s, 1 s, 5 s and 10 s, before and after. The clean recipe's
+    is near a Gaussian's shares at every step; the realistic one's: see REALISTIC_COVERAGE."""
+    from robomorph.inference.calibration import StdCalibration
+
+    doc = _shipped(recipe)
     for kind, entry in doc["calibrations"].items():
         held = StdCalibration.from_dict(entry).source["held_out"]
-        assert held["n"] >= 64 and held["seed"] != entry["source"]["seed"], kind
+        assert held["n"] >= 48 and held["seed"] != entry["source"]["seed"], kind
         one, two = held["after"]["1sigma"], held["after"]["2sigma"]
-        assert all(0.58 <= c <= 0.78 for c in one) and all(0.88 <= c <= 0.99 for c in two), (kind, one, two)
+        low1, high1, low2, high2 = (0.58, 0.78, 0.88, 0.99) if recipe == "multisine" else REALISTIC_COVERAGE
+        assert all(low1 <= c <= high1 for c in one) and all(low2 <= c <= high2 for c in two), (kind, one, two)
         before = held["before"]["1sigma"]
         assert max(abs(c - 0.6827) for c in one) < max(abs(c - 0.6827) for c in before), kind
 
@@ -125,6 +182,7 @@ def test_another_recipe_arm_or_formulation_is_uncalibrated():
     assert Predictor.from_arm("panda", "spiral").calibration is None  # fitted on multi-sine torques only
     assert Predictor.from_arm("panda", inputs="total", gravity_compensation="none").calibration is None
     assert Predictor.from_arm("ur5e").calibration is None  # no calibration shipped for it
+    assert Predictor.from_arm("ur5e", "realistic").calibration is None  # the Panda's realistic one is the Panda's
 
 
 def test_the_quick_starts_first_prediction_runs_as_written(tmp_path, monkeypatch, capsys):
