@@ -18,14 +18,16 @@ so the range check of :attr:`Predictor.max_input_std` is off: check the torques'
 yourself (N m, the command without gravity compensation).
 
 Its standard deviation is the spread over the robots the context allows, scaled by a shipped
-calibration where one was fitted for the arm and the recipe asked for: ``arm_calibrations/<arm>.json``
-beside this module, fitted by ``benchmarks/arm_calibration.py`` on simulated robots of the
-``multisine`` recipe (the generator's defaults) that no store of the docs or the demo holds, one
-calibration for windows that open their trajectory and one for the others, with the command,
-commit and held-out coverage recorded in it (:attr:`Predictor.calibration` then has its record).
-Another arm, recipe, physics step or input formulation has none: its std is the raw spread, not
-calibrated, and :attr:`Predictor.calibration` is None (``robomorph calibrate`` fits one on a
-trained checkpoint).
+calibration where one was fitted for the arm and the recipe asked for: ``arm_calibrations/<arm>-<recipe>.json``
+beside this module (``panda-multisine.json``, the generator's defaults, and ``panda-realistic.json``),
+fitted by ``benchmarks/arm_calibration.py`` with from_arm's default settings on simulated robots that
+no store of the docs or the demo holds, one calibration for windows that open their trajectory and
+one for the others, with the command, commit and held-out coverage recorded in it
+(:attr:`Predictor.calibration` then has its record). The file taken is the one whose scope
+(:func:`calibration_scope`: arm, formulation, physics step, the recipe's ranges) is the Predictor's, so a
+trained command hybrid's record of the same robots finds it too. Another arm, recipe, physics step or
+input formulation has none: its std is the raw spread, not calibrated, and
+:attr:`Predictor.calibration` is None (``robomorph calibrate`` fits one on a trained checkpoint).
 
 Every registered arm has a catalogue physics backbone (:func:`robomorph.identification.backbone.parameter_layout`).
 ``inputs="total"`` takes the total joint torque a real arm's sensors log, gravity included (with the
