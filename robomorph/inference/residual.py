@@ -13,9 +13,6 @@ hybrid's, e.g. in a benchmark that scores the hybrid alone too) instead.
 
 from __future__ import annotations
 
-import os
-import tempfile
-
 import torch
 import yaml
 
@@ -33,12 +30,8 @@ def hybrid_of(predictor_cls, recipe, settings: dict, arm: str | None = None):
         raise PredictionError("no generator recipe to build the hybrid from: priors need a simulated store whose "
                               "attrs['config'] names the arm and its ranges")
     arm = arm or recipe.get("robot", "panda")
-    with tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False) as f:
-        yaml.safe_dump(recipe, f)
-    try:
-        pred = predictor_cls.from_arm(arm, recipe=f.name, calibrated=False)
-    finally:
-        os.remove(f.name)
+    # The whole recipe as fields over the generator's defaults: the recipe itself (as from_arm's overrides).
+    pred = predictor_cls.from_arm(arm, calibrated=False, **{**recipe, "robot": arm})
     return pred.configure(**settings), arm
 
 
