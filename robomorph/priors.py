@@ -27,16 +27,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comma list of each trajectory's window starts (e.g. 0,300: two windows per trajectory)")
     p.add_argument("--n", type=int, help="at most this many source trajectories (default: all)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="a hybrid setting (HybridSettings field, value read as YAML), over the prior's defaults "
-                        "payload=true, coulomb=true, denoise=true (repeatable; e.g. --set workers=16)")
+                   help="a hybrid setting (HybridSettings field, value read as YAML) over Predictor.from_arm's, "
+                        "which has payload, coulomb and denoise on (repeatable; e.g. --set workers=16)")
     p.add_argument("--batch", type=int, default=16, help="windows per batch (written together)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing store at --out")
     return p
 
 
 def parse_settings(items: list[str]) -> dict:
-    """``NAME=VALUE`` items over :data:`robomorph.evaluation.priors.PRIOR_SETTINGS`."""
-    out = dict(priors.PRIOR_SETTINGS)
+    """``NAME=VALUE`` items: changes of ``Predictor.from_arm``'s hybrid settings."""
+    out = {}
     for item in items:
         name, sep, value = item.partition("=")
         if not sep or not name.strip():

@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 
 from robomorph.core.errors import RoboMorphError
+from robomorph.core.names import RECORDED_SWITCHES
 from robomorph.core.progress import progress
 from robomorph.data.priors import PRIOR_ARRAY, PRIOR_ATTR, PriorError
 from robomorph.data.splits import RECORDING_ARRAY
@@ -26,11 +27,6 @@ from robomorph.evaluation.sources import predict
 from robomorph.evaluation.windows import load_window, start_joints
 from robomorph.inference.predictor import Predictor
 from robomorph.inference.residual import hybrid_of
-
-# The hybrid's settings a prior is made with unless told otherwise: the payload, the wider friction
-# and the denoising on (results/benchmarks/sensitivity.md, the realistic recipe).
-PRIOR_SETTINGS = {"payload": True, "coulomb": True, "denoise": True}
-
 
 @dataclass(frozen=True)
 class PriorRequest:
@@ -42,7 +38,8 @@ class PriorRequest:
         context, horizon: the window's context and query steps.
         offsets: first steps of the windows cut from each trajectory.
         n: at most this many source trajectories (None: all).
-        settings: changes of the hybrid's settings (:class:`HybridSettings` field names).
+        settings: changes of the hybrid's settings (:class:`HybridSettings` field names) over ``Predictor.from_arm``'s,
+            which has the payload, the wider friction and the denoising on (robomorph.core.names.TODAYS_RECORD).
         batch: windows per batch (rows written at once: the unit of resuming).
         overwrite: replace a complete store at ``out``.
     """
@@ -53,7 +50,7 @@ class PriorRequest:
     horizon: int = 300
     offsets: tuple[int, ...] = (0,)
     n: int | None = None
-    settings: tuple[tuple[str, object], ...] = tuple(PRIOR_SETTINGS.items())
+    settings: tuple[tuple[str, object], ...] = ()
     batch: int = 16
     overwrite: bool = False
 
@@ -88,7 +85,11 @@ def write_priors(req: PriorRequest) -> dict:
     key = hybrid.settings.key
     record = {"source": os.path.abspath(req.source), "source_n": n_src, "source_seed": src.attrs.get("seed"),
               "settings": key,
-              "fields": {k: _plain(v) for k, v in settings.items()}, "context": req.context, "horizon": req.horizon,
+              # Every recorded switch as it was, beside the changes asked for: the record rebuilds this very hybrid
+              # whatever from_arm's defaults become.
+              "fields": {k: _plain(v) for k, v in {**{name: getattr(hybrid.settings, name) for name in RECORDED_SWITCHES},
+                                                    **settings}.items()},
+              "context": req.context, "horizon": req.horizon,
               "offsets": [int(o) for o in req.offsets], "arm": arm, "inputs": "command",
               "recipe": _recipe(src.attrs.get("config"))}
     rows = [(i, int(o)) for o in req.offsets for i in range(n_src)]  # window order: by offset, then row
