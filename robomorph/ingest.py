@@ -1,4 +1,4 @@
-"""``python -m robomorph.ingest`` (or ``robomorph ingest``): a real robot's logs (NPZ, CSV, MAT) into a store.
+"""``python -m robomorph.ingest`` (or ``robomorph ingest``): a real robot's logs (NPZ, CSV, MAT, ROS bags) into a store.
 
 The door only; the machinery is :mod:`robomorph.data.ingest`.
 """
@@ -29,6 +29,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "industrial_robot; docs: Real robots), read from its clone under --data and written as "
                    "OUT/train.zarr, OUT/test.zarr (and OUT/val.zarr), split by recording")
     p.add_argument("--data", help="with --source: the folder holding the sources' clones")
+    p.add_argument("--rosbag", action="append", metavar="PATH",
+                   help="instead of files: a ROS bag (ROS1 .bag; ROS2 folder, .db3 or .mcap) of sensor_msgs/JointState; "
+                        "repeat for several bags. Effort is the store's input (total joint torque), position its output")
+    p.add_argument("--topic", default="/joint_states", help="with --rosbag: the JointState topic (default: /joint_states)")
+    p.add_argument("--joints", type=_names, help="with --rosbag: the joints to read, comma-separated, in order "
+                   "(default: the --layout arm's joints, or every joint the bag names)")
+    p.add_argument("--split-gap", type=float, metavar="SECONDS",
+                   help="with --rosbag: a pause in the stamps longer than this starts a new recording")
     p.add_argument("--u-cols", type=_names,
                    help="total joint torque columns (the store's u), comma-separated")
     p.add_argument("--u-cmd-cols", type=_names, help="command columns before the arm's gravity compensation "
@@ -69,8 +77,24 @@ def run_source(args: argparse.Namespace) -> int:
     return 0
 
 
+_BAG_ONLY = (("--topic", "topic", "/joint_states"), ("--joints", "joints", None), ("--split-gap", "split_gap", None))
+
+
 def check_request(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """Either ``--source`` with ``--data``, or files with ``--u-cols``, ``--y-cols`` and ``--steps``."""
+    """Either ``--source`` with ``--data``, ``--rosbag`` with ``--steps``, or files with
+    ``--u-cols``, ``--y-cols`` and ``--steps``."""
+    bag_only = [flag for flag, key, default in _BAG_ONLY if getattr(args, key) != default]
+    if args.rosbag:
+        given = [flag for flag, v in (("files", args.files), ("--source", args.source), ("--u-cols", args.u_cols),
+                                      ("--u-cmd-cols", args.u_cmd_cols), ("--y-cols", args.y_cols), ("--dt", args.dt),
+                                      ("--time-col", args.time_col)) if v]
+        if given:
+            p.error(f"--rosbag reads the joints' names, stamps and units from the bag: drop {', '.join(given)}")
+        if not args.steps:
+            p.error("--rosbag needs --steps (samples per window)")
+        return
+    if bag_only:
+        p.error(f"{', '.join(bag_only)} only go with --rosbag PATH")
     if args.source:
         given = [flag for flag, v in (("files", args.files), ("--u-cols", args.u_cols), ("--y-cols", args.y_cols),
                                       ("--steps", args.steps)) if v]
@@ -83,22 +107,47 @@ def check_request(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
         p.error(f"the following arguments are required: {', '.join(missing)} (or --source NAME --data DIR)")
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.source:
-        return run_source(args)
-    # Warnings about skipped recordings are printed before the result line (or the error),
-    # once the recording context is left (inside it, showwarning only records).
+def run_rosbag(args: argparse.Namespace) -> int:
+    ds = _with_warnings(lambda: ingest.ingest_rosbag(
+        args.rosbag, args.out, args.steps, topic=args.topic, joints=args.joints, split_gap=args.split_gap,
+        stride=args.stride, overwrite=args.overwrite, name=args.name, resample_hz=args.resample, layout=args.layout,
+        time_tol=args.time_tol))
+    for r in ds.attrs["recordings"]:
+        print(f"  {r['source']}: {r['messages']} messages ({r['stamps']} stamps) -> {r['samples']} samples -> "
+              f"{r['windows']} windows; {r['interpolated']} samples interpolated (longest gap {r['longest_gap_s']:.3g} s), "
+              f"{r['duplicate_stamps']} duplicate stamps dropped, {r['reordered']} messages out of order, "
+              f"{r['tail_dropped']} tail samples dropped")
+    skipped = ds.attrs["skipped_recordings"]
+    print(f"{args.out}: {ds.n} windows x {ds.steps} steps (dt={ds.dt:.6g} s, n_u={len(ds.u_names)}, n_y={len(ds.y_names)}) "
+          f"from {len(ds.attrs['recordings']) - len(skipped)} of {len(ds.attrs['recordings'])} recordings"
+          + (", velocity kept (qvel)" if ds.attrs.get("velocity") else "")
+          + (f", resampled from {1 / ds.attrs['original_dt']:.6g} Hz" if args.resample else ""))
+    return 0
+
+
+def _with_warnings(fn):
+    """Runs ``fn``, printing warnings about skipped recordings before its result line (or its
+    error), once the recording context is left (inside it, showwarning only records)."""
     caught: list[warnings.WarningMessage] = []
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ingest.ShortRecordingWarning)
-            ds = ingest.ingest(args.files, args.u_cols, args.y_cols, args.out, args.steps, dt=args.dt,
-                               time_col=args.time_col, stride=args.stride, fmt=args.fmt,
-                               overwrite=args.overwrite, name=args.name, time_tol=args.time_tol,
-                               u_cmd_cols=args.u_cmd_cols, u_units=args.u_units, y_units=args.y_units,
-                               resample_hz=args.resample, layout=args.layout)
+            ds = fn()
     finally:
         _print_warnings(caught)
+    return ds
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.source:
+        return run_source(args)
+    if args.rosbag:
+        return run_rosbag(args)
+    ds = _with_warnings(lambda: ingest.ingest(
+        args.files, args.u_cols, args.y_cols, args.out, args.steps, dt=args.dt, time_col=args.time_col,
+        stride=args.stride, fmt=args.fmt, overwrite=args.overwrite, name=args.name, time_tol=args.time_tol,
+        u_cmd_cols=args.u_cmd_cols, u_units=args.u_units, y_units=args.y_units, resample_hz=args.resample,
+        layout=args.layout))
     used = len(args.files) - len(ds.attrs["skipped_recordings"])
     for r in ds.attrs["recordings"]:
         print(f"  {r['source']}: {r['samples']} samples -> {r['windows']} windows, "

@@ -41,4 +41,4 @@ fi
 # robosuite (the `arms` extra, MIT) ships the MJCF and meshes of the other arms
 # (robomorph.sim.arms); only its asset files are read, so its dependencies are skipped.
 "${PIP[@]}" install -q --no-deps "robosuite==1.5.2"
-"$VENV/bin/python" -c "import torch, mujoco, dm_control, zarr; print(f'install: torch {torch.__version__}, mujoco {mujoco.__version__}, zarr {zarr.__version__}')"
+"$VENV/bin/python" -c "import torch, mujoco, dm_control, zarr, rosbags; print(f'install: torch {torch.__version__}, mujoco {mujoco.__version__}, zarr {zarr.__version__}')"

@@ -30,11 +30,11 @@ import warnings
 import numpy as np
 
 from robomorph.core.locks import exclusive_on
-from robomorph.data import real_logs
+from robomorph.data import real_logs, rosbag
 from robomorph.data.log_files import FORMATS, IngestError, read_log
 from robomorph.data.store import Dataset, check_writable, create_store, open_store
 
-__all__ = ["FORMATS", "IngestError", "ShortRecordingWarning", "ingest", "read_log"]
+__all__ = ["FORMATS", "IngestError", "ShortRecordingWarning", "ingest", "ingest_rosbag", "read_log"]
 
 # Windows written per append: bounds memory when overlapping windows repeat samples.
 _WRITE_BLOCK = 64
@@ -144,25 +144,31 @@ def _check_request(files: list[str], u_cols: list[str], y_cols: list[str], steps
             real_logs.rate_ratio(dt, resample_hz)
 
 
-def _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol, u_cmd_cols=None,
-                     dt=None, resample_hz=None, layout=None):
-    """Reads and checks every log: ``([(file index, u, y, starts, u_cmd)], dts, skipped, report)``,
-    the report giving per recording its samples (at the store's rate), windows and dropped
-    tail samples. With ``resample_hz`` each recording is resampled (anti-aliased) first;
-    with ``layout`` its ``y`` is put in the layout's channels (:mod:`robomorph.data.real_logs`).
-    Refuses logs of which no recording gives a window."""
-    recs, dts, skipped, report = [], [], [], []
+def _file_logs(files: list[str], fmt: str):
+    """``(index, path, columns)`` of each log file, read as its turn comes (one in memory at a time)."""
     for index, path in enumerate(files):
-        cols = read_log(path, fmt)
+        yield index, path, read_log(path, fmt)
+
+
+def _load_recordings(logs, u_cols, y_cols, steps, stride, time_col, time_tol, u_cmd_cols=None,
+                     dt=None, resample_hz=None, layout=None, qvel_cols=None):
+    """Reads and checks every log of ``logs`` (``(index, path, columns)``):
+    ``([(index, u, y, starts, extras)], dts, skipped, report)``, ``extras`` holding ``u_cmd``
+    and ``qvel`` where asked, the report giving per recording its samples (at the store's rate),
+    windows and dropped tail samples. With ``resample_hz`` each recording is resampled
+    (anti-aliased) first; with ``layout`` its ``y`` is put in the layout's channels
+    (:mod:`robomorph.data.real_logs`). Refuses logs of which no recording gives a window."""
+    recs, dts, skipped, report = [], [], [], []
+    for index, path, cols in logs:
         # Checked even for recordings skipped below: a wrong name is wrong in every file.
-        _check_columns(cols, [*u_cols, *(u_cmd_cols or []), *y_cols, *([time_col] if time_col else [])], path,
-                       stored=[*u_cols, *(u_cmd_cols or []), *y_cols])
+        stored = [*u_cols, *(u_cmd_cols or []), *y_cols, *(qvel_cols or [])]
+        _check_columns(cols, [*stored, *([time_col] if time_col else [])], path, stored=stored)
         rec_dt = _sample_time(cols[time_col], path, time_tol) if time_col and len(cols[time_col]) >= 2 else dt
         arrays = [np.stack([cols[c] for c in names], axis=1).astype(np.float32) if names else None
-                  for names in (u_cols, y_cols, u_cmd_cols)]  # (L, n_u), (L, n_y), (L, n_u) or None
+                  for names in (u_cols, y_cols, u_cmd_cols, qvel_cols)]  # (L, n_u), (L, n_y), (L, n_u), (L, n_y)
         if resample_hz and rec_dt:
             arrays = [None if a is None else real_logs.resample(a, rec_dt, resample_hz) for a in arrays]
-        u, y, u_cmd = arrays
+        u, y, u_cmd, qvel = arrays
         length = len(u)
         starts = _window_starts(length, steps, stride)
         # Samples after the last window that no window covers (all of a too-short recording).
@@ -176,7 +182,8 @@ def _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_t
             continue
         if time_col:  # a 1-sample recording has no sample time: _sample_time says so
             dts.append((path, rec_dt if rec_dt is not None else _sample_time(cols[time_col], path, time_tol)))
-        recs.append((index, u, real_logs.apply_layout(layout, y), starts, u_cmd))
+        extras = {k: v for k, v in (("u_cmd", u_cmd), ("qvel", qvel)) if v is not None}
+        recs.append((index, u, real_logs.apply_layout(layout, y), starts, extras))
     if not recs:
         raise IngestError(f"no windows: every recording is shorter than --steps {steps}; lower --steps")
     return recs, dts, skipped, report
@@ -241,8 +248,8 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
     _check_request(files, u_cols, y_cols, steps, dt, time_col, stride, time_tol, u_cmd_cols, u_units, y_units,
                    layout, resample_hz)
     check_writable(out, overwrite)  # refuse a bad --out before reading large logs
-    recs, dts, skipped, report = _load_recordings(files, u_cols, y_cols, steps, stride, time_col, fmt, time_tol,
-                                                  u_cmd_cols, dt, resample_hz, layout)
+    recs, dts, skipped, report = _load_recordings(_file_logs(files, fmt), u_cols, y_cols, steps, stride, time_col,
+                                                  time_tol, u_cmd_cols, dt, resample_hz, layout)
     total = sum(len(r[3]) for r in recs)
     dt = _common_dt(dts, time_tol) if time_col else float(dt)
     original_dt, dt = dt, (1.0 / resample_hz if resample_hz else dt)
@@ -254,6 +261,70 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
               "layout": layout}
     attrs = _store_attrs(config, dt, original_dt, report, skipped, total, y_units_stored or [""] * len(y_names))
     _write_store(out, recs, steps, (u_names, y_names, cmd_names), attrs, overwrite)
+    return open_store(out)
+
+
+@exclusive_on("out")  # one writer per store
+def ingest_rosbag(bags: list[str], out: str, steps: int, topic: str = rosbag.DEFAULT_TOPIC,
+                  joints: list[str] | None = None, split_gap: float | None = None, stride: int | None = None,
+                  overwrite: bool = False, name: str | None = None, resample_hz: float | None = None,
+                  layout: str | None = None, time_tol: float = 0.01) -> Dataset:
+    """Writes the ``sensor_msgs/JointState`` messages of ROS bags as a RoboMorph dataset.
+
+    Each bag is one recording, or several with ``split_gap`` (:mod:`robomorph.data.rosbag` says
+    how messages become samples on a uniform clock); from there the recordings go the way of
+    every log (:func:`ingest`): resampled, cut into windows, written. Effort is the store's
+    ``u`` (the total joint torque), position its ``y``; velocity, where every message holds
+    it, the extra array ``qvel`` (N, T, n).
+
+    Args:
+        bags: ROS1 ``.bag`` files, ROS2 bag folders, or ROS2 ``.db3`` / ``.mcap`` files.
+        out: the store directory to create.
+        steps: samples per window (T), at the bag's rate or at ``resample_hz``.
+        topic: the JointState topic.
+        joints: the joints, in order; default: a ``layout`` arm's joints, or every joint the
+            first bag names, in the order they first appear.
+        split_gap: seconds: a longer pause in the stamps starts a new recording.
+        stride, overwrite, name, resample_hz, layout, time_tol: as for :func:`ingest`.
+
+    Raises:
+        IngestError: a bag or an argument that cannot be used (nothing is written).
+    """
+    stride = steps if stride is None else stride
+    arm = real_logs.layout_arm(layout)
+    joints = list(arm.joint_names) if arm is not None and joints is None else joints
+    if arm is not None and len(joints) != arm.n_joint:
+        raise IngestError(f"--layout {arm.name} needs its {arm.n_joint} joints, got {len(joints)} in --joints; leave --joints "
+                          f"out to read {', '.join(arm.joint_names)}")
+    probe = joints or ["joint"]  # the column checks below need names; the bag gives them otherwise
+    _check_request(list(bags), probe, probe, steps, None, "t", stride, time_tol, None, None, None, layout, resample_hz)
+    check_writable(out, overwrite)
+    recs_in, bag_reports = [], []
+    for path in bags:
+        log = rosbag.read_joint_states(path, topic, joints)
+        joints = joints or log.joints  # later bags must hold the first one's joints
+        for rec in rosbag.recordings(log, os.path.basename(os.path.normpath(path)), split_gap):
+            recs_in.append(rec)
+            bag_reports.append({**log.report, **rec.report})
+    cols = {q: [rosbag.column(q, j) for j in joints] for q in rosbag.QUANTITIES}
+    velocity = all(r.report["velocity"] for r in recs_in)
+    logs = ((i, r.label, r.columns) for i, r in enumerate(recs_in))
+    recs, dts, skipped, report = _load_recordings(logs, cols["effort"], cols["position"], steps, stride, "t", time_tol,
+                                                  None, None, resample_hz, layout, cols["velocity"] if velocity else None)
+    original_dt = _common_dt(dts, time_tol)
+    dt = 1.0 / resample_hz if resample_hz else original_dt
+    u_names, y_names, _, y_units = real_logs.layout_names(layout, cols["effort"], cols["position"], None,
+                                                          ["rad"] * len(joints))
+    config = {"rosbag": [str(b) for b in bags], "topic": topic, "joints": list(joints), "split_gap": split_gap,
+              "steps": steps, "stride": stride, "name": name, "time_tol": time_tol, "resample_hz": resample_hz,
+              "layout": layout, "u_cols": cols["effort"], "y_cols": cols["position"],
+              "u_units": ["N m"] * len(joints), "files": [r.label for r in recs_in]}
+    for rec, bag in zip(report, bag_reports):
+        rec.update({k: bag[k] for k in ("messages", "interpolated", "duplicate_stamps", "reordered", "stamps",
+                                        "longest_gap_s", "decoded_one_by_one")})
+    attrs = _store_attrs(config, dt, original_dt, report, skipped, sum(len(r[3]) for r in recs), y_units)
+    attrs["velocity"] = "qvel" if velocity else None
+    _write_store(out, recs, steps, (u_names, y_names, None), attrs, overwrite)
     return open_store(out)
 
 
@@ -274,15 +345,17 @@ def _write_store(out: str, recs: list, steps: int, names: tuple, attrs: dict, ov
     """Creates the store (``names``: u, y and command channel names), appends every
     recording's windows, ``_WRITE_BLOCK`` at a time, and marks it complete."""
     u_names, y_names, cmd_names = names
+    extras = {"recording_index": ((), "int32"), "window_start": ((), "int64")}
+    velocity = recs[0][4].get("qvel")
+    if velocity is not None:  # the logged joint velocity, where the log has one (ROS bags)
+        extras["qvel"] = ((steps, velocity.shape[1]), "float32")
     writer = create_store(out, sum(len(r[3]) for r in recs), steps, u_names, y_names, [], attrs,
-                          extras={"recording_index": ((), "int32"), "window_start": ((), "int64")},
-                          overwrite=overwrite, u_cmd_names=cmd_names)
-    for index, u, y, starts, u_cmd in recs:
+                          extras=extras, overwrite=overwrite, u_cmd_names=cmd_names)
+    for index, u, y, starts, more in recs:
         for b in range(0, len(starts), _WRITE_BLOCK):
             block = starts[b:b + _WRITE_BLOCK]
             rows = block[:, None] + np.arange(steps)  # (k, T) sample indices
-            extras = {"recording_index": np.full(len(block), index, np.int32), "window_start": block}
-            if u_cmd is not None:
-                extras["u_cmd"] = u_cmd[rows]
+            extras = {"recording_index": np.full(len(block), index, np.int32), "window_start": block,
+                      **{name: arr[rows] for name, arr in more.items()}}
             writer.append(u[rows], y[rows], np.zeros((len(block), 0), np.float32), extras=extras)
     writer.finalize()
