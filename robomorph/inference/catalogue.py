@@ -14,8 +14,9 @@ that mode, the same to the bit (a test checks it against a trained checkpoint).
 What it cannot do, because there is no network: the modes that read one (``learned`` and
 ``fused``: a parameter head; ``blend`` and ``smoothed``: the decoder; ``none``: the decoder
 alone) are refused with one line. There are no training statistics,
-so the range check of :attr:`Predictor.max_input_std` is off: check the torques' units
-yourself (N m, the command without gravity compensation).
+so the range check of :attr:`Predictor.max_input_std` is off; the catalogue's limits stand in
+(:class:`ArmLimits`, :attr:`Predictor.limits`): torques beyond three times the arm's motor limits (N m given as
+mN m) and context joint angles outside its joint ranges (degrees given for radians) are refused.
 
 Its standard deviation is the spread over the robots the context allows, scaled by a shipped
 calibration where one was fitted for the arm and the recipe asked for: ``arm_calibrations/<arm>-<recipe>.json``
@@ -55,8 +56,73 @@ CALIBRATION_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "arm_
 _SAMPLING_FIELDS = ("robots", "seed", "steps", "chunk", "max_attempts_factor")
 
 
+# The input check of a Predictor with no training statistics (ArmLimits): torques beyond this many times the
+# arm's motor limits are refused (N m given as mN m: x1000). A command asks at most the motor's limit beyond the
+# gravity compensation's share, itself within the limit (2x), and the public Kinova Gen3 logs' torques from the
+# motor currents reach 1.65x its datasheet's limits (their peaks): 3x lets both by.
+TORQUE_FACTOR = 3.0
+# Joint angles further than this [rad] outside the catalogue's joint range are refused (degrees given for
+# radians): a real arm's encoders stay within its range, and the margin lets a zero offset or an overshoot by.
+JOINT_MARGIN = 0.2
+
+
 class NoNetworkError(RoboMorphError, ValueError):
     """A prediction that needs a trained network, asked of a Predictor built from the arm alone."""
+
+
+class LimitsError(NoNetworkError):
+    """Torques or joint angles far outside a catalogue arm's limits: their units, most often."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ArmLimits:
+    """A catalogue arm's motor torque limits [N m] and joint ranges [rad], against which a Predictor with no
+    training statistics (:func:`from_arm`) checks what it is given: torques beyond :data:`TORQUE_FACTOR` times
+    the limits and joint angles :data:`JOINT_MARGIN` outside the ranges are refused, with the channel named.
+    ``Predictor.limits = None`` turns the check off."""
+
+    arm: str
+    torques: tuple[float, ...]
+    joints: tuple[tuple[float, float], ...]
+
+    @classmethod
+    def of(cls, arm: str) -> "ArmLimits":
+        from robomorph.sim import arms  # noqa: PLC0415
+
+        spec = arms.get(arm)
+        ranges = spec.build_model(gravity_compensation=False).jnt_range[:spec.n_joint]
+        return cls(spec.name, tuple(float(x) for x in spec.limits), tuple((float(lo), float(hi)) for lo, hi in ranges))
+
+    def check(self, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor, names: dict) -> None:
+        """Refuses (:class:`LimitsError`) the first torque or context joint angle out of bounds; ``names``:
+        the Predictor's record (its ``u_names`` and ``y_names`` label the channel)."""
+        n = len(self.torques)
+        limit = torch.tensor(self.torques, dtype=u_ctx.dtype, device=u_ctx.device)
+        for what, u in (("u_ctx", u_ctx), ("u_query", u_query)):
+            ratio = u.abs().reshape(-1, u.shape[-1]).amax(0)[:n] / limit
+            j = int(torch.argmax(ratio))
+            if float(ratio[j]) > TORQUE_FACTOR:
+                label = _label(names.get("u_names"), j, "u")
+                raise LimitsError(
+                    f"{what} reaches {float(ratio[j] * limit[j]):.4g} N m on {label!r}, {float(ratio[j]):.3g} times "
+                    f"the {self.arm}'s motor limit of {self.torques[j]:g} N m (refused above {TORQUE_FACTOR:g}x): "
+                    "give the torques in N m, or set Predictor.limits = None to predict anyway")
+        q = y_ctx[..., 7:7 + n].reshape(-1, n)
+        lo, hi = (torch.tensor(v, dtype=q.dtype, device=q.device) for v in zip(*self.joints))
+        beyond = torch.maximum(lo - q.amin(0), q.amax(0) - hi)
+        j = int(torch.argmax(beyond))
+        if float(beyond[j]) > JOINT_MARGIN:
+            worst = float(q[:, j].amin() if float(lo[j] - q[:, j].amin()) >= float(q[:, j].amax() - hi[j])
+                          else q[:, j].amax())
+            label = _label(names.get("y_names"), 7 + j, "y")
+            raise LimitsError(
+                f"y_ctx's joint angle {label!r} reaches {worst:.4g} rad, outside the {self.arm}'s joint range "
+                f"[{self.joints[j][0]:.3g}, {self.joints[j][1]:.3g}] rad by more than {JOINT_MARGIN:g}: give the "
+                "angles in radians (not degrees), or set Predictor.limits = None to predict anyway")
+
+
+def _label(names, j: int, kind: str) -> str:
+    return str(names[j]) if names and j < len(names) else f"{kind}{j}"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -195,12 +261,14 @@ def shipped_calibrations(info: dict) -> dict:
     return {calibration_key(c): c for c in cals}
 
 
-def check_network_free(predictor) -> None:
-    """Refuses, in one line, a physics mode that reads a network, asked of a Predictor that has none
-    (called by :func:`robomorph.inference.predictor_checks.check_settings` before anything runs)."""
+def check_network_free(predictor, mode: str | None = None) -> None:
+    """Refuses, in one line, a physics mode (``mode``, default the Predictor's) that reads a network, asked of a
+    Predictor that has none: by :meth:`~robomorph.inference.predictor.Predictor.configure` before it changes
+    anything, and by :func:`robomorph.inference.predictor_checks.check_settings` before anything runs."""
     free = getattr(predictor.model, "network_free_modes", None)
-    if free is not None and predictor.settings.mode not in free:
-        raise NoNetworkError(f"physics mode {predictor.settings.mode!r} reads a trained network, and this Predictor "
+    mode = predictor.settings.mode if mode is None else mode
+    if free is not None and mode not in free:
+        raise NoNetworkError(f"physics mode {mode!r} reads a trained network, and this Predictor "
                              f"was built from the arm alone (Predictor.from_arm): use {' or '.join(map(repr, free))}, "
                              "or load a trained checkpoint (Predictor.from_checkpoint)")
 
@@ -220,8 +288,16 @@ def from_arm(cls, arm: str = "panda", recipe: str | None = None, device=None, in
         overrides: recipe fields changed, e.g. ``dt=0.01``.
 
     Raises:
-        NoNetworkError: an arm that is not registered.
+        NoNetworkError: an arm that is not registered, a ``robot`` override naming another arm than ``arm``, or
+            ``calibrated`` other than True or False.
+        ConfigError: a recipe field out of its range (``dt`` above a second, ...).
     """
+    # Validated whole before anything is built (issue 61): robot="ur5e" used to win over the arm in silence.
+    if "robot" in overrides and overrides["robot"] != arm:
+        raise NoNetworkError(f"robot={overrides['robot']!r} names another arm than {arm!r}: give the arm once, "
+                             f"as the first argument (Predictor.from_arm({overrides['robot']!r}))")
+    if not isinstance(calibrated, bool):
+        raise NoNetworkError(f"calibrated must be True or False, got {calibrated!r}")
     info = arm_record(arm, recipe, inputs, **overrides)
     model = NoNetwork(len(info["u_names"]), len(info["y_names"]))
     if calibrated:
@@ -231,5 +307,6 @@ def from_arm(cls, arm: str = "panda", recipe: str | None = None, device=None, in
     # backbone from its record (Predictor.__init__), and this one has no model at all.
     pred.physics, pred.has_std = info["physics"], True
     pred.configure(mode="regression", **TODAYS_RECORD)
-    pred.max_input_std = None  # no training statistics to compare the inputs with
+    pred.max_input_std = None  # no training statistics to compare the inputs with: the catalogue's limits instead
+    pred.limits = ArmLimits.of(info["arm"])
     return pred

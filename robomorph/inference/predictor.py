@@ -82,6 +82,9 @@ class Predictor:
         device: where it runs.
         max_input_std: ``simulate`` refuses torques further than this many training standard deviations
             from the training mean (default :data:`MAX_INPUT_STDS`; None: no check).
+        limits: :meth:`from_arm`'s catalogue limits (:class:`~robomorph.inference.catalogue.ArmLimits`):
+            ``simulate`` refuses torques beyond three times the arm's motor limits and context joint angles outside its
+            joint ranges (wrong units, with no training statistics to tell); None (a trained model's): no check.
         physics: the physics backbone's record (parameter layout and generator recipe) of a model trained
             with ``--model.physics amortized`` or given a blend by ``robomorph calibrate --blend``, else None.
         settings: how it predicts, every knob of its hybrid included: one frozen
@@ -98,6 +101,7 @@ class Predictor:
     def __init__(self, model: TrainedModel, device: str | torch.device | None = None, data_info: dict | None = None):
         self.device = resolve_device(device)
         self.max_input_std: float | None = MAX_INPUT_STDS
+        self.limits = None  # a catalogue arm's torque and joint limits, checked instead (from_arm)
         self.model = model.to(self.device).eval()
         self.n_u, self.n_y, self.patch = model.config.n_u, model.config.n_y, model.config.patch
         self.normalization: str = model.normalizer.normalization
@@ -138,10 +142,15 @@ class Predictor:
 
         Raises:
             PredictionError: an unknown name, a value out of its range, or a physics mode this model cannot
-                predict in (no physics backbone)."""
+                predict in (no physics backbone; a network's mode asked of :meth:`from_arm`'s). Nothing changes
+                then: the settings stay as they were, so the next call predicts as before."""
+        if settings is not None and not isinstance(settings, HybridSettings):
+            raise PredictionError(f"configure takes a HybridSettings (or names of its fields), got "
+                                  f"{type(settings).__name__}")
         new = (settings or self._settings).replace(**changes)
         if new.mode != self._settings.mode:
             _checked_mode(self.physics, new.mode, "mode")
+        catalogue.check_network_free(self, new.mode)
         self._settings = new
         return self
 

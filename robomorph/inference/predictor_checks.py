@@ -78,6 +78,9 @@ def as_batch(arrays, widths: tuple[int, int, int], device: torch.device) -> tupl
 
 def check_range(predictor, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor) -> None:
     """Refuses inputs or context outputs far outside the training range (wrong units, most often)."""
+    limits = getattr(predictor, "limits", None)
+    if limits is not None:  # a catalogue arm's limits (Predictor.from_arm, which has no training statistics)
+        limits.check(u_ctx, y_ctx, u_query, predictor.data_info or {})
     if predictor.max_input_std is None:
         return
     stats = predictor.model.normalizer
@@ -107,6 +110,9 @@ def check_settings(predictor) -> None:
     limit = predictor.max_input_std
     if limit is not None and not (isinstance(limit, (int, float)) and math.isfinite(limit) and limit > 0):
         raise PredictionError(f"max_input_std must be None or a finite number > 0, got {limit!r}")
+    limits = getattr(predictor, "limits", None)
+    if limits is not None and not hasattr(limits, "check"):
+        raise PredictionError(f"limits must be None or a catalogue arm's ArmLimits, got {type(limits).__name__}")
 
 
 def model_arms(predictor) -> list[str]:

@@ -49,8 +49,16 @@ def default_workers() -> int:
     return 2 if (os.cpu_count() or 1) >= 2 else 1
 
 
-def _whole(value, low: int) -> bool:
-    return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= low
+# The most each count may take. Far above anything that pays (members 9, samples 8, workers 2, iterations 3,
+# refine_iters 3 to 8, substeps 8 to 16 by default) and below what exhausts memory or time before the first
+# window: ``members=10**9`` used to be accepted here and fail only inside simulate.
+LIMITS = {"samples": 1024, "members": 1024, "workers": 64, "iterations": 100, "refine_iters": 1000,
+          "substeps": 1000}
+
+
+def _whole(value, low: int, high: int | None = None) -> bool:
+    return (isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= low
+            and (high is None or value <= high))
 
 
 @dataclass(frozen=True)
@@ -123,10 +131,12 @@ class HybridSettings:
         if self.mode not in MODES:
             raise SettingsError(f"mode {self.mode!r}: choose none or one of {', '.join(PHYSICS_MODES)}")
         for name in ("samples", "members", "workers", "iterations", "refine_iters"):
-            if not _whole(getattr(self, name), 1):
-                raise SettingsError(f"{name} must be a whole number >= 1, got {getattr(self, name)!r}")
-        if self.substeps is not None and not _whole(self.substeps, 1):
-            raise SettingsError(f"substeps must be None or a whole number >= 1, got {self.substeps!r}")
+            if not _whole(getattr(self, name), 1, LIMITS[name]):
+                raise SettingsError(f"{name} must be a whole number from 1 to {LIMITS[name]}, got "
+                                    f"{getattr(self, name)!r}")
+        if self.substeps is not None and not _whole(self.substeps, 1, LIMITS["substeps"]):
+            raise SettingsError(f"substeps must be None or a whole number from 1 to {LIMITS['substeps']}, got "
+                                f"{self.substeps!r}")
         if self.points is not None and self.points not in POINTS:
             raise SettingsError(f"points {self.points!r}: choose one of {', '.join(POINTS)} (or None: the "
                                 "calibration's)")

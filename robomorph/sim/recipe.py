@@ -19,6 +19,12 @@ from robomorph.sim.realism import RealismConfig
 from robomorph.sim.signals import SignalConfig
 
 
+# The longest sample time a recipe takes [s]. The shipped recipes sample at 60 Hz and real arms log at 10 Hz
+# to 1 kHz; a sample a second apart holds none of an arm's dynamics, and ``Predictor.from_arm(dt=1e9)``
+# predicted poses of 6e5 m without a word.
+MAX_DT = 1.0
+
+
 @dataclass(frozen=True)
 class Recipe:
     """Everything that decides a generated dataset (with the seed, it decides every array).
@@ -67,8 +73,8 @@ class Recipe:
         for name in ("robots", "steps", "substeps", "chunk"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if not self.dt > 0:
-            raise ValueError(f"dt must be > 0, got {self.dt}")
+        if not 0 < self.dt <= MAX_DT:
+            raise ValueError(f"dt must be a sample time in seconds, > 0 and at most {MAX_DT:g}, got {self.dt}")
         if self.max_attempts_factor < 1:
             raise ValueError(f"max_attempts_factor must be >= 1, got {self.max_attempts_factor}")
         if self.gravity_compensation not in GRAVITY_MODES:

@@ -64,10 +64,9 @@ def test_what_needs_a_network_is_refused_in_one_line(store):
     uc, yc, uq, _, _ = _windows(store, n=1)
     pred = Predictor.from_arm("panda")
     for mode in ("none", "blend", "smoothed", "learned", "fused"):  # the decoder's and the parameter head's
-        pred.use_physics(mode)
         with pytest.raises(NoNetworkError, match=rf"^physics mode '{mode}' reads a trained network") as exc:
-            pred.simulate(uc, yc, uq)  # refused before anything runs
-        assert "\n" not in str(exc.value)
+            pred.use_physics(mode)  # refused where it is asked for, and the settings stay as they were
+        assert "\n" not in str(exc.value) and pred.settings.mode == "regression"
     pred.use_physics("refined")  # reads no network either
     assert pred.simulate(uc, yc, uq).shape == uq.shape[:2] + (14,)
     with pytest.raises(NoNetworkError, match=r"unknown arm 'ur6'.*choose one of panda, ur5e"):
