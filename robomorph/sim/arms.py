@@ -1,4 +1,4 @@
-"""The registry of robot arms (domains): the Panda as before, and the arms robosuite ships.
+"""The registry of robot arms (domains): the Panda, the arms robosuite ships, and the user's own.
 
 Every arm is a torque-driven domain with the same construction as :mod:`robomorph.sim.panda`:
 a floor, an end-effector site ``ee`` (at the flange, where robosuite mounts grippers, for
@@ -19,6 +19,14 @@ the pieces above are added. Joints without limits (Kinova's continuous joints) g
 Torque limits are the ``ctrlrange`` values of robosuite's ``robot.xml``; their sources, as
 the XML comments give them, are in :data:`ARMS` (``torque_source``); a test checks that
 they still match the installed XML.
+
+A user's own arms (``robomorph arms add NAME --urdf robot.urdf``, :mod:`robomorph.sim.user_arms`)
+live in a user folder, never in the installed package: ``$ROBOMORPH_ARMS``, else
+``$XDG_DATA_HOME/robomorph/arms``, else ``~/.local/share/robomorph/arms``, one folder per arm
+holding ``arm.json`` and its model (``model.urdf`` or ``model.xml``: kinematics, inertials,
+joint limits, damping and friction, without geometry). :data:`ARMS` finds them beside the shipped ones, so everything that
+asks the registry (generate, the physics baselines, identified physics, the hybrid,
+``Predictor.from_arm``) works on them alike; their domain is built as a robosuite arm's is.
 """
 
 from __future__ import annotations
@@ -26,7 +34,9 @@ from __future__ import annotations
 import copy
 import functools
 import importlib.util
+import json
 import os
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 
 import mujoco
@@ -100,6 +110,8 @@ class Arm:
             middle of the joint ranges (the Panda's scheme, kept as it was).
         folder: robosuite's ``models/assets/robots/<folder>`` (``None`` for the Panda).
         hand: the body the EE site is put on.
+        model_file: a user arm's ``model.xml`` (``None`` for the shipped arms).
+        digest: the SHA-256 of a user arm's model, so a cached model never outlives its file.
     """
 
     name: str
@@ -110,6 +122,8 @@ class Arm:
     home: tuple[float, ...] | None = None
     folder: str | None = None
     hand: str = "right_hand"
+    model_file: str | None = None
+    digest: str | None = None
 
     def __post_init__(self):
         if len(self.torque_limits) != len(self.joint_names) or (
@@ -136,7 +150,7 @@ class Arm:
         accelerates the arm about as the paper's signal does the Panda, without asking for
         more of its motors. Ones for the Panda, whose recipes are unchanged.
         """
-        return np.ones(self.n_joint) if self.name == "panda" else _joint_gain(self.name).copy()
+        return np.ones(self.n_joint) if self.name == "panda" else _joint_gain(self).copy()
 
     @property
     def layout(self) -> SensorLayout:
@@ -161,7 +175,7 @@ class Arm:
             return panda.build_model(substeps, dt, gravity_compensation)
         if substeps < 1:
             raise ValueError(f"substeps must be >= 1, got {substeps}")
-        return copy.deepcopy(_compiled(self.name, float(dt) / substeps, bool(gravity_compensation)))
+        return copy.deepcopy(_compiled(self, float(dt) / substeps, bool(gravity_compensation)))
 
     def link_bodies(self, model: mujoco.MjModel) -> tuple[str, ...]:
         """The randomized bodies: for the Panda its links and hand; otherwise the body each joint turns."""
@@ -171,7 +185,7 @@ class Arm:
 
 
 _UR = "Universal Robots, max joint torques (universal-robots.com/articles/ur-articles/max-joint-torques)"
-ARMS: dict[str, Arm] = {a.name: a for a in (
+SHIPPED: dict[str, Arm] = {a.name: a for a in (
     Arm("panda", "Franka Emika Panda", tuple(f"panda_joint{i}" for i in range(1, 8)),
         tuple(panda.TORQUE_LIMITS), "Franka Control Interface documentation (dm-robotics-panda model)",
         hand="hand"),
@@ -195,6 +209,65 @@ ARMS: dict[str, Arm] = {a.name: a for a in (
         (30.5, 30.5, 30.5, 30.5, 30.5, 6.8, 6.8), "Kinova Jaco actuator spec sheet (KA-58 / KA-75+)",
         home=(3.192, 3.680, 0.0, 1.170, 0.050, 3.760, 3.142), folder="jaco"),
 )}
+
+
+USER_ARMS_ENV = "ROBOMORPH_ARMS"
+
+
+def user_folder() -> str:
+    """The folder of the user's own arms (see the module docstring); it may not exist yet."""
+    if os.environ.get(USER_ARMS_ENV):
+        return os.path.abspath(os.path.expanduser(os.environ[USER_ARMS_ENV]))
+    data = os.environ.get("XDG_DATA_HOME") or os.path.join(os.path.expanduser("~"), ".local", "share")
+    return os.path.join(os.path.abspath(data), "robomorph", "arms")
+
+
+def _user_names() -> list[str]:
+    folder = user_folder()
+    if not os.path.isdir(folder):
+        return []
+    return sorted(n for n in os.listdir(folder) if n not in SHIPPED and os.path.isfile(os.path.join(folder, n, "arm.json")))
+
+
+@functools.lru_cache(maxsize=64)
+def read_user_arm(path: str, mtime_ns: int) -> Arm:  # mtime in the key: a re-added arm is read anew
+    with open(path, encoding="utf-8") as f:
+        rec = json.load(f)
+    return Arm(rec["name"], rec["title"], tuple(rec["joint_names"]), tuple(float(v) for v in rec["torque_limits"]),
+               rec["torque_source"], None if rec.get("home") is None else tuple(rec["home"]), hand=rec["hand"],
+               model_file=os.path.join(os.path.dirname(path), rec["model"]), digest=rec["digest"])
+
+
+def user_arm(name: str) -> Arm | None:
+    """The user's arm ``name`` from the user folder, or None."""
+    if name in SHIPPED or not isinstance(name, str) or not name or os.sep in name or name.startswith("."):
+        return None
+    path = os.path.join(user_folder(), name, "arm.json")
+    try:
+        return read_user_arm(path, os.stat(path).st_mtime_ns)
+    except FileNotFoundError:
+        return None
+
+
+class _Registry(Mapping):
+    """The shipped arms, then the user's own (read from the user folder at each look-up, so an
+    arm added or removed by another process is seen)."""
+
+    def __getitem__(self, name: str) -> Arm:
+        arm = SHIPPED.get(name) or user_arm(name)
+        if arm is None:
+            raise KeyError(name)
+        return arm
+
+    def __iter__(self) -> Iterator[str]:
+        yield from SHIPPED
+        yield from _user_names()
+
+    def __len__(self) -> int:
+        return len(SHIPPED) + len(_user_names())
+
+
+ARMS: Mapping[str, Arm] = _Registry()
 
 
 _ARMATURE_MID = 0.1  # kg m^2: the middle of RandomizationConfig.armature's default range
@@ -224,8 +297,8 @@ def _inertia(arm: Arm) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=None)
-def _joint_gain(name: str) -> np.ndarray:
-    arm, n = ARMS[name], ARMS[name].n_joint
+def _joint_gain(arm: Arm) -> np.ndarray:
+    n = arm.n_joint
     # Role of each joint in the Panda: the first n - 3 joints from the base, the last 3 the wrist.
     role = np.array([i if i < n - 3 else i + 7 - n for i in range(n)])
     torque = arm.limits / panda.TORQUE_LIMITS[role]
@@ -234,7 +307,7 @@ def _joint_gain(name: str) -> np.ndarray:
 
 
 def names() -> list[str]:
-    """The registered robots, Panda first."""
+    """The registered robots, Panda first, the user's own after the shipped ones."""
     return list(ARMS)
 
 
@@ -243,7 +316,8 @@ def get(name: str) -> Arm:
     try:
         return ARMS[name]
     except KeyError:
-        raise UnknownRobotError(f"unknown robot {name!r}; choose from {names()}") from None
+        raise UnknownRobotError(f"unknown robot {name!r}; choose from {names()} (or add your own: "
+                                "robomorph arms add NAME --urdf robot.urdf)") from None
 
 
 def of_store(attrs: dict) -> Arm | None:
@@ -313,7 +387,10 @@ def _exclude_base(spec: mujoco.MjSpec, first_joint) -> None:
 
 
 def build_spec(arm: Arm, timestep: float, gravity_compensation: bool) -> mujoco.MjSpec:
-    spec = mujoco.MjSpec.from_file(robosuite_xml(arm.folder))
+    spec = mujoco.MjSpec.from_file(arm.model_file or robosuite_xml(arm.folder))
+    if arm.model_file:  # a user's arm: joints it does not drive (a gripper's) are welded where they stand at zero
+        for joint in [j for j in spec.joints if j.name not in arm.joint_names]:
+            spec.delete(joint)
     spec.modelname = f"robomorph_{arm.name}"
     _strip(spec)
     spec.option.timestep = timestep
@@ -344,10 +421,9 @@ def build_spec(arm: Arm, timestep: float, gravity_compensation: bool) -> mujoco.
 
 
 @functools.lru_cache(maxsize=16)
-def _compiled(name: str, timestep: float, gravity_compensation: bool) -> mujoco.MjModel:
-    arm = ARMS[name]
+def _compiled(arm: Arm, timestep: float, gravity_compensation: bool) -> mujoco.MjModel:
     model = build_spec(arm, timestep, gravity_compensation).compile()
     if model.nq != arm.n_joint or model.nv != arm.n_joint or model.nu != arm.n_joint:
-        raise RuntimeError(f"{name}: expected {arm.n_joint} joints and motors, got nq={model.nq}, "
+        raise RuntimeError(f"{arm.name}: expected {arm.n_joint} joints and motors, got nq={model.nq}, "
                            f"nv={model.nv}, nu={model.nu}")
     return model
