@@ -35,7 +35,7 @@ echo "generate: $((SECONDS - t0)) s" | tee -a "$out/times.txt"
 t0=$SECONDS
 for i in $(seq 0 $((shards - 1))); do
     timeout -s INT "$prior_seconds" python3 -m robomorph priors "data/gpu/train_$i.zarr" \
-        --out "data/gpu/priors_$i.zarr" --offsets 0,300 --set workers=1 --batch 8 > "data/gpu/logs/priors_$i.log" 2>&1 &
+        --out "data/gpu/priors_$i.zarr" --offsets 0,300 --set workers=1 --batch-size 8 > "data/gpu/logs/priors_$i.log" 2>&1 &
 done
 wait
 echo "priors: $((SECONDS - t0)) s" | tee -a "$out/times.txt"

@@ -11,6 +11,7 @@ import sys
 
 from robomorph.core.errors import UsageError, run_command
 from robomorph.core.names import INPUTS, NORMALIZATIONS
+from robomorph.core.options import add_alias
 from robomorph.evaluation import evaluator
 from robomorph.evaluation.baselines import BASELINES, CEILINGS, OPT_IN
 from robomorph.evaluation.requests import PHYSICS_CHOICES, EvaluateConfig
@@ -19,10 +20,10 @@ from robomorph.evaluation.requests import PHYSICS_CHOICES, EvaluateConfig
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m robomorph.evaluate", description=evaluator.__doc__.split("\n")[0])
     p.add_argument("--ckpt", help="checkpoint written by robomorph.fit (or a folder written by robomorph export)")
-    p.add_argument("--arm", help="instead of --ckpt: a registered arm whose catalogue hybrid, untrained, is "
-                                 "evaluated with the recipe the store records (needs --context-len and --horizon)")
+    p.add_argument("--robot", help="instead of --ckpt: a registered arm whose catalogue hybrid, untrained, is "
+                                   "evaluated with the recipe the store records (needs --context-len and --horizon)")
     p.add_argument("--data", required=True, help="store to evaluate on (.zarr)")
-    p.add_argument("--out", help="output folder (default: <run>/eval/<store name>; with --arm "
+    p.add_argument("--out", help="output folder (default: <run>/eval/<store name>; with --robot "
                                  "results/catalogue/<arm>/eval/<store name>)")
     p.add_argument("--context-len", type=int, help="context steps (default: the checkpoint's)")
     p.add_argument("--horizon", type=int, help="predicted steps (default: the checkpoint's)")
@@ -36,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sweep-context", help="context lengths to sweep, e.g. 20:200:20")
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
-    p.add_argument("--samples", type=int, default=3, help="sample trajectories to plot")
+    p.add_argument("--plot-trajectories", type=int, default=3, help="sample trajectories to plot")
     p.add_argument("--arx-orders", default="2,2", help="ARX output and input lags na,nb")
     p.add_argument("--horizons", help="steps of the per-horizon errors: steps (15), seconds (0.25s) or 'end', "
                    "comma-separated (default: 1,0.25s,1s,5s,end)")
@@ -47,7 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="require the checkpoint to have been trained with this normalization (default: its own)")
     p.add_argument("--inputs", choices=INPUTS,
                    help="input formulation of the data (default: the checkpoint's; a different one is refused; "
-                        "with --arm the formulation its hybrid takes, default command)")
+                        "with --robot the formulation its hybrid takes, default command)")
     p.add_argument("--compare", action="append", default=[], metavar="NAME=CKPT",
                    help="another checkpoint scored beside the baselines (repeatable), e.g. scratch=runs/a/checkpoints/best.ckpt")
     p.add_argument("--physics", choices=PHYSICS_CHOICES,
@@ -58,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "once fitted), or its black-box decoder (none)")
     p.add_argument("--arx-train-data", help="comma list of stores to fit arx_train on, whole (default: the "
                                             "checkpoint's training split, read back from its stores)")
+    # The names before every command agreed on one name per meaning (core.options.VOCABULARY): kept one release.
+    add_alias(p, "--arm", "--robot")
+    add_alias(p, "--samples", "--plot-trajectories")
     return p
 
 
@@ -80,9 +84,9 @@ def config(a: argparse.Namespace) -> EvaluateConfig:
     """The request the options make (validated as it is built)."""
     baselines = () if a.baselines.strip() in ("", "none") else tuple(s.strip() for s in a.baselines.split(","))
     return EvaluateConfig(
-        data=a.data, ckpt=a.ckpt, arm=a.arm, out=a.out, context_len=a.context_len, horizon=a.horizon, n=a.n,
+        data=a.data, ckpt=a.ckpt, arm=a.robot, out=a.out, context_len=a.context_len, horizon=a.horizon, n=a.n,
         baselines=baselines, sweep_horizon_spec=a.sweep_horizon, sweep_context_spec=a.sweep_context,
-        batch_size=a.batch_size, device=a.device, samples=a.samples, arx_orders=_orders(a.arx_orders), seed=a.seed,
+        batch_size=a.batch_size, device=a.device, samples=a.plot_trajectories, arx_orders=_orders(a.arx_orders), seed=a.seed,
         normalization=a.normalization, horizons_spec=a.horizons, offset=a.offset, inputs=a.inputs,
         arx_train_data=tuple(s.strip() for s in (a.arx_train_data or "").split(",") if s.strip()),
         compare=tuple(_compare(a.compare).items()), physics=a.physics)

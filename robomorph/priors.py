@@ -13,6 +13,7 @@ import sys
 import yaml
 
 from robomorph.core.errors import run_command
+from robomorph.core.options import add_alias
 from robomorph.data.priors import PriorError
 from robomorph.evaluation import priors
 
@@ -21,7 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m robomorph.priors", description=priors.__doc__.split("\n")[0])
     p.add_argument("store", help="source store (simulated, with commands u_cmd and its recipe)")
     p.add_argument("--out", required=True, help="the prior store to write (resumed when left in progress)")
-    p.add_argument("--context", type=int, default=200, help="context steps of each window")
+    p.add_argument("--context-len", type=int, default=200, help="context steps of each window")
     p.add_argument("--horizon", type=int, default=300, help="query steps the prior predicts")
     p.add_argument("--offsets", default="0",
                    help="comma list of each trajectory's window starts (e.g. 0,300: two windows per trajectory)")
@@ -29,8 +30,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="a hybrid setting (HybridSettings field, value read as YAML) over Predictor.from_arm's, "
                         "which has payload, coulomb and denoise on (repeatable; e.g. --set workers=16)")
-    p.add_argument("--batch", type=int, default=16, help="windows per batch (written together)")
+    p.add_argument("--batch-size", type=int, default=16, help="windows per batch (written together)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing store at --out")
+    # Their names before every command agreed on one name per meaning (core.options.VOCABULARY): one release.
+    add_alias(p, "--context", "--context-len")
+    add_alias(p, "--batch", "--batch-size")
     return p
 
 
@@ -53,8 +57,8 @@ def parse_offsets(text: str) -> tuple[int, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
-    req = priors.PriorRequest(args.store, args.out, args.context, args.horizon, parse_offsets(args.offsets), args.n,
-                              tuple(parse_settings(args.set).items()), args.batch, args.overwrite)
+    req = priors.PriorRequest(args.store, args.out, args.context_len, args.horizon, parse_offsets(args.offsets), args.n,
+                              tuple(parse_settings(args.set).items()), args.batch_size, args.overwrite)
     record = priors.write_priors(req)
     print(f"{args.out}: priors of {record['settings']} over {record['source_n']} trajectories x "
           f"{len(record['offsets'])} windows (context {record['context']}, horizon {record['horizon']})")

@@ -35,7 +35,7 @@ BAD_INPUT = [
     ("sweep", ["summary", "--study-name", "nope", "--storage", "sqlite:///{tmp}/optuna.db"], "no study 'nope'"),
     ("reproduce", ["table1", "--steps-factor", "0", "--work", "{tmp}/work", "--out", "{tmp}/out"],
      "steps_factor must be > 0"),
-    ("demo", ["--robots", "0", "--out-dir", "{tmp}/demo", "--runs-dir", "{tmp}/runs"],
+    ("demo", ["--robots", "0", "--out", "{tmp}/demo", "--runs-dir", "{tmp}/runs"],
      "argument --robots: takes a whole number >= 1"),
     ("control", ["--robots", "0", "--out", "{tmp}/control"], "argument --robots: takes a whole number >= 1"),
 ]

@@ -104,7 +104,7 @@ def test_writers_of_folders_refuse_a_zarr_store(tmp_path, capsys, tiny_checkpoin
     shutil.copytree(simulated_store(robots=24, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=1), test)
     before_t = _files(test)
     code, err = _call(evaluate.main, ["--ckpt", tiny_checkpoint, "--data", test, "--out", test,
-                                      "--baselines", "hold", "--samples", "0"], capsys)
+                                      "--baselines", "hold", "--plot-trajectories", "0"], capsys)
     _one_error(code, err, "Zarr store")
     assert _files(store) == before and _files(test) == before_t
 
@@ -158,7 +158,7 @@ def test_control_options_are_checked_at_parsing(args, phrase, tmp_path, capsys, 
 
 
 def test_a_context_between_patches_is_refused_for_a_decoder(tiny_checkpoint):
-    """Case 16: ``control --context 37`` on a black-box model was cut to 35 without a word."""
+    """Case 16: ``control --context-len 37`` on a black-box model was cut to 35 without a word."""
     from robomorph.control.dynamics import ControlError
     from robomorph.control.runner import ControlConfig
     from robomorph.inference.predictor import Predictor
@@ -595,7 +595,7 @@ def test_evaluate_refuses_a_store_of_another_arm(tiny_checkpoint, simulated_stor
     shutil.copytree(simulated_store(robots=24, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=1), test)
     zarr.open_group(test, mode="r+").attrs["domain"] = "kinova3"  # the channels have the same names
     code, err = _call(evaluate.main, ["--ckpt", tiny_checkpoint, "--data", test, "--out", str(tmp_path / "ev"),
-                                      "--baselines", "hold", "--samples", "0"], capsys)
+                                      "--baselines", "hold", "--plot-trajectories", "0"], capsys)
     _one_error(code, err, "kinova3", "panda")
     assert not (tmp_path / "ev").exists()
 

@@ -94,7 +94,7 @@ def _refused(argv: list[str], capsys) -> str:
 
 def _eval(ckpt, data, out, *extra):
     return [str(a) for a in ("evaluate", "--ckpt", ckpt, "--data", data, "--out", out, "--baselines", "hold",
-                             "--samples", "1", "--device", "cpu", *extra)]
+                             "--plot-trajectories", "1", "--device", "cpu", *extra)]
 
 
 def _fit(store, runs_dir, *extra):

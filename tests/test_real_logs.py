@@ -106,7 +106,7 @@ def test_your_own_robot_workflow(tmp_path, capsys):
     tuned = str(runs / "tuned" / "checkpoints" / "best.ckpt")
     ev = str(tmp_path / "eval")
     evaluate_main(["--ckpt", tuned, "--data", stores["test"], "--out", ev, "--baselines", "hold,arx,arx_train",
-                   "--arx-orders", "1,1", "--compare", f"scratch={scratch}", "--samples", "1"])
+                   "--arx-orders", "1,1", "--compare", f"scratch={scratch}", "--plot-trajectories", "1"])
     text = capsys.readouterr().out
     for source in ("model", "hold", "arx", "arx_train", "scratch"):
         assert f"  {source} " in text, text
@@ -275,7 +275,7 @@ def test_sim_to_real_zero_shot_then_fine_tuned(simulated_store, tmp_path, capsys
     capsys.readouterr()
     zero = str(tmp_path / "zero")
     assert evaluate_main(["--ckpt", sim, "--data", stores["test"], "--out", zero, "--baselines", "hold",
-                          "--samples", "1", "--device", "cpu"]) == 0
+                          "--plot-trajectories", "1", "--device", "cpu"]) == 0
     assert "in-sample" not in capsys.readouterr().out
     assert fit_main(_fit_args(stores["train"], runs, "panda-real-tuned", 4, **{
         "data.val_store": stores["val"], "data.test_store": stores["test"], "model.init_ckpt": sim})) == 0
@@ -283,7 +283,7 @@ def test_sim_to_real_zero_shot_then_fine_tuned(simulated_store, tmp_path, capsys
     capsys.readouterr()
     ev = str(tmp_path / "tuned")
     assert evaluate_main(["--ckpt", tuned, "--data", stores["test"], "--out", ev, "--baselines", "hold",
-                          "--compare", f"zeroshot={sim}", "--samples", "1", "--device", "cpu"]) == 0
+                          "--compare", f"zeroshot={sim}", "--plot-trajectories", "1", "--device", "cpu"]) == 0
     res = json.load(open(os.path.join(ev, "metrics.json")))
     assert set(res["baselines"]) == {"hold", "zeroshot"} and res["meta"]["in_sample"] is False
     zero_res = json.load(open(os.path.join(zero, "metrics.json")))

@@ -7,6 +7,8 @@ Markers in a page's Markdown (HTML comments, so a page reads sensibly without th
   any ``build_<sub>_parser()`` for its subcommands, or its ``main(["--help"])``, which is
   how the LightningCLI of ``fit`` prints its options). A command added to ``COMMANDS``
   appears here without touching the docs.
+- ``<!-- robomorph:vocabulary -->``: the table of option names that several commands share, with
+  their one meaning and their names before (``robomorph.core.options.VOCABULARY``).
 - ``<!-- robomorph:include PATH -->``: the file ``PATH`` (relative to the repository root)
   inside the page, under a heading that names it and its last commit: Markdown with its
   headings moved below the page's, CSV as a table, text as a code block, PNG as an image.
@@ -43,7 +45,7 @@ SHOWN = {".md", ".csv", ".txt", ".png"}
 # Markdown files are shown inside the pages, not copied (MkDocs would build them as pages).
 COPIED = {".csv", ".txt", ".png", ".json", ".tex", ".log"}
 
-_MARKER = re.compile(r"<!--\s*robomorph:(commands|include-dir|include)\s*([^>]*?)\s*-->")
+_MARKER = re.compile(r"<!--\s*robomorph:(commands|vocabulary|include-dir|include)\s*([^>]*?)\s*-->")
 _FENCE = re.compile(r"^\s*(```|~~~)")
 _HEADING = re.compile(r"^(#{1,6})(\s+.*)$")
 
@@ -98,6 +100,18 @@ def commands_markdown() -> str:
     for line, what, text in helps:
         sections.append(f"## `{line}` {{#{_slug(line)}}}\n\n{what[:1].upper()}{what[1:]}.\n\n```text\n{text}\n```\n")
     return "\n".join(rows) + "\n\n" + "\n".join(sections)
+
+
+def vocabulary_markdown() -> str:
+    """The options that several commands take, each with its one meaning and the names it had before."""
+    from robomorph.core.options import RENAMED_ON, VOCABULARY
+
+    old_on = {new: [f"`{old}` ({name})" for (name, old), n in RENAMED_ON.items() if n == new] for new in VOCABULARY}
+    rows = ["| option | means, on every command that takes it | its name before |", "|---|---|---|"]
+    for option, (meaning, olds) in VOCABULARY.items():
+        before = ", ".join([f"`{o}`" for o in olds] + old_on[option]) or "—"
+        rows.append(f"| `{option}` | {meaning} | {before} |")
+    return "\n".join(rows) + "\n"
 
 
 # --- results files ---------------------------------------------------------------------------
@@ -245,6 +259,8 @@ def on_page_markdown(markdown, page, config, files):
         level = _level_before(markdown, match.start())
         if kind == "commands":
             return commands_markdown()
+        if kind == "vocabulary":
+            return vocabulary_markdown()
         if kind == "include":
             return include_file(arg, level, page.file.src_uri)
         return include_dir(arg.rstrip("/"), level, page.file.src_uri)

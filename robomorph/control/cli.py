@@ -21,7 +21,7 @@ from robomorph.sim import arms
 from robomorph.core.errors import run_command
 from robomorph.core.locks import output_folder
 from robomorph.core.names import PHYSICS_MODES
-from robomorph.core.options import DeprecatedAlias, Parser, integer, number
+from robomorph.core.options import DeprecatedAlias, Parser, add_alias, integer, number
 
 _WORKER: dict = {}
 # Bounds of the options: far beyond any useful run, and short of what would exhaust memory or
@@ -57,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds under the catalogue OSC first (≥ the model's context)")
     p.add_argument("--duration", type=number(0, MAX_SECONDS, low_open=True), default=d.duration,
                    help="seconds of tracking after the warm-up")
-    p.add_argument("--samples", type=integer(1, 100_000), default=m.samples, help="MPPI candidates per re-plan")
+    p.add_argument("--candidates", type=integer(1, 100_000), default=m.samples,
+                   help="MPPI candidate command sequences scored per re-plan")
     p.add_argument("--horizon", type=integer(1, 10_000), default=m.horizon, help="frames planned ahead (60 Hz)")
     p.add_argument("--replan", type=integer(1, 10_000), default=m.replan, help="frames applied from each plan")
     p.add_argument("--noise", type=number(0, 1, low_open=True), default=m.noise,
@@ -66,7 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="MPPI lambda relative to the costs' spread")
     p.add_argument("--plan-substeps", type=integer(1, MAX_SUBSTEPS), default=d.plan_substeps,
                    help="physics steps per frame in planners")
-    p.add_argument("--context", type=integer(1, 100_000), default=d.context, help="context frames of the in-context model")
+    p.add_argument("--context-len", type=integer(1, 100_000), default=d.context,
+                   help="context frames of the in-context model")
     p.add_argument("--reidentify", type=integer(0, 1_000_000), default=d.reidentify,
                    help="frames between a hybrid model's identifications from the rolling context (0: once)")
     p.add_argument("--physics", dest="physics_mode", choices=(*PHYSICS_MODES, "none"),
@@ -76,6 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--physics-mode", dest="physics_mode", choices=(*PHYSICS_MODES, "none"), action=DeprecatedAlias,
                    new="--physics", help=argparse.SUPPRESS)
     p.add_argument("--workers", type=integer(1, 1024), default=os.cpu_count() or 1, help="episodes run in parallel")
+    # Their names before every command agreed on one name per meaning (core.options.VOCABULARY): one release.
+    add_alias(p, "--context", "--context-len")
+    add_alias(p, "--samples", "--candidates")
     return p
 
 
@@ -103,16 +108,16 @@ def check_model(predictor, cfg: ControlConfig, ckpt: str) -> None:
         raise ControlError(f"--horizon {cfg.mpc.horizon} is beyond the model's trained maximum "
                            f"({cfg_m.max_horizon - 1} frames planned ahead)")
     if cfg.context > cfg_m.max_context or cfg.context < max(cfg_m.patch, cfg_m.n_init):
-        raise ControlError(f"--context {cfg.context}: the model takes {max(cfg_m.patch, cfg_m.n_init)} to "
+        raise ControlError(f"--context-len {cfg.context}: the model takes {max(cfg_m.patch, cfg_m.n_init)} to "
                            f"{cfg_m.max_context} frames")
     decoder = not (predictor.physics and predictor.settings.mode != "none")
     if decoder and cfg.context % cfg_m.patch:
         # The decoder reads whole patches: a context between two would be cut without a word.
-        raise ControlError(f"--context {cfg.context}: the model reads contexts in patches of {cfg_m.patch} frames; "
+        raise ControlError(f"--context-len {cfg.context}: the model reads contexts in patches of {cfg_m.patch} frames; "
                            f"give a multiple of {cfg_m.patch} (e.g. {cfg.context // cfg_m.patch * cfg_m.patch})")
     if cfg.warmup_frames < cfg.context:
         raise ControlError(f"--warmup {cfg.warmup:g} s is {cfg.warmup_frames} frames, shorter than the context "
-                           f"({cfg.context}): lengthen the warm-up or shorten --context")
+                           f"({cfg.context}): lengthen the warm-up or shorten --context-len")
 
 
 def _init_pool_worker(ckpt: str | None, physics_mode: str | None) -> None:
@@ -141,14 +146,14 @@ def run(args: argparse.Namespace) -> int:
     from robomorph.core.results import provenance  # noqa: PLC0415
 
     try:
-        mpc = MPPIConfig(samples=args.samples, horizon=args.horizon, replan=args.replan, noise=args.noise,
+        mpc = MPPIConfig(samples=args.candidates, horizon=args.horizon, replan=args.replan, noise=args.noise,
                          temperature=args.temperature)
     except ValueError as exc:
-        raise ControlError(str(exc).replace("mpc.", "--")) from None
+        raise ControlError(str(exc).replace("mpc.samples", "--candidates").replace("mpc.", "--")) from None
     controllers = tuple(c.strip() for c in args.controllers.split(",") if c.strip())
     cfg = ControlConfig(task=args.task, robot=args.robot or arms.DEFAULT_ROBOT, robots=args.robots,
                         controllers=controllers, seed=args.seed, warmup=args.warmup, duration=args.duration,
-                        uncertainty=args.uncertainty, plan_substeps=args.plan_substeps, context=args.context,
+                        uncertainty=args.uncertainty, plan_substeps=args.plan_substeps, context=args.context_len,
                         reidentify=args.reidentify, mpc=mpc)
     uses_model = "mpc:model" in controllers
     if uses_model and not args.ckpt:

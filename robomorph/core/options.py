@@ -81,3 +81,60 @@ class DeprecatedAlias(argparse.Action):
         print(f"warning: {option_string} is deprecated and will be removed: use {self.new} (the same values)",
               file=sys.stderr)
         setattr(namespace, self.dest, values)
+
+
+def add_alias(parser: argparse.ArgumentParser, old: str, new: str) -> None:
+    """Accepts ``old`` one more release as a deprecated name of the option ``new`` (already declared): the same
+    destination, type and choices, not shown in ``--help``, and a warning naming ``new`` each time it is used."""
+    (action,) = [a for a in parser._actions if new in a.option_strings]
+    parser.add_argument(old, dest=action.dest, type=action.type, choices=action.choices, metavar=action.metavar,
+                        action=DeprecatedAlias, new=new, help=argparse.SUPPRESS)
+
+
+# One name per meaning across the commands, so that an option learnt on one command means the same on every
+# other: each option that two or more commands take, what it means, and the names it had before (accepted one
+# more release as a DeprecatedAlias that says which name to use). fit's options are its config's keys, spelt
+# with underscores (--runs_dir, --data.context_len): the same names. tests/test_option_names.py walks every
+# command's parser against this table.
+VOCABULARY: dict[str, tuple[str, tuple[str, ...]]] = {
+    "--robot": ("the registered arm (robomorph.sim.arms) simulated, evaluated or controlled", ("--arm",)),
+    "--robots": ("how many robots (randomized instances of the arm) are drawn", ()),
+    "--context-len": ("context steps the model reads before it predicts", ("--context",)),
+    "--horizon": ("steps predicted (or planned) after the context", ()),
+    "--horizons": ("the steps at which errors are reported: steps, seconds (0.25s) or 'end'", ()),
+    "--offset": ("where each window starts: start, random (seeded) or a step", ()),
+    "--n": ("use at most N trajectories (windows) of the store", ()),
+    "--batch-size": ("windows computed together", ("--batch",)),
+    "--plot-trajectories": ("trajectories drawn in the plots", ("--n-traj",)),
+    "--candidates": ("MPPI candidate command sequences scored per re-plan", ()),
+    "--out": ("where the command writes: a store, a folder or a file", ("--out-dir",)),
+    "--overwrite": ("replace an earlier output of the same kind", ()),
+    "--data": ("what the command reads: a store (for ingest --source, the folder of the source's clones)", ()),
+    "--ckpt": ("the model: a checkpoint written by fit or a folder written by export", ()),
+    "--physics": ("a hybrid model's physics mode, or none for its decoder", ("--physics-mode",)),
+    "--inputs": ("the input formulation: command or total torques", ()),
+    "--normalization": ("how windows are normalized: train_stats or paper_window", ()),
+    "--seed": ("the root seed of every random choice", ()),
+    "--device": ("where the network runs: cpu, cuda, ...", ()),
+    "--workers": ("processes (or threads) run in parallel", ()),
+    "--steps": ("samples per trajectory", ()),
+    "--task": ("what the robot is asked to do (a signal or a path)", ()),
+    "--runs-dir": ("the folder of training runs", ()),
+    "--wandb": ("Weights & Biases logging: offline, online or disabled", ()),
+    "--set": ("a setting changed, NAME=VALUE (repeatable)", ()),
+    "--storage": ("the Optuna study's SQLAlchemy URL", ()),
+    "--study-name": ("the Optuna study", ()),
+    "--verbose": ("print more: the tables and messages left out by default", ()),
+}
+# Renamed options whose old name had a meaning of its own on one command: the old name, per command.
+RENAMED_ON: dict[tuple[str, str], str] = {
+    ("evaluate", "--samples"): "--plot-trajectories",
+    ("control", "--samples"): "--candidates",
+}
+
+
+def canonical(option: str) -> str:
+    """The one name an option of this spelling has: ``--runs_dir`` → ``--runs-dir``, ``--data.context_len`` →
+    ``--context-len`` (fit's config keys), anything else as it is."""
+    name = option.split(".", 1)[1] if option.startswith(("--data.", "--model.")) else option[2:]
+    return "--" + name.replace("_", "-")

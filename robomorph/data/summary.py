@@ -7,7 +7,7 @@ the store, so the same store always gives the same figures and a 10k-trajectory 
 summarized in about a second); the summary says when it sampled.
 
 ``--plot out.png`` writes two images: ``out.png`` with one panel per input and output
-channel showing ``--n-traj`` trajectories over time, and ``out_params.png`` with a
+channel showing ``--plot-trajectories`` trajectories over time, and ``out_params.png`` with a
 histogram of every physical parameter over all trajectories (not written when the store
 has no parameters, e.g. one made by ``robomorph.ingest``).
 """
@@ -259,7 +259,7 @@ def plot(dataset: Dataset, path: str, n_traj: int = 3, seed: int = 0, params: bo
     if dataset.n == 0:
         raise UsageError(f"{dataset.path} has no valid trajectories to plot")
     if n_traj < 1:
-        raise UsageError(f"--n-traj must be >= 1, got {n_traj}")
+        raise UsageError(f"--plot-trajectories must be >= 1, got {n_traj}")
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     rng = np.random.default_rng(seed)
     idx = np.sort(rng.choice(dataset.n, size=min(n_traj, dataset.n), replace=False))

@@ -194,15 +194,15 @@ def _arm_predictor(cfg: EvaluateConfig):
     attrs = dict(open_store(cfg.data, allow_incomplete=True).attrs)
     arm, recipe = arms.of_store(attrs), attrs.get("config")
     if arm is None or not isinstance(recipe, dict):
-        raise EvaluationError(f"--arm {cfg.arm}: {cfg.data} is not a store simulated from a registered arm's recipe "
+        raise EvaluationError(f"--robot {cfg.arm}: {cfg.data} is not a store simulated from a registered arm's recipe "
                               f"(domain {attrs.get('domain')!r}): the catalogue hybrid needs the recipe its data "
                               "follow; evaluate a model trained on these data with --ckpt")
     if arm.name != cfg.arm:
-        raise EvaluationError(f"--arm {cfg.arm}: {cfg.data} is of the {arm.name}; its hybrid would predict another "
-                              f"robot's dynamics: use --arm {arm.name}")
+        raise EvaluationError(f"--robot {cfg.arm}: {cfg.data} is of the {arm.name}; its hybrid would predict another "
+                              f"robot's dynamics: use --robot {arm.name}")
     inputs = cfg.inputs or "command"
     if inputs == "command" and "u_cmd" not in open_store(cfg.data, allow_incomplete=True).arrays:
-        raise EvaluationError(f"--arm {cfg.arm}: {cfg.data} holds no u_cmd (the command formulation the catalogue "
+        raise EvaluationError(f"--robot {cfg.arm}: {cfg.data} holds no u_cmd (the command formulation the catalogue "
                               "hybrid takes by default): regenerate the store, or pass --inputs total")
     # The recipe's fields as the store records them (its robot included): the hybrid a store of it would train.
     return Predictor.from_arm(cfg.arm, device=cfg.device, inputs=inputs, **recipe)

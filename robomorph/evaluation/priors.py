@@ -55,9 +55,9 @@ class PriorRequest:
     overwrite: bool = False
 
     def __post_init__(self) -> None:
-        for name in ("context", "horizon", "batch"):
+        for name, flag in (("context", "--context-len"), ("horizon", "--horizon"), ("batch", "--batch-size")):
             if isinstance(getattr(self, name), bool) or int(getattr(self, name)) < 1:
-                raise PriorError(f"--{name} must be a positive number of steps, got {getattr(self, name)!r}")
+                raise PriorError(f"{flag} must be a positive number of steps, got {getattr(self, name)!r}")
         if not self.offsets or any(int(o) < 0 for o in self.offsets) or len(set(self.offsets)) != len(self.offsets):
             raise PriorError(f"--offsets must be distinct steps >= 0, got {list(self.offsets)}")
         if self.n is not None and self.n < 1:

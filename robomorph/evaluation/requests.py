@@ -113,7 +113,7 @@ class EvaluateConfig:
 
     def __post_init__(self):
         if (self.ckpt is None) == (self.arm is None):
-            raise EvaluationError("give --ckpt (a trained model) or --arm (a catalogue arm's untrained hybrid), "
+            raise EvaluationError("give --ckpt (a trained model) or --robot (a catalogue arm's untrained hybrid), "
                                   f"exactly one of them; got {'both' if self.ckpt else 'neither'}")
         if not self.data:
             raise EvaluationError("--data: give the store to evaluate on (.zarr)")
@@ -124,7 +124,7 @@ class EvaluateConfig:
         object.__setattr__(self, "compare", tuple((str(k), str(v)) for k, v in compare))
         check_baselines(self.baselines)
         _window(EvaluationError, self)
-        _whole(EvaluationError, "--samples", self.samples, 0)
+        _whole(EvaluationError, "--plot-trajectories", self.samples, 0)
         if len(self.arx_orders) != 2 or any(isinstance(v, bool) or not isinstance(v, int) or v < 1
                                             for v in self.arx_orders):
             raise EvaluationError(f"--arx-orders takes two whole numbers na,nb >= 1, got {self.arx_orders}")
@@ -143,9 +143,9 @@ class EvaluateConfig:
         from robomorph.sim import arms  # noqa: PLC0415  (MuJoCo: only for an arm)
 
         if self.arm not in arms.ARMS:
-            raise EvaluationError(f"--arm {self.arm!r} is not a registered arm: choose one of {', '.join(arms.names())}")
+            raise EvaluationError(f"--robot {self.arm!r} is not a registered arm: choose one of {', '.join(arms.names())}")
         if self.context_len is None or self.horizon is None:
-            raise EvaluationError(f"--arm {self.arm}: a catalogue hybrid records no training window: pass "
+            raise EvaluationError(f"--robot {self.arm}: a catalogue hybrid records no training window: pass "
                                   "--context-len and --horizon")
         if self.normalization not in (None, "train_stats"):
             raise EvaluationError(f"--normalization {self.normalization}: a catalogue hybrid has no network to "

@@ -99,7 +99,7 @@ def test_the_control_command_runs_on_the_arm_it_is_given(tmp_path):
 
     out = tmp_path / "ctl"
     code = main(["control", "--robot", "ur5e", "--controllers", "osc,mpc:nominal_physics", "--robots", "1",
-                 "--warmup", "0.5", "--duration", "0.3", "--samples", "16", "--horizon", "8", "--workers", "1",
+                 "--warmup", "0.5", "--duration", "0.3", "--candidates", "16", "--horizon", "8", "--workers", "1",
                  "--out", str(out)])
     assert code == 0
     metrics = json.loads((out / "metrics.json").read_text())

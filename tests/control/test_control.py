@@ -191,7 +191,7 @@ def _control(*args: str) -> subprocess.CompletedProcess:
 def control_out(hybrid_ckpt, tmp_path_factory):
     out = tmp_path_factory.mktemp("control") / "ctl"
     res = _control("--ckpt", hybrid_ckpt, "--robots", "1", "--warmup", "0.5", "--duration", "0.3",
-                   "--context", str(CKPT_CONTEXT), "--samples", "32", "--horizon", "10", "--workers", "2",
+                   "--context-len", str(CKPT_CONTEXT), "--candidates", "32", "--horizon", "10", "--workers", "2",
                    "--controllers", "osc,mpc:model,mpc:nominal_physics,mpc:true_physics", "--out", str(out))
     assert res.returncode == 0, res.stderr[-2000:]
     return out
@@ -225,11 +225,11 @@ def test_bad_options_get_one_line_and_exit_code_2(hybrid_ckpt, tiny_checkpoint, 
     cases = [
         (["--controllers", "osc,mpc:magic"], "unknown 'mpc:magic'"),
         (["--controllers", "mpc:model"], "needs --ckpt"),
-        (["--ckpt", hybrid_ckpt, "--controllers", "mpc:model", "--context", str(CKPT_CONTEXT), "--horizon", "500"],
+        (["--ckpt", hybrid_ckpt, "--controllers", "mpc:model", "--context-len", str(CKPT_CONTEXT), "--horizon", "500"],
          "beyond the model's trained maximum"),
-        (["--ckpt", tiny_checkpoint, "--controllers", "mpc:model", "--context", str(CKPT_CONTEXT)],
+        (["--ckpt", tiny_checkpoint, "--controllers", "mpc:model", "--context-len", str(CKPT_CONTEXT)],
          "trained on total torques"),
-        (["--ckpt", hybrid_ckpt, "--robot", "ur5e", "--controllers", "mpc:model", "--context", str(CKPT_CONTEXT)],
+        (["--ckpt", hybrid_ckpt, "--robot", "ur5e", "--controllers", "mpc:model", "--context-len", str(CKPT_CONTEXT)],
          "the controlled arm is of the ur5e but the model was trained on the panda"),
         (["--ckpt", str(tmp_path / "missing.ckpt"), "--controllers", "mpc:model"], "missing.ckpt"),
         (["--robots", "0"], "argument --robots: takes a whole number >= 1"),

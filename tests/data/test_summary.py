@@ -106,7 +106,7 @@ def test_plot_without_params_writes_only_trajectories(tmp_path):
 def test_cli_prints_summary_and_plots(tmp_path, capsys):
     path, _, _ = _store(tmp_path / "s.zarr")
     out = str(tmp_path / "o.png")
-    assert main([path, "--plot", out, "--n-traj", "2"]) == 0
+    assert main([path, "--plot", out, "--plot-trajectories", "2"]) == 0
     text = capsys.readouterr().out
     assert "joint_limit" in text and f"wrote {out}" in text and os.path.exists(params_plot_path(out))
 

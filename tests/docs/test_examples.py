@@ -147,7 +147,7 @@ TINY = {
                  "data/test.zarr": ["--robots", "4", "--workers", "1", "--quiet"]},
     "fit": ["--trainer.max_steps", "2", "--trainer.val_check_interval", "2", "--data.batch_size", "4",
             "--data.val_subset", "2", "--trainer.accelerator", "cpu", "--wandb", "disabled"],
-    "evaluate": ["--n", "4", "--baselines", "hold", "--samples", "1"],
+    "evaluate": ["--n", "4", "--baselines", "hold", "--plot-trajectories", "1"],
     "report": [],
 }
 

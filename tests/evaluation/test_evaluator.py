@@ -92,7 +92,7 @@ def test_shorter_windows_and_cli(setup, tmp_path, capsys):
     _, ckpt, test = setup
     out = str(tmp_path / "cli")
     main(["--ckpt", ckpt, "--data", test, "--out", out, "--context-len", "20", "--horizon", "40",
-          "--baselines", "hold,arx", "--samples", "1", "--n", "3"])
+          "--baselines", "hold,arx", "--plot-trajectories", "1", "--n", "3"])
     text = capsys.readouterr().out
     assert "3 trajectories, context 20, horizon 40" in text and "hold" in text
     meta = json.load(open(os.path.join(out, "metrics.json")))["meta"]

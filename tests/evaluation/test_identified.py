@@ -101,7 +101,7 @@ def test_evaluate_reports_identified_physics_and_its_cost(tiny_checkpoint, simul
     """The door: fully randomized robots (29 parameters fitted), the total-torque checkpoint."""
     test = simulated_store(robots=6, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=2)
     out = str(tmp_path / "ev")
-    assert main(["--ckpt", tiny_checkpoint, "--data", test, "--out", out, "--n", "2", "--samples", "0",
+    assert main(["--ckpt", tiny_checkpoint, "--data", test, "--out", out, "--n", "2", "--plot-trajectories", "0",
                  "--baselines", "hold,nominal_physics,identified_physics"]) == 0
     text = capsys.readouterr().out
     line = next(ln for ln in text.splitlines() if ln.strip().startswith("identified_physics"))

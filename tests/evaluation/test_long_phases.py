@@ -54,7 +54,7 @@ def test_evaluate_and_its_sweeps_report_progress(tiny_checkpoint, simulated_stor
     stderr = stamped(monkeypatch, "0.2")
     start = time.monotonic()
     assert main(["--ckpt", tiny_checkpoint, "--data", data, "--out", str(tmp_path / "ev"), "--n", "4",
-                 "--baselines", "hold", "--samples", "1", "--sweep-horizon", "30,60",
+                 "--baselines", "hold", "--plot-trajectories", "1", "--sweep-horizon", "30,60",
                  "--sweep-context", "10,30"]) == 0
     _check(stderr, slow_model, start, time.monotonic(), ("model", "horizon sweep", "context sweep"))
 
@@ -133,7 +133,7 @@ def test_identified_physics_reports_progress(tiny_checkpoint, simulated_store, t
     stderr = stamped(monkeypatch, "0.2")
     start = time.monotonic()
     assert main(["--ckpt", tiny_checkpoint, "--data", data, "--out", str(tmp_path / "ev"), "--n", "3",
-                 "--baselines", "hold,identified_physics", "--samples", "1"]) == 0
+                 "--baselines", "hold,identified_physics", "--plot-trajectories", "1"]) == 0
     # The phase up to its last window (the plots written after it are evaluate's, checked above).
     _check(stderr, spans, start, spans[-1][1], ("identified physics",))
 
@@ -205,7 +205,7 @@ def test_evaluates_plots_report_progress(tiny_checkpoint, simulated_store, tmp_p
     stderr = stamped(monkeypatch, "0.2")
     start = time.monotonic()
     assert main(["--ckpt", tiny_checkpoint, "--data", data, "--out", str(tmp_path / "ev"), "--n", "3",
-                 "--baselines", "hold", "--samples", "1"]) == 0
+                 "--baselines", "hold", "--plot-trajectories", "1"]) == 0
     assert len(spans) == 1
     assert max(stderr.gaps(start, time.monotonic())) < LIMIT
     (a, b), = spans

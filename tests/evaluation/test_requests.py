@@ -1,5 +1,5 @@
 """The typed requests of evaluate and calibrate: validated on construction in one line naming the option,
-frozen; the doors build them; ``evaluate --arm`` scores a catalogue arm's untrained hybrid; the
+frozen; the doors build them; ``evaluate --robot`` scores a catalogue arm's untrained hybrid; the
 checkpoint is read once per command; the call of earlier releases still works, with a warning."""
 
 from __future__ import annotations
@@ -23,13 +23,13 @@ def arm_store(simulated_store):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    ({}, r"^give --ckpt \(a trained model\) or --arm .*got neither$"),
+    ({}, r"^give --ckpt \(a trained model\) or --robot .*got neither$"),
     ({"ckpt": "a.ckpt", "arm": "panda"}, r"exactly one of them; got both$"),
     ({"ckpt": "a.ckpt", "n": 0}, r"^--n 0: give a positive number"),
     ({"ckpt": "a.ckpt", "batch_size": -1}, r"^--batch-size -1"),
     ({"ckpt": "a.ckpt", "context_len": "30"}, r"^--context-len must be a whole number, got '30'$"),
     ({"ckpt": "a.ckpt", "seed": -3}, r"^--seed must be a whole number >= 0, got -3$"),
-    ({"ckpt": "a.ckpt", "samples": -1}, r"^--samples must be a whole number >= 0"),
+    ({"ckpt": "a.ckpt", "samples": -1}, r"^--plot-trajectories must be a whole number >= 0"),
     ({"ckpt": "a.ckpt", "offset": "middle"}, r"^--offset takes 'start', 'random' or a step number"),
     ({"ckpt": "a.ckpt", "baselines": ("oracle",)}, r"^unknown baseline 'oracle'"),
     ({"ckpt": "a.ckpt", "arx_orders": (0, 2)}, r"^--arx-orders takes two whole numbers na,nb >= 1"),
@@ -37,8 +37,8 @@ def arm_store(simulated_store):
     ({"ckpt": "a.ckpt", "inputs": "torque"}, r"^--inputs 'torque': choose one of total, command$"),
     ({"ckpt": "a.ckpt", "normalization": "z"}, r"^--normalization 'z': choose one of train_stats, paper_window$"),
     ({"ckpt": "a.ckpt", "compare": (("a", "x.ckpt"), ("a", "y.ckpt"))}, r"^--compare names \['a'\] more than once"),
-    ({"arm": "ur6", "context_len": 30, "horizon": 30}, r"^--arm 'ur6' is not a registered arm: choose one of panda"),
-    ({"arm": "panda", "horizon": 30}, r"^--arm panda: a catalogue hybrid records no training window: pass "
+    ({"arm": "ur6", "context_len": 30, "horizon": 30}, r"^--robot 'ur6' is not a registered arm: choose one of panda"),
+    ({"arm": "panda", "horizon": 30}, r"^--robot panda: a catalogue hybrid records no training window: pass "
                                       r"--context-len and --horizon$"),
     ({"arm": "panda", "context_len": 30, "horizon": 30, "normalization": "paper_window"},
      r"^--normalization paper_window: a catalogue hybrid has no network"),
@@ -110,7 +110,7 @@ def test_evaluate_reads_the_checkpoint_once(tiny_checkpoint, simulated_store, tm
 def test_the_doors_say_neither_or_both_in_one_line_with_exit_2(arm_store, tmp_path, capsys):
     from robomorph.evaluate import main
 
-    for extra, said in (([], "got neither"), (["--ckpt", "a.ckpt", "--arm", "panda"], "got both")):
+    for extra, said in (([], "got neither"), (["--ckpt", "a.ckpt", "--robot", "panda"], "got both")):
         assert main(["--data", arm_store, "--out", str(tmp_path / "o"), *extra]) == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith("error: give --ckpt") and err.endswith(said) and "\n" not in err
@@ -122,7 +122,7 @@ def test_evaluate_arm_scores_the_catalogue_hybrid_with_its_baselines(arm_store, 
     from robomorph.evaluate import main
 
     out = tmp_path / "arm"
-    assert main(["--arm", "panda", "--data", arm_store, "--context-len", "30", "--horizon", "30", "--samples", "0",
+    assert main(["--robot", "panda", "--data", arm_store, "--context-len", "30", "--horizon", "30", "--plot-trajectories", "0",
                  "--baselines", "hold,nominal_physics,arx_train", "--device", "cpu", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "written: " + str(out) in printed
@@ -147,10 +147,10 @@ def test_evaluate_arm_refuses_another_arms_or_formulations_store_in_one_line(arm
     u, y = np.zeros((2, 60, 7), np.float32), np.zeros((2, 60, 14), np.float32)
     no_cmd = store_factory(tmp_path / "no_cmd.zarr", u, y, attrs={"dt": 1 / 60, "domain": "panda", "config": {}})
     cases = (
-        (["--arm", "ur5e", "--data", arm_store], r"--arm ur5e: .* is of the panda; .* use --arm panda$"),
-        (["--arm", "panda", "--data", linear_store()], r"is not a store simulated from a registered arm's recipe"),
-        (["--arm", "panda", "--data", no_cmd], r"holds no u_cmd .* regenerate the store, or pass --inputs total$"),
-        (["--arm", "panda", "--data", arm_store, "--physics", "learned"],
+        (["--robot", "ur5e", "--data", arm_store], r"--robot ur5e: .* is of the panda; .* use --robot panda$"),
+        (["--robot", "panda", "--data", linear_store()], r"is not a store simulated from a registered arm's recipe"),
+        (["--robot", "panda", "--data", no_cmd], r"holds no u_cmd .* regenerate the store, or pass --inputs total$"),
+        (["--robot", "panda", "--data", arm_store, "--physics", "learned"],
          r"physics mode 'learned' reads a trained network.*Predictor.from_arm"),
     )
     for args, said in cases:
@@ -169,7 +169,7 @@ def test_evaluate_arm_runs_on_another_registered_arm(simulated_store, tmp_path):
 
     store = simulated_store(robots=3, steps=60, seed=1, robot="ur5e")
     out = tmp_path / "ur5e"
-    assert main(["--arm", "ur5e", "--data", store, "--context-len", "30", "--horizon", "30", "--samples", "0",
+    assert main(["--robot", "ur5e", "--data", store, "--context-len", "30", "--horizon", "30", "--plot-trajectories", "0",
                  "--baselines", "hold", "--device", "cpu", "--out", str(out)]) == 0
     res = json.loads((out / "metrics.json").read_text())
     meta = res["meta"]

@@ -229,7 +229,7 @@ def test_evaluate_physics_modes_and_refusal(hybrid_ckpt, tiny_checkpoint, comman
     from robomorph.evaluate import main
 
     out = tmp_path / "eval"
-    assert main(["--ckpt", hybrid_ckpt, "--data", command_store, "--n", "2", "--baselines", "hold", "--samples", "0",
+    assert main(["--ckpt", hybrid_ckpt, "--data", command_store, "--n", "2", "--baselines", "hold", "--plot-trajectories", "0",
                  "--physics", "learned", "--out", str(out)]) == 0
     res = json.loads((out / "metrics.json").read_text())
     assert res["horizons"]["steps"][0] == 1 and "model" in res["horizons"]["rms"]

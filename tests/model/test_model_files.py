@@ -102,7 +102,7 @@ def test_evaluate_reads_a_folder_as_it_reads_the_checkpoint(trained, tmp_path):
     scores = []
     for src, out in ((ckpt, tmp_path / "e_ckpt"), (str(tmp_path / "model"), tmp_path / "e_folder")):
         assert main(["--ckpt", src, "--data", store, "--out", str(out), "--baselines", "none", "--n", "4",
-                     "--samples", "1", "--device", "cpu"]) == 0
+                     "--plot-trajectories", "1", "--device", "cpu"]) == 0
         metrics = json.load(open(out / "metrics.json"))
         scores.append([metrics[k] for k in ("approach1", "approach2", "horizons", "calibration")]
                       + [metrics["meta"].get("in_sample")])
