@@ -271,3 +271,32 @@ def atomic_folder(path: str | os.PathLike) -> Iterator[str]:
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         shutil.rmtree(old, ignore_errors=True)
+
+
+def set_aside(path: str | os.PathLike) -> str:
+    """Renames ``path`` (a folder or a file) to the first free ``<path>.previous-<k>``; returns that name.
+
+    Keeps an earlier output that cannot be resumed (the demo's run folder of an older version) instead of
+    deleting it. The name is claimed first, by creating it exclusively (an empty folder or file), and the
+    rename then goes over that claim: two writers setting aside at once never take one name, and nothing
+    that was already there is replaced.
+    """
+    path = os.fspath(path)
+    folder = os.path.isdir(path) and not os.path.islink(path)
+    k = 1
+    while True:
+        aside = f"{path}.previous-{k}"
+        try:
+            if folder:
+                os.mkdir(aside)
+            else:
+                os.close(os.open(aside, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+            break
+        except FileExistsError:
+            k += 1
+    try:
+        os.replace(path, aside)  # a folder over its empty claim, a file over its empty claim
+    except BaseException:
+        (os.rmdir if folder else os.remove)(aside)
+        raise
+    return aside

@@ -108,6 +108,7 @@ def training_data(out_dir: str, robots: int) -> tuple[str, str]:
 def train(train: str, test: str, minutes: float, runs_dir: str, inputs: str = "command") -> tuple[str, str]:
     """Trains on the ``train`` store (:func:`training_data`'s), ``test`` the held-out one the run records; returns
     (run dir, best checkpoint)."""
+    from robomorph.core.atomic import set_aside  # noqa: PLC0415
     from robomorph.training.fitting import fit  # noqa: PLC0415  (torch/lightning only when training)
 
     run = "demo" if inputs == "command" else "demo-total"
@@ -119,7 +120,7 @@ def train(train: str, test: str, minutes: float, runs_dir: str, inputs: str = "c
         result = fit(args)
     except CheckpointError as exc:
         # A demo run left by an older version (another model) cannot be resumed: keep it aside, start afresh.
-        kept = _set_aside(os.path.join(runs_dir, run))
+        kept = set_aside(os.path.join(runs_dir, run))
         print(f"note: {exc}\nnote: the earlier demo run is kept at {kept}; training a new one")
         result = fit(args)
     ckpt = result.best_ckpt or result.last_ckpt
@@ -228,15 +229,6 @@ def evaluate_and_report(ckpt: str, test: str, runs_dir: str, identified: bool = 
         report = build_report(runs_dir, default_out(runs_dir))
         phase.update()
     return out, report, res
-
-
-def _set_aside(path: str) -> str:
-    """Renames a run folder to the first free ``<path>.previous-<k>``; returns the new name."""
-    k = 1
-    while os.path.exists(f"{path}.previous-{k}"):
-        k += 1
-    os.replace(path, f"{path}.previous-{k}")
-    return f"{path}.previous-{k}"
 
 
 def _ddhhmmss(seconds: float) -> str:

@@ -9,7 +9,7 @@ import re
 
 import pytest
 
-from robomorph.core.atomic import atomic_folder
+from robomorph.core.atomic import atomic_folder, set_aside
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 
@@ -50,10 +50,32 @@ def test_a_new_folder_is_made_and_a_link_is_followed(tmp_path):
 
 
 def test_no_module_swaps_with_an_os_replace_of_its_own():
-    """One atomic writer: the model-folder writer goes through it (robomorph.core.locks.output_folder). The
-    exception: the demo's set-aside of an earlier run folder, a rename to a free name, not a write."""
-    allowed = {"robomorph/core/atomic.py", "robomorph/reproduction/demo.py"}
+    """One atomic writer: the model-folder writer goes through it (robomorph.core.locks.output_folder), and so
+    does the demo's set-aside of an earlier run folder (set_aside)."""
+    allowed = {"robomorph/core/atomic.py"}
     found = sorted(str(p.relative_to(ROOT)) for p in (ROOT / "robomorph").rglob("*.py")
                    if re.search(r"\bos\.(replace|rename)\(", p.read_text()) and str(p.relative_to(ROOT)) not in allowed)
     assert found == []
     assert "output_folder(" in (ROOT / "robomorph" / "model" / "files.py").read_text()
+
+
+def test_set_aside_keeps_a_folder_or_file_under_the_first_free_name(tmp_path):
+    run = tmp_path / "demo"
+    run.mkdir()
+    (run / "last.ckpt").write_text("old")
+    (tmp_path / "demo.previous-1").mkdir()  # taken (by someone else's set-aside): never replaced
+    (tmp_path / "demo.previous-1" / "keep").write_text("k")
+    aside = set_aside(run)
+    assert aside == str(tmp_path / "demo.previous-2") and not run.exists()
+    assert _tree(aside) == {"last.ckpt": "old"} and _tree(tmp_path / "demo.previous-1") == {"keep": "k"}
+    run.mkdir()
+    assert set_aside(run) == str(tmp_path / "demo.previous-3")
+    page = tmp_path / "page.html"
+    page.write_text("x")
+    assert set_aside(page) == str(page) + ".previous-1" and (tmp_path / "page.html.previous-1").read_text() == "x"
+
+
+def test_a_failed_set_aside_leaves_no_claim(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        set_aside(tmp_path / "missing")
+    assert os.listdir(tmp_path) == []

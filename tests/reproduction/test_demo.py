@@ -123,3 +123,33 @@ def test_a_total_torque_model_has_no_shipped_calibration(tiny_checkpoint, tmp_pa
     ckpt = str(tmp_path / "best.ckpt")
     shutil.copy(tiny_checkpoint, ckpt)
     assert shipped_std(ckpt) is None and filecmp.cmp(ckpt, tiny_checkpoint, shallow=False)
+
+
+def test_a_run_of_an_older_version_is_set_aside_not_deleted(tmp_path, monkeypatch, capsys):
+    """The demo's run folder, when fit cannot resume it (a model of another version), is kept under the first
+    free ``.previous-<k>`` name (robomorph.core.atomic.set_aside) and a new run trained."""
+    from types import SimpleNamespace
+
+    from robomorph.model.files import CheckpointError
+    from robomorph.reproduction import demo
+    from robomorph.training import fitting
+
+    runs = tmp_path / "runs"
+    (runs / "demo").mkdir(parents=True)
+    (runs / "demo" / "last.ckpt").write_text("an older model")
+    (runs / "demo.previous-1").mkdir()
+    calls = []
+
+    def fit(args):  # the training itself is fit's (tested in training/); here only what the demo does around it
+        calls.append(args)
+        if len(calls) == 1:
+            raise CheckpointError("last.ckpt was written by another version")
+        return SimpleNamespace(best_ckpt=str(runs / "demo" / "best.ckpt"), last_ckpt=None, run_dir=str(runs / "demo"))
+
+    monkeypatch.setattr(fitting, "fit", fit)
+    run_dir, ckpt = demo.train("train.zarr", "test.zarr", 0.1, str(runs))
+    assert len(calls) == 2 and ckpt.endswith("best.ckpt")
+    assert (runs / "demo.previous-2" / "last.ckpt").read_text() == "an older model"
+    assert not (runs / "demo").exists() and sorted(p.name for p in runs.iterdir()) == ["demo.previous-1",
+                                                                                      "demo.previous-2"]
+    assert "kept at" in capsys.readouterr().out
