@@ -88,3 +88,97 @@ def test_configure_refuses_at_once_and_changes_nothing(window, changes, error, p
             setattr(pred, f"physics_{name}", value)
         assert pred.settings == before
     assert pred.simulate(*window, at_rest=True).shape == (1, H, 14)  # the next call predicts as before
+
+
+# --- ingest --source: nothing silent, every refusal named as the user's files name it ---------------------
+
+def _tiny_sources(root, length: int, nan_in: str | None = None) -> None:
+    """The four public sources' layouts under ``root`` (as tests/data/test_public_logs.py writes them, far
+    smaller), ``length`` samples per recording; ``nan_in``: a NaN in joint 3's angle of that source's test log."""
+    import os
+
+    import scipy.io
+
+    from robomorph.data import public_logs
+
+    rng = np.random.default_rng(0)
+    kin = os.path.join(root, "dynamic-identification", "pyDynaMapp", "data", "kinova")
+    header = ["Time"] + [f"{k}{j}" for k in ("Position", "Velocity", "Torque", "TorqueCur") for j in range(1, 8)]
+    for folder, name in (("identification_data", "Trajectory1.csv"), ("validation_data", "opti_traj_testing1.csv")):
+        rows = np.column_stack([np.arange(length), rng.uniform(-0.5, 0.5, (length, 28))])
+        if nan_in == "kinova_gen3" and folder == "validation_data":
+            rows[5, 3] = np.nan  # Position3
+        os.makedirs(os.path.join(kin, folder), exist_ok=True)
+        np.savetxt(os.path.join(kin, folder, name), rows, delimiter=",", header=",".join(header), comments="")
+    ur5 = os.path.join(root, "ur5_modeling_force_estimate", "JointSpaceControl_Model_C_ForceEstim", "RecordedUR5Data")
+    for movement in ("Movement_No1", "Movement_No6_Verify_Model"):
+        folder = os.path.join(ur5, movement, "csv_files")
+        os.makedirs(folder)
+        t = 0.008 * np.arange(length)
+        for name in ("log_q_actual.csv", "log_m_target.csv"):
+            x = rng.uniform(-0.5, 0.5, (length, 6))
+            if nan_in == "ur5" and "Verify" in movement and name == "log_q_actual.csv":
+                x[5:, 2] = np.nan  # the third joint's column (the file's fourth, after time)
+            np.savetxt(os.path.join(folder, name), np.column_stack([t, x]), delimiter=", ", fmt="%.6f")
+    schunk = os.path.join(root, "AutoKoopman", "autoKoopman_codeocean", "data", "Robot")
+    for m in (1, 2):
+        folder = os.path.join(schunk, f"measurement_{m}")
+        os.makedirs(folder)
+        traj = rng.uniform(-0.5, 0.5, (length, 12))
+        if nan_in == "schunk" and m == 2:  # run 2's input is used latest: the test run
+            traj[5, 2] = np.nan
+        np.savetxt(os.path.join(folder, "input.csv"), rng.normal(size=(length, 6)) + m, delimiter=",")
+        np.savetxt(os.path.join(folder, "time.csv"), 0.004 * np.arange(length))
+        np.savetxt(os.path.join(folder, "trajectory.csv"), traj, delimiter=",")
+    mat = os.path.join(root, "Physics-Guided-Recurrent-State-Space-Neural-Networks", public_logs.INDUSTRIAL_MAT)
+    os.makedirs(os.path.dirname(mat))
+    arrays = {f"{k}_{split}": rng.normal(size=(6, length)) for k in "uy" for split in ("train", "val", "test")}
+    if nan_in == "industrial_robot":
+        arrays["y_test"][2, 5] = np.nan
+    scipy.io.savemat(mat, arrays)
+
+
+def _ingest(argv, capsys) -> tuple[int, str, str]:
+    from robomorph.ingest import main
+
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    out = capsys.readouterr()
+    return int(code or 0), out.out, out.err
+
+
+def _one_error(code: int, err: str, *phrases: str) -> str:
+    assert code == 2 and "Traceback" not in err, (code, err)
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    for phrase in phrases:
+        assert phrase in lines[0], (phrase, lines[0])
+    return lines[0]
+
+
+@pytest.mark.parametrize("source", ["kinova_gen3", "ur5", "schunk", "industrial_robot"])
+def test_ingest_source_with_every_recording_too_short_says_so(tmp_path, capsys, source):
+    """Defect 11: every recording shorter than one window exited 0, printed nothing and wrote nothing."""
+    _tiny_sources(str(tmp_path / "data"), length=40)
+    code, _, err = _ingest(["--source", source, "--data", str(tmp_path / "data"), "--out", str(tmp_path / "out")],
+                           capsys)
+    _one_error(code, err, "recording under", "holds one window of", "the longest has")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("source, where, column", [
+    ("kinova_gen3", "validation_data/opti_traj_testing1.csv", "Position3"),
+    ("ur5", "Movement_No6_Verify_Model/csv_files", "log_q_actual.csv column 4"),
+    ("schunk", "measurement_2", "trajectory.csv column 3"),
+    ("industrial_robot", "forward_identification_without_raw_data_shifted.mat", "y_test row 3"),
+])
+def test_a_nan_in_a_source_file_is_named_as_the_user_file_holds_it(tmp_path, capsys, source, where, column):
+    """Defect 22: a NaN was reported against a deleted temporary ``.npz`` and a renamed column (``q2``)."""
+    _tiny_sources(str(tmp_path / "data"), length=2100, nan_in=source)  # every recording holds a window
+    code, _, err = _ingest(["--source", source, "--data", str(tmp_path / "data"), "--out", str(tmp_path / "out")],
+                           capsys)
+    line = _one_error(code, err, where, column, "NaN")
+    assert ".npz" not in line and "q2" not in line
+    assert not (tmp_path / "out").exists()

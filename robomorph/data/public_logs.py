@@ -74,6 +74,9 @@ class PublicLog:
         context, horizon: window lengths in samples at that rate.
         stride: samples between test windows.
         reader: ``root -> [Recording]``.
+        labels: where the user finds column ``j`` of ``u`` and of ``q`` in the source's own files: formats
+            of ``j1`` (j + 1), ``j2`` (j + 2) and ``split``, so that a bad value is reported as the file holds it
+            (``Position3``), not as the store would name it (``q2``).
     """
 
     name: str
@@ -89,6 +92,7 @@ class PublicLog:
     horizon: int
     stride: int
     reader: Callable[[str], list[Recording]]
+    labels: tuple[str, str] = ("column {j1} of u", "column {j1} of q")
 
     def root(self, data: str) -> str:
         """The clone's folder under ``data`` (the first of its names that exists; a local clone
@@ -107,7 +111,32 @@ class PublicLog:
         if not any(r.split == "test" for r in recs) or not any(r.split == "train" for r in recs):
             raise PublicLogError(f"{self.robot}: the recordings found under {self.root(data)} leave the train or the "
                                  "test split empty; is the clone complete?")
+        self._check(recs, self.root(data))
         return recs
+
+    def _check(self, recs: list[Recording], root: str) -> None:
+        """Refuses, before anything is written, a recording holding NaN or inf (named as the user's file and
+        column hold it) and a train or test split none of whose recordings holds one window (issue 61: every
+        recording too short used to exit 0 with nothing written and nothing said)."""
+        for r in recs:
+            for kind, x in (("u", r.u), ("q", r.q)):
+                bad = ~np.isfinite(x)
+                if bad.any():
+                    row, j = (int(v[0]) for v in np.nonzero(bad))
+                    label = self.labels[kind == "q"].format(j1=j + 1, j2=j + 2, split=r.split)
+                    raise PublicLogError(
+                        f"{os.path.join(root, r.name.split(':')[0])}: {label} holds NaN or inf (first at sample {row} "
+                        f"of the recording, {int(bad[:, j].sum())} in all); restore the file from its clone "
+                        "(docs/guide/real-robots.md) or remove the recording")
+        steps, rate = self.context + self.horizon, (f"{self.hz:g} Hz" if self.hz else "the log's rate")
+        for split in ("train", "test"):
+            chosen = [r for r in recs if r.split == split]
+            longest = max(int(np.ceil(len(r.u) * (self.hz * r.dt if self.hz else 1.0))) for r in chosen)
+            if longest < steps:
+                raise PublicLogError(
+                    f"--source {self.name}: no {split} recording under {root} holds one window of {steps} samples "
+                    f"at {rate} (context {self.context} + horizon {self.horizon}; the longest has {longest}): are the files "
+                    "complete? Restore them from the clone (docs/guide/real-robots.md)")
 
 
 # ---------------------------------------------------------------------------------- readers
@@ -271,23 +300,23 @@ SOURCES: dict[str, PublicLog] = {s.name: s for s in (
               "sensors' Torque columns read 0 in whole files and on joint 7 everywhere)",
               "validation_data/ (the authors' validation trajectories) is test; identification_data/ and "
               "jointwise_motion/ train",
-              200.0, 200, 200, 50, _kinova),
+              200.0, 200, 200, 50, _kinova, ("TorqueCur{j1}", "Position{j1}")),
     PublicLog("ur5", "Universal Robots UR5 (6 joints, 125 Hz)", "ur5e", ("ur5_modeling_force_estimate",),
               "git clone https://github.com/kkufieta/ur5_modeling_force_estimate",
               "Apache-2.0", "m_target: the target joint torques of the UR controller, gravity included",
               "the movements the authors recorded to verify their model (*Verify_Model*) are test; the rest train",
-              60.0, 200, 300, 100, _ur5),
+              60.0, 200, 300, 100, _ur5, ("log_m_target.csv column {j2}", "log_q_actual.csv column {j2}")),
     PublicLog("schunk", "Schunk LWA 4P (6 joints, 250 Hz; Liu & Althoff 2018)", None, ("AutoKoopman",),
               "git clone -b experiment_rerun https://github.com/nikhilushinde/AutoKoopman",
               "CC0", "input.csv: the six motor torques",
               "runs that repeat one input share a split; the input first used latest (its runs) is test",
-              None, 200, 500, 500, _schunk),
+              None, 200, 500, 500, _schunk, ("input.csv column {j1}", "trajectory.csv column {j1}")),
     PublicLog("industrial_robot", "KUKA KR300 R2500 ultra SE (6 joints, 10 Hz; Weigand et al.)", None,
               ("Physics-Guided-Recurrent-State-Space-Neural-Networks", INDUSTRIAL_DOWNLOAD),
               "git clone https://github.com/yifang0-0/Physics-Guided-Recurrent-State-Space-Neural-Networks",
               "the benchmark's terms (nonlinear-benchmarks: Industrial_robot)",
               "u: the six motor torques", "the benchmark's own split (train / val / test)",
-              None, 200, 50, 50, _industrial),
+              None, 200, 50, 50, _industrial, ("u_{split} row {j1}", "y_{split} row {j1}")),
 )}
 
 
