@@ -67,3 +67,20 @@ def pad_columns(x, cols: Sequence[int], width: int):
     out = np.full(x.shape[:-1] + (width,), np.nan, dtype=x.dtype)
     out[..., list(cols)] = x
     return out
+
+
+# Role names whose numbered channels hold one kind of quantity (the simulator's and ingest's layouts).
+KIND_STEMS = ("tau", "cmd", "q")
+
+
+def channel_kind(name: str) -> str:
+    """The kind of quantity a channel holds, by its role name: channels of one kind share units and a
+    typical spread (``tau0..tau6`` torques, ``cmd0..`` commands, ``q0..q6`` joint angles,
+    ``ee_x ee_y ee_z`` the EE position, ``ee_qx .. ee_qw`` its quaternion). Any other name (a log's own
+    column names, ``u0``, ``y1``) is a kind of its own: nothing says two such columns share units."""
+    if name.startswith("ee_q"):
+        return "ee_quaternion"
+    if name in ("ee_x", "ee_y", "ee_z"):
+        return "ee_position"
+    stem = name.rstrip("0123456789")
+    return stem if stem in KIND_STEMS and stem != name else name

@@ -34,6 +34,11 @@ GRAVITY_MODES = ("true_model", "nominal_model", "none")
 # or the paper's per-window statistics (which leak the query outputs' statistics).
 NORMALIZATIONS = ("train_stats", "paper_window")
 
+# What the black-box decoder's output is a correction to (--model.extrapolate): nothing (or the
+# last context output with --model.anchor), or constant-velocity extrapolation from the last
+# context sample (robomorph.inference.checkpoint.kinematic_anchor).
+EXTRAPOLATIONS = ("none", "velocity")
+
 # What the model reads as u (data.inputs): the total joint torque, or the command before the
 # arm's gravity compensation (a store's u_cmd).
 INPUTS = ("total", "command")

@@ -179,7 +179,9 @@ class RoboMorphDataModule(L.LightningDataModule):
         for k, src in enumerate(sources):
             stop = src.steps if self.window == "random" else self.context_len + self.horizon
             scan(src, self.splits[k]["train"], stop, ColumnAccumulator(acc, src.layout) if k < len(self.stores) else None)
-        self.stats: Stats = acc.finalize()
+        # Floored by channel kind: a joint that barely moves in the training split is not scaled by its own
+        # near-zero spread (issue 62: the Kinova's from-scratch model diverged on it).
+        self.stats: Stats = acc.finalize(u_names=self._names[0], y_names=self._names[1])
         # A residual model counts its correction in the prior's RMS error per step and channel (training rows only).
         self.prior_error = None if self.prior is None else prior_error_rms(
             [(np.stack([src.window(int(i), self.context_len, self.context_len + self.horizon)[1]

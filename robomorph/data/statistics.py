@@ -18,8 +18,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from robomorph.core.channels import channel_kind
+
 # Rows per block when reducing large arrays: float64 copies of a block stay small.
 _BLOCK_ROWS = 256
+# Each channel's std is floored at this fraction of the median std of the channels of its kind
+# (joint angles together, torques together: robomorph.core.channels.channel_kind). A joint that
+# barely moves in the training split (the Kinova's last joint: 10^-5 of its test spread) would
+# otherwise be divided by a near-zero spread, and a from-scratch model trained on it diverged
+# (issue 62); a tenth of its kind's spread still leaves a channel that moves less its own scale.
+STD_FLOOR_FRACTION = 0.1
 
 
 class _Moments:
@@ -51,8 +59,20 @@ class _Moments:
         self.m2[sel] = self.m2[sel] + m2_b + delta**2 * (count * k / total)
         self.count[sel] = total
 
-    def std(self, eps: float) -> np.ndarray:
-        return np.maximum(np.sqrt(self.m2 / np.maximum(self.count, 1)), eps)
+    def std(self, eps: float, kinds: list[str] | None = None, fraction: float = STD_FLOOR_FRACTION) -> np.ndarray:
+        """Population std floored at ``eps`` and, with ``kinds`` (one per channel), at ``fraction`` of the
+        median std of the covered channels of the same kind (:data:`STD_FLOOR_FRACTION`)."""
+        std = np.maximum(np.sqrt(self.m2 / np.maximum(self.count, 1)), eps)
+        if kinds is None:
+            return std
+        if len(kinds) != len(std):
+            raise ValueError(f"{len(kinds)} channel kinds for {len(std)} channels")
+        kinds_arr, covered = np.asarray(kinds), self.count > 0
+        floored = std.copy()
+        for kind in set(kinds_arr[covered]):
+            group = covered & (kinds_arr == kind)
+            floored[group] = np.maximum(std[group], fraction * np.median(std[group]))
+        return floored
 
 
 class StatsAccumulator:
@@ -89,8 +109,13 @@ class StatsAccumulator:
             self._u.update(u[start:start + _BLOCK_ROWS], u_cols)
             self._y.update(y[start:start + _BLOCK_ROWS], y_cols)
 
-    def finalize(self, eps: float = 1e-6) -> "Stats":
-        """Returns the statistics; std is floored at ``eps`` so a flat channel stays finite.
+    def finalize(self, eps: float = 1e-6, u_names: list[str] | None = None, y_names: list[str] | None = None,
+                 fraction: float = STD_FLOOR_FRACTION) -> "Stats":
+        """Returns the statistics; std is floored at ``eps`` so a flat channel stays finite, and, where the
+        channels are named, at ``fraction`` of the median std of the channels of its kind
+        (:func:`robomorph.core.channels.channel_kind`; :data:`STD_FLOOR_FRACTION`): a joint that barely
+        moves in the training split is scaled as a tenth of a typical joint's motion, not by its own
+        near-zero spread.
 
         A channel no block covered (a channel set wider than the data, e.g. a multi-arm model
         fine-tuned on an arm with fewer joints, for which the channel is always absent) gets
@@ -98,7 +123,8 @@ class StatsAccumulator:
         """
         if self.count == 0:
             raise ValueError("no samples were given: cannot compute normalization statistics")
-        u_std, y_std = self._u.std(eps), self._y.std(eps)
+        u_kinds, y_kinds = (None if names is None else [channel_kind(n) for n in names] for names in (u_names, y_names))
+        u_std, y_std = self._u.std(eps, u_kinds, fraction), self._y.std(eps, y_kinds, fraction)
         u_std[self._u.count == 0], y_std[self._y.count == 0] = 1.0, 1.0
         return Stats(u_mean=self._u.mean.copy(), u_std=u_std, y_mean=self._y.mean.copy(), y_std=y_std)
 
@@ -129,12 +155,14 @@ class Stats:
         return int(self.y_mean.shape[0])
 
     @classmethod
-    def from_arrays(cls, u: np.ndarray, y: np.ndarray, eps: float = 1e-6) -> "Stats":
-        """Statistics over all trajectories and all steps of ``u (N, T, n_u)``, ``y (N, T, n_y)``.
+    def from_arrays(cls, u: np.ndarray, y: np.ndarray, eps: float = 1e-6, u_names: list[str] | None = None,
+                    y_names: list[str] | None = None) -> "Stats":
+        """Statistics over all trajectories and all steps of ``u (N, T, n_u)``, ``y (N, T, n_y)``; with the
+        channels' names, each std floored by its kind as :meth:`StatsAccumulator.finalize` says.
 
         Reduces in float64 blocks of trajectories, so a large float32 array is never copied whole.
         """
         acc = StatsAccumulator(u.shape[-1], y.shape[-1])
         acc.update(u, y)
-        return acc.finalize(eps)
+        return acc.finalize(eps, u_names, y_names)
 

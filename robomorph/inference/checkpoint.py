@@ -13,9 +13,12 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import torch
 from torch import nn
 
+from robomorph.core.names import EXTRAPOLATIONS
+from robomorph.core.velocity import velocity_weights
 from robomorph.inference.blending import BLEND_KEY, BlendError, HorizonBlend
 from robomorph.inference.calibration import CALIBRATION_KEY, CalibrationError, StdCalibration, calibration_key, read_calibrations
 
@@ -40,7 +43,7 @@ def model_config(hparams: dict) -> ModelConfig:
 
 
 def predict_normalized_dist(net: MetaModel, anchor: bool, uc: torch.Tensor, yc: torch.Tensor, uq: torch.Tensor,
-                            integrate: bool = False, prior: torch.Tensor | None = None
+                            integrate: bool = False, prior: torch.Tensor | None = None, velocity_points: int = 0
                             ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Normalized mean (B, Th, n_y) and log-variance (or None without a Gaussian head) from
     normalized inputs.
@@ -48,18 +51,34 @@ def predict_normalized_dist(net: MetaModel, anchor: bool, uc: torch.Tensor, yc: 
     With ``anchor`` the network predicts the deviation from the last context output, which is
     added back (a context value: nothing of the query leaks). With ``integrate`` it predicts
     per-step changes (scaled by :data:`INTEGRATE_SCALE`), summed from the last context output.
+    With ``velocity_points`` (> 0) it predicts the correction to constant-velocity extrapolation
+    from the last context output (:func:`kinematic_anchor`), so a zero output is ``y + v t``.
     A residual model (``prior``, the normalized prior prediction) predicts a correction in units of
     its ``prior_scale`` per step and channel, added to the prior.
     """
     mean, logvar = net.forward_dist(uc, yc, uq, prior)
     if prior is not None:
         return prior + mean * net.prior_scale[:mean.shape[1]], logvar
+    if velocity_points:
+        return mean + kinematic_anchor(yc, mean.shape[1], velocity_points), logvar
     if integrate:
         # A running sum over steps <= t: causal, like the decoder it follows.
         mean = INTEGRATE_SCALE * mean.cumsum(dim=1)
     if anchor or integrate:
         mean = mean + yc[:, -1:]
     return mean, logvar
+
+
+def kinematic_anchor(yc: torch.Tensor, th: int, points: int) -> torch.Tensor:
+    """Constant-velocity extrapolation (B, th, n_y) of the context outputs (B, Tc, n_y): ``y[-1] + k v``
+    at query step ``k``, ``v`` per step from the last ``points`` samples (the fit of
+    :func:`robomorph.core.velocity.estimate_velocity`; 2 points: the last backward difference, the
+    ``constant_velocity`` baseline). Context values only, and linear in them, so it holds in normalized
+    units as in physical ones."""
+    w = torch.as_tensor(velocity_weights(yc.shape[1], points), dtype=yc.dtype, device=yc.device)  # (k,)
+    v = torch.einsum("k,bkc->bc", w, yc[:, -len(w):])  # (B, n_y) per step
+    k = torch.arange(1, th + 1, dtype=yc.dtype, device=yc.device)[None, :, None]  # (1, th, 1)
+    return yc[:, -1:] + k * v[:, None]
 
 
 def predict_normalized(net: MetaModel, anchor: bool, uc: torch.Tensor, yc: torch.Tensor,
@@ -69,22 +88,25 @@ def predict_normalized(net: MetaModel, anchor: bool, uc: torch.Tensor, yc: torch
 
 
 def simulate(net: MetaModel, normalizer: Normalizer, anchor: bool, u_ctx: torch.Tensor,
-             y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None, integrate: bool = False) -> torch.Tensor:
+             y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None, integrate: bool = False,
+             velocity_points: int = 0) -> torch.Tensor:
     """Predicts y over the query horizon in physical units: normalize, predict, decode.
 
     ``y_query_stats`` (mean, std of the query outputs) only under the ``paper_window`` protocol.
     """
-    return simulate_dist(net, normalizer, anchor, u_ctx, y_ctx, u_query, y_query_stats, integrate)[0]
+    return simulate_dist(net, normalizer, anchor, u_ctx, y_ctx, u_query, y_query_stats, integrate,
+                         velocity_points=velocity_points)[0]
 
 
 def simulate_dist(net: MetaModel, normalizer: Normalizer, anchor: bool, u_ctx: torch.Tensor,
                   y_ctx: torch.Tensor, u_query: torch.Tensor, y_query_stats=None, integrate: bool = False,
-                  prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+                  prior: torch.Tensor | None = None, velocity_points: int = 0
+                  ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Mean and standard deviation (None without a Gaussian head) in physical units; a residual
     model's ``prior`` (B, Th, n_y) in physical units, normalized here as the outputs are."""
     uc, yc, uq = normalizer.encode(u_ctx, y_ctx, u_query, y_query_stats)
     prior_n = None if prior is None else normalizer.encode_target(prior, y_ctx, y_query_stats)
-    mean, logvar = predict_normalized_dist(net, anchor, uc, yc, uq, integrate, prior_n)
+    mean, logvar = predict_normalized_dist(net, anchor, uc, yc, uq, integrate, prior_n, velocity_points)
     # Recentring and anchoring shift the outputs; only the z-score scales them.
     std = None if logvar is None else torch.exp(0.5 * logvar) * normalizer.decode_scale(
         y_ctx, y_query_stats, u_query.shape[1])
@@ -103,6 +125,9 @@ class TrainedModel(nn.Module):
         anchor: predictions are offsets from the last context output.
         normalization: ``train_stats`` or ``paper_window`` (see :class:`Normalizer`).
         integrate: the network predicts per-step changes summed from the last context output.
+        extrapolate: ``none``, or ``velocity``: the network predicts the correction to constant-velocity
+            extrapolation from the last context output (:func:`kinematic_anchor`).
+        velocity_points: with ``velocity``, the last context samples its velocity is fitted to.
 
     Attributes:
         gaussian: the network has a Gaussian head (:meth:`forward_dist` gives a std).
@@ -114,11 +139,21 @@ class TrainedModel(nn.Module):
     """
 
     def __init__(self, config: ModelConfig, recenter: bool = False, anchor: bool = False,
-                 normalization: str = "train_stats", integrate: bool = False):
+                 normalization: str = "train_stats", integrate: bool = False, extrapolate: str = "none",
+                 velocity_points: int = 2):
         super().__init__()
+        check_extrapolation(extrapolate, velocity_points)
         self.config, self.anchor, self.integrate = config, bool(anchor), bool(integrate)
+        self.extrapolate, self.velocity_points = extrapolate, int(velocity_points)
         self.gaussian = bool(config.gaussian)
         self.net = MetaModel(config)
+        if self.kinematic_points:
+            # An untrained correction is zero, as a residual model's: training starts from constant velocity
+            # (a checkpoint's weights replace these).
+            with torch.no_grad():
+                self.net.head.weight.zero_()
+                if self.net.head.bias is not None:
+                    self.net.head.bias.zero_()
         self.calibrations: dict[str, StdCalibration] = {}
         self.blend = None
         self.normalizer = Normalizer(n_u=config.n_u, n_y=config.n_y, recenter=recenter, normalization=normalization)
@@ -143,7 +178,12 @@ class TrainedModel(nn.Module):
                          ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """:meth:`forward_dist` without the calibration: the head's own standard deviation."""
         return simulate_dist(self.net, self.normalizer, self.anchor, u_ctx, y_ctx, u_query, y_query_stats,
-                             self.integrate, prior)
+                             self.integrate, prior, self.kinematic_points)
+
+    @property
+    def kinematic_points(self) -> int:
+        """Points of the kinematic anchor's velocity fit, 0 without one (what the predictors take)."""
+        return self.velocity_points if self.extrapolate == "velocity" else 0
 
     @property
     def calibration(self) -> StdCalibration | None:
@@ -163,6 +203,15 @@ class TrainedModel(nn.Module):
         self.calibrations = {**self.calibrations, calibration_key(calibration): calibration}
 
 
+def check_extrapolation(extrapolate: str, velocity_points: int) -> None:
+    """Refuses an unknown extrapolation or a velocity fit of fewer than 2 points (ValueError naming them)."""
+    if extrapolate not in EXTRAPOLATIONS:
+        raise ValueError(f"extrapolate must be one of {list(EXTRAPOLATIONS)}, got {extrapolate!r}")
+    if isinstance(velocity_points, bool) or not isinstance(velocity_points, (int, np.integer)) or velocity_points < 2:
+        raise ValueError(f"velocity_points must be an integer of at least 2 (2: the last backward difference), "
+                         f"got {velocity_points!r}")
+
+
 def _build(path: str, hp: dict, state: dict, device: torch.device | None = None) -> TrainedModel:
     """The model ``hp`` declares (on ``device``); on the meta device, refused unless every
     tensor of ``state`` has the shape the declared sizes give."""
@@ -171,7 +220,10 @@ def _build(path: str, hp: dict, state: dict, device: torch.device | None = None)
             model = TrainedModel(model_config(hp), recenter=bool(hp.get("recenter", False)),
                                  anchor=bool(hp.get("anchor", False)),
                                  normalization=hp.get("normalization", "train_stats"),
-                                 integrate=bool(hp.get("integrate", False)))
+                                 integrate=bool(hp.get("integrate", False)),
+                                 # Absent from models written before the option: they predict as they did.
+                                 extrapolate=hp.get("extrapolate", "none"),
+                                 velocity_points=hp.get("velocity_points", 2))
     except (ValueError, TypeError) as exc:
         raise CheckpointError(f"{path} holds an invalid architecture: {exc}") from exc
     if device is not None:

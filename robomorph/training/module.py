@@ -14,6 +14,7 @@ import torch
 
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.names import (
+    EXTRAPOLATIONS,
     FREEZE_MODES,
     LOSSES,
     NORMALIZATIONS,
@@ -23,6 +24,7 @@ from robomorph.core.normalizations import check_normalization
 from robomorph.inference.checkpoint import (
     DATA_INFO_KEY,
     TrainedModel,
+    check_extrapolation,
     model_config,
 )
 from robomorph.model.normalization import Normalizer
@@ -77,6 +79,14 @@ class MetaModule(Steps, L.LightningModule):
             is added back (a context value: nothing of the query leaks). The prediction
             then starts where the robot is instead of having to locate it first.
         integrate: the network predicts per-step changes summed from the last context output.
+        extrapolate: ``velocity``: the network predicts the correction to constant-velocity
+            extrapolation from the last context sample (``y[-1] + k v`` at query step ``k``, ``v``
+            fitted to the last ``velocity_points`` context samples), so an untrained or zeroed
+            network predicts what the ``constant_velocity`` baseline does and the first steps start
+            on the arm's motion; ``none`` (default): as ``anchor`` and ``integrate`` say.
+        velocity_points: context samples the velocity is fitted to with ``extrapolate velocity``
+            (2, the default: the last backward difference, the ``constant_velocity`` baseline's;
+            up to 6 as :func:`robomorph.core.velocity.estimate_velocity`, a cubic over them).
         init_ckpt: start from this checkpoint's (or model folder's) weights and normalization (transfer).
         freeze: ``none``, ``encoder`` or ``all_but_head``.
         reinit_io: when the checkpoint's n_u / n_y differ, re-initialize the input
@@ -138,6 +148,8 @@ class MetaModule(Steps, L.LightningModule):
         normalization: Literal[NORMALIZATIONS] = "train_stats",
         anchor: bool = False,
         integrate: bool = False,
+        extrapolate: Literal[EXTRAPOLATIONS] = "none",
+        velocity_points: int = 2,
         init_ckpt: str | None = None,
         freeze: Literal[FREEZE_MODES] = "none",
         reinit_io: bool = False,
@@ -154,6 +166,7 @@ class MetaModule(Steps, L.LightningModule):
         if residual and (anchor or integrate or physics == "amortized"):
             raise ModelSettingsError("a residual model (prior stores) corrects the prior's prediction: it goes with "
                                      "neither --model.anchor, --model.integrate nor --model.physics amortized")
+        _check_extrapolation(extrapolate, velocity_points, anchor, integrate, residual)
         check_physics(physics, param_weight, decoder_loss)
         check_loss(loss, gaussian, horizon_weight, horizon_tau)
         _check_training(freeze, normalization_from, lr, min_lr_ratio, warmup_steps, huber_delta, compile)
@@ -184,7 +197,7 @@ class MetaModule(Steps, L.LightningModule):
     def _build(self, n_u: int, n_y: int) -> None:
         h = self.hparams
         trained = TrainedModel(self.model_config, recenter=h.recenter, anchor=h.anchor, normalization=h.normalization,
-                               integrate=h.integrate)
+                               integrate=h.integrate, extrapolate=h.extrapolate, velocity_points=h.velocity_points)
         # Outside the module tree, so the checkpoint keys stay ``net.*`` and ``normalizer.*``.
         self.__dict__["_trained"] = trained
         self.net, self.normalizer = trained.net, trained.normalizer
@@ -277,6 +290,19 @@ def _n_params(physics: str, channel_mask: bool) -> int:
     """The parameter head's width: the Panda's identifiable parameters, whatever the ranges; none
     for ``auto`` over stores of several arms (the head is the Panda's: the black-box model then)."""
     return N_PHYSICAL if physics == "amortized" or (physics == "auto" and not channel_mask) else 0
+
+
+def _check_extrapolation(extrapolate: str, velocity_points: int, anchor: bool, integrate: bool, residual: bool) -> None:
+    """Refuses ``--model.extrapolate`` settings that cannot work, naming the flags: the kinematic anchor
+    replaces the last-output anchor and the summed changes, and a residual model corrects its prior instead."""
+    try:
+        check_extrapolation(extrapolate, velocity_points)
+    except ValueError as exc:
+        raise ModelSettingsError(f"--model.{exc}") from None
+    if extrapolate != "none" and (anchor or integrate or residual):
+        raise ModelSettingsError(f"--model.extrapolate {extrapolate} already starts the prediction from the last context "
+                                 "output: set --model.anchor false and --model.integrate false (and it goes with no "
+                                 "residual model, which corrects its prior instead)")
 
 
 def _check_training(freeze: str, normalization_from: str, lr: float, min_lr_ratio: float,

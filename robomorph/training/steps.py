@@ -39,7 +39,8 @@ class Steps:
         # A residual model's prior, normalized as the target: the network learns target - prior.
         prior = self.normalizer.encode_target(batch["prior_query"], batch["y_ctx"], qs) if self.net.cfg.residual else None
         if not self._physics_on or h.decoder_loss:
-            pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate, prior)
+            pred, logvar = predict_normalized_dist(self.net, h.anchor, uc, yc, uq, h.integrate, prior,
+                                                   self.trained_model.kinematic_points)
             weights = horizon_weights(target.shape[1], h.horizon_weight, h.horizon_tau, target.device)
             fit, goal = pred, target
             if prior is not None:
