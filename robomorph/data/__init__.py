@@ -1,5 +1,6 @@
 """Data: the Zarr store schema (one reader/writer), generation and ingest into stores, merging,
-summaries, training statistics, prior stores (a residual model's windows) and the DataModule."""
+summaries, training statistics, prior stores (a residual model's windows), the DataModule, and the
+industrial robot benchmark's trajectories as its files hold them (``industrial``)."""
 
 # The documented entry point: `from robomorph.data import open_store`.
 from robomorph.data.store import open_store  # noqa: E402
