@@ -168,7 +168,10 @@ def _loggers(run: RunDir, cfg) -> list:
     loggers: list = [ResumableCSVLogger(save_dir=run.path, name=os.path.basename(run.logs), version="")]
     if cfg.wandb != "disabled":
         os.environ.setdefault("WANDB_SILENT", "true")
-        run_id = open(run.wandb_id).read().strip() if os.path.exists(run.wandb_id) else None
+        run_id = None
+        if os.path.exists(run.wandb_id):
+            with open(run.wandb_id, encoding="utf-8") as f:
+                run_id = f.read().strip()
         logger = QuietWandbLogger(save_dir=run.path, project=cfg.project, name=run.name,
                              group=cfg.group, id=run_id, resume="allow" if run_id else None, mode=cfg.wandb)
         loggers.append(logger)
@@ -292,7 +295,11 @@ def _fit(cli: RoboMorphCLI) -> FitResult:
             # Written only now: a refused resume keeps the configuration its checkpoints belong to.
             cli.parser.save(cli.config, run.config, overwrite=True, multifile=False)
         try:
-            trainer.fit(module, datamodule=cli.datamodule, ckpt_path=ckpt)
+            with warnings.catch_warnings():
+                # A run's checkpoint and log folders hold its earlier steps when it resumes, by design: Lightning's
+                # "directory ... exists and is not empty" would say otherwise on every re-run.
+                warnings.filterwarnings("ignore", message=r".*directory .* exists and is not empty")
+                trainer.fit(module, datamodule=cli.datamodule, ckpt_path=ckpt)
         except SIGTERMException:
             saver = _callback(trainer, SaveOnSigterm)
             raise StoppedBySignal(run.path, saver.path, saver.saved_step) from None

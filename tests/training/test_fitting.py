@@ -294,3 +294,15 @@ def test_paper_window_refuses_recenter_and_transfer_across_protocols(paper_windo
     with pytest.raises(CheckpointError, match="normalization 'train_stats'"):
         fit(_args(store, tmp_path, "cross", steps=1, data={"normalization": "paper_window"},
                   model={"init_ckpt": trained[0].best_ckpt}))
+
+
+def test_a_rerun_of_a_run_says_nothing_about_its_folders(store, tmp_path, recwarn, capfd):
+    """Re-running fit on a run resumes it: its checkpoint and log folders exist by design, so Lightning's
+    "directory exists and is not empty" warnings are noise (issue 61 §4) and are not shown; other warnings are."""
+    fit(_args(store, tmp_path, "again", steps=10))
+    capfd.readouterr()
+    recwarn.clear()
+    assert fit(_args(store, tmp_path, "again", steps=20)).global_step == 20
+    said = [str(w.message) for w in recwarn] + capfd.readouterr().err.splitlines()
+    assert not [s for s in said if "exists and is not empty" in s], said
+    assert not [s for s in said if "unclosed file" in s and "wandb_id" in s], said  # the id is read and closed
