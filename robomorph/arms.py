@@ -49,7 +49,6 @@ def build_add_parser() -> argparse.ArgumentParser:
                    "joints from --base-link to --ee-link; others are welded)")
     p.add_argument("--torque-limits", type=_numbers, metavar="N1,N2,...",
                    help="each driven joint's torque limit [N m] (default: the URDF's effort limits / MJCF's motor ranges)")
-    p.add_argument("--title", help="the arm's name for people (default: the description's robot name)")
     p.add_argument("--overwrite", action="store_true", help="replace a user arm of the same name")
     return p
 
@@ -68,7 +67,7 @@ def run_add(a: argparse.Namespace) -> int:
     from robomorph.sim import arms, user_arms  # noqa: PLC0415  (MuJoCo only when an arm is added)
 
     req = user_arms.ArmRequest(a.name, a.urdf or a.mjcf, "urdf" if a.urdf else "mjcf", a.base_link, a.ee_link,
-                               a.joints, a.torque_limits, a.title)
+                               a.joints, a.torque_limits)
     arm = user_arms.add(req, overwrite=a.overwrite)
     print(f"{arm.name}: {arm.n_joint} joints ({', '.join(arm.joint_names)}), end effector {arm.hand}, torque limits "
           f"{', '.join(f'{v:g}' for v in arm.torque_limits)} N m; registered in {arms.user_folder()}")

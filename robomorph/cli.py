@@ -8,7 +8,8 @@ import sys
 COMMANDS = {
     "generate": "randomized robot trajectories into a Zarr store",
     "inspect": "what a store holds (counts, channels, ranges, plots)",
-    "ingest": "a real robot's logs into a store",
+    "ingest": "a real robot's logs (CSV, NPZ, MAT, ROS bags) into a store",
+    "arms": "your own arms from a URDF or MJCF: add, list, remove",
     "merge": "shards of one generation into one store",
     "priors": "the hybrid's predictions over windows of a store, for a residual model",
     "fit": "train a meta-model",

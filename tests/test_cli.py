@@ -22,6 +22,7 @@ BAD_INPUT = [
     ("inspect", ["{tmp}/missing.zarr"], "dataset not found"),
     ("ingest", ["{tmp}/none.csv", "--u-cols", "a", "--y-cols", "b", "--steps", "5", "--dt", "0.1",
                 "--out", "{tmp}/o.zarr"], "log file not found"),
+    ("arms", ["add", "mine", "--urdf", "{tmp}/missing.urdf"], "URDF file not found"),
     ("merge", ["{tmp}/missing.zarr", "--out", "{tmp}/m.zarr"], "dataset not found"),
     ("priors", ["{tmp}/missing.zarr", "--out", "{tmp}/p.zarr"], "dataset not found"),
     ("fit", ["--data.stores", "{tmp}/missing.zarr", "--data.context_len", "0", "--runs_dir", "{tmp}/runs",

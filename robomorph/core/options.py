@@ -118,6 +118,7 @@ VOCABULARY: dict[str, tuple[str, tuple[str, ...]]] = {
     "--device": ("where the network runs: cpu, cuda, ...", ()),
     "--workers": ("processes (or threads) run in parallel", ()),
     "--steps": ("samples per trajectory", ()),
+    "--joints": ("the robot's joints by name, comma-separated, base first", ()),
     "--task": ("what the robot is asked to do (a signal or a path)", ()),
     "--runs-dir": ("the folder of training runs", ()),
     "--wandb": ("Weights & Biases logging: offline, online or disabled", ()),
