@@ -353,10 +353,7 @@ class ContextProblem:
             p = self.params(z)
             ident.randomizer.apply(model, p)
             masses.append(ident.randomizer.split(p)["mass"])
-        ctrl = self.torque[None]  # (1, frames, 7): the same for every model
-        if self._gravity is not None:  # total torque: take off each robot's own g(q) at the recorded state
-            g_fixed, per_link = self._gravity
-            ctrl = self.torque[None] - g_fixed[None] - np.einsum("tbj,kb->ktj", per_link, np.asarray(masses))
+        ctrl = self.control(np.asarray(masses)) if self._gravity is not None else self.torque[None]
         control = np.repeat(ctrl, ident.substeps, axis=1)
         state = np.empty((k, self.nstep, len(self.x0)))
         ident.engine.rollout(models, self.x0, control, state=state)
@@ -372,6 +369,15 @@ class ContextProblem:
             self._cache = {key: err[0]}
             self._qvel_end = {key: self.last_qvel_end[0].copy()}
         return err
+
+    def control(self, masses: np.ndarray) -> np.ndarray:
+        """(k, frames, 7) the torque each frame's rollout applies to robots of link masses ``masses`` (k, links),
+        the formulation's feedback at the recorded state included: the same for every robot but where total torques
+        take off each robot's own g(q) (linear in its link masses)."""
+        if self._gravity is None:
+            return np.broadcast_to(self.torque, (len(masses), *self.torque.shape))
+        g_fixed, per_link = self._gravity
+        return self.torque[None] - g_fixed[None] - np.einsum("tbj,kb->ktj", per_link, masses)
 
     def end_velocity(self, z: np.ndarray) -> np.ndarray:
         """(nj,) where the rollout of ``z`` (unit coordinates) ends in velocity: the last single rollout's."""

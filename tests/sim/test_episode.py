@@ -1,5 +1,6 @@
 """One attempt: its random draws follow (seed, index) alone; a closed-loop run gives a row."""
 
+import mujoco
 import numpy as np
 
 from robomorph.sim import episode, panda
@@ -32,6 +33,19 @@ def test_nominal_gravity_is_the_bias_force_at_rest():
     g = episode.NominalGravity(recipe)(panda.HOME_QPOS)
     assert g.shape == (panda.N_JOINT,) and np.abs(g).max() > 1.0  # the arm's weight acts on its joints
     assert np.abs(episode.NominalGravity(recipe)(panda.HOME_QPOS) - g).max() == 0
+
+
+def test_nominal_gravity_is_a_forward_pass_bias_force_to_the_bit():
+    """Its Newton-Euler pass (no collision detection) gives what a whole forward pass gives, on every arm's joints."""
+    for robot in ("panda", "ur5e"):
+        recipe = load_recipe(None, {"gravity_compensation": "nominal_model", "robot": robot})
+        gravity = episode.NominalGravity(recipe)
+        model = gravity.model
+        data = mujoco.MjData(model)
+        for q in np.random.default_rng(0).uniform(-1.5, 1.5, (20, model.nq)):
+            data.qpos[:], data.qvel[:] = q, 0.0
+            mujoco.mj_forward(model, data)
+            assert np.array_equal(gravity(q), data.qfrc_bias[:gravity.nj])
 
 
 def test_a_closed_loop_attempt_gives_a_dataset_row():
