@@ -182,3 +182,115 @@ def test_a_nan_in_a_source_file_is_named_as_the_user_file_holds_it(tmp_path, cap
     line = _one_error(code, err, where, column, "NaN")
     assert ".npz" not in line and "q2" not in line
     assert not (tmp_path / "out").exists()
+
+
+# --- evaluate: a baseline fitted on what it is scored on, or on another arm ------------------------------
+
+def _evaluate(argv, capsys) -> tuple[int, str, str]:
+    from robomorph import evaluate
+
+    try:
+        code = evaluate.main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    out = capsys.readouterr()
+    return int(code or 0), out.out, out.err
+
+
+def _catalogue_eval(store, out, *extra) -> list[str]:
+    return ["--robot", "panda", "--data", store, "--out", str(out), "--n", "2", "--context-len", str(C),
+            "--horizon", str(H), "--plot-trajectories", "0", "--device", "cpu", *extra]
+
+
+def test_an_arx_fitted_on_the_evaluated_store_is_reported_in_sample(simulated_store, tmp_path, capsys):
+    """Defect 13: ``--arx-train-data <the test store>`` fitted on the robots it scored (0.048 against 0.12 mrad),
+    with no note, and ``in_sample`` stayed false."""
+    import json
+
+    store = simulated_store(robots=2, steps=C + H, seed=3)
+    code, out, err = _evaluate(_catalogue_eval(store, tmp_path / "ev", "--baselines", "hold,accel_arx_train",
+                                               "--arx-train-data", store), capsys)
+    assert code == 0, err
+    assert f"accel_arx_train: in-sample: fitted on {store}" in out
+    note = json.loads((tmp_path / "ev" / "metrics.json").read_text())["meta"]["baseline_notes"]["accel_arx_train"]
+    assert note["in_sample"] is True and note["in_sample_store"] == store
+    assert "Baseline `accel_arx_train` is in-sample" in (tmp_path / "ev" / "table.md").read_text()
+
+
+def test_an_arx_train_store_of_another_arm_is_refused_before_anything_is_written(simulated_store, tmp_path, capsys):
+    """Defect 23: ``--arx-train-data`` of another arm skipped the baseline with numpy's matmul text (rc 0)."""
+    store = simulated_store(robots=2, steps=C + H, seed=3)
+    other = simulated_store(robots=2, steps=C + H, seed=3, robot="ur5e")
+    code, _, err = _evaluate(_catalogue_eval(store, tmp_path / "ev", "--baselines", "hold,accel_arx_train",
+                                             "--arx-train-data", other), capsys)
+    _one_error(code, err, f"--arx-train-data {other} holds arm ur5e, 6 inputs and 13 outputs",
+               "holds arm panda, 7 inputs and 14 outputs")
+    assert not (tmp_path / "ev").exists()
+
+
+# --- a command hybrid calibrated or evaluated on what it was not made for --------------------------------
+
+@pytest.fixture(scope="module")
+def command_hybrid(simulated_store, tmp_path_factory) -> str:
+    """A command-formulation hybrid trained two steps on a store of the generator's defaults (true_model)."""
+    from robomorph.training.fitting import fit
+    from tests.conftest import CKPT_CONTEXT, CKPT_HORIZON, tiny_fit_args
+
+    store = simulated_store(robots=24, steps=CKPT_CONTEXT + CKPT_HORIZON, seed=3)
+    return fit(tiny_fit_args(store, tmp_path_factory.mktemp("runs"), "hybrid", steps=2, data={"inputs": "command"},
+                             model={"physics": "amortized", "anchor": True})).best_ckpt
+
+
+def _calibrate(argv, capsys) -> tuple[int, str, str]:
+    from robomorph import calibrate
+
+    try:
+        code = calibrate.main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    out = capsys.readouterr()
+    return int(code or 0), out.out, out.err
+
+
+def test_calibrate_refuses_a_switch_the_calibrated_mode_does_not_use(command_hybrid, tmp_path, capsys):
+    """Defect 14: ``calibrate --physics none --payload off`` changed the model's default switches as well: its
+    default predictions moved by up to 2.8e-4 rad."""
+    before = open(command_hybrid, "rb").read()
+    code, _, err = _calibrate(["--ckpt", command_hybrid, "--physics", "none", "--payload", "off", "--device", "cpu"],
+                              capsys)
+    _one_error(code, err, "--payload off: physics mode none does not use the payload switch",
+               "change the checkpoint's default predictions")
+    assert open(command_hybrid, "rb").read() == before
+
+
+def test_a_hybrid_scored_on_another_gravity_compensation_recipe_says_so(command_hybrid, simulated_store, tmp_path,
+                                                                        capsys):
+    """Defect 19: a command hybrid trained on one recipe was evaluated or calibrated on a store of another
+    gravity-compensation recipe with no note (0.15 against 0.086 mrad at step 1)."""
+    import json
+
+    other = simulated_store(robots=4, steps=90, seed=5, gravity_compensation="nominal_model")
+    code, out, err = _evaluate(["--ckpt", command_hybrid, "--data", other, "--out", str(tmp_path / "ev"), "--n", "2",
+                                "--baselines", "hold", "--plot-trajectories", "0", "--device", "cpu"], capsys)
+    assert code == 0, err
+    phrase = "the hybrid was made for gravity compensation 'true_model' and this store's robots were simulated with " \
+             "'nominal_model'"
+    assert phrase in out
+    assert phrase in json.loads((tmp_path / "ev" / "metrics.json").read_text())["meta"]["recipe_note"]
+    assert phrase in (tmp_path / "ev" / "table.md").read_text()
+    code, out, err = _calibrate(["--ckpt", command_hybrid, "--data", other, "--out", str(tmp_path / "cal.ckpt"),
+                                 "--n", "4", "--method", "coverage", "--device", "cpu"], capsys)
+    assert code == 0, err
+    assert f"note: recipe: {phrase}" in out
+    cal = Predictor.from_checkpoint(str(tmp_path / "cal.ckpt"), device="cpu").calibration
+    assert phrase in cal.source["recipe_note"]  # kept with the calibration, in the checkpoint
+
+
+def test_the_same_recipe_gets_no_note(command_hybrid, simulated_store, tmp_path, capsys):
+    import json
+
+    same = simulated_store(robots=4, steps=90, seed=5)
+    code, out, err = _evaluate(["--ckpt", command_hybrid, "--data", same, "--out", str(tmp_path / "ev"), "--n", "2",
+                                "--baselines", "hold", "--plot-trajectories", "0", "--device", "cpu"], capsys)
+    assert code == 0, err
+    assert "recipe:" not in out and "recipe_note" not in json.loads((tmp_path / "ev" / "metrics.json").read_text())["meta"]

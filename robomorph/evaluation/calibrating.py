@@ -36,7 +36,7 @@ from robomorph.evaluation.horizons import error_curve, groups_for, parse_horizon
 from robomorph.evaluation.requests import BlendConfig, CalibrateConfig, as_request
 from robomorph.evaluation.scoring import Predictions, score_windows
 from robomorph.evaluation.tables import POINTS_TEXT
-from robomorph.evaluation.windows import EvaluationError, Window, check_patch, load_window, start_joints
+from robomorph.evaluation.windows import EvaluationError, Window, check_patch, load_window, recipe_note, start_joints
 from robomorph.inference.calibration import (CALIBRATION_KEY, POWER_MIN_WINDOWS, CalibrationError, SPREAD_SWITCHES,
                                          calibration_key, calibrations_entry, fit, outside_bands, read_calibrations)
 
@@ -114,6 +114,8 @@ def _fitting_windows(ckpt: str, predictor, sources, split: str, n, context_len, 
         raise CalibrationError(f"only {len(w.u)} {what}: pass --data with a store of more robots")
     source = {"data": [p for p, _ in sources], "split": split, "n": int(len(w.u)), "context_len": int(context_len),
               "horizon": int(horizon), "offset": offset, "seed": int(seed), "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    if note := recipe_note(predictor.physics, w.attrs):  # kept with the calibration, printed with the report
+        source["recipe_note"] = note
     return w, source
 
 
@@ -136,7 +138,7 @@ def calibrate(config: CalibrateConfig, *args, **kwargs) -> dict:
     from robomorph.inference.hybrid_std import drawn_points  # noqa: PLC0415
 
     c = as_request(CalibrateConfig, config, args, kwargs, "calibrate")
-    predictor, ckpt_dict = _calibrated_predictor(c)
+    predictor, ckpt_dict, changed = _calibrated_predictor(c)
     sources, split = _sources(ckpt_dict, c.data)
     w, source = _fitting_windows(c.ckpt, predictor, sources, split, c.n, c.context_len, c.horizon, c.offset, c.seed,
                                  "calibration window")
@@ -157,6 +159,8 @@ def calibrate(config: CalibrateConfig, *args, **kwargs) -> dict:
     cal = fit(before.y, mean, std, c.method, source=source, end=dense_at_end(predictor), points=points)
     after = score_windows(Predictions(mean, cal.scaled(std)), w, (), steps)
     report = _report(c.ckpt, c.out, cal, w.dt, horizon, steps, before, after)
+    if changed:  # said, since every later prediction of the checkpoint changes with them
+        report["defaults_changed"] = changed
     ckpt_dict[CALIBRATION_KEY] = calibrations_entry({**read_calibrations(ckpt_dict.get(CALIBRATION_KEY)),
                                                      calibration_key(cal): cal})
     _write(ckpt_dict, c.out or c.ckpt)
@@ -193,15 +197,17 @@ def _report(ckpt: str, out: str | None, cal, dt: float, horizon: int, steps: lis
 
 
 def _calibrated_predictor(c: CalibrateConfig) -> tuple:
-    """The predictor to calibrate, set up as asked, and the checkpoint's record: the switches asked for
-    (:data:`robomorph.core.names.RECORDED_SWITCHES`) written into its physics record (refused where they cannot
-    apply)."""
+    """The predictor to calibrate, set up as asked, the checkpoint's record, and the default switches changed
+    (``["payload off"]``): the switches asked for (:data:`robomorph.core.names.RECORDED_SWITCHES`) written into its
+    physics record (refused where they cannot apply, or where the calibrated mode does not use them)."""
     from robomorph.model.files import DATA_INFO_KEY  # noqa: PLC0415
 
     predictor, ckpt_dict = _read(c.ckpt, c.device)
     predictor.use_physics(c.physics)
     predictor.configure(points=c.points)
     record = (ckpt_dict.get(DATA_INFO_KEY) or {}).get("physics") if predictor.model.config.n_params else None
+    gravity = ((predictor.physics or {}).get("recipe") or {}).get("gravity_compensation")
+    changed: list[str] = []
     for name in RECORDED_SWITCHES:
         on = getattr(c, name)
         if on is None:
@@ -209,9 +215,17 @@ def _calibrated_predictor(c: CalibrateConfig) -> tuple:
         if not record or (predictor.inputs != "command" and name not in ("payload", "coulomb")):
             raise CalibrationError(f"--{name} needs a {'' if name in ('payload', 'coulomb') else 'command-formulation '}"
                                    "model trained with --model.physics amortized")
+        # The switch is the checkpoint's default for every mode: one the calibrated mode does not use would change
+        # the model's default predictions and calibrate nothing (--physics none --payload off moved them 2.8e-4 rad).
+        if not getattr(predictor.settings.replace(**{name: True}).in_effect(predictor.inputs, gravity), name):
+            raise CalibrationError(f"--{name} {'on' if on else 'off'}: physics mode {predictor.settings.mode} does not "
+                                   f"use the {name} switch, so it would change the checkpoint's default predictions "
+                                   "and no calibration; drop it, or calibrate a mode that uses it (--physics regression)")
+        if bool(record.get(name, False)) != bool(on):
+            changed.append(f"{name} {'on' if on else 'off'}")
         record[name] = bool(on)
         predictor.configure(**{name: bool(on)})
-    return predictor, ckpt_dict
+    return predictor, ckpt_dict, changed
 
 
 def moving_windows(w: Window, offset) -> Window:
@@ -314,6 +328,7 @@ def blend_text(report: dict) -> str:
                         "blend [mrad]"], rows),
         "(joint RMS error on the fitting windows themselves; score it on a test store with robomorph evaluate; "
         "calibrate the blend's std with a plain robomorph calibrate)",
+        *([f"note: {src['recipe_note']}"] if src.get("recipe_note") else []),
         f"written: {report['out']}"])
 
 
@@ -371,6 +386,11 @@ def report_text(report: dict) -> str:
              markdown_table(["step", "seconds", "scale (median over channels)", *(["power (median)"] if power else []),
                              "±1σ before", "±1σ after", "±2σ before", "±2σ after",
                              *(["spread-error rank corr."] if skill else [])], rows)]
+    if src.get("recipe_note"):
+        lines.append(f"note: {src['recipe_note']}")
+    if report.get("defaults_changed"):
+        lines.append(f"note: the checkpoint's default switches are now {', '.join(report['defaults_changed'])}: "
+                     "its default predictions change with them")
     missed = outside_bands(a["1sigma"], a["2sigma"])
     if missed:
         lines.append(_tails_note(report, missed))

@@ -50,6 +50,7 @@ from robomorph.evaluation.windows import (  # noqa: F401
     load_window,
     parse_offset,
     parse_range,
+    recipe_note,
 )
 
 
@@ -109,16 +110,31 @@ def evaluate(config: EvaluateConfig, *args, **kwargs) -> dict:
     others = {name: references.load_other(name, other, w, cfg.device) for name, other in cfg.compare}
     train_blocks = training_data.reader(record, list(cfg.arx_train_data) or None, predictor.inputs,
                                         "a catalogue arm's hybrid" if cfg.arm else "the checkpoint")
+    # Another arm's stores refused here, and the evaluated store itself noted: an ARX fitted on the robots it
+    # is scored on (0.048 against 0.12 mrad on the probe's) is no reference.
+    arx_in_sample = training_data.check_stores(list(cfg.arx_train_data), cfg.data, w.attrs, w.y_names, len(w.u_names)) \
+        if set(cfg.baselines) & set(ARX_TRAINED) else None
     with output_folder(cfg.out_dir, "evaluation") as tmp:  # refused, locked, and written whole or not at all
-        return _score_and_write(predictor, w, tmp, cfg, steps, others, train_blocks, info, horizons, contexts)
+        return _score_and_write(predictor, w, tmp, cfg, steps, others, train_blocks, info, horizons, contexts,
+                                arx_in_sample)
+
+
+# The baselines fitted on training data (--arx-train-data, else the checkpoint's training split).
+ARX_TRAINED = ("arx_train", "accel_arx_train")
 
 
 def _score_and_write(predictor, w: Window, out: str, cfg: EvaluateConfig, steps, others, train_blocks, info,
-                     horizons, contexts) -> dict:
-    """Scores the model and the baselines on ``w`` and writes every output file into ``out``."""
+                     horizons, contexts, arx_in_sample: str | None = None) -> dict:
+    """Scores the model and the baselines on ``w`` and writes every output file into ``out``; ``arx_in_sample``:
+    the --arx-train-data store that is the evaluated one (its ARX baselines noted in-sample)."""
     scores = score_windows(predictor, w, cfg.baselines, steps, others=others, arx_orders=cfg.arx_orders,
                            train_blocks=train_blocks, batch_size=cfg.batch_size)
     result = scores.result
+    if note := recipe_note(predictor.physics, w.attrs):  # a hybrid of another gravity-compensation recipe
+        result["meta"]["recipe_note"] = note
+    for name in ARX_TRAINED:
+        if arx_in_sample and name in result["meta"]["baseline_notes"]:
+            result["meta"]["baseline_notes"][name].update(in_sample=True, in_sample_store=arx_in_sample)
     result["meta"] = {"ckpt": cfg.model, "data": cfg.data, **result["meta"], "offset": cfg.offset, "seed": cfg.seed,
                       **in_sample(info, cfg.data), **_smoothing(predictor), **_physics(predictor)}  # (before the sweeps)
     if cfg.arm:  # what was evaluated, beside the "arm:<name>" that stands for the checkpoint
@@ -268,6 +284,14 @@ def in_sample(info: dict | None, data: str) -> dict:
     return {"in_sample": match is not None, "in_sample_store": match}
 
 
+def arx_in_sample_note(note: dict) -> str | None:
+    """The line that says a baseline was fitted on the store it is scored on (``in_sample`` of its notes)."""
+    if not note.get("in_sample"):
+        return None
+    return (f"in-sample: fitted on {note.get('in_sample_store')}, which holds the robots it is scored on; pass "
+            "--arx-train-data stores of other robots for a reference")
+
+
 IN_SAMPLE_NOTE = ("in-sample: this store is one the model was trained on ({store}), so these scores include "
                   "robots it has seen; evaluate on held-out robots for generalization")
 
@@ -283,6 +307,8 @@ def summary_text(res: dict, out: str, horizons: bool = True) -> str:
                      "paper's protocol), not those of a deployable model")
     if meta.get("in_sample"):
         lines.append("  " + IN_SAMPLE_NOTE.format(store=meta.get("in_sample_store")))
+    if meta.get("recipe_note"):
+        lines.append("  " + meta["recipe_note"])
     lines.append(f"  {'model':18s} R2 {m['r2']['mean']:8.3f}  FIT {m['fit']['mean']:8.2f}  RMSE {m['rmse']['mean']:.4g}")
     notes = meta.get("baseline_notes", {})
     for b, r in res["baselines"].items():
@@ -290,6 +316,7 @@ def summary_text(res: dict, out: str, horizons: bool = True) -> str:
         lines.append(f"  {b:18s} R2 {mb['r2']['mean']:8.3f}  FIT {mb['fit']['mean']:8.2f}  RMSE {mb['rmse']['mean']:.4g}"
                      + (f"  ({note})" if (note := diverged_note(notes.get(b, {}), meta["n"])) else "")
                      + (f"  ({note})" if (note := cost_note(notes.get(b, {}))) else ""))
+    lines += [f"  {b}: {note}" for b in res["baselines"] if (note := arx_in_sample_note(notes.get(b, {})))]
     lines += [f"  skipped {b}: {why}" for b, why in res["skipped_baselines"].items()]
     if note := smoothing_note(meta.get("smoothing")):
         lines.append(f"  {note}")

@@ -96,6 +96,7 @@ def table_markdown(result: dict) -> str:
              normalization_markdown(meta.get("normalization")), "",
              *([f"**⚠ In-sample: `{meta.get('in_sample_store')}` is a training store of this model; these scores "
                 "include robots it was trained on.**", ""] if meta.get("in_sample") else []),
+             *([f"**⚠ {meta['recipe_note']}.**", ""] if meta.get("recipe_note") else []),
              markdown_table(head, rows)]
     legend = ", ".join(f"{b.mark} {b.label}" for b in FIT_BANDS)
     lines += ["", f"FIT colour convention (the paper's Table 3): {legend}."]
@@ -107,6 +108,9 @@ def table_markdown(result: dict) -> str:
             lines.append(f"Baseline `{b}`: {note} (its scores include those held predictions).")
         if note := cost_note(notes.get(b, {})):
             lines.append(f"Baseline `{b}`: {note}.")
+        if notes.get(b, {}).get("in_sample"):
+            lines.append(f"**⚠ Baseline `{b}` is in-sample: fitted on `{notes[b].get('in_sample_store')}`, which holds "
+                         "the robots it is scored on.**")
     for b, why in result.get("skipped_baselines", {}).items():
         lines.append(f"Skipped baseline `{b}`: {why}")
     if phys := meta.get("physics"):

@@ -66,6 +66,45 @@ def split_of(ckpt: dict, which: str, hint: str = "--arx-train-data") -> list[tup
     return out
 
 
+def check_stores(stores: list[str], data: str, attrs: dict, y_names: list[str], n_u: int) -> str | None:
+    """Checks the ``--arx-train-data`` stores against the evaluated store ``data`` (its ``attrs``, output
+    channels and input width) before anything is fitted or written.
+
+    Returns:
+        The one of ``stores`` that is ``data``, a copy of it, or holds any of its trajectories (the baselines
+        fitted there are then scored on robots they were fitted on: reported in-sample), else None.
+
+    Raises:
+        TrainingDataUnavailable: a store of other channels or another registered arm than
+            ``data`` (a fit on it used to skip the baselines with numpy's matmul message, exit code 0).
+    """
+    from robomorph.data.fingerprints import fingerprint, recorded_match, robot_hashes  # noqa: PLC0415
+    from robomorph.sim import arms  # noqa: PLC0415
+
+    stores = [p for p in stores if os.path.isdir(p)]  # a missing one skips its baselines, with the reason, as before
+    for path in stores:
+        ds = _open(path, "--arx-train-data")
+        theirs, mine = arms.of_store(dict(ds.attrs)), arms.of_store(attrs)
+        if list(ds.y_names) != list(y_names) or len(ds.u_names) != n_u or (theirs and mine and theirs != mine):
+            raise TrainingDataUnavailable(
+                f"--arx-train-data {path} holds {attrs_label(ds.attrs, ds.u_names, ds.y_names)} where {data} holds "
+                f"{attrs_label(attrs, range(n_u), y_names)}: fit the ARX baselines on stores of the evaluated arm "
+                "and channels")
+    if not stores:
+        return None
+    try:
+        return recorded_match(data, list(stores), {p: fingerprint(p) for p in stores},
+                              {p: robot_hashes(p) for p in stores})
+    except RoboMorphError:
+        return None
+
+
+def attrs_label(attrs: dict, u_names, y_names) -> str:
+    """``arm panda, 7 inputs and 14 outputs`` (the arm where the store names a registered one)."""
+    arm = str(attrs.get("domain")) if attrs.get("domain") else "no registered arm"
+    return f"arm {arm}, {len(list(u_names))} inputs and {len(list(y_names))} outputs"
+
+
 def _open(path: str, what: str, hint: str = "--arx-train-data"):
     if not os.path.isdir(path):
         raise TrainingDataUnavailable(f"{what} {path} is not found (moved?): pass {hint} with its new path")

@@ -212,3 +212,20 @@ def start_joints(w: Window, n_joint: int = 7) -> np.ndarray | None:
     if not w.starts.any() or w.y_first is None or not set(names) <= set(w.y_names):
         return None
     return w.y_first[:, [w.y_names.index(n) for n in names]].astype(np.float64)
+
+
+def recipe_note(physics: dict | None, attrs: dict) -> str | None:
+    """One line where a hybrid (its backbone record ``physics``) is scored on a simulated store (``attrs``) whose
+    arm compensated its gravity otherwise than the recipe the hybrid was made for: it then identifies and
+    simulates another command than the store's (issue 61: 0.15 against 0.086 mrad at step 1, said nowhere).
+    None where they agree, or where either is no simulated recipe (a real log, a decoder)."""
+    recipe = (physics or {}).get("recipe") or {}
+    config = attrs.get("config") if isinstance(attrs.get("config"), dict) else {}
+    if not recipe or attrs.get("task") in (None, "ingested") or not config:
+        return None
+    # A recipe's dict leaves out nothing but the robot; "true_model" for records that predate the field.
+    mine, theirs = (str(r.get("gravity_compensation", "true_model")) for r in (recipe, config))
+    if mine == theirs:
+        return None
+    return (f"recipe: the hybrid was made for gravity compensation {mine!r} and this store's robots were simulated "
+            f"with {theirs!r}, so its commands are another arm's; score it on a store of its own recipe")
