@@ -45,6 +45,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+# The kinematic bars live with the predictors that stack them (the context backtest): one code, not a copy.
+from robomorph.inference.kinematics import KINEMATIC, constant_acceleration, constant_velocity, hold  # noqa: F401
+
 BASELINES = ("hold", "constant_velocity", "constant_acceleration", "arx", "arx_train", "nominal_physics")
 # Competitors run only when named (--baselines): each window costs a fit of its own.
 OPT_IN = ("identified_physics", "identified_physics_springs", "accel_arx", "accel_arx_train")
@@ -54,40 +57,6 @@ CEILINGS = ("true_physics",)
 # An ARX simulation whose outputs leave this band around the context is called diverged
 # and replaced by ``hold``: one exploding trajectory would otherwise swamp every mean.
 _ARX_BLOWUP = 1e3
-
-
-def hold(u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
-    """The last context output, held for every query step."""
-    return np.repeat(y_ctx[:, -1:], u_query.shape[1], axis=1)
-
-
-def constant_velocity(u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
-    """Each output continued along its last step: ``y[c-1] + k (y[c-1] - y[c-2])`` at query step ``k``.
-
-    The outputs are extrapolated channel by channel, quaternion channels included (over a
-    short horizon their norm drifts by the square of the step's rotation).
-    """
-    y = np.asarray(y_ctx, dtype=np.float64)
-    if y.shape[1] < 2:
-        raise ValueError("constant_velocity needs a context of at least 2 steps")
-    k = np.arange(1, u_query.shape[1] + 1)[None, :, None]  # (1, H, 1)
-    return y[:, -1:] + k * (y[:, -1:] - y[:, -2:-1])
-
-
-def constant_acceleration(u_ctx: np.ndarray, y_ctx: np.ndarray, u_query: np.ndarray) -> np.ndarray:
-    """Each output continued along the parabola through its last three samples:
-    ``y[c-1] + k v + k (k + 1) / 2 a``, with ``v`` and ``a`` the last backward differences."""
-    y = np.asarray(y_ctx, dtype=np.float64)
-    if y.shape[1] < 3:
-        raise ValueError("constant_acceleration needs a context of at least 3 steps")
-    k = np.arange(1, u_query.shape[1] + 1)[None, :, None]
-    v = y[:, -1:] - y[:, -2:-1]
-    a = v - (y[:, -2:-1] - y[:, -3:-2])
-    return y[:, -1:] + k * v + k * (k + 1) / 2 * a
-
-
-# The baselines that read nothing but the context's last outputs, by name.
-KINEMATIC = {"hold": hold, "constant_velocity": constant_velocity, "constant_acceleration": constant_acceleration}
 
 
 @dataclass

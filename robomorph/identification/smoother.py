@@ -273,8 +273,15 @@ class Smoother:
                     if lam > 1e4:
                         break
         if cov is None:  # the linearization at hand is the starting point's
-            cov = rts(x0, np.diag(1.0 / w0), nominal, jac, x[:-1], q, x, np.zeros((h + 1, 2 * nj)))[1]
-        return x, cov, cost
+            return x, rts(x0, np.diag(1.0 / w0), nominal, jac, x[:-1], q, x, np.zeros((h + 1, 2 * nj)))[1], cost
+        # The covariance of the answer itself: linearized where the solve ended, the decoder's weights alone. The
+        # accepted step's carried the Levenberg-Marquardt damping, whose size depends on how many trials were
+        # accepted or refused: a one-ulp change of the context moved that std by a third (issue 61).
+        weight = np.zeros((h + 1, 2 * nj))
+        weight[1:, :nj] = wd
+        meas = x.copy()
+        meas[1:, :nj] = decoder
+        return x, rts(x0, np.diag(1.0 / w0), nominal, jac, x[:-1], q, meas, weight)[1], cost
 
 
 def smooth_windows(backbone, params: np.ndarray, q_ctx: np.ndarray, u_ctx: np.ndarray, u_query: np.ndarray,

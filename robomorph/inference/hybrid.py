@@ -150,8 +150,10 @@ class Hybrid:
         uc, uq, q_ctx = self._as_identified(params, uc, uq, q_ctx, qvel_start, one)
         mixture = self._mixture(mode, params, q_ctx[one], uc[one], qvel_start[one])
         if mixture is not None:
-            # The std's parameter draws go around each window's most likely member.
-            params = np.stack([m[int(np.argmax(w))] for m, w, _ in mixture])
+            # The std's parameter draws go around each window's weighted mean member, not its most likely one: an
+            # argmax jumps from member to member when two weights cross, and moved the std by up to 24 % between
+            # CPUs whose last bits differ (issue 61); the weights are continuous in the context, so is their mean.
+            params = np.stack([w @ m for m, w, _ in mixture])
             if shared:
                 mixture = mixture * B  # the one context's members, for every candidate row
 
@@ -174,7 +176,7 @@ class Hybrid:
                               "scale, or predict with physics_mode 'none'")
         if not return_std or mix_var is None:
             return mean, self._spread(mode, params, z, z_std, mean, horizon, calibration) if return_std else None
-        # The parameters' uncertainty about the most likely member, and the friction's between members.
+        # The parameters' uncertainty about the members' weighted mean, and the friction's between members.
         std = np.sqrt(self._spread(mode, params, z, z_std, horizon(params), horizon, None) ** 2 + mix_var)
         return mean, std if calibration is None else calibration.scaled(std)
 

@@ -227,6 +227,21 @@ class Predictor:
         finally:
             self.model.calibrations, self._settings = kept, settings
 
+    def stacked(self, config=None):
+        """This model stacked with kinematic extrapolation by the context backtest
+        (:class:`robomorph.inference.stacking.StackedPredictor`): its ``simulate(u_ctx, y_ctx, u_query,
+        return_std=...)`` follows, step by step, what worked on the robot's own recent past, and its std is measured
+        there. ``config``: a :class:`robomorph.inference.stacking.StackConfig`."""
+        from robomorph.inference.stacking import StackedPredictor  # noqa: PLC0415
+
+        return StackedPredictor.of(self, config)
+
+    def check(self, u_ctx, y_ctx, config=None):
+        """Backtests this model and the kinematic candidates on the context alone: a
+        :class:`robomorph.inference.stacking.ContextCheck` (``print(check.summary())``: per horizon, which won and by
+        how much); warns when the model explains the context worse than holding its last sample at every step."""
+        return self.stacked(config).check(u_ctx, y_ctx)
+
     @property
     def leaks_query_statistics(self) -> bool:
         """True when this model's predictions need the query outputs' statistics (``paper_window``)."""

@@ -1,0 +1,389 @@
+"""Every prediction checked on its own context: the context backtest, horizon-wise stacking and an honest std.
+
+The context is a record of this very robot. :class:`StackedPredictor` splits it: each *fold* keeps the context up to
+a cut and predicts the samples after it, with every candidate on the same samples (hold, constant velocity, constant
+acceleration, and a model where one is given: the hybrid, the black box, any ``simulate``-like callable). From the
+folds' errors, step by step:
+
+- **Weights per horizon step.** A softmin over the candidates' pooled log mean square errors (a candidate
+  ``temperature`` worse in log MSE gets ``1/e`` of the weight) whose prior is a robust default, hotter where fewer
+  folds reach the step (``evidence`` folds' worth of prior). The default is kinematic: constant velocity fading into
+  hold with time constant ``default_tau`` seconds. Smooth in every input: no argmin decides a prediction.
+- **Beyond the backtest's reach** (the context minus its shortest fold), the last step's weights fade into the
+  default as ``K / k``: a short-horizon choice is never carried to long horizons without evidence.
+- **The std** of the stacked prediction at step ``k``: the weighted mean square of the candidates' backtest errors per
+  channel (an upper bound of the combination's own error, by convexity), smoothed over neighbouring steps; beyond the
+  reach it grows as ``(k / K) ** p`` with ``p`` fitted on the reach's second half (clipped to ``[0.5, 2]``). It is
+  measured on the robot's own record: no simulation in the loop.
+
+The model is backtested on ``model_folds`` folds only (each costs one prediction: the default one keeps the whole
+stack within twice the plain prediction); its pooled error is transferred through its ratio to constant velocity on
+those folds, so candidates are compared on the same samples. :class:`ContextCheck` says per horizon which candidate
+won on the context and by how much, and warns when the model does not explain the context at all (another input
+formulation, wrong units, another arm): its backtest error above hold's at every step.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from robomorph.core.errors import RoboMorphError
+from robomorph.inference.kinematics import KINEMATIC
+
+# Relative floor of a channel's scale in the pooled error (a joint that never moved in the context weighs as a
+# channel moving by this share of the busiest channel's spread).
+_SCALE_FLOOR = 1e-3
+# Normalized RMS errors below this are ties (a context at rest); the softmin's prior gives every candidate this share
+# beside the default's weights, so that evidence can still pick it.
+_TIE_FLOOR, _OPEN_SHARE = 1e-6, 0.2
+
+
+class StackingError(RoboMorphError, ValueError):
+    """Settings or arrays the context backtest cannot work with."""
+
+
+@dataclass(frozen=True)
+class StackConfig:
+    """How the context is backtested and the candidates stacked.
+
+    Attributes:
+        min_context: the share of the context every fold keeps (the rest is what the folds predict).
+        folds: cut points for the kinematic candidates (free to backtest).
+        model_folds: cut points for the model (each costs one of its predictions); 0: the model is not stacked.
+        temperature: the softmin's temperature over log mean square errors.
+        evidence: folds' worth of prior at each step: the softmin's temperature is ``temperature (1 + evidence /
+            folds reaching the step)``.
+        default_tau: seconds over which the default's constant velocity fades into hold.
+        smooth: the relative half-width of the window over which per-step errors are pooled (``k/(1+s)`` to
+            ``k (1+s)``): a step's vote is its neighbours' too.
+        warn: warn (``warnings.warn``) when the model explains the context worse than hold at every step.
+    """
+
+    min_context: float = 0.5
+    folds: int = 16
+    model_folds: int = 1
+    temperature: float = 0.5
+    evidence: float = 2.0
+    default_tau: float = 3.0
+    smooth: float = 0.25
+    warn: bool = True
+
+    def __post_init__(self) -> None:
+        bad = []
+        if not 0.1 <= self.min_context <= 0.9:
+            bad.append(f"min_context {self.min_context} (0.1 to 0.9)")
+        if not 1 <= self.folds <= 64:
+            bad.append(f"folds {self.folds} (1 to 64)")
+        if not 0 <= self.model_folds <= self.folds:
+            bad.append(f"model_folds {self.model_folds} (0 to folds)")
+        for name in ("temperature", "default_tau"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                bad.append(f"{name} {value} (a finite number > 0)")
+        for name in ("evidence", "smooth"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                bad.append(f"{name} {value} (a finite number >= 0)")
+        if bad:
+            raise StackingError("stacking settings out of range: " + "; ".join(bad))
+
+
+@dataclass
+class ContextCheck:
+    """What the backtest found on a batch of contexts.
+
+    Attributes:
+        names: the candidates, kinematic first, then the model (``model``) where there is one.
+        dt: the sample time [s].
+        rmse: (B, C, K) each window's pooled normalized RMS error of each candidate at backtest steps 1..K.
+        weights: (B, C, H, n_y) the stacked prediction's weights at each query step (or the backtest's K steps) of
+            each channel.
+        folds: the cut points of the kinematic folds and of the model's.
+        explained: (B,) False where the model's backtest error is above hold's at every step (no model: True).
+    """
+
+    names: list[str]
+    dt: float
+    rmse: np.ndarray
+    weights: np.ndarray
+    folds: tuple[list[int], list[int]]
+    explained: np.ndarray
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def reach(self) -> int:
+        """The backtest's longest step (K)."""
+        return self.rmse.shape[2]
+
+    def winners(self, step: int) -> tuple[str, float]:
+        """The candidate with the lowest median (over windows) backtest error at 1-based ``step`` (capped at the
+        reach), and how much lower it is than the runner-up (a ratio >= 1)."""
+        k = min(step, self.reach) - 1
+        med = np.nanmedian(self.rmse[:, :, k], axis=0)
+        order = np.argsort(med)
+        second = med[order[1]] if len(order) > 1 else med[order[0]]
+        return self.names[int(order[0])], float(second / max(med[order[0]], 1e-300))
+
+    def summary(self, steps: list[int] | None = None) -> str:
+        """A table: per reported step, each candidate's median backtest error relative to constant velocity's,
+        the winner, and the stacked prediction's mean weights."""
+        reach = self.reach
+        steps = sorted({s for s in (steps or _default_steps(reach, self.dt)) if 1 <= s <= reach})
+        ref = self.names.index("constant_velocity")
+        lines = [f"context backtest: {len(self.rmse)} window(s), folds at {self.folds[0]} (model: "
+                 f"{self.folds[1] or 'none'}), reach {reach} steps ({reach * self.dt:.3g} s)",
+                 "step  time[s]  " + "  ".join(f"{n[:12]:>12s}" for n in self.names) + "  winner (by)"]
+        for s in steps:
+            med = np.nanmedian(self.rmse[:, :, s - 1], axis=0)
+            rel = med / max(med[ref], 1e-300)
+            name, by = self.winners(s)
+            lines.append(f"{s:4d}  {s * self.dt:7.3g}  " + "  ".join(f"{r:12.3g}" for r in rel)
+                         + f"  {name} ({by:.2f}x)")
+        lines.append("(errors relative to constant velocity's, median over windows; weights: "
+                     + ", ".join(f"{n} {w:.2f}" for n, w in zip(self.names, self.weights[:, :, 0].mean((0, 2))))
+                     + " at step 1)")
+        if not self.explained.all():
+            lines.append(f"WARNING: the model explains {int((~self.explained).sum())} of {len(self.explained)} "
+                         "context(s) worse than hold at every step: another input formulation (total torques to a "
+                         "command model?), other units, or another arm")
+        lines.extend(self.notes)
+        return "\n".join(lines)
+
+
+def _default_steps(reach: int, dt: float) -> list[int]:
+    return [1] + [int(round(t / dt)) for t in (0.05, 0.1, 0.25, 0.5, 1.0, 2.0) if round(t / dt) > 1] + [reach]
+
+
+Model = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+class StackedPredictor:
+    """A model (or none) stacked with kinematic extrapolation by the context backtest.
+
+    Args:
+        model: ``f(u_ctx, y_ctx, u_query) -> (B, H, n_y)`` (a :class:`robomorph.inference.predictor.Predictor`'s
+            ``simulate``, any callable alike) or None: the kinematic candidates alone.
+        dt: the sample time [s] (the default's fading is in seconds).
+        config: :class:`StackConfig`.
+        patch: the model's context lengths must be multiples of this (a Predictor's ``patch``).
+        min_model_context: the shortest context the model is given in a fold.
+    """
+
+    def __init__(self, model: Model | None, dt: float, config: StackConfig | None = None, patch: int = 1,
+                 min_model_context: int = 3):
+        if not (math.isfinite(dt) and dt > 0):
+            raise StackingError(f"dt must be a finite number of seconds > 0, got {dt}")
+        self.model, self.dt, self.config = model, float(dt), config or StackConfig()
+        self.patch, self.min_model_context = max(1, int(patch)), int(min_model_context)
+        self.last_check: ContextCheck | None = None
+
+    @classmethod
+    def of(cls, predictor, config: StackConfig | None = None) -> "StackedPredictor":
+        """A :class:`robomorph.inference.predictor.Predictor` stacked: its ``simulate``, rate and patch."""
+        dt = float((predictor.data_info or {}).get("dt", 0) or 0)
+        if not dt > 0:
+            raise StackingError("this model records no sample time (data_info dt): build "
+                                "StackedPredictor(predictor.simulate, dt=...) with the logs' rate")
+        return cls(predictor.simulate, dt, config, getattr(predictor, "patch", 1))
+
+    @property
+    def names(self) -> list[str]:
+        return list(KINEMATIC) + (["model"] if self.model is not None else [])
+
+    # ------------------------------------------------------------------ the backtest
+    def _cuts(self, t: int) -> tuple[list[int], list[int]]:
+        cfg = self.config
+        lo = max(3, int(math.ceil(cfg.min_context * t)))
+        if t - lo < 1:
+            raise StackingError(f"a context of {t} samples leaves nothing to backtest: give at least "
+                                f"{int(math.ceil(4 / (1 - cfg.min_context)))} samples")
+        kin = sorted({int(round(c)) for c in np.linspace(lo, t - 1, cfg.folds)})
+        model = []
+        if self.model is not None and cfg.model_folds:
+            first = max(lo, self.min_model_context)
+            first = int(math.ceil(first / self.patch) * self.patch)
+            span = [c for c in range(first, t, self.patch)]
+            if span:
+                picks = np.linspace(0, len(span) - 1, cfg.model_folds + 1)[:-1] if cfg.model_folds > 1 else [0]
+                model = sorted({span[int(round(i))] for i in picks})
+        return kin, model
+
+    def _fold_errors(self, fn: Model, u: np.ndarray, y: np.ndarray, cuts: list[int], reach: int,
+                     scale: np.ndarray) -> np.ndarray:
+        """(F, B, K, n_y) squared errors (normalized by ``scale``) of ``fn`` on each fold; NaN past a fold's end."""
+        t = y.shape[1]
+        out = np.full((len(cuts), len(y), reach, y.shape[2]), np.nan)
+        for f, c in enumerate(cuts):
+            h = min(reach, t - c)
+            pred = np.asarray(fn(u[:, :c], y[:, :c], u[:, c:c + h]), dtype=np.float64)
+            out[f, :, :h] = ((pred[:, :h] - y[:, c:c + h]) / scale[:, None]) ** 2
+        return out
+
+    def check(self, u_ctx, y_ctx) -> ContextCheck:
+        """Backtests every candidate on the contexts (B, Tc, n_u) and (B, Tc, n_y) alone; the weights are those of
+        the backtest's own steps."""
+        return self._backtest(*self._arrays(u_ctx, y_ctx), horizon=None)[0]
+
+    def _arrays(self, u_ctx, y_ctx):
+        u, y = (np.asarray(getattr(a, "numpy", lambda: a)(), dtype=np.float64) for a in (u_ctx, y_ctx))
+        if u.ndim == 2:
+            u, y = u[None], y[None]
+        if u.ndim != 3 or y.ndim != 3 or u.shape[:2] != y.shape[:2]:
+            raise StackingError(f"contexts must be (B, T, n_u) and (B, T, n_y) with the same B and T, got "
+                                f"{u.shape} and {y.shape}")
+        if not (np.isfinite(u).all() and np.isfinite(y).all()):
+            raise StackingError("the context holds NaN or inf: clean or cut the log before predicting")
+        return u, y
+
+    def _backtest(self, u: np.ndarray, y: np.ndarray, horizon: int | None):
+        cfg = self.config
+        t = y.shape[1]
+        kin_cuts, model_cuts = self._cuts(t)
+        reach = t - kin_cuts[0]
+        spread = y.std(axis=1)  # (B, n_y): each channel's spread in this context
+        scale = np.maximum(spread, _SCALE_FLOOR * spread.max(axis=1, keepdims=True) + 1e-12)
+        names = self.names
+        errs = [self._fold_errors(fn, u, y, kin_cuts, reach, scale) for fn in KINEMATIC.values()]
+        notes = []
+        if self.model is not None and model_cuts:
+            try:
+                model_err = self._fold_errors(self.model, u, y, model_cuts, reach, scale)
+            except RoboMorphError as exc:  # a model that cannot read a shorter context is not stacked
+                names, model_err = names[:-1], None
+                notes.append(f"the model was not backtested ({exc}); the stack is kinematic")
+        else:
+            model_err = None
+            if self.model is not None:
+                names = names[:-1]
+        # Pooled mean square per candidate (B, K) and per channel (B, K, n_y), over folds.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # steps no fold reaches stay NaN
+            per_ch = [np.nanmean(e, axis=0) for e in errs]
+            if model_err is not None:
+                # Transferred through its ratio to constant velocity on the model's own folds: the same samples.
+                cv_on_model = np.nanmean(self._fold_errors(KINEMATIC["constant_velocity"], u, y, model_cuts, reach,
+                                                           scale), axis=0)
+                ratio = np.nanmean(model_err, axis=0) / np.maximum(cv_on_model, 1e-30)
+                per_ch.append(per_ch[1] * ratio)
+        per_ch = np.stack(per_ch, axis=1)  # (B, C, K, n_y)
+        per_ch = _fill_steps(per_ch)
+        # The report's pooled error: every channel in one scale (the window's median spread), so that channels that
+        # barely move (whose normalized errors are their noise) do not outvote the moving ones.
+        common = np.median(scale, axis=1)[:, None, None, None]
+        mse = _pool_steps((per_ch * (scale[:, None, None] / common) ** 2).mean(axis=3), cfg.smooth)  # (B, C, K)
+        counts = np.array([sum(c + k < t for c in kin_cuts) for k in range(reach)], dtype=np.float64)
+        h = reach if horizon is None else horizon
+        # The weights channel by channel: a joint that holds still follows hold, one that moves its own best.
+        pooled = np.moveaxis(_pool_steps(np.moveaxis(per_ch, 3, 2), cfg.smooth), 2, 3)  # (B, C, K, n_y)
+        weights = self._weights(pooled, counts, h)
+        explained = np.ones(len(y), dtype=bool)
+        if model_err is not None:
+            explained = ~np.all(mse[:, -1] > mse[:, 0], axis=1)
+            if cfg.warn and not explained.all():
+                warnings.warn(f"the model explains {int((~explained).sum())} of {len(explained)} context(s) worse than "
+                              "holding the last sample at every backtest step: check the input formulation (total "
+                              "torques to a command model?), the units, or the arm", stacklevel=3)
+        check = ContextCheck(names, self.dt, np.sqrt(mse), weights, (kin_cuts, model_cuts), explained, notes)
+        self.last_check = check
+        return check, pooled, scale
+
+    def _weights(self, mse: np.ndarray, counts: np.ndarray, horizon: int) -> np.ndarray:
+        """(B, C, H, n_y) the stacking weights at query steps 1..H of each channel, from the pooled normalized mean
+        square errors ``mse`` (B, C, K, n_y)."""
+        cfg = self.config
+        b, c, reach, n_y = mse.shape
+        default = self._default(c, horizon)[:, :, None]  # (C, H, 1)
+        # Errors below the floor are ties (a context at rest: every candidate is exact there), and ties go to the
+        # default: the softmin's prior is the default with a share for every candidate.
+        floor = _TIE_FLOOR ** 2
+        log = np.log(mse + floor)
+        prior = (1 - _OPEN_SHARE) * self._default(c, reach)[:, :, None] + _OPEN_SHARE / c  # (C, K, 1)
+        # Shrunk toward the prior by the evidence: fewer folds at a step, a hotter softmin (``evidence`` folds'
+        # worth of prior doubles the temperature where ``evidence`` folds reach). A candidate far worse than the best
+        # keeps no weight, however little evidence there is.
+        temperature = (cfg.temperature * (1 + cfg.evidence / np.maximum(counts, 1e-9)))[:, None]  # (K, 1)
+        soft = prior[None] * np.exp(-(log - log.min(axis=1, keepdims=True)) / temperature)
+        soft /= soft.sum(axis=1, keepdims=True)
+        k_in = min(horizon, reach)
+        w = np.empty((b, c, horizon, n_y))
+        w[:, :, :k_in] = soft[:, :, :k_in]
+        if horizon > reach:
+            last = w[:, :, reach - 1:reach]
+            fade = (reach / np.arange(reach + 1, horizon + 1))[:, None]  # (H - K, 1)
+            w[:, :, reach:] = fade * last + (1 - fade) * default[:, reach:]
+        return w
+
+    def _default(self, n: int, horizon: int) -> np.ndarray:
+        """(C, H) constant velocity fading into hold over ``default_tau`` seconds; nothing on the others."""
+        t = np.arange(1, horizon + 1) * self.dt
+        out = np.zeros((n, horizon))
+        out[1] = np.exp(-t / self.config.default_tau)
+        out[0] = 1 - out[1]
+        return out
+
+    # ------------------------------------------------------------------ the prediction
+    def simulate(self, u_ctx, y_ctx, u_query, return_std: bool = False):
+        """The stacked prediction (B, H, n_y) of the query, and with ``return_std`` its std from the backtest.
+
+        The model (where given) predicts from the whole context once more; the kinematic candidates are free."""
+        u, y = self._arrays(u_ctx, y_ctx)
+        uq = np.asarray(getattr(u_query, "numpy", lambda: u_query)(), dtype=np.float64)
+        uq = uq[None] if uq.ndim == 2 else uq
+        single = np.ndim(u_ctx) == 2
+        horizon = uq.shape[1]
+        check, per_ch, scale = self._backtest(u, y, horizon)
+        preds = [fn(u, y, uq) for fn in KINEMATIC.values()]
+        if len(check.names) > len(KINEMATIC):
+            preds.append(np.asarray(self.model(u, y, uq), dtype=np.float64))
+        preds = np.stack(preds, axis=1)  # (B, C, H, n_y)
+        mean = np.einsum("bchy,bchy->bhy", check.weights, preds)
+        if not return_std:
+            return mean[0] if single else mean
+        std = self._std(per_ch, check.weights, scale, horizon)
+        return (mean[0], std[0]) if single else (mean, std)
+
+    def _std(self, pooled: np.ndarray, weights: np.ndarray, scale: np.ndarray, horizon: int) -> np.ndarray:
+        """(B, H, n_y): the weighted mean square of the candidates' backtest errors, then grown past the reach."""
+        b, c, reach, n_y = pooled.shape
+        k_in = min(horizon, reach)
+        var = np.einsum("bcky,bcky->bky", weights[:, :, :k_in], pooled[:, :, :k_in])
+        std = np.sqrt(var) * scale[:, None]
+        if horizon <= reach:
+            return std
+        # Past the reach: a power of the step, fitted on the reach's second half (per window and channel).
+        full = np.sqrt(np.einsum("bcky,bcky->bky", weights[:, :, :reach], pooled)) * scale[:, None]
+        ks = np.arange(max(1, reach // 2), reach + 1)
+        lk = np.log(ks)
+        ls = np.log(np.maximum(full[:, ks - 1], 1e-30))
+        slope = ((lk - lk.mean())[None, :, None] * (ls - ls.mean(axis=1, keepdims=True))).sum(1) / max(
+            float(((lk - lk.mean()) ** 2).sum()), 1e-30)
+        p = np.clip(np.nan_to_num(slope, nan=1.0), 0.5, 2.0)  # (B, n_y)
+        steps = np.arange(reach + 1, horizon + 1)
+        grown = full[:, -1:] * (steps[None, :, None] / reach) ** p[:, None]
+        return np.concatenate([std, grown], axis=1)
+
+
+def _fill_steps(per_ch: np.ndarray) -> np.ndarray:
+    """Steps no fold reached (NaN) take the last reached step's value."""
+    out = per_ch.copy()
+    for k in range(1, out.shape[2]):
+        gap = np.isnan(out[:, :, k])
+        out[:, :, k][gap] = out[:, :, k - 1][gap]
+    return np.nan_to_num(out, nan=0.0)
+
+
+def _pool_steps(x: np.ndarray, smooth: float) -> np.ndarray:
+    """(..., K) the mean over steps ``k/(1+s)`` to ``k (1+s)`` of each step (a step's vote is its neighbours' too)."""
+    if smooth <= 0:
+        return x
+    reach = x.shape[-1]
+    csum = np.concatenate([np.zeros(x.shape[:-1] + (1,)), np.cumsum(x, axis=-1)], axis=-1)
+    k = np.arange(1, reach + 1)
+    lo = np.clip(np.floor(k / (1 + smooth)).astype(int), 1, reach)
+    hi = np.clip(np.ceil(k * (1 + smooth)).astype(int), 1, reach)
+    return (csum[..., hi] - csum[..., lo - 1]) / (hi - lo + 1)

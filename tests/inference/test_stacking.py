@@ -1,0 +1,161 @@
+"""The context backtest and horizon-wise stacking (robomorph.inference.stacking) on cases built to show each rule."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from robomorph.evaluation import baselines
+from robomorph.inference import kinematics
+from robomorph.inference.stacking import StackConfig, StackedPredictor, StackingError
+
+DT = 0.01
+
+
+def _walk(seed: int, b: int = 6, t: int = 260, n: int = 3, noise: float = 1e-4):
+    """Smooth joint motion (integrated random accelerations) with encoder noise: constant velocity's world."""
+    rng = np.random.default_rng(seed)
+    acc = rng.standard_normal((b, t, n)) * 0.3
+    v = np.cumsum(acc, axis=1) * DT + rng.standard_normal((b, 1, n))
+    y = np.cumsum(v, axis=1) * DT
+    u = acc.copy()
+    return u, y + noise * rng.standard_normal(y.shape)
+
+
+def _rms(pred, truth, k):
+    return float(np.sqrt(np.mean((pred[:, k - 1] - truth[:, k - 1]) ** 2)))
+
+
+def test_the_evaluation_baselines_are_the_stacked_candidates_not_a_copy():
+    assert baselines.KINEMATIC is kinematics.KINEMATIC
+    assert baselines.constant_velocity is kinematics.constant_velocity
+
+
+def test_on_smooth_motion_the_stack_is_no_worse_than_its_best_kinematic_candidate():
+    u, y = _walk(0)
+    c = 200
+    sp = StackedPredictor(None, DT)
+    mean = sp.simulate(u[:, :c], y[:, :c], u[:, c:])
+    cands = {k: f(u[:, :c], y[:, :c], u[:, c:]) for k, f in kinematics.KINEMATIC.items()}
+    for k in (1, 5, 20, 60):
+        best = min(_rms(p, y[:, c:], k) for p in cands.values())
+        assert _rms(mean, y[:, c:], k) <= 1.1 * best, k
+
+
+def test_a_robot_holding_still_is_held_not_extrapolated_along_its_noise():
+    rng = np.random.default_rng(1)
+    y = 0.3 + 1e-3 * rng.standard_normal((8, 240, 2))
+    u = np.zeros_like(y)
+    c = 200
+    mean = StackedPredictor(None, DT).simulate(u[:, :c], y[:, :c], u[:, c:])
+    held = kinematics.hold(u[:, :c], y[:, :c], u[:, c:])
+    cv = kinematics.constant_velocity(u[:, :c], y[:, :c], u[:, c:])
+    for k in (1, 10, 40):
+        assert _rms(mean, y[:, c:], k) <= 1.3 * _rms(held, y[:, c:], k) < _rms(cv, y[:, c:], k)
+
+
+def _integrator(u_ctx, y_ctx, u_query):
+    """The true dynamics of :func:`_walk` (a double integrator of u), from the context's last two samples."""
+    v = (y_ctx[:, -1] - y_ctx[:, -2]) / DT
+    out, q = [], y_ctx[:, -1].copy()
+    for k in range(u_query.shape[1]):
+        v = v + u_query[:, k] * DT
+        q = q + v * DT
+        out.append(q.copy())
+    return np.stack(out, axis=1)
+
+
+def test_a_model_that_explains_the_robot_carries_the_stack_where_kinematics_fail():
+    u, y = _walk(2, noise=0.0)
+    c = 200
+    sp = StackedPredictor(_integrator, DT)
+    mean = sp.simulate(u[:, :c], y[:, :c], u[:, c:])
+    cv = kinematics.constant_velocity(u[:, :c], y[:, :c], u[:, c:])
+    model = _integrator(u[:, :c], y[:, :c], u[:, c:])
+    assert sp.last_check.names[-1] == "model" and sp.last_check.explained.all()
+    for k in (5, 30, 60):
+        assert _rms(mean, y[:, c:], k) <= 0.2 * _rms(cv, y[:, c:], k)
+        assert _rms(mean, y[:, c:], k) <= 1.5 * _rms(model, y[:, c:], k) + 1e-9
+
+
+def test_a_model_that_does_not_explain_the_context_is_named_in_one_warning():
+    u, y = _walk(3)
+    wrong = lambda uc, yc, uq: kinematics.hold(uc, yc, uq) + 0.5  # noqa: E731  (another formulation's answer)
+    with pytest.warns(UserWarning, match="worse than holding the last sample"):
+        check = StackedPredictor(wrong, DT).check(u[:, :200], y[:, :200])
+    assert not check.explained.any()
+    assert "WARNING" in check.summary()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert StackedPredictor(_integrator, DT).check(u[:, :200], y[:, :200]).explained.all()
+
+
+def test_the_std_is_measured_on_the_context_and_grows_past_the_backtest_reach():
+    u, y = _walk(4, b=40, t=400)
+    c = 200
+    sp = StackedPredictor(None, DT)
+    mean, std = sp.simulate(u[:, :c], y[:, :c], u[:, c:], return_std=True)
+    assert std.shape == mean.shape == y[:, c:].shape and np.all(std > 0)
+    reach = sp.last_check.reach
+    assert reach == 100
+    med = np.median(std, axis=(0, 2))
+    assert np.all(np.diff(med[reach - 1:]) >= 0), "past the reach the std only grows"
+    z = np.abs(mean - y[:, c:]) / std
+    for k in (1, 20, 80):  # calibrated on the robot's own record, no simulation: within loose bands
+        assert 0.5 <= float((z[:, k - 1] <= 1).mean()) <= 0.98
+        assert 0.8 <= float((z[:, k - 1] <= 2).mean())
+
+
+def test_a_one_ulp_change_of_the_context_moves_the_stack_by_no_jump():
+    u, y = _walk(5)
+    y32 = y.astype(np.float32)
+    nudged = y32.copy()
+    nudged[:, 0] = np.nextafter(nudged[:, 0], np.float32(np.inf))
+    a, sa = StackedPredictor(None, DT).simulate(u[:, :200], y32[:, :200], u[:, 200:], return_std=True)
+    b, sb = StackedPredictor(None, DT).simulate(u[:, :200], nudged[:, :200], u[:, 200:], return_std=True)
+    assert np.abs(a - b).max() <= 1e-6 * np.abs(a).max()
+    assert np.abs(sa - sb).max() <= 1e-4 * np.abs(sa).max()
+
+
+def test_beyond_the_reach_the_weights_fade_into_the_kinematic_default():
+    u, y = _walk(6)
+    sp = StackedPredictor(None, DT)
+    sp.simulate(u[:, :200], y[:, :200], np.zeros((len(u), 2000, u.shape[2])))
+    w = sp.last_check.weights
+    assert np.allclose(w.sum(axis=1), 1.0)
+    default = sp._default(3, 2000)[:, -1]
+    assert np.abs(w[:, :, -1].mean(axis=(0, 2)) - default).max() < 0.1
+
+
+@pytest.mark.parametrize("bad", [{"folds": 0}, {"min_context": 0.99}, {"temperature": float("nan")},
+                                 {"evidence": -1}, {"default_tau": float("inf")}, {"model_folds": 99}])
+def test_settings_out_of_range_are_refused_in_one_line(bad):
+    with pytest.raises(StackingError, match="out of range"):
+        StackConfig(**bad)
+
+
+def test_contexts_it_cannot_backtest_are_refused_clearly():
+    with pytest.raises(StackingError, match="nothing to backtest"):
+        StackedPredictor(None, DT).check(np.zeros((1, 3, 2)), np.zeros((1, 3, 2)))
+    with pytest.raises(StackingError, match="NaN"):
+        StackedPredictor(None, DT).check(np.zeros((1, 50, 2)), np.full((1, 50, 2), np.nan))
+    with pytest.raises(StackingError, match="dt"):
+        StackedPredictor(None, 0.0)
+
+
+def test_a_trained_model_is_backtested_through_the_predictor():
+    from robomorph import Predictor
+    from tests.inference.kept_predictions import KEPT
+
+    pred = Predictor.from_pretrained(str(KEPT / "total_forward"))
+    pred.use_physics("none")
+    w = np.load(KEPT / "windows.npz")
+    u, y = w["total_u"], w["total_y"]
+    check = pred.check(u, y)
+    assert check.names == ["hold", "constant_velocity", "constant_acceleration", "model"]
+    assert check.rmse.shape[:2] == (len(u), 4) and np.isfinite(check.rmse).all()
+    assert all(c % pred.patch == 0 for c in check.folds[1])
+    mean, std = pred.stacked().simulate(u[:, :30], y[:, :30], u[:, 30:], return_std=True)
+    assert mean.shape == std.shape == y[:, 30:].shape
