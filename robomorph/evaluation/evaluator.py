@@ -202,21 +202,29 @@ def _checked_predictor(cfg: EvaluateConfig):
 
 def _arm_predictor(cfg: EvaluateConfig):
     """The catalogue hybrid of ``cfg.arm`` built with the recipe the store records (its physics step, gravity
-    compensation and randomization ranges), once the store is a simulation of that arm."""
+    compensation and randomization ranges), once the store is a simulation of that arm; for a real log in the
+    arm's layout (``ingest --layout ARM``, ``ingest --rosbag --layout ARM``), the arm at the log's rate with no
+    gravity compensation of its own, driven by the logged total torque (:func:`robomorph.evaluation.physics.recipe_of`)."""
     from robomorph.data.store import open_store  # noqa: PLC0415
+    from robomorph.evaluation.physics import recipe_of  # noqa: PLC0415
     from robomorph.inference.predictor import Predictor  # noqa: PLC0415
     from robomorph.sim import arms  # noqa: PLC0415
 
     attrs = dict(open_store(cfg.data, allow_incomplete=True).attrs)
-    arm, recipe = arms.of_store(attrs), attrs.get("config")
+    logged = attrs.get("task") == "ingested" and attrs.get("arm") is not None
+    if logged:
+        arm, recipe = arms.ARMS.get(str(attrs["arm"])), recipe_of(attrs).to_dict()
+    else:
+        arm, recipe = arms.of_store(attrs), attrs.get("config")
     if arm is None or not isinstance(recipe, dict):
         raise EvaluationError(f"--robot {cfg.arm}: {cfg.data} is not a store simulated from a registered arm's recipe "
-                              f"(domain {attrs.get('domain')!r}): the catalogue hybrid needs the recipe its data "
-                              "follow; evaluate a model trained on these data with --ckpt")
+                              f"nor a log in a registered arm's layout (domain {attrs.get('domain')!r}): the catalogue "
+                              "hybrid needs the recipe its data follow; ingest logs with --layout ARM, or evaluate a "
+                              "model trained on these data with --ckpt")
     if arm.name != cfg.arm:
         raise EvaluationError(f"--robot {cfg.arm}: {cfg.data} is of the {arm.name}; its hybrid would predict another "
                               f"robot's dynamics: use --robot {arm.name}")
-    inputs = cfg.inputs or "command"
+    inputs = cfg.inputs or ("total" if logged else "command")  # a log's torque is the total one
     if inputs == "command" and "u_cmd" not in open_store(cfg.data, allow_incomplete=True).arrays:
         raise EvaluationError(f"--robot {cfg.arm}: {cfg.data} holds no u_cmd (the command formulation the catalogue "
                               "hybrid takes by default): regenerate the store, or pass --inputs total")

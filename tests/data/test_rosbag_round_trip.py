@@ -81,3 +81,27 @@ def test_bags_of_a_urdf_arm_predict_as_its_generated_store(generated, kind):
     assert rmse[0] == pytest.approx(rmse[1], abs=1e-6)
     hold = np.sqrt(np.mean((truth[..., joints] - truth[:, :1, joints]) ** 2))
     assert rmse[0] < hold  # the hybrid on the bag's arm predicts, it is not an identity
+
+
+def test_evaluate_robot_on_the_bag_store_scores_as_on_the_generated_store(generated, tmp_path):
+    """The third command of the page: ``evaluate --robot`` on the ingested bag gives the generated store's figures."""
+    from robomorph.evaluation.evaluator import evaluate
+    from robomorph.evaluation.requests import EvaluateConfig
+
+    tmp, direct = generated
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv(arms.USER_ARMS_ENV, str(tmp / "arms"))
+        bag = _bag_of(direct, bag_path(tmp_path, "db3", "bag"), "db3")
+        store = str(tmp_path / "ingested.zarr")
+        ingest_rosbag([str(bag)], store, steps=STEPS, split_gap=5.0, layout="bagarm")
+        results = [evaluate(EvaluateConfig(data=data, arm="bagarm", out=str(tmp_path / name), context_len=CONTEXT,
+                                           horizon=STEPS - CONTEXT, baselines=("hold", "constant_velocity",
+                                                                               "nominal_physics"),
+                                           device="cpu", samples=0, inputs=inputs))
+                   for data, name, inputs in ((store, "eval_bag", None), (direct.path, "eval_direct", "total"))]
+    for rows in (lambda r: r["approach1"]["channels"], lambda r: r["baselines"]["nominal_physics"]["approach1"]["channels"],
+                 lambda r: r["baselines"]["hold"]["approach1"]["channels"]):
+        bag_rows, direct_rows = rows(results[0]), rows(results[1])
+        for ch in ("q0", "q1", "q2"):
+            assert bag_rows[ch]["rmse"]["mean"] == pytest.approx(direct_rows[ch]["rmse"]["mean"], abs=1e-6), ch
+    assert results[0]["meta"]["inputs"] == "total"  # a log's torque is the total one, without being told
