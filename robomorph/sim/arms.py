@@ -247,6 +247,9 @@ def user_arm(name: str) -> Arm | None:
         return read_user_arm(path, os.stat(path).st_mtime_ns)
     except FileNotFoundError:
         return None
+    except (ValueError, KeyError, TypeError) as exc:  # a hand-edited or half-copied arm.json
+        raise UnknownRobotError(f"the user arm {name!r} ({path}) is damaged ({type(exc).__name__}: {exc}); remove it with "
+                                f"`robomorph arms remove {name}` and add it again") from None
 
 
 class _Registry(Mapping):

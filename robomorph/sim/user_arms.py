@@ -415,7 +415,11 @@ def listing() -> list[dict]:
     """One row per registered arm: name, joints, whether shipped, its title and source."""
     rows = []
     for name in arms.names():
-        arm = arms.get(name)
+        try:
+            arm = arms.get(name)
+        except arms.UnknownRobotError as exc:  # listed, not fatal: the line says how to repair it
+            rows.append({"name": name, "joints": 0, "kind": "damaged", "title": str(exc), "source": ""})
+            continue
         user = arm.model_file is not None
         source = ""
         if user:

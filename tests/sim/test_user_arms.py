@@ -170,3 +170,12 @@ def test_the_door(tmp_path, user_folder, capsys):
     assert len(err) == 1 and "link 'link1'" in err[0] and not (user_folder / "other").exists()
     assert arms_door.main(["remove", "jaco"]) == 2
     assert arms_door.main(["remove", "mine"]) == 0 and not os.path.exists(user_folder / "mine")
+
+
+def test_a_damaged_user_arm_is_named_not_a_traceback(tmp_path, user_folder, capsys):
+    _add(tmp_path, "arm", serial_arm(3))
+    (user_folder / "arm" / "arm.json").write_text("{not json")
+    with pytest.raises(arms.UnknownRobotError, match="user arm 'arm' .* is damaged.*robomorph arms remove arm"):
+        arms.get("arm")
+    assert arms_door.main(["list"]) == 0 and "arm      damaged" in capsys.readouterr().out
+    assert arms_door.main(["remove", "arm"]) == 0 and "arm" not in arms.names()
