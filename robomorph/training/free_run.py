@@ -15,7 +15,9 @@ error of that free run. Three such models live here, one interface (:class:`Free
 trajectory's start, at rest), growing to whole trajectories; truncated back-propagation through
 time every ``tbptt`` steps; inputs and outputs normalised with the training split's statistics
 (:class:`Normalizer`); early stopping on the free-run error of whole validation trajectories
-(a split cut by trajectory), the best state kept; a wall-clock budget.
+(a split cut by trajectory), the best state kept; a wall-clock budget. Optionally the training
+inputs are perturbed (``input_offset``, ``input_noise``): a robot's torques for one motion change
+with its temperature, measured on the benchmark's repeated test motions.
 """
 
 from __future__ import annotations
@@ -72,6 +74,14 @@ class FreeRunModel(nn.Module):
 
     def step(self, state, u_t: torch.Tensor):  # u_t (B, n_u) -> (state, y_t (B, n_y))
         raise NotImplementedError
+
+    def run(self, state, u: torch.Tensor):  # u (B, L, n_u) -> (state, y (B, L, n_y))
+        """Steps over a chunk of inputs; a model with a faster whole-chunk path overrides it."""
+        outs = []
+        for t in range(u.shape[1]):
+            state, y_t = self.step(state, u[:, t])
+            outs.append(y_t)
+        return state, torch.stack(outs, 1)
 
     @staticmethod
     def detach(state):
@@ -174,11 +184,8 @@ def simulate(model: FreeRunModel, u: torch.Tensor, y_init: torch.Tensor) -> torc
     """The free run (B, T, n_y): ``y_init`` (B, w, n_y) copied, then ``model`` stepped on ``u[:, w:]``."""
     w = y_init.shape[1]
     state = model.start(_history(y_init, w, model.lag), _history(u, w, model.lag))
-    out = [y_init]
-    for t in range(w, u.shape[1]):
-        state, y_t = model.step(state, u[:, t])
-        out.append(y_t[:, None])
-    return torch.cat(out, 1)
+    _, y = model.run(state, u[:, w:])
+    return torch.cat([y_init, y], 1)
 
 
 def predictor(model: FreeRunModel, norm: Normalizer):
@@ -210,6 +217,8 @@ class FreeRunConfig:
     val_every: int = 10
     patience: int = 12
     from_rest: float = 0.5
+    input_offset: float = 0.0
+    input_noise: float = 0.0
     grad_clip: float = 1.0
     time_budget_s: float = 900.0
     seed: int = 0
@@ -218,6 +227,8 @@ class FreeRunConfig:
         for name in ("warmup", "window_min", "tbptt", "batch", "iterations", "val_every", "patience"):
             if getattr(self, name) < 1:
                 raise FreeRunError(f"FreeRunConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.input_offset < 0 or self.input_noise < 0:
+            raise FreeRunError("FreeRunConfig.input_offset and input_noise must be >= 0")
         if not 0 <= self.from_rest <= 1:
             raise FreeRunError(f"FreeRunConfig.from_rest must be in [0, 1], got {self.from_rest}")
         if self.lr <= 0 or self.time_budget_s <= 0 or self.weight_decay < 0:
@@ -237,7 +248,14 @@ def _batch(data: list, length: int, cfg: FreeRunConfig, rng: np.random.Generator
         start = 0 if rng.random() < cfg.from_rest else int(rng.integers(0, len(u) - length + 1))
         us.append(u[start:start + length])
         ys.append(y[start:start + length])
-    return torch.stack(us), torch.stack(ys)
+    u = torch.stack(us)
+    if cfg.input_offset or cfg.input_noise:
+        # The same motion can take other torques on another day (friction with temperature): a
+        # constant offset per window and channel, and white noise, in normalised units.
+        g = torch.Generator().manual_seed(int(rng.integers(2 ** 31)))
+        u = u + cfg.input_offset * torch.randn(u.shape[0], 1, u.shape[2], generator=g)
+        u = u + cfg.input_noise * torch.randn(u.shape, generator=g)
+    return u, torch.stack(ys)
 
 
 def validation_loss(model: FreeRunModel, val: list, warmup: int = 1) -> float:
@@ -251,7 +269,7 @@ def validation_loss(model: FreeRunModel, val: list, warmup: int = 1) -> float:
 def fit(model: FreeRunModel, train: list, val: list, cfg: FreeRunConfig = FreeRunConfig(),
         log=None) -> dict:
     """Trains ``model`` on free-run simulation error; returns its :class:`Normalizer` and a record
-    (iterations run, best validation loss, seconds). ``train``/``val``: ``[(u, y)]`` in data units."""
+    (iterations run, best validation loss, the last training windows' loss, seconds). ``train``/``val``: ``[(u, y)]`` in data units."""
     if not train or not val:
         raise FreeRunError("free-run training needs training and validation trajectories")
     torch.manual_seed(cfg.seed)
@@ -264,7 +282,7 @@ def fit(model: FreeRunModel, train: list, val: list, cfg: FreeRunConfig = FreeRu
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.iterations, eta_min=cfg.lr * 0.05)
     best, best_state, bad, t0, it = validation_loss(model, vdata), copy.deepcopy(model.state_dict()), 0, time.time(), 0
-    losses = []
+    losses, last_train = [], float("nan")
     for it in range(1, cfg.iterations + 1):
         # windows grow from window_min to whole trajectories over the first half of training
         length = int(min(full, cfg.window_min + (full - cfg.window_min) * min(1.0, 2 * it / cfg.iterations)))
@@ -273,11 +291,8 @@ def fit(model: FreeRunModel, train: list, val: list, cfg: FreeRunConfig = FreeRu
         state = model.start(_history(y, cfg.warmup, model.lag), _history(u, cfg.warmup, model.lag))
         for c0 in range(cfg.warmup, length, cfg.tbptt):
             c1 = min(length, c0 + cfg.tbptt)
-            outs = []
-            for t in range(c0, c1):
-                state, y_t = model.step(state, u[:, t])
-                outs.append(y_t)
-            loss = ((torch.stack(outs, 1) - y[:, c0:c1]) ** 2).mean()
+            state, pred = model.run(state, u[:, c0:c1])
+            loss = ((pred - y[:, c0:c1]) ** 2).mean()
             losses.append(loss.item())
             opt.zero_grad()
             loss.backward()
@@ -287,6 +302,7 @@ def fit(model: FreeRunModel, train: list, val: list, cfg: FreeRunConfig = FreeRu
         sched.step()
         if it % cfg.val_every == 0:
             v = validation_loss(model, vdata)
+            last_train = float(np.mean(losses))
             if log:
                 log(f"iteration {it}: window {length}, training MSE {np.mean(losses):.4f}, validation free-run "
                     f"MSE {v:.4f} (best {min(best, v):.4f})")
@@ -300,4 +316,5 @@ def fit(model: FreeRunModel, train: list, val: list, cfg: FreeRunConfig = FreeRu
         if time.time() - t0 > cfg.time_budget_s:
             break
     model.load_state_dict(best_state)
-    return {"normalizer": norm, "iterations": it, "best_val": best, "seconds": time.time() - t0}
+    return {"normalizer": norm, "iterations": it, "best_val": best, "last_train": last_train,
+            "seconds": time.time() - t0}
