@@ -53,7 +53,8 @@ def test_a_robot_holding_still_is_held_not_extrapolated_along_its_noise():
     held = kinematics.hold(u[:, :c], y[:, :c], u[:, c:])
     cv = kinematics.constant_velocity(u[:, :c], y[:, :c], u[:, c:])
     for k in (1, 10, 40):
-        assert _rms(mean, y[:, c:], k) <= 1.3 * _rms(held, y[:, c:], k) < _rms(cv, y[:, c:], k)
+        assert _rms(mean, y[:, c:], k) <= 1.5 * _rms(held, y[:, c:], k)
+        assert _rms(mean, y[:, c:], k) < 0.9 * _rms(cv, y[:, c:], k)
 
 
 def _integrator(u_ctx, y_ctx, u_query):
@@ -74,7 +75,7 @@ def test_a_model_that_explains_the_robot_carries_the_stack_where_kinematics_fail
     mean = sp.simulate(u[:, :c], y[:, :c], u[:, c:])
     cv = kinematics.constant_velocity(u[:, :c], y[:, :c], u[:, c:])
     model = _integrator(u[:, :c], y[:, :c], u[:, c:])
-    assert sp.last_check.names[-1] == "model" and sp.last_check.explained.all()
+    assert sp.last_check.names[-1] == "model" and sp.last_check.explained["model"].all()
     for k in (5, 30, 60):
         assert _rms(mean, y[:, c:], k) <= 0.2 * _rms(cv, y[:, c:], k)
         assert _rms(mean, y[:, c:], k) <= 1.5 * _rms(model, y[:, c:], k) + 1e-9
@@ -83,13 +84,13 @@ def test_a_model_that_explains_the_robot_carries_the_stack_where_kinematics_fail
 def test_a_model_that_does_not_explain_the_context_is_named_in_one_warning():
     u, y = _walk(3)
     wrong = lambda uc, yc, uq: kinematics.hold(uc, yc, uq) + 0.5  # noqa: E731  (another formulation's answer)
-    with pytest.warns(UserWarning, match="worse than holding the last sample"):
+    with pytest.warns(UserWarning, match="model explains 6 of 6 context.s. worse than holding the last sample"):
         check = StackedPredictor(wrong, DT).check(u[:, :200], y[:, :200])
-    assert not check.explained.any()
+    assert not check.explained["model"].any()
     assert "WARNING" in check.summary()
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert StackedPredictor(_integrator, DT).check(u[:, :200], y[:, :200]).explained.all()
+        assert StackedPredictor(_integrator, DT).check(u[:, :200], y[:, :200]).explained["model"].all()
 
 
 def test_the_std_is_measured_on_the_context_and_grows_past_the_backtest_reach():
@@ -126,7 +127,7 @@ def test_beyond_the_reach_the_weights_fade_into_the_kinematic_default():
     w = sp.last_check.weights
     assert np.allclose(w.sum(axis=1), 1.0)
     default = sp._default(3, 2000)[:, -1]
-    assert np.abs(w[:, :, -1].mean(axis=(0, 2)) - default).max() < 0.1
+    assert np.abs(w[:, :, -1].mean(axis=0) - default).max() < 0.1
 
 
 @pytest.mark.parametrize("bad", [{"folds": 0}, {"min_context": 0.99}, {"temperature": float("nan")},
@@ -156,6 +157,23 @@ def test_a_trained_model_is_backtested_through_the_predictor():
     check = pred.check(u, y)
     assert check.names == ["hold", "constant_velocity", "constant_acceleration", "model"]
     assert check.rmse.shape[:2] == (len(u), 4) and np.isfinite(check.rmse).all()
-    assert all(c % pred.patch == 0 for c in check.folds[1])
+    assert all(c % pred.patch == 0 for c in check.folds[1]["model"])
     mean, std = pred.stacked().simulate(u[:, :30], y[:, :30], u[:, 30:], return_std=True)
     assert mean.shape == std.shape == y[:, 30:].shape
+
+
+def test_several_models_are_stacked_by_name_each_on_its_own_folds():
+    u, y = _walk(7, noise=0.0)
+    wrong = lambda uc, yc, uq: kinematics.hold(uc, yc, uq) + 5.0  # noqa: E731
+    with pytest.warns(UserWarning, match="wrong explains"):
+        sp = StackedPredictor({"physics": (_integrator, 4), "wrong": wrong}, DT)
+        mean = sp.simulate(u[:, :200], y[:, :200], u[:, 200:])
+    check = sp.last_check
+    assert check.names == ["hold", "constant_velocity", "constant_acceleration", "physics", "wrong"]
+    assert len(check.folds[1]["physics"]) == 4 and len(check.folds[1]["wrong"]) == 1
+    assert check.explained["physics"].all() and not check.explained["wrong"].any()
+    assert check.weights[:, 4].max() < 1e-6  # the wrong one keeps no weight
+    assert _rms(mean, y[:, 200:], 30) <= 0.2 * _rms(kinematics.constant_velocity(u[:, :200], y[:, :200], u[:, 200:]),
+                                                    y[:, 200:], 30)
+    with pytest.raises(StackingError, match="other than"):
+        StackedPredictor({"hold": _integrator}, DT)
