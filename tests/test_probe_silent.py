@@ -294,3 +294,53 @@ def test_the_same_recipe_gets_no_note(command_hybrid, simulated_store, tmp_path,
                                 "--baselines", "hold", "--plot-trajectories", "0", "--device", "cpu"], capsys)
     assert code == 0, err
     assert "recipe:" not in out and "recipe_note" not in json.loads((tmp_path / "ev" / "metrics.json").read_text())["meta"]
+
+
+# --- a residual run over priors of several hybrids ---------------------------------------------------------
+
+def test_a_residual_run_refuses_priors_of_two_recipes(tmp_path):
+    """Defect 12: a residual ``fit`` on prior stores of two hybrids (recipes) trained on both and recorded only
+    the first's recipe."""
+    from robomorph.data.priors import PriorError
+    from tests.data.test_priors import _dm, prior_store
+
+    true = prior_store(tmp_path / "a.zarr", recipe={"gravity_compensation": "true_model", "seed": 0})
+    nominal = prior_store(tmp_path / "b.zarr", seed=1, recipe={"gravity_compensation": "nominal_model", "seed": 1})
+    with pytest.raises(PriorError, match=r"b.zarr holds priors of another hybrid than .*a.zarr: their recipes differ in "
+                                         r"gravity_compensation \('nominal_model' against 'true_model'\)"):
+        _dm([true, nominal]).setup()
+    again = prior_store(tmp_path / "c.zarr", seed=2, recipe={"gravity_compensation": "true_model", "seed": 2})
+    _dm([true, again]).setup()  # one recipe drawn with two seeds: one hybrid
+
+
+def _arm_prior_store(path, arm: str, seed: int) -> str:
+    """A prior store in ``arm``'s channel layout (no simulation: random windows, the prior off by 0.1)."""
+    from robomorph.sim import arms
+    from tests.conftest import write_store
+
+    spec, rng = arms.get(arm), np.random.default_rng(seed)
+    u = rng.normal(size=(24, 50, spec.n_joint))
+    y = 0.1 * rng.normal(size=(24, 50, 7 + spec.n_joint))
+    record = {"source": "x", "source_n": 24, "source_seed": seed, "settings": "regression", "fields": {},
+              "context": 30, "horizon": 20, "offsets": [0], "arm": arm, "inputs": "total", "recipe": {"robot": arm}}
+    return write_store(path, u, y, None, list(spec.u_names), list(spec.y_names), [],
+                       attrs={"dt": 1 / 60, "domain": arm, "prior": record},
+                       extras={"prior": ((20, 7 + spec.n_joint), "float32", (y[:, 30:] + 0.1).astype(np.float32))})
+
+
+def test_a_residual_run_over_two_arms_names_the_arms(tmp_path, capsys):
+    """Defect 21: a residual fit on Panda and UR5e priors named channel masks and heads, not the mixed arms."""
+    from robomorph import fit
+
+    panda, ur5e = _arm_prior_store(tmp_path / "a.zarr", "panda", 0), _arm_prior_store(tmp_path / "b.zarr", "ur5e", 1)
+    argv = ["--data.stores", f"[{panda},{ur5e}]", "--data.context_len", "30", "--data.horizon", "20",
+            "--data.batch_size", "4", "--data.inputs", "total", "--model.d_model", "16", "--model.n_head", "2",
+            "--model.n_layer", "1", "--model.patch", "5", "--trainer.max_steps", "1", "--trainer.accelerator", "cpu",
+            "--runs_dir", str(tmp_path / "runs"), "--run", "r", "--wandb", "disabled"]
+    try:
+        code = fit.main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    line = _one_error(int(code or 0), capsys.readouterr().err, "b.zarr holds priors of the ur5e", "a.zarr of the panda",
+                      "one residual model per arm")
+    assert "channel_mask" not in line

@@ -31,7 +31,7 @@ from robomorph.core.inputs import check_inputs
 from robomorph.core.names import INPUTS, NORMALIZATIONS
 from robomorph.core.normalizations import check_normalization
 
-from robomorph.data.priors import check_prior_windows, prior_error_rms
+from robomorph.data.priors import check_prior_windows, common_prior, prior_error_rms
 from robomorph.data.channel_sets import ColumnAccumulator, channel_set, last_joint, layouts, pads_any
 
 # DataError re-exported: callers catch it from here.
@@ -203,13 +203,16 @@ class RoboMorphDataModule(L.LightningDataModule):
         """True when a store lacks some of the run's channels (an arm with fewer joints),
         ``joint_dropout`` hides some, or ``channels`` names the set (a multi-arm model's, to
         fine-tune it: its architecture reads the mask): robomorph fit links it."""
+        self.residual  # noqa: B018  (prior stores of several arms are refused as such, before any mask is read)
         return pads_any(self.open_sources()) or self.joint_dropout > 0 or self.channels is not None
 
     @property
     def residual(self) -> bool:
         """True when the stores are prior stores (:mod:`robomorph.data.priors`): the model then learns the
-        correction of the prior and its batches carry ``prior_query`` (B, Th, n_y); robomorph fit links it."""
-        return any(s.prior_record is not None for s in self.open_sources())
+        correction of the prior and its batches carry ``prior_query`` (B, Th, n_y); robomorph fit links it.
+        Priors of another arm, recipe or setting than the first store's are refused here (:func:`common_prior`)."""
+        sources = self.open_sources()
+        return common_prior([s.prior_record for s in sources], [s.path for s in sources]) is not None
 
     @property
     def layouts(self) -> list[dict[str, list[str]]]:

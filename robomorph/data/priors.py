@@ -41,18 +41,22 @@ def prior_record(attrs: dict) -> dict | None:
     return dict(record) if isinstance(record, dict) else None
 
 
-def check_prior_windows(records: list[dict | None], paths: list[str], context_len: int, horizon: int,
-                        window: str, context_min: int | None, inputs: str) -> dict | None:
-    """The training stores' common prior record, after checking the run's windows against it.
+# Recipe fields that change which robots are drawn, not the hybrid that predicts them: prior stores of two
+# seeds or sizes of one recipe feed one residual run.
+_SAMPLING_FIELDS = ("robots", "seed", "steps", "chunk", "max_attempts_factor")
 
-    A prior predicts the query that follows the store's own context, so a run over prior stores
-    takes its context whole (``context_len`` = the record's, ``context_min`` off), its windows from
-    the start of each row (``window: start``) and a horizon within the record's. Stores without
-    priors give None (all of them: a run mixes none with prior stores).
+
+def common_prior(records: list[dict | None], paths: list[str]) -> dict | None:
+    """The training stores' common prior record (the first's), or None where no store holds priors.
+
+    A residual model records one hybrid, which it rebuilds at inference to make its prior: every store
+    must hold priors of that very hybrid (one arm, one recipe but for its sampling fields, one settings key,
+    one window and formulation). Checked as soon as the stores are opened (before ``fit`` builds the model
+    from them), so a mix of arms is named as one, not as the model's channel mask.
 
     Raises:
-        PriorError: a mix of stores with and without priors, priors of different settings, or
-            windows the priors do not cover.
+        PriorError: a mix of stores with and without priors, or priors of different arms, recipes, settings
+            or windows.
     """
     have = [r is not None for r in records]
     if not any(have):
@@ -63,10 +67,45 @@ def check_prior_windows(records: list[dict | None], paths: list[str], context_le
                          "trains on prior stores only (robomorph priors writes them)")
     first = records[0]
     for path, rec in zip(paths[1:], records[1:]):
-        for key in ("settings", "context", "arm", "inputs"):
+        if rec.get("arm") != first.get("arm"):
+            raise PriorError(f"{path} holds priors of the {rec.get('arm')} and {paths[0]} of the {first.get('arm')}: "
+                             "a residual model corrects the hybrid of one arm, which it rebuilds at inference; train "
+                             "one residual model per arm")
+        for key in ("settings", "context", "inputs"):
             if rec.get(key) != first.get(key):
                 raise PriorError(f"{path} has priors with {key} {rec.get(key)!r}, {paths[0]} with {first.get(key)!r}: "
                                  "the stores of one residual run share the prior's settings and window")
+        mine, theirs = (_hybrid_recipe(r) for r in (first, rec))
+        if mine != theirs:
+            key = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))[0]
+            raise PriorError(f"{path} holds priors of another hybrid than {paths[0]}: their recipes differ in {key} "
+                             f"({theirs.get(key)!r} against {mine.get(key)!r}), and a residual model rebuilds one "
+                             "hybrid at inference (it would record the first's alone); train one per recipe")
+    return first
+
+
+def _hybrid_recipe(record: dict) -> dict:
+    """A prior record's generator recipe without the fields that only draw robots (:data:`_SAMPLING_FIELDS`)."""
+    recipe = record.get("recipe")
+    return {k: v for k, v in recipe.items() if k not in _SAMPLING_FIELDS} if isinstance(recipe, dict) else {}
+
+
+def check_prior_windows(records: list[dict | None], paths: list[str], context_len: int, horizon: int,
+                        window: str, context_min: int | None, inputs: str) -> dict | None:
+    """The training stores' common prior record (:func:`common_prior`), after checking the run's windows
+    against it.
+
+    A prior predicts the query that follows the store's own context, so a run over prior stores
+    takes its context whole (``context_len`` = the record's, ``context_min`` off), its windows from
+    the start of each row (``window: start``) and a horizon within the record's. Stores without
+    priors give None (all of them: a run mixes none with prior stores).
+
+    Raises:
+        PriorError: what :func:`common_prior` refuses, or windows the priors do not cover.
+    """
+    first = common_prior(records, paths)
+    if first is None:
+        return None
     if context_len != first["context"]:
         raise PriorError(f"--data.context_len {context_len}: the priors of {paths[0]} follow a context of "
                          f"{first['context']} steps; use --data.context_len {first['context']}")
