@@ -84,7 +84,9 @@ def curves_figure(runs: list):
         elif ax.has_data() and ax.get_ylim()[0] < -1.0 < ax.get_ylim()[1]:
             # Early R² can be hugely negative; clipping keeps the useful range readable.
             ax.set_ylim(bottom=-1.0)
-        ax.set(title=f"{key} ({ax.get_yscale()} scale)" if key.endswith("loss") else key, xlabel="step")
+        # Whose: the network's decoder, which a hybrid's physics modes need not read (the page's caption says).
+        ax.set(title=f"decoder {key} ({ax.get_yscale()} scale)" if key.endswith("loss") else f"decoder {key}",
+               xlabel="step")
         ax.grid(alpha=0.3)
     handles, labels = [], []
     for ax in axes:

@@ -5,11 +5,16 @@ Reads every run directory written by ``python -m robomorph.fit`` under ``RUNS_DI
 ``eval/<name>/`` written by ``robomorph.evaluate``) and writes one static HTML file that
 opens offline: CSS inline, no script, every image embedded as a base64 ``data:`` URI.
 
-The page has an overview (one row per run and evaluation), the training curves of all
-runs in shared figures, and per run its facts, checkpoints, config and evaluations, each
-with a per-channel table of the model beside every baseline, coloured with the paper's
+The page has an overview (one row per run and evaluation) that leads with what predicts:
+the joint error by horizon of the model beside holding the last output and extrapolating
+the last velocity, then FIT and R² as medians over windows and over the pooled windows
+(never means over per-window FITs, which one channel at rest rules), with channels that
+move less than their noise marked and left out (:mod:`robomorph.evaluation.metrics`). Per
+run follow its facts, checkpoints, config and evaluations, each with the error by horizon
+and a per-channel table of the model beside every baseline, coloured with the paper's
 fit-index convention (:func:`robomorph.reporting.html.fit_colour`); scores of the paper's
-normalization are marked. A file that cannot be read becomes a visible warning on the page
+normalization are marked. The training curves come last, saying whose they are (the
+network's decoder) and which evaluations read it. A file that cannot be read becomes a visible warning on the page
 (and on stderr), never a crash: a report is most wanted exactly when some run went wrong.
 
 The page is meant to be shared: no symbolic link is followed out of a run folder, and only
@@ -203,9 +208,29 @@ def _anchor(i: int) -> str:
     return f"run-{i}"
 
 
+SCORE_HEADS = ("R² median (A1)", "FIT median (A1)", "R² pooled (A2)", "FIT pooled (A2)", "best baseline (pooled FIT)")
+
+
+def _score_cells(metrics: dict) -> tuple[rh.Cell, ...]:
+    """R² and FIT of the model as medians over windows (approach 1) and over the pooled windows (approach 2),
+    each over the channels that move (:func:`robomorph.reporting.html.pooled`), then the best baseline."""
+    cells = []
+    for r2, fit in ((rh.overall_a1(metrics, "r2"), rh.overall_a1(metrics, "fit")),
+                    (rh.pooled(metrics, "r2", metrics), rh.pooled(metrics, "fit", metrics))):
+        cells += rh.score_cells(r2, fit)
+    best = rh.best_baseline(metrics)
+    cells.append(rh.Cell(f"{best[0]}: {best[1]:.1f}", fit_colour(best[1])) if best else rh.Cell(rh.DASH))
+    return tuple(cells)
+
+
 def overview(runs: list[RunData]) -> rh.Table:
-    """One row per run and evaluation: model size, windows, mean approach-1 scores."""
-    head = ("run", "evaluation", *FACTS, "A1 R²", "A1 FIT", "A1 RMSE", "best baseline (A1 FIT)", rh.HORIZON_HEAD)
+    """One row per run and evaluation, led by what predicts: the joint error by horizon of the model, hold and
+    constant velocity, then FIT and R² as medians and over the pooled windows, then the run's facts."""
+    head = (*rh.HORIZON_HEADS, *SCORE_HEADS)
+    top = (rh.Head("run", "name", rowspan=2), rh.Head("evaluation", "name", rowspan=2),
+           rh.Head(rh.HORIZON_GROUP, colspan=len(rh.HORIZON_HEADS)),
+           rh.Head("the model's scores over the channels that move", colspan=len(SCORE_HEADS)),
+           *(rh.Head(k, rowspan=2) for k in FACTS))
     rows = []
     for i, run in enumerate(runs):
         facts = tuple(rh.Cell(str(rh.DASH if run.fact(k) is None else run.fact(k))) for k in FACTS)
@@ -213,17 +238,13 @@ def overview(runs: list[RunData]) -> rh.Table:
         scored = [ev for ev in run.evals if ev.metrics is not None]
         if not scored:
             why = "no evaluation" if not run.evals else "no readable metrics.json"
-            rows.append(rh.Row((link, rh.Cell(why, cls="name"), *facts, *[rh.Cell(rh.DASH)] * 5)))
+            dashes = [rh.Cell(rh.DASH)] * (len(rh.HORIZON_HEADS) + len(SCORE_HEADS))
+            rows.append(rh.Row((link, rh.Cell(why, cls="name"), *dashes, *facts)))
         for ev in scored:
-            r2, fit, rmse = (rh.mean_stat(ev.metrics, "approach1", m) for m in ("r2", "fit", "rmse"))
-            best = rh.best_baseline(ev.metrics)
-            best_cell = rh.Cell(f"{best[0]}: {best[1]:.1f}", fit_colour(best[1])) if best else rh.Cell(rh.DASH)
-            colour = fit_colour(fit[0])
             marks = rh.badges(ev.metrics) + ((IN_SAMPLE_BADGE,) if _in_sample(ev.metrics) else ())
-            rows.append(rh.Row((link, rh.Cell(ev.name, cls="name", badges=marks), *facts,
-                                rh.Cell(rh.fmt(*r2, "r2"), colour), rh.Cell(rh.fmt(*fit, "fit"), colour),
-                                rh.Cell(rh.fmt(*rmse, "rmse")), best_cell, rh.horizon_cell(ev.metrics))))
-    return rh.Table(head, tuple(rows))
+            rows.append(rh.Row((link, rh.Cell(ev.name, cls="name", badges=marks), *rh.horizon_cells(ev.metrics),
+                                *_score_cells(ev.metrics), *facts)))
+    return rh.Table(head, tuple(rows), (top,))
 
 
 def _plain(value) -> str:
@@ -253,18 +274,43 @@ _READS_DECODER = {"blend": "its simulation and the network's decoder weighted by
                   "fused": "the robot identified from the context (the network's parameter head as prior), then simulated"}
 
 
-def predictor_note(metrics) -> str:
-    """Which part of the run predicted an evaluation: the hybrid (and whether it read the network) or the decoder."""
+def _mode(metrics) -> str | None:
+    """The hybrid's physics mode that predicted an evaluation, or None (the network's decoder)."""
     meta = metrics.get("meta") if isinstance(metrics, dict) else None
     physics = meta.get("physics") if isinstance(meta, dict) else None
-    mode = physics.get("mode") if isinstance(physics, dict) else None
+    return physics.get("mode") if isinstance(physics, dict) and physics.get("mode") else None
+
+
+def predictor_note(metrics) -> str:
+    """Which part of the run predicted an evaluation: the hybrid (and whether it read the network) or the decoder."""
+    mode = _mode(metrics)
     if not mode:
-        return ("Predicted by the network's decoder (the black-box model): the training curves above are its "
+        return ("Predicted by the network's decoder (the black-box model): the training curves below are its "
                 "validation scores.")
     if mode in _READS_DECODER:
         return f"Predicted by the hybrid, physics mode {mode}: {_READS_DECODER[mode]}."
     return (f"Predicted by the hybrid, physics mode {mode}: the robot identified from each context by linear solves, "
-            "then simulated. It reads no network: the training curves above are the decoder's, not this prediction's.")
+            "then simulated. It reads no network: the training curves below are the decoder's, not this prediction's.")
+
+
+def curves_caption(runs: list[RunData]) -> str:
+    """Whose the training curves are: each run's decoder, and for each run whether its evaluations read it."""
+    whose = []
+    for run in runs:
+        if not run.curves:
+            continue
+        modes = sorted({_mode(ev.metrics) or "decoder" for ev in run.evals if ev.metrics is not None})
+        if not modes or modes == ["decoder"]:
+            read = "its evaluations are the decoder's predictions" if modes else "not evaluated"
+        elif all(m in _READS_DECODER or m == "decoder" for m in modes):
+            read = f"its evaluations ({', '.join(modes)}) read the decoder"
+        else:
+            read = (f"its evaluations were predicted by the hybrid ({', '.join(modes)}), which does not read the "
+                    "decoder: these curves do not score them")
+        whose.append(f"{run.name}: {read}")
+    return ("The network's training, as fit logged it: train/loss, val/loss (log scale where every value is "
+            "positive, linear otherwise) and val/r2 against step, all of the network's decoder (its black-box "
+            "head) on the run's validation windows. " + "; ".join(whose) + ".")
 
 
 def diverged_notes(metrics) -> list[str]:
@@ -319,9 +365,7 @@ def render(runs: list[RunData], title: str, runs_dir: str, control: str | None =
                      stamp=datetime.now().strftime("%Y-%m-%d %H:%M"),
                      warnings=[f"{run.name}: {w}" for run in runs for w in run.all_warnings],
                      legend=rh.legend(), overview=overview(runs), curves=rh.png_uri(curves) if curves else None,
-                     curves_caption="the network's training: train/loss, val/loss (log scale where every value "
-                                    "is positive, linear otherwise) and val/r2 against step, of its decoder's "
-                                    "predictions; each evaluation below says what predicted it",
+                     curves_caption=curves_caption(runs),
                      runs=[run_view(run, i) for i, run in enumerate(runs)], control=control_view(control))
 
 

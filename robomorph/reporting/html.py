@@ -26,7 +26,12 @@ from robomorph.evaluation.fit_bands import FIT_BANDS
 # strength) so the page looks the same on any background, not alpha blended.
 METRICS = (R2, FIT, RMSE, NRMSE)  # the order the tables show them
 DASH = "—"
-HORIZON_HEAD = "joints RMS [mrad] first step / 0.25 s / 1 s (hold)"
+# The overview leads with what predicts: joint error by horizon of the model beside the two predictions any
+# model must beat (holding the last output, extrapolating the last velocity).
+HORIZON_SOURCES = (("model", "model"), ("hold", "hold"), ("constant_velocity", "constant velocity"))
+HORIZON_GROUP = "joints RMS [mrad] at step 1 / 0.25 s / 1 s"
+HORIZON_HEADS = tuple(label for _, label in HORIZON_SOURCES)
+QUIET_BADGE = "quiet in {k} of {n} windows"
 LEAK_BADGE = "⚠ paper_window: uses query statistics"
 _BETTER, _WORSE = "rgb(204, 235, 204)", "rgb(248, 209, 204)"
 
@@ -193,30 +198,73 @@ def score_cells(r2: tuple, fit: tuple, first: bool = False) -> tuple[Cell, Cell]
     return Cell(fmt(*r2, "r2"), colour, "model" if first else ""), Cell(fmt(*fit, "fit"), colour)
 
 
+def quiet_share(metrics: Any, channel: str) -> tuple[int, int] | None:
+    """(windows where ``channel`` moves less than twice its noise, windows scored), or None where none is quiet
+    or the evaluation predates the count (:func:`robomorph.evaluation.metrics.quiet_windows`)."""
+    k, n = dig(metrics, "approach1", "quiet", "channels", channel), dig(metrics, "approach1", "quiet", "windows")
+    return (k, n) if isinstance(k, int) and isinstance(n, int) and 0 < k and 0 < n else None
+
+
+def mostly_quiet(metrics: Any, channel: str) -> bool:
+    """True for a channel quiet in more than half the windows: left out of the means over channels."""
+    share = quiet_share(metrics, channel)
+    return share is not None and 2 * share[0] > share[1]
+
+
+def a1_stat(entry: Any) -> tuple[float | None, float | None]:
+    """An approach-1 score as the page shows it: the median over the windows where the channel moves (no std),
+    or, for an evaluation written before medians were recorded, the mean ± std over windows."""
+    if isinstance(entry, dict) and "median" in entry:
+        return num(entry.get("median")), None
+    return stat(entry)
+
+
+def pooled(source: Any, metric: str, metrics: Any) -> tuple[float | None, None]:
+    """Approach 2 (each channel's windows pooled into one series) averaged over the channels that are not
+    quiet in most windows; the stored mean where the evaluation has no per-channel values."""
+    channels = dig(source, "approach2", "channels")
+    if not isinstance(channels, dict):
+        return mean_stat(source, "approach2", metric)[0], None
+    values = [num(dig(v, metric)) for name, v in channels.items() if not mostly_quiet(metrics, str(name))]
+    values = [v for v in values if v is not None and math.isfinite(v)]
+    return (sum(values) / len(values) if values else None), None
+
+
+def overall_a1(source: Any, metric: str) -> tuple[float | None, float | None]:
+    """Approach 1 over all channels: the median over windows of each window's mean over its moving channels,
+    or (an older evaluation) the mean ± std of :func:`mean_stat`."""
+    entry = dig(source, "approach1", "mean", metric)
+    return a1_stat(entry) if isinstance(entry, dict) and "median" in entry else mean_stat(source, "approach1", metric)
+
+
 def channel_grid(metrics: dict) -> Table:
     """Per-channel R² and FIT of the model and every baseline, for both approaches.
 
-    Columns come in groups, one per source (model first), each with approach 1 (mean ± std
-    over the test set) and approach 2, so a row reads as "what the model adds" per channel.
-    The last row is the mean over channels.
+    Columns come in groups, one per source (model first), each with approach 1 (the median
+    over the windows where the channel moves) and approach 2 (the windows pooled), so a row
+    reads as "what the model adds" per channel. A channel quiet in some windows says so; one
+    quiet in most is greyed and left out of the last row, the summary over channels.
     """
     srcs = sources(metrics)
     top = (Head("channel", "name", rowspan=2),
            *(Head(source_label(metrics, name), "model", colspan=4) for name, _ in srcs))
     rows = []
     for channel in channel_names(metrics):
-        cells = [Cell(channel, cls="name")]
+        share = quiet_share(metrics, channel)
+        marks = (QUIET_BADGE.format(k=share[0], n=share[1]),) if share else ()
+        cells = [Cell(channel, cls="name", badges=marks)]
         for _, src in srcs:
-            for i, approach in enumerate(("approach1", "approach2")):
-                entry = dig(src, approach, "channels", channel)
-                cells += score_cells(stat(dig(entry, "r2")), stat(dig(entry, "fit")), i == 0)
-        rows.append(Row(tuple(cells)))
-    cells = [Cell("mean", cls="name")]
+            entry = dig(src, "approach1", "channels", channel)
+            cells += score_cells(a1_stat(dig(entry, "r2")), a1_stat(dig(entry, "fit")), True)
+            entry = dig(src, "approach2", "channels", channel)
+            cells += score_cells(stat(dig(entry, "r2")), stat(dig(entry, "fit")))
+        rows.append(Row(tuple(cells), "quiet" if mostly_quiet(metrics, channel) else ""))
+    cells = [Cell("all moving channels", cls="name")]
     for _, src in srcs:
-        for i, approach in enumerate(("approach1", "approach2")):
-            cells += score_cells(mean_stat(src, approach, "r2"), mean_stat(src, approach, "fit"), i == 0)
+        cells += score_cells(overall_a1(src, "r2"), overall_a1(src, "fit"), True)
+        cells += score_cells(pooled(src, "r2", metrics), pooled(src, "fit", metrics))
     rows.append(Row(tuple(cells), "mean"))
-    return Table(("A1 R²", "A1 FIT", "A2 R²", "A2 FIT") * len(srcs), tuple(rows), (top,))
+    return Table(("A1 R² median", "A1 FIT median", "A2 R² pooled", "A2 FIT pooled") * len(srcs), tuple(rows), (top,))
 
 
 def channel_table(metrics: dict) -> str:
@@ -297,36 +345,48 @@ def _calibration_note(cal) -> str:
             f"{cal.get('n', '?')} windows of {where}.")
 
 
-def horizon_cell(metrics: dict) -> Cell:
-    """The overview's cell: the model's joint RMS error at the first step, 0.25 s and 1 s
-    (those of them that were reported), hold's in brackets; a dash without them."""
+def horizon_cells(metrics: dict) -> tuple[Cell, ...]:
+    """The overview's lead: the joint RMS error at the first step, 0.25 s and 1 s (those of them that were
+    reported) of the model, hold and constant velocity, one cell each (a dash where one is missing). The
+    model's is green where it beats both at every step shown, red where it beats neither at any."""
+    dashes = tuple(Cell(DASH) for _ in HORIZON_SOURCES)
     steps, seconds = dig(metrics, "horizons", "steps"), dig(metrics, "horizons", "seconds")
     if not (isinstance(steps, list) and isinstance(seconds, list) and len(steps) == len(seconds) and steps):
-        return Cell(DASH)
-    model = _row_values(dig(metrics, "horizons", "rms", "model", "joints"), len(steps))
-    hold = _row_values(dig(metrics, "horizons", "rms", "hold", "joints"), len(steps))
+        return dashes
+    rows = {name: _row_values(dig(metrics, "horizons", "rms", name, "joints"), len(steps)) for name, _ in HORIZON_SOURCES}
     pairs = [(num(k), num(t)) for k, t in zip(steps, seconds)]
+    model = rows["model"]
     if model is None or any(k is None or t is None or k <= 0 for k, t in pairs):
-        return Cell(DASH)
+        return dashes
     dt = pairs[0][1] / pairs[0][0]
     picks = [j for j, (k, t) in enumerate(pairs) if k == 1 or min(abs(t - 0.25), abs(t - 1.0)) < dt / 2]
     picks = [j for j in picks if model[j] is not None]
     if not picks:
-        return Cell(DASH)
-    text = " / ".join(f"{model[j]:.3g}" for j in picks)
-    if hold and all(hold[j] is not None for j in picks):
-        text += " (" + " / ".join(f"{hold[j]:.3g}" for j in picks) + ")"
-    return Cell(text)
+        return dashes
+    cells = []
+    for name, _ in HORIZON_SOURCES:
+        values = rows[name]
+        if values is None or any(values[j] is None for j in picks):
+            cells.append(Cell(DASH))
+            continue
+        cells.append(Cell(" / ".join(f"{values[j]:.3g}" for j in picks)))
+    others = [rows[name] for name, _ in HORIZON_SOURCES[1:] if rows[name] is not None]
+    if others and all(all(o[j] is not None for j in picks) for o in others):
+        best = [min(o[j] for o in others) for j in picks]
+        wins = [model[j] <= b for j, b in zip(picks, best)]
+        colour = _BETTER if all(wins) else _WORSE if not any(wins) else None
+        cells[0] = Cell(cells[0].text, colour)
+    return tuple(cells)
 
 
 def best_baseline(metrics: dict) -> tuple[str, float] | None:
-    """(name, mean approach-1 FIT) of the baseline with the highest such FIT, if any has one.
+    """(name, pooled FIT) of the baseline with the highest approach-2 FIT over the moving channels (:func:`pooled`).
 
     ``true_physics`` reads parameters no predictor gets (a ceiling), so it never competes; nor does a
     baseline that diverged on most windows (held there: its scores are mostly hold's, not its own).
     """
-    scored = [(name, mean_stat(src, "approach1", "fit")[0]) for name, src in sources(metrics)[1:]
-              if name != "true_physics" and not _mostly_diverged(metrics, name)]
+    scored = [(name, pooled(src, "fit", metrics)[0] if dig(src, "approach2") else overall_a1(src, "fit")[0])
+              for name, src in sources(metrics)[1:] if name != "true_physics" and not _mostly_diverged(metrics, name)]
     scored = [(name, fit) for name, fit in scored if fit is not None and math.isfinite(fit)]
     return max(scored, key=lambda item: item[1]) if scored else None
 

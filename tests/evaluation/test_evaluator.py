@@ -47,7 +47,7 @@ def test_evaluate_writes_every_file_with_the_documented_shape(setup, tmp_path):
     assert set(disk["approach1"]["channels"]) == set(names) and len(names) == 14
     for ch in names:
         assert set(disk["approach1"]["channels"][ch]) == set(METRICS)
-        assert set(disk["approach1"]["channels"][ch]["r2"]) == {"mean", "std"}
+        assert set(disk["approach1"]["channels"][ch]["r2"]) == {"mean", "std", "median"}
         assert set(disk["approach2"]["channels"][ch]) == set(METRICS)
     assert set(disk["baselines"]) == {"hold", "constant_velocity", "constant_acceleration", "arx", "arx_train",
                                       "nominal_physics"}

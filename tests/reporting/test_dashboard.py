@@ -142,10 +142,10 @@ def test_report_shows_every_run_channel_baseline_and_fact(report):
         assert text in page, text
     assert "not_a_run" not in page
     overview = page.split("<h2>Overview</h2>")[1].split("<h2>")[0]
-    assert overview.count("<tr>") == 1 + 3  # header + one row per run (alpha has one evaluation)
+    assert overview.count("<tr>") == 2 + 3  # two header rows + one row per run (alpha has one evaluation)
     for value in ("64", "200", "800"):  # d_model, context_len, horizon from config.yaml
         assert f"<td>{value}</td>" in overview
-    assert "arx: 50.0" in overview  # best baseline by mean approach-1 FIT ((70+45+35)/3)
+    assert "arx: 47.0" in overview  # best baseline by pooled FIT over the channels ((67+42+32)/3)
 
 
 def test_paper_window_evaluations_are_marked_and_others_are_not(tmp_path):
@@ -178,7 +178,10 @@ def test_each_evaluation_says_what_predicted_it_marks_diverged_baselines_and_fol
     metrics["meta"]["baseline_notes"] = {"arx": {"na": 2, "nb": 2, "diverged_held": 40}}
     path.write_text(json.dumps(metrics))
     page = Path(build_report(str(root), str(tmp_path / "report.html"))).read_text()
-    assert "of its decoder&#39;s predictions; each evaluation below says what predicted it" in page  # the curves
+    caption = page.split('<h2 id="curves">Training curves</h2>')[1]  # after the predictions, saying whose
+    assert page.index("<h2>Runs</h2>") < page.index('<h2 id="curves">') and "all of the network&#39;s decoder" in caption
+    assert "blackbox: its evaluations are the decoder&#39;s predictions" in caption
+    assert "hybrid: its evaluations were predicted by the hybrid (regression), which does not read the decoder" in caption
     blackbox, hyb = page.split('<section id="run-')[1:3]
     assert "Predicted by the network&#39;s decoder (the black-box model)" in blackbox
     assert "Predicted by the hybrid, physics mode regression" in hyb and "It reads no network" in hyb
@@ -201,8 +204,8 @@ def test_fit_and_r2_cells_are_coloured_by_fit(report):
     cells = re.findall(r'<td(?: class="[^"]*")?(?: style="background:([^"]+)")?>([^<]*)</td>', page)
     r2, fit = re.compile(r"-?\d+\.\d{3}( ± \d+\.\d{3})?"), re.compile(r"-?\d+\.\d( ± \d+\.\d)?")
     pairs = [(a, b) for a, b in zip(cells, cells[1:]) if r2.fullmatch(a[1]) and fit.fullmatch(b[1])]
-    # alpha: 4 rows (3 channels + mean) x 3 sources x 2 approaches, plus its overview row.
-    assert len(pairs) == 4 * 3 * 2 + 1
+    # alpha: 4 rows (3 channels + all channels) x 3 sources x 2 approaches, plus its overview row's two pairs.
+    assert len(pairs) == 4 * 3 * 2 + 2
     for (r2_colour, _), (fit_colour_seen, text) in pairs:
         assert r2_colour == fit_colour_seen == fit_colour(float(text.split()[0]))
     seen = {c for (c, _), _ in pairs}
@@ -235,7 +238,8 @@ def test_negative_losses_are_plotted_on_a_linear_axis(tmp_path):
     make_run(root, "positive", evals=())
     runs = [load_run(root / name) for name in ("nll", "positive")]
     fig = curves_figure(runs)
-    axes = {ax.get_title().split(" ")[0]: ax for ax in fig.axes}
+    axes = {ax.get_title().split(" ")[1]: ax for ax in fig.axes}
+    assert all(ax.get_title().startswith("decoder ") for ax in fig.axes)  # whose curves they are
     for key, want in (("train/loss", [1.5, 1.0, 0.5, 0.0, -0.5, -1.0]), ("val/loss", [0.4, -0.8, -2.5])):
         ax = axes[key]
         assert ax.get_yscale() == "linear" and "linear scale" in ax.get_title()
@@ -295,6 +299,62 @@ def test_malformed_files_become_warnings(tmp_path, capsys):
     assert "model: [unclosed" in page  # the raw config is still shown
     err = capsys.readouterr().err
     assert err.count("report: warning: broken:") == 3
+
+
+def scored_metrics(seed: int = 0) -> dict:
+    """A metrics.json as evaluate writes it (the evaluation's own functions) for the case issue 61 §5 found: a
+    model whose joint error is far below hold's, on windows where one channel (ee_qz) rests in most of them,
+    so that its per-window FIT is about −1000 there and rules the paper's mean."""
+    from robomorph.evaluation import metrics as ev_metrics
+    from robomorph.evaluation.horizons import horizon_report
+
+    names = ["ee_x", "ee_y", "ee_z", "ee_qx", "ee_qy", "ee_qz", "ee_qw"] + [f"q{i}" for i in range(7)]
+    rng, t = np.random.default_rng(seed), np.arange(-1, 121) / 60  # the context's last two samples, then the query
+    full = np.sin(2 * np.pi * 0.4 * t[None, :, None] + rng.uniform(0, 6.3, size=(16, 1, len(names))))
+    full[:12, :, names.index("ee_qz")] = 0.3  # at rest in 12 of the 16 windows
+    full = full + 3e-5 * rng.normal(size=full.shape)  # the sensors' noise
+    y, steps = full[:, 2:], t[None, 2:, None]
+    err = steps * 0.002 * rng.normal(size=(16, 1, len(names)))  # growing with the horizon
+    model, hold = y + err, np.repeat(full[:, 1:2], y.shape[1], axis=1)
+    const_v = full[:, 1:2] + (full[:, 1:2] - full[:, :1]) * 60 * steps
+    preds = {"model": model, "hold": hold, "constant_velocity": const_v}
+    out = {"approach1": ev_metrics.approach1(y, model, names), "approach2": ev_metrics.approach2(y, model, names),
+           "baselines": {k: {"approach1": ev_metrics.approach1(y, v, names),
+                             "approach2": ev_metrics.approach2(y, v, names)} for k, v in preds.items() if k != "model"},
+           "horizons": horizon_report(y, preds, names, 1 / 60, [1, 15, 60, 120]),
+           "meta": {"n": 16, "context_len": 200, "horizon": 120, "y_names": names,
+                    "physics": {"mode": "regression"}, "baseline_notes": {}}}
+    return out
+
+
+def test_the_overview_leads_with_error_by_horizon_and_shows_no_mean_over_per_window_fits(tmp_path):
+    """Issue 61 §5: the demo's page led with "A1 R² −69.956 ± 221.973, A1 FIT −71.5 ± 275.6" in red for a model
+    20 times better than hold, ruled by a channel at rest; then came the curves of a decoder the prediction does
+    not read."""
+    root = tmp_path / "runs"
+    run = make_run(root, "demo")
+    metrics = scored_metrics()
+    assert metrics["approach1"]["mean"]["fit"]["mean"] < -50  # the paper's mean: what the page led with before
+    (run / "eval" / "heldout" / "metrics.json").write_text(json.dumps(metrics))
+    page = Path(build_report(str(root), str(tmp_path / "report.html"))).read_text()
+    overview = page.split("<h2>Overview</h2>")[1].split("<h2>")[0]
+    heads = re.findall(r"<th[^>]*>([^<]*)</th>", overview)
+    assert heads[:3] == ["run", "evaluation", "joints RMS [mrad] at step 1 / 0.25 s / 1 s"]  # what it leads with
+    sub = heads[heads.index("normalization") + 1:]  # the second header row: under the groups
+    assert sub[:3] == ["model", "hold", "constant velocity"]
+    assert sub[3:7] == ["R² median (A1)", "FIT median (A1)", "R² pooled (A2)", "FIT pooled (A2)"]
+    row = re.findall(r"<tr>(.*?)</tr>", overview.split("</thead>")[1])[0]
+    cells = re.findall(r"<td[^>]*>([^<]*)</td>", row)
+    median_fit = float(cells[6 + 1])  # after run, evaluation (with its link), three horizon cells and R² median
+    assert median_fit > 80 and "±" not in row  # medians over the windows where each channel moves, no means
+    assert 'style="background:rgb(204, 235, 204)"' in row  # the model beats hold and constant velocity
+    # The resting channel is marked where its scores are, greyed, and left out of the row over channels.
+    evaluation = page.split("<h4>Evaluation")[1]
+    assert "quiet in 12 of 16 windows" in evaluation and '<tr class="quiet"><td class="name">ee_qz' in evaluation
+    assert evaluation.index("RMS error by horizon") < evaluation.index("A1 FIT median")  # error by horizon first
+    # The curves follow the predictions and say whose they are.
+    assert page.index("<h4>Evaluation") < page.index('<h2 id="curves">Training curves</h2>')
+    assert "demo: its evaluations were predicted by the hybrid (regression), which does not read the decoder" in page
 
 
 @pytest.mark.parametrize("layout, message, hint", [

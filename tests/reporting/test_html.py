@@ -70,21 +70,30 @@ def test_report_shows_the_horizon_table_of_an_evaluation(tmp_path):
     page = open(build_report(str(tmp_path / "runs"), str(tmp_path / "report.html"))).read()
     assert "RMS error by horizon" in page and "ee_rot [mrad]" in page and "inside ±2σ" in page
     overview = page.split("<h2>Overview</h2>")[1].split("<h2>")[0]
-    assert "joints RMS [mrad] first step / 0.25 s / 1 s (hold)" in overview
+    heads = re.findall(r"<th[^>]*>([^<]*)</th>", overview)
+    assert heads[2] == "joints RMS [mrad] at step 1 / 0.25 s / 1 s"  # the overview leads with them
+    assert heads[heads.index("normalization") + 1:][:3] == ["model", "hold", "constant velocity"]
 
 
-def test_overview_cell_gives_the_models_joint_error_at_the_first_step_quarter_second_and_second():
-    from robomorph.reporting.html import horizon_cell
+def test_overview_leads_with_the_joint_error_of_the_model_hold_and_constant_velocity():
+    from robomorph.reporting.html import horizon_cells
 
     y = np.zeros((2, 80, len(NAMES)))
-    preds = {"model": y + 0.001 * np.arange(1, 81)[None, :, None], "hold": y + 0.002}
+    preds = {"model": y + 0.001 * np.arange(1, 81)[None, :, None], "hold": y + 0.002,
+             "constant_velocity": y + 0.003 * np.arange(1, 81)[None, :, None]}
     h = horizon_report(y, preds, NAMES, 1 / 60, [1, 15, 60, 80])
-    assert horizon_cell({"horizons": h}).text == "1 / 15 / 60 (2 / 2 / 2)"
-    assert _macro("cell", horizon_cell({"horizons": h})) == "<td>1 / 15 / 60 (2 / 2 / 2)</td>"
-    del h["rms"]["hold"]
-    assert horizon_cell({"horizons": h}).text == "1 / 15 / 60"
-    assert horizon_cell({}).text == "—"
-    assert horizon_cell({"horizons": {"steps": [1], "seconds": ["x"], "rms": {"model": {"joints": [1.0]}}}}).text == "—"
+    cells = horizon_cells({"horizons": h})
+    assert [c.text for c in cells] == ["1 / 15 / 60", "2 / 2 / 2", "3 / 45 / 180"]
+    assert cells[0].colour is None  # better than both at the first step, not at 0.25 s: neither green nor red
+    h["rms"]["model"]["joints"] = [v * 1e-3 for v in h["rms"]["model"]["joints"]]
+    assert horizon_cells({"horizons": h})[0].colour == "rgb(204, 235, 204)"  # below both at every step: green
+    h["rms"]["model"]["joints"] = [v * 1e6 for v in h["rms"]["model"]["joints"]]
+    assert horizon_cells({"horizons": h})[0].colour == "rgb(248, 209, 204)"  # above the better at every step: red
+    del h["rms"]["constant_velocity"]
+    assert [c.text for c in horizon_cells({"horizons": h})][1:] == ["2 / 2 / 2", "—"]  # not scored: a dash
+    assert [c.text for c in horizon_cells({})] == ["—"] * 3
+    bad = {"horizons": {"steps": [1], "seconds": ["x"], "rms": {"model": {"joints": [1.0]}}}}
+    assert [c.text for c in horizon_cells(bad)] == ["—"] * 3
 
 
 @pytest.mark.parametrize(
@@ -110,9 +119,15 @@ def test_text_is_escaped_and_numbers_formatted():
         ("0.912 ± 0.010", "87.2", "0.0123", "—")
 
 
+def _moving(rng, n: int = 3, t: int = 20, c: int = 2) -> np.ndarray:
+    """Channels that move (a sine each, a little noise), as measured outputs do."""
+    phase = rng.uniform(0, 2 * np.pi, size=(n, 1, c))
+    return np.sin(np.linspace(0, 2 * np.pi, t)[None, :, None] + phase) + 1e-3 * rng.normal(size=(n, t, c))
+
+
 def _metrics():
     rng = np.random.default_rng(0)
-    y = rng.normal(size=(3, 20, 2))
+    y = _moving(rng)
     model, hold = y + 0.1 * rng.normal(size=y.shape), np.repeat(y[:, :1], 20, axis=1)
     names = ["a", "<b>"]
     return {"approach1": metrics.approach1(y, model, names), "approach2": metrics.approach2(y, model, names),
@@ -158,8 +173,7 @@ def test_horizon_table_shows_how_well_the_std_ranks_the_errors_where_it_can():
 
 def test_a_diverged_baseline_is_marked_in_the_tables_and_out_of_the_best_when_mostly_diverged():
     m = _metrics()
-    rng = np.random.default_rng(1)
-    y = rng.normal(size=(3, 20, 2))
+    y = _moving(np.random.default_rng(1))
     m["baselines"]["arx"] = {"approach1": metrics.approach1(y, y + 0.01, ["a", "<b>"])}  # near perfect...
     m["meta"] = {"n": 3, "baseline_notes": {"arx": {"diverged_held": 2}, "hold": {"diverged_held": 0}}}
     assert "arx (diverged on 2/3, held)" in channel_table(m) and "hold (diverged" not in channel_table(m)
