@@ -128,14 +128,28 @@ def read_joint_states(path: str, topic: str = DEFAULT_TOPIC, joints: list[str] |
     try:
         with AnyReader([bag]) as reader:
             return _read_topic(reader, path, topic, joints)
-    except (AnyReaderError, struct.error, EOFError, OSError, KeyError, AssertionError, ValueError) as exc:
-        if isinstance(exc, (IngestError, MissingInputError)):
-            raise
+    except (IngestError, MissingInputError):
+        raise
+    except AnyReaderError as exc:
         raise _cannot_read(path, exc) from exc
-    except Exception as exc:  # noqa: BLE001  (rosbags' storage errors have no common base: any is an unreadable bag)
-        if type(exc).__module__.startswith(("rosbags", "sqlite3", "apsw", "lz4", "zstd")):
+    except Exception as exc:
+        # rosbags and its storage libraries raise many kinds (struct.error, KeyError, sqlite's, lz4's) on a damaged
+        # bag: an error raised inside them is the bag's; one raised in this module is a bug and goes on.
+        if _raised_by_reader(exc):
             raise _cannot_read(path, exc) from exc
         raise
+
+
+_READER_PACKAGES = ("rosbags", "sqlite3", "apsw", "lz4", "zstd", "backports")
+
+
+def _raised_by_reader(exc: BaseException) -> bool:
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    where = tb.tb_frame.f_code.co_filename if tb is not None else ""
+    parts = set(Path(where).parts)
+    return type(exc).__module__.startswith(_READER_PACKAGES) or any(p in parts for p in _READER_PACKAGES)
 
 
 def _read_topic(reader, path: str, topic: str, joints: list[str] | None) -> JointLog:
