@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 
 import numpy as np
 import pytest
@@ -14,6 +15,9 @@ os.environ.setdefault("WANDB_MODE", "offline")
 # Progress lines (robomorph.core.progress) every minute, not every 5 s: tests that count a command's stderr
 # lines must not meet one on a loaded machine; the tests of progress set their own interval.
 os.environ.setdefault("ROBOMORPH_PROGRESS_SECONDS", "60")
+# The suite never sees the user's own arms (robomorph arms add; ~/.local/share/robomorph/arms): an empty folder of
+# its own, forced even where ROBOMORPH_ARMS is set (tests that add arms point it at their tmp_path).
+os.environ["ROBOMORPH_ARMS"] = tempfile.mkdtemp(prefix="robomorph_test_arms_")
 # Under pytest-xdist (`make test` runs one worker per core) each worker's torch and OpenMP would
 # start a thread per core: the cores' share of each worker instead (read by torch at import, and
 # by the commands the tests run in subprocesses), so workers do not fight over the same cores.
