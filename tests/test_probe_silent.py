@@ -344,3 +344,43 @@ def test_a_residual_run_over_two_arms_names_the_arms(tmp_path, capsys):
     line = _one_error(int(code or 0), capsys.readouterr().err, "b.zarr holds priors of the ur5e", "a.zarr of the panda",
                       "one residual model per arm")
     assert "channel_mask" not in line
+
+
+# --- priors: a dangling link, a context of two samples ---------------------------------------------------
+
+def _priors(argv, capsys) -> tuple[int, str]:
+    from robomorph import priors
+
+    try:
+        code = priors.main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    return int(code or 0), capsys.readouterr().err
+
+
+def test_priors_out_on_a_dangling_link_says_so(simulated_store, tmp_path, capsys):
+    """Defect 24: ``priors --out`` on a dangling symlink said "File exists"."""
+    import os
+
+    store = simulated_store(robots=2, steps=C + H, seed=3)
+    link = tmp_path / "p.zarr"
+    link.symlink_to(tmp_path / "gone" / "p.zarr")
+    code, err = _priors([store, "--out", str(link), "--context-len", str(C), "--horizon", str(H)], capsys)
+    _one_error(code, err, f"--out {link} is a link to {tmp_path / 'gone' / 'p.zarr'}, which does not exist",
+               "remove the link")
+    assert os.path.islink(link) and sorted(os.listdir(tmp_path)) == ["p.zarr"]
+
+
+def test_a_context_too_short_for_the_hybrid_is_named(simulated_store, window, tmp_path, capsys):
+    """Defect 24: ``priors --context 2`` printed numpy's "zero-size array to reduction operation maximum"."""
+    uc, yc, uq = window
+    pred = Predictor.from_arm("panda").configure(members=1, workers=1)
+    for steps in (1, 2):
+        with pytest.raises(Exception, match=rf"^u_ctx has {steps} steps?: the hybrid identifies the robot from the "
+                                            r"context's accelerations, which take at least 3 samples"):
+            pred.simulate(uc[:, :steps], yc[:, :steps], uq, at_rest=True)
+    store = simulated_store(robots=2, steps=C + H, seed=3)
+    code, err = _priors([store, "--out", str(tmp_path / "p.zarr"), "--context-len", "2", "--horizon", str(H),
+                         "--set", "members=1", "--set", "workers=1"], capsys)
+    line = _one_error(code, err, "u_ctx has 2 steps", "at least 3 samples")
+    assert "zero-size" not in line

@@ -88,6 +88,9 @@ def check_writable(path: str, overwrite: bool) -> None:
     """Raises unless ``path`` may be (re)created: never a file or a store of another schema,
     and an existing RoboMorph store only with ``overwrite``; its folder must be writable.
     Cheap: call it before long work."""
+    if os.path.islink(path) and not os.path.exists(path):  # a dangling link: "File exists" was all zarr said
+        raise OutputExistsError(f"--out {path} is a link to {os.readlink(path)}, which does not exist: remove the "
+                                "link, or choose another --out")
     if not os.path.exists(path):
         _check_creatable(path)
         return

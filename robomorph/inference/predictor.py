@@ -38,6 +38,7 @@ from robomorph.inference.predictor_checks import (  # noqa: F401
     PredictionError,
     all_finite,
     as_batch,
+    check_hybrid_context,
     check_range,
     check_settings,
 )
@@ -324,6 +325,8 @@ class Predictor:
         if hybrid and y_query_stats is not None:
             raise NormalizationError("a hybrid model uses no query statistics: drop y_query_stats")
         stats = None if hybrid else self._query_stats(y_query_stats, len(tensors[0]))
+        if hybrid:
+            check_hybrid_context(tensors[0].shape[1])
         try:
             if hybrid:
                 mean, std = self._hybrids().predict(self._hybrid_settings(return_std), tensors, return_std, at_rest,

@@ -33,6 +33,11 @@ MAX_INPUT_STDS = 100.0
 
 _NAMES = ("u_ctx", "y_ctx", "u_query")
 
+# The fewest context samples a hybrid identifies a robot from: its regression reads accelerations, second
+# differences of the joint angles, so 2 samples leave it no equation at all (numpy's "zero-size array to
+# reduction operation maximum" was all a user saw) and 1 no velocity.
+MIN_HYBRID_CONTEXT = 3
+
 
 def all_finite(t: torch.Tensor) -> bool:
     """Whether every value of ``t`` is finite. A finite sum says so at once (a NaN or inf
@@ -74,6 +79,14 @@ def as_batch(arrays, widths: tuple[int, int, int], device: torch.device) -> tupl
         raise PredictionError(f"u_ctx has {tensors[0].shape[1]} steps but y_ctx {tensors[1].shape[1]}: the context's "
                               "inputs and outputs are one record, of one length")
     return tensors, single
+
+
+def check_hybrid_context(steps: int) -> None:
+    """Refuses a context too short for the hybrid to identify a robot from (:data:`MIN_HYBRID_CONTEXT`)."""
+    if steps < MIN_HYBRID_CONTEXT:
+        raise PredictionError(f"u_ctx has {steps} step{'s' * (steps != 1)}: the hybrid identifies the robot from the "
+                              f"context's accelerations, which take at least {MIN_HYBRID_CONTEXT} samples (it is "
+                              "measured on contexts of hundreds); give a longer context")
 
 
 def check_range(predictor, u_ctx: torch.Tensor, y_ctx: torch.Tensor, u_query: torch.Tensor) -> None:
