@@ -41,6 +41,9 @@ _SCALE_FLOOR = 1e-3
 # Normalized RMS errors below this are ties (a context at rest); the softmin's prior gives every candidate this share
 # beside the default's weights, so that evidence can still pick it.
 _TIE_FLOOR, _OPEN_SHARE = 1e-6, 0.2
+# A model's query prediction further from constant velocity's than this many times the gap the backtest measured
+# between them loses its weight (a Gaussian gate: :meth:`StackedPredictor._gated`).
+_GATE = 3.0
 
 
 class StackingError(RoboMorphError, ValueError):
@@ -193,6 +196,8 @@ class StackedPredictor:
             self.models[name] = (fn, int(folds))
         self.patch, self.min_model_context = max(1, int(patch)), int(min_model_context)
         self.last_check: ContextCheck | None = None
+        self.learned: dict | None = None  # name -> (H,) prior weights from training recordings (:meth:`learn`)
+        self.learned_mse: dict | None = None
 
     @classmethod
     def of(cls, predictor, config: StackConfig | None = None) -> "StackedPredictor":
@@ -261,7 +266,7 @@ class StackedPredictor:
         scale = np.maximum(spread, _SCALE_FLOOR * spread.max(axis=1, keepdims=True) + 1e-12)
         names = list(KINEMATIC)
         errs = [self._fold_errors(fn, u, y, kin_cuts, reach, scale) for fn in KINEMATIC.values()]
-        notes = []
+        notes, explained = [], {}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # steps no fold reaches stay NaN
             # Pooled mean square per candidate and channel (B, K, n_y), over folds.
@@ -276,11 +281,21 @@ class StackedPredictor:
                 except RoboMorphError as exc:  # a model that cannot read a shorter context is not stacked
                     notes.append(f"{name} was not backtested ({exc}); not stacked")
                     continue
-                # Transferred through its ratio to constant velocity on the model's own folds: the same samples.
+                # Transferred through its ratio to constant velocity on the model's own folds (the same samples),
+                # the log ratio shrunk toward none by its evidence: n folds reaching a step keep n / (n + evidence)
+                # of it (one fold of a model is a noisy vote; a per-context ARX that won there lost on the query).
                 cv_there = np.nanmean(self._fold_errors(KINEMATIC["constant_velocity"], u, y, cuts, reach, scale),
                                       axis=0)
-                per_ch.append(per_ch[1] * np.nanmean(err, axis=0) / np.maximum(cv_there, 1e-30))
+                reaching = np.array([sum(c + k < t for c in cuts) for k in range(reach)], dtype=np.float64)
+                keep = (reaching / (reaching + cfg.evidence))[None, :, None]
+                ratio = np.nanmean(err, axis=0) / np.maximum(cv_there, 1e-30)
+                per_ch.append(per_ch[1] * np.exp(keep * np.log(np.maximum(ratio, 1e-30))))
                 names.append(name)
+                # Explained at all? Its own folds' error against hold's there, unshrunk, at every step it reached.
+                held = np.nanmean(self._fold_errors(KINEMATIC["hold"], u, y, cuts, reach, scale), axis=0)
+                mine = np.nanmean(err, axis=0)
+                reached = reaching > 0
+                explained[name] = ~np.all(mine[:, reached].mean(axis=2) > held[:, reached].mean(axis=2), axis=1)
         per_ch = np.stack(per_ch, axis=1)  # (B, C, K, n_y)
         per_ch = _fill_steps(per_ch)
         # The report's pooled error: every channel in one scale (the window's median spread), so that channels that
@@ -292,9 +307,7 @@ class StackedPredictor:
         # One weight set per window, from every channel's error in that one scale: the moving joints decide (weights
         # of each channel's own were noisier: 1.14x the best kinematic bar at 0.25 s on the Kinova, against 1.00).
         pooled = np.moveaxis(_pool_steps(np.moveaxis(per_ch, 3, 2), cfg.smooth), 2, 3)  # (B, C, K, n_y): the std's
-        weights = self._weights(mse, counts, h)
-        explained = {name: ~np.all(mse[:, i] > mse[:, 0], axis=1) for i, name in enumerate(names)
-                     if name not in KINEMATIC}
+        weights = self._weights(mse, counts, h, names)
         for name, ok in explained.items():
             if cfg.warn and not ok.all():
                 warnings.warn(f"{name} explains {int((~ok).sum())} of {len(ok)} context(s) worse than holding the last "
@@ -304,16 +317,16 @@ class StackedPredictor:
         self.last_check = check
         return check, pooled, scale
 
-    def _weights(self, mse: np.ndarray, counts: np.ndarray, horizon: int) -> np.ndarray:
+    def _weights(self, mse: np.ndarray, counts: np.ndarray, horizon: int, names: list[str]) -> np.ndarray:
         """(B, C, H) the stacking weights at query steps 1..H, from the pooled mean square errors ``mse`` (B, C, K)."""
         cfg = self.config
         b, c, reach = mse.shape
-        default = self._default(c, horizon)  # (C, H)
+        default = self._default(c, horizon, names)  # (C, H)
         # Errors below the floor are ties (a context at rest: every candidate is exact there), and ties go to the
         # default: the softmin's prior is the default with a share for every candidate.
         floor = _TIE_FLOOR ** 2
         log = np.log(mse + floor)
-        prior = (1 - _OPEN_SHARE) * self._default(c, reach) + _OPEN_SHARE / c  # (C, K)
+        prior = (1 - _OPEN_SHARE) * self._default(c, reach, names) + _OPEN_SHARE / c  # (C, K)
         # Shrunk toward the prior by the evidence: fewer folds at a step, a hotter softmin (``evidence`` folds'
         # worth of prior doubles the temperature where ``evidence`` folds reach). A candidate far worse than the best
         # keeps no weight, however little evidence there is.
@@ -324,18 +337,63 @@ class StackedPredictor:
         w = np.empty((b, c, horizon))
         w[:, :, :k_in] = soft[:, :, :k_in]
         if horizon > reach:
-            last = w[:, :, reach - 1:reach]
+            # Past the reach, with no evidence: the kinematic candidates' weights fade into the default as K / k, the
+            # models' as (K / k)^4 (a per-context ARX that wins over the reach may diverge soon after it: 1.3e5 mrad
+            # at 5 s on the UR5, where its last weights were carried as K / k).
+            last = w[:, :, reach - 1]  # (B, C)
             fade = reach / np.arange(reach + 1, horizon + 1)  # (H - K,)
-            w[:, :, reach:] = fade * last + (1 - fade) * default[:, reach:]
+            fast = (np.arange(c) >= len(KINEMATIC)) & (self.learned is None)  # a learned prior knows the models
+            kept = np.where(fast[:, None], fade ** 4, fade)  # (C, H - K)
+            carried = kept[None] * last[:, :, None]
+            w[:, :, reach:] = carried + (1 - carried.sum(axis=1, keepdims=True)) * default[None, :, reach:]
         return w
 
-    def _default(self, n: int, horizon: int) -> np.ndarray:
-        """(C, H) constant velocity fading into hold over ``default_tau`` seconds; nothing on the others."""
+    def _default(self, n: int, horizon: int, names: list[str] | None = None) -> np.ndarray:
+        """(C, H) the prior weights: those learned on the arm's training recordings (:meth:`learn`) where there are,
+        else constant velocity fading into hold over ``default_tau`` seconds and nothing on the others."""
         t = np.arange(1, horizon + 1) * self.dt
         out = np.zeros((n, horizon))
         out[1] = np.exp(-t / self.config.default_tau)
         out[0] = 1 - out[1]
-        return out
+        if self.learned is None or names is None:
+            return out
+        learned = np.zeros((n, horizon))
+        for i, name in enumerate(names):
+            if name in self.learned:
+                row = self.learned[name]
+                learned[i] = row[np.minimum(np.arange(horizon), len(row) - 1)]  # its last step carried on
+        total = learned.sum(axis=0, keepdims=True)
+        return np.where(total > 0, learned / np.maximum(total, 1e-300), out)
+
+    def learn(self, u, y, context_len: int, max_windows: int = 512) -> "StackedPredictor":
+        """Learns the prior weights from windows of the arm's own training recordings, (N, Tc + H, n_u) and
+        (N, Tc + H, n_y), never from a test window: every candidate predicts each window's query from its
+        context, and each step's weights are the softmin (``temperature``) of the candidates' mean square errors
+        pooled over all of them. These replace the kinematic default, inside the backtest's reach as the softmin's
+        prior and beyond it as what the weights fade into: pooled evidence says what works at long horizons, where
+        one context cannot. Returns self."""
+        u, y = self._arrays(u, y)
+        if not 3 <= context_len < y.shape[1]:
+            raise StackingError(f"context_len {context_len} must leave a query in windows of {y.shape[1]} samples")
+        u, y = u[:max_windows], y[:max_windows]
+        uc, yc, uq, yq = u[:, :context_len], y[:, :context_len], u[:, context_len:], y[:, context_len:]
+        spread = np.maximum(np.median(yc.std(axis=1), axis=1), 1e-12)[:, None, None]  # one scale per window
+        mse = {}
+        candidates = {**KINEMATIC, **{n: fn for n, (fn, _) in self.models.items()}}
+        for name, fn in candidates.items():
+            try:
+                pred = np.asarray(fn(uc, yc, uq), dtype=np.float64)
+            except RoboMorphError:
+                continue
+            with np.errstate(over="ignore", invalid="ignore"):
+                err = np.nan_to_num(((pred - yq) / spread) ** 2, nan=1e30, posinf=1e30)
+            mse[name] = err.mean(axis=(0, 2))  # (H,): over windows, as the judge pools them (a blow-up counts)
+        log = np.log(np.stack(list(mse.values())) + _TIE_FLOOR ** 2)
+        w = np.exp(-(log - log.min(axis=0, keepdims=True)) / self.config.temperature)
+        w /= w.sum(axis=0, keepdims=True)
+        self.learned = {name: w[i] for i, name in enumerate(mse)}
+        self.learned_mse = mse
+        return self
 
     # ------------------------------------------------------------------ the prediction
     def simulate(self, u_ctx, y_ctx, u_query, return_std: bool = False):
@@ -351,11 +409,40 @@ class StackedPredictor:
         preds = [fn(u, y, uq) for fn in KINEMATIC.values()]
         preds += [np.asarray(self.models[name][0](u, y, uq), dtype=np.float64) for name in check.names[len(KINEMATIC):]]
         preds = np.stack(preds, axis=1)  # (B, C, H, n_y)
+        check.weights = self._gated(check, preds, scale)
         mean = np.einsum("bch,bchy->bhy", check.weights, preds)
         if not return_std:
             return mean[0] if single else mean
         std = self._std(per_ch, check.weights, scale, horizon)
         return (mean[0], std[0]) if single else (mean, std)
+
+    def _gated(self, check: ContextCheck, preds: np.ndarray, scale: np.ndarray) -> np.ndarray:
+        """The weights with each model's weight at a step scaled by how plausible its query prediction is there: a
+        prediction further from constant velocity's than ``_GATE`` times the backtest says they differ keeps
+        ``exp(-d^2 / 2)`` of its weight (d in those units), the rest going to the others in proportion. A per-context
+        ARX that backtested well can still diverge on the query: 7 % of its weight cost 6x at the UR5's first step."""
+        w = check.weights
+        n_kin = len(KINEMATIC)
+        if w.shape[1] == n_kin:
+            return w
+        b, c, h = w.shape
+        common = np.median(scale, axis=1)[:, None, None]  # the backtest's one scale (B, 1, 1)
+        rmse = check.rmse  # (B, C, K)
+        reach = rmse.shape[2]
+        k = np.arange(1, h + 1)
+        # The backtest's expected gap between a model and constant velocity, past the reach grown as (k / K)^2.
+        at = np.minimum(k, reach) - 1
+        grow = np.maximum(k / reach, 1.0) ** 2
+        gates = np.ones_like(w)
+        for m in range(n_kin, c):
+            gap = np.sqrt(np.mean(((preds[:, m] - preds[:, 1]) / scale[:, None]) ** 2 * (scale[:, None] / common) ** 2,
+                                  axis=2))  # (B, H)
+            expected = np.hypot(rmse[:, m, at], rmse[:, 1, at]) * grow
+            gates[:, m] = np.exp(-0.5 * (gap / np.maximum(_GATE * expected, 1e-30)) ** 2)
+        gated = w * gates
+        lost = (w - gated).sum(axis=1, keepdims=True)
+        rest = gated.sum(axis=1, keepdims=True)
+        return gated * (1 + lost / np.maximum(rest, 1e-30))
 
     def _std(self, pooled: np.ndarray, weights: np.ndarray, scale: np.ndarray, horizon: int) -> np.ndarray:
         """(B, H, n_y): the weighted mean square of the candidates' backtest errors, then grown past the reach."""

@@ -177,3 +177,37 @@ def test_several_models_are_stacked_by_name_each_on_its_own_folds():
                                                     y[:, 200:], 30)
     with pytest.raises(StackingError, match="other than"):
         StackedPredictor({"hold": _integrator}, DT)
+
+
+def _diverging(u_ctx, y_ctx, u_query):
+    """Exact over the first 30 steps of a query, then running away: a per-context ARX that backtested well."""
+    out = _integrator(u_ctx, y_ctx, u_query)
+    k = np.arange(u_query.shape[1])
+    return out + np.where(k >= 30, 10.0 ** np.minimum(k - 30, 6) * 1e-3, 0.0)[None, :, None]
+
+
+def test_a_model_that_runs_away_on_the_query_loses_its_weight_there():
+    u, y = _walk(8, noise=0.0)
+    sp = StackedPredictor({"runaway": (_diverging, 8)}, DT)
+    mean = sp.simulate(u[:, :200], y[:, :200], u[:, 200:])
+    cv = kinematics.constant_velocity(u[:, :200], y[:, :200], u[:, 200:])
+    w = sp.last_check.weights
+    assert w[:, 3, :20].mean() > 0.5, "exact where it is exact"
+    assert w[:, 3, 45:].max() < 1e-3, "gated where it runs away"
+    assert _rms(mean, y[:, 200:], 60) <= 1.1 * _rms(cv, y[:, 200:], 60)
+
+
+def test_training_recordings_teach_the_prior_that_long_horizons_fade_into():
+    u, y = _walk(9, b=24, t=400, noise=0.0)
+    tests_u, tests_y = _walk(10, b=6, t=400, noise=0.0)
+    plain = StackedPredictor({"physics": _integrator}, DT)
+    taught = StackedPredictor({"physics": _integrator}, DT).learn(u, y, 200)
+    assert set(taught.learned) == {"hold", "constant_velocity", "constant_acceleration", "physics"}
+    assert taught.learned["physics"][-1] > 0.9  # exact on every training window, at every step
+    far = np.zeros((6, 1000, 3))
+    far[:, :200] = tests_u[:, 200:]
+    plain.simulate(tests_u[:, :200], tests_y[:, :200], far)
+    taught.simulate(tests_u[:, :200], tests_y[:, :200], far)
+    assert taught.last_check.weights[:, 3, -1].mean() > 0.9 > plain.last_check.weights[:, 3, -1].mean()
+    with pytest.raises(StackingError, match="context_len"):
+        StackedPredictor(None, DT).learn(u, y, 400)
