@@ -84,6 +84,7 @@ def parse_args(argv=None) -> argparse.Namespace:
             p.error(f"--model takes NAME=CKPT, got {item!r}")
         models[name] = path
     args.model = models
+    check_models(models)
     from robomorph.inference.settings import HybridSettings, SettingsError  # noqa: PLC0415
 
     for key in args.hybrid:
@@ -113,6 +114,19 @@ def joint_fit(result: dict, name: str, joints: list[str]) -> float:
     (approach 2), so a window where a joint barely moves does not swamp the figure."""
     res = result if name == "model" else result["baselines"][name]
     return float(np.mean([res["approach2"]["channels"][q]["fit"] for q in joints]))
+
+
+def check_models(paths: dict[str, str]) -> None:
+    """Refuses, before any store is written or any window scored, a ``--model`` that is missing or no checkpoint
+    (it used to be found after the whole run, as a footnote, with exit code 0). Whether it reads a robot's store
+    is that robot's question (:func:`_models`)."""
+    from robomorph.inference.checkpoint import load_trained  # noqa: PLC0415
+
+    for name, path in paths.items():
+        try:
+            load_trained(path)
+        except RoboMorphError as exc:
+            raise type(exc)(f"--model {name}={path}: {exc}") from None
 
 
 def _models(paths: dict[str, str], store: str) -> tuple[dict, dict]:

@@ -384,3 +384,24 @@ def test_a_context_too_short_for_the_hybrid_is_named(simulated_store, window, tm
                          "--set", "members=1", "--set", "workers=1"], capsys)
     line = _one_error(code, err, "u_ctx has 2 steps", "at least 3 samples")
     assert "zero-size" not in line
+
+
+# --- benchmarks/real_robots.py: a --model that cannot be read ----------------------------------------------
+
+@pytest.mark.parametrize("kind", ["missing", "notes"])
+def test_real_robots_refuses_a_model_that_is_no_checkpoint_before_the_run(tmp_path, kind):
+    """Defect 25: ``real_robots.py --model x=<missing or not a checkpoint>`` was found only after the whole run,
+    as a footnote, with exit code 0."""
+    import os
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    path = tmp_path / "x.ckpt"
+    if kind == "notes":
+        path.write_text("notes, not a checkpoint\n")
+    done = subprocess.run([sys.executable, os.path.join(root, "benchmarks", "real_robots.py"), "--data", str(tmp_path),
+                           "--robots", "schunk", "--work", str(tmp_path / "work"), "--md", str(tmp_path / "t.md"),
+                           "--model", f"x={path}"], capture_output=True, text=True, cwd=str(tmp_path), timeout=300)
+    _one_error(done.returncode, done.stderr, f"--model x={path}: ")
+    assert sorted(os.listdir(tmp_path)) == (["x.ckpt"] if kind == "notes" else [])
