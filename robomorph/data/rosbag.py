@@ -225,9 +225,13 @@ class _Decoder:
             self.blocks.append((arrivals, stamps, self._columns(list(names)), vals))
 
     def _check_finite(self, stamps: np.ndarray, vals: dict[str, np.ndarray], names: list[str]) -> None:
-        """Refuses NaN or infinite values of the joints read (others, a gripper's, may hold them)."""
+        """Refuses NaN or infinite positions and efforts of the joints read (others, a gripper's, may hold
+        them). A velocity that is not finite counts as not logged (drivers without a velocity estimate
+        publish NaN): the clock interpolates it from the messages that have one."""
         keep = [k for k, n in enumerate(names) if self.wanted is None or n in self.wanted]
-        for q in QUANTITIES:
+        if vals["velocity"].size and not np.isfinite(vals["velocity"]).all():
+            vals["velocity"] = np.where(np.isfinite(vals["velocity"]), vals["velocity"], np.nan)
+        for q in ("position", "effort"):
             v = vals[q][:, keep] if vals[q].shape[1] else vals[q]
             bad = ~np.isfinite(v)
             if bad.any():

@@ -196,6 +196,18 @@ def test_nan_effort(tmp_path):
     assert log.values["effort"].shape == (30, 2)
 
 
+def test_nan_velocity_is_not_logged_velocity(tmp_path):
+    q, qd, tau = _signals(40)
+    qd[10, 1] = np.nan  # one missing estimate: interpolated
+    qd[:, 2] = np.inf  # a joint without any: no velocity column, so no qvel in the store
+    bag = write_joint_states(bag_path(tmp_path, "ros1"), "ros1", _stamps(40), NAMES, q, qd, tau)
+    rec = rosbag.recordings(rosbag.read_joint_states(str(bag)), "run.bag")[0]
+    assert rec.columns["velocity/j2"][10] == pytest.approx((qd[9, 1] + qd[11, 1]) / 2)
+    assert "velocity/j3" not in rec.columns and not rec.report["velocity"]
+    ds = ingest_rosbag([str(bag)], str(tmp_path / "s.zarr"), steps=10)
+    assert "qvel" not in ds.arrays and ds.attrs["velocity"] is None
+
+
 def test_door_refuses_with_one_line_and_exit_2(tmp_path, capsys):
     q, qd, tau = _signals(30)
     bag = write_joint_states(bag_path(tmp_path, "ros1"), "ros1", _stamps(30), NAMES, q, qd, tau)
