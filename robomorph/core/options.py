@@ -86,7 +86,7 @@ class DeprecatedAlias(argparse.Action):
 def add_alias(parser: argparse.ArgumentParser, old: str, new: str) -> None:
     """Accepts ``old`` one more release as a deprecated name of the option ``new`` (already declared): the same
     destination, type and choices, not shown in ``--help``, and a warning naming ``new`` each time it is used."""
-    (action,) = [a for a in parser._actions if new in a.option_strings]
+    (action,) = [a for a in parser._actions if new in a.option_strings]  # private: argparse has no public lookup
     parser.add_argument(old, dest=action.dest, type=action.type, choices=action.choices, metavar=action.metavar,
                         action=DeprecatedAlias, new=new, help=argparse.SUPPRESS)
 

@@ -9,7 +9,10 @@ from the context by linear solves of its inverse dynamics, pulled toward the cat
 and simulates it over the horizon (:mod:`robomorph.inference.hybrid`): it never reads the network
 of the checkpoint it comes from. So a Predictor built from the arm's catalogue model and a
 generator recipe alone predicts exactly what a trained command-formulation hybrid predicts in
-that mode, the same to the bit (a test checks it against a trained checkpoint).
+that mode, the same to the bit (a test checks it against a trained checkpoint). This module holds
+what ``Predictor.from_arm`` (a classmethod of the Predictor, beside ``from_checkpoint``) builds it from:
+the record (:func:`arm_record`), the stand-in for a network (:class:`NoNetwork`), the arm's limits
+(:class:`ArmLimits`) and the shipped calibrations.
 
 What it cannot do, because there is no network: the modes that read one (``learned`` and
 ``fused``: a parameter head; ``blend`` and ``smoothed``: the decoder; ``none``: the decoder
@@ -77,7 +80,7 @@ class LimitsError(NoNetworkError):
 @dataclasses.dataclass(frozen=True)
 class ArmLimits:
     """A catalogue arm's motor torque limits [N m] and joint ranges [rad], against which a Predictor with no
-    training statistics (:func:`from_arm`) checks what it is given: torques beyond :data:`TORQUE_FACTOR` times
+    training statistics (``Predictor.from_arm``) checks what it is given: torques beyond :data:`TORQUE_FACTOR` times
     the limits and joint angles :data:`JOINT_MARGIN` outside the ranges are refused, with the channel named.
     ``Predictor.limits = None`` turns the check off."""
 
@@ -248,7 +251,7 @@ def calibration_scope(info: dict) -> dict | None:
 
 def shipped_calibrations(info: dict) -> dict:
     """The shipped calibrations that apply to the hybrid of record ``info`` (:func:`arm_record`'s, or a trained
-    command hybrid's, whose default mode predicts as :func:`from_arm`'s), keyed as a trained model keeps its
+    command hybrid's, whose default mode predicts as ``Predictor.from_arm``'s), keyed as a trained model keeps its
     own (:func:`robomorph.inference.calibration.calibration_key`); {} where none applies."""
     from robomorph.inference.calibration import StdCalibration, calibration_key  # noqa: PLC0415
 
@@ -271,42 +274,3 @@ def check_network_free(predictor, mode: str | None = None) -> None:
         raise NoNetworkError(f"physics mode {mode!r} reads a trained network, and this Predictor "
                              f"was built from the arm alone (Predictor.from_arm): use {' or '.join(map(repr, free))}, "
                              "or load a trained checkpoint (Predictor.from_checkpoint)")
-
-
-def from_arm(cls, arm: str = "panda", recipe: str | None = None, device=None, inputs: str = "command",
-             calibrated: bool = True, **overrides):
-    """:meth:`robomorph.inference.predictor.Predictor.from_arm`: a ``cls`` (the Predictor) with no network.
-
-    Args:
-        arm: a name of :data:`robomorph.sim.arms.ARMS`.
-        recipe: the generator recipe whose physics step, gravity compensation and randomization ranges the
-            data follow (a shipped name such as ``multisine`` or a YAML path; default the generator's defaults).
-        device: where tensors are returned (the simulation runs on the CPU).
-        inputs: ``command`` or ``total`` (see :func:`arm_record`).
-        calibrated: scale the std by the arm's shipped calibration where one applies (module docstring);
-            False: the raw spread (what a calibration is fitted on).
-        overrides: recipe fields changed, e.g. ``dt=0.01``.
-
-    Raises:
-        NoNetworkError: an arm that is not registered, a ``robot`` override naming another arm than ``arm``, or
-            ``calibrated`` other than True or False.
-        ConfigError: a recipe field out of its range (``dt`` above a second, ...).
-    """
-    # Validated whole before anything is built (issue 61): robot="ur5e" used to win over the arm in silence.
-    if "robot" in overrides and overrides["robot"] != arm:
-        raise NoNetworkError(f"robot={overrides['robot']!r} names another arm than {arm!r}: give the arm once, "
-                             f"as the first argument (Predictor.from_arm({overrides['robot']!r}))")
-    if not isinstance(calibrated, bool):
-        raise NoNetworkError(f"calibrated must be True or False, got {calibrated!r}")
-    info = arm_record(arm, recipe, inputs, **overrides)
-    model = NoNetwork(len(info["u_names"]), len(info["y_names"]))
-    if calibrated:
-        model.calibrations = shipped_calibrations(info)
-    pred = cls(model, device, info)
-    # The record a trained command hybrid carries, set here: a model without a parameter head takes no
-    # backbone from its record (Predictor.__init__), and this one has no model at all.
-    pred.physics, pred.has_std = info["physics"], True
-    pred.configure(mode="regression", **TODAYS_RECORD)
-    pred.max_input_std = None  # no training statistics to compare the inputs with: the catalogue's limits instead
-    pred.limits = ArmLimits.of(info["arm"])
-    return pred

@@ -25,6 +25,7 @@ import torch
 
 from robomorph.core.errors import DeviceError, RoboMorphError
 from robomorph.core.inputs import check_model_inputs
+from robomorph.core.names import TODAYS_RECORD
 from robomorph.core.normalizations import NormalizationError, leaks_query_statistics
 from robomorph.inference import catalogue, residual
 from robomorph.model.channels import arm_columns, pad, select
@@ -254,7 +255,46 @@ class Predictor:
         ``robomorph export`` (clear errors for bad files; nothing stored in them is run)."""
         model, info = load_trained(path)
         return cls(model, device, info)
-    from_arm = classmethod(catalogue.from_arm)  # a catalogue arm's command hybrid, untrained: robomorph.inference.catalogue
+
+    @classmethod
+    def from_arm(cls, arm: str = "panda", recipe: str | None = None, device=None, inputs: str = "command",
+                 calibrated: bool = True, **overrides) -> "Predictor":
+        """A catalogue arm's command hybrid, untrained: a Predictor with no network
+        (:mod:`robomorph.inference.catalogue` holds what it is built from).
+
+        Args:
+            arm: a name of :data:`robomorph.sim.arms.ARMS`.
+            recipe: the generator recipe whose physics step, gravity compensation and randomization ranges the
+                data follow (a shipped name such as ``multisine`` or a YAML path; default the generator's defaults).
+            device: where tensors are returned (the simulation runs on the CPU).
+            inputs: ``command`` or ``total`` (see :func:`~robomorph.inference.catalogue.arm_record`).
+            calibrated: scale the std by the arm's shipped calibration where one applies (module docstring);
+                False: the raw spread (what a calibration is fitted on).
+            overrides: recipe fields changed, e.g. ``dt=0.01``.
+
+        Raises:
+            NoNetworkError: an arm that is not registered, a ``robot`` override naming another arm than
+                ``arm``, or ``calibrated`` other than True or False.
+            ConfigError: a recipe field out of its range (``dt`` above a second, ...).
+        """
+        # Validated whole before anything is built (issue 61): robot="ur5e" used to win over the arm in silence.
+        if "robot" in overrides and overrides["robot"] != arm:
+            raise catalogue.NoNetworkError(f"robot={overrides['robot']!r} names another arm than {arm!r}: give the "
+                                           f"arm once, as the first argument (Predictor.from_arm({overrides['robot']!r}))")
+        if not isinstance(calibrated, bool):
+            raise catalogue.NoNetworkError(f"calibrated must be True or False, got {calibrated!r}")
+        info = catalogue.arm_record(arm, recipe, inputs, **overrides)
+        model = catalogue.NoNetwork(len(info["u_names"]), len(info["y_names"]))
+        if calibrated:
+            model.calibrations = catalogue.shipped_calibrations(info)
+        pred = cls(model, device, info)
+        # The record a trained command hybrid carries, set here: a model without a parameter head takes no
+        # backbone from its record (Predictor.__init__), and this one has no model at all.
+        pred.physics, pred.has_std = info["physics"], True
+        pred.configure(mode="regression", **TODAYS_RECORD)
+        pred.max_input_std = None  # no training statistics to compare the inputs with: the catalogue's limits
+        pred.limits = catalogue.ArmLimits.of(info["arm"])
+        return pred
 
     @classmethod
     def from_pretrained(cls, path: str, device: str | torch.device | None = None) -> "Predictor":

@@ -200,3 +200,16 @@ def test_the_quick_starts_first_prediction_runs_as_written(tmp_path, monkeypatch
     assert shape == "(4, 200, 14)"
     assert float(rms) < 1.0  # joint RMS error [mrad]: "a fraction of one", as the page says
     assert namespace["pred"].calibration is not None and np.all(namespace["std"] > 0)
+
+
+def test_from_arm_is_a_method_of_the_predictor_and_the_catalogue_holds_its_pieces():
+    """Issue 61 §4: ``from_arm`` was a module function of the catalogue taking ``cls``, attached to the class from
+    outside; it is the Predictor's classmethod, beside from_checkpoint, and builds the same Predictor."""
+    from robomorph.inference import catalogue
+
+    method = vars(Predictor)["from_arm"]
+    assert isinstance(method, classmethod) and method.__func__.__qualname__ == "Predictor.from_arm"
+    assert method.__func__.__module__ == "robomorph.inference.predictor" and not hasattr(catalogue, "from_arm")
+    pred = Predictor.from_arm("panda")
+    assert type(pred) is Predictor and isinstance(pred.model, catalogue.NoNetwork) and pred.settings.mode == "regression"
+    assert pred.limits == catalogue.ArmLimits.of("panda")
