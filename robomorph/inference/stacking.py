@@ -365,13 +365,15 @@ class StackedPredictor:
         total = learned.sum(axis=0, keepdims=True)
         return np.where(total > 0, learned / np.maximum(total, 1e-300), out)
 
-    def learn(self, u, y, context_len: int, max_windows: int = 512) -> "StackedPredictor":
+    def learn(self, u, y, context_len: int, max_windows: int = 512, models: dict | None = None) -> "StackedPredictor":
         """Learns the prior weights from windows of the arm's own training recordings, (N, Tc + H, n_u) and
         (N, Tc + H, n_y), never from a test window: every candidate predicts each window's query from its
         context, and each step's weights are the softmin (``temperature``) of the candidates' mean square errors
         pooled over all of them. These replace the kinematic default, inside the backtest's reach as the softmin's
         prior and beyond it as what the weights fade into: pooled evidence says what works at long horizons, where
-        one context cannot. Returns self."""
+        one context cannot. ``models``: the models run on those windows (``{name: f or (f, folds)}``, default all;
+        one left out, a costly hybrid, gets no prior weight and can still win on its context's evidence). Returns
+        self."""
         u, y = self._arrays(u, y)
         if not 3 <= context_len < y.shape[1]:
             raise StackingError(f"context_len {context_len} must leave a query in windows of {y.shape[1]} samples")
@@ -379,7 +381,8 @@ class StackedPredictor:
         uc, yc, uq, yq = u[:, :context_len], y[:, :context_len], u[:, context_len:], y[:, context_len:]
         spread = np.maximum(np.median(yc.std(axis=1), axis=1), 1e-12)[:, None, None]  # one scale per window
         mse = {}
-        candidates = {**KINEMATIC, **{n: fn for n, (fn, _) in self.models.items()}}
+        chosen = self.models if models is None else {n: (e if isinstance(e, tuple) else (e, 1)) for n, e in models.items()}
+        candidates = {**KINEMATIC, **{n: fn for n, (fn, _) in chosen.items()}}
         for name, fn in candidates.items():
             try:
                 pred = np.asarray(fn(uc, yc, uq), dtype=np.float64)
