@@ -261,6 +261,12 @@ def test_calibrate_refuses_a_switch_the_calibrated_mode_does_not_use(command_hyb
     _one_error(code, err, "--payload off: physics mode none does not use the payload switch",
                "change the checkpoint's default predictions")
     assert open(command_hybrid, "rb").read() == before
+    # In a mode that uses it the switch is taken, and the change of the checkpoint's defaults is said.
+    code, out, err = _calibrate(["--ckpt", command_hybrid, "--payload", "off", "--out", str(tmp_path / "cal.ckpt"),
+                                 "--n", "4", "--method", "coverage", "--device", "cpu"], capsys)
+    assert code == 0, err
+    assert "note: the checkpoint's default switches are now payload off" in out
+    assert Predictor.from_checkpoint(str(tmp_path / "cal.ckpt"), device="cpu").settings.payload is False
 
 
 def test_a_hybrid_scored_on_another_gravity_compensation_recipe_says_so(command_hybrid, simulated_store, tmp_path,
@@ -405,3 +411,57 @@ def test_real_robots_refuses_a_model_that_is_no_checkpoint_before_the_run(tmp_pa
                            "--model", f"x={path}"], capture_output=True, text=True, cwd=str(tmp_path), timeout=300)
     _one_error(done.returncode, done.stderr, f"--model x={path}: ")
     assert sorted(os.listdir(tmp_path)) == (["x.ckpt"] if kind == "notes" else [])
+
+
+# --- control: a Ctrl-C with a pool of workers ---------------------------------------------------------------
+
+def _group(pgid: int) -> list[int]:
+    """The processes of process group ``pgid`` (from /proc: what a terminal's Ctrl-C reaches)."""
+    import os
+
+    pids = []
+    for name in os.listdir("/proc"):
+        if name.isdigit():
+            try:
+                with open(f"/proc/{name}/stat") as f:
+                    fields = f.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[2]) == pgid and fields[0] != "Z":
+                pids.append(int(name))
+    return pids
+
+
+@pytest.mark.skipif(not __import__("os").path.isdir("/proc"), reason="reads the process table from /proc")
+def test_a_ctrl_c_stops_control_with_two_workers_promptly(tmp_path):
+    """Defect 26: with ``--workers 2``, Ctrl-C did not stop ``control``: it finished its episodes, 136 s later, and
+    only then said none was kept. A real SIGINT to the process group, as a terminal sends it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    out = tmp_path / "ctl"
+    # Two MPC episodes of a minute each: minutes of work, far longer than the stop may take.
+    proc = subprocess.Popen([sys.executable, "-m", "robomorph.control", "--controllers", "mpc:nominal_physics",
+                             "--robots", "2", "--workers", "2", "--warmup", "0.5", "--duration", "60", "--out", str(out)],
+                            cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            env={**os.environ, "MUJOCO_GL": "disable", "PYTHONPATH": root})
+    try:
+        deadline = time.monotonic() + 240
+        while len(_group(proc.pid)) < 3 and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.5)  # the parent and its two workers
+        assert len(_group(proc.pid)) >= 3, proc.communicate(timeout=60)
+        time.sleep(5)  # the workers import, then run their episodes
+        os.killpg(proc.pid, signal.SIGINT)
+        sent = time.monotonic()
+        _, err = proc.communicate(timeout=60)
+        waited = time.monotonic() - sent
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert waited < 20, waited  # seconds (a worker's interpreter ends in well under one); episodes last minutes
+    assert proc.returncode == 130 and "stopped by Ctrl-C: no episode is kept" in err and "Traceback" not in err, err
+    assert _group(proc.pid) == [] and not out.exists()  # no worker left behind, nothing written

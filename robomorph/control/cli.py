@@ -220,9 +220,24 @@ def _episodes(cfg: ControlConfig, controllers: tuple[str, ...], ckpt: str | None
                 for fut in as_completed(futures):
                     results.append(fut.result())
                     bar.update()
-            finally:  # on a Ctrl-C or a failed episode, the queued episodes are not run
+            except BaseException:  # a Ctrl-C or a failed episode: no episode is kept, so none is waited for
+                _stop_workers(pool)
+                raise
+            finally:  # the queued episodes are not run
                 pool.shutdown(wait=True, cancel_futures=True)
     return results
+
+
+def _stop_workers(pool) -> None:
+    """Ends the pool's worker processes now. They ignore Ctrl-C (the parent stops the run), and a shutdown
+    waits for the episodes they run: with ``--workers 2`` a Ctrl-C used to stop ``control`` only once those
+    had finished, minutes later. ``ProcessPoolExecutor`` has no public way to end its workers before Python
+    3.14 (``terminate_workers``): its process table is read before the shutdown clears it."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for proc in processes:
+        proc.terminate()
+    for proc in processes:
+        proc.join(timeout=10)
 
 
 def main(argv: list[str] | None = None) -> int:
