@@ -87,7 +87,8 @@ def check_request(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     if args.rosbag:
         given = [flag for flag, v in (("files", args.files), ("--source", args.source), ("--u-cols", args.u_cols),
                                       ("--u-cmd-cols", args.u_cmd_cols), ("--y-cols", args.y_cols), ("--dt", args.dt),
-                                      ("--time-col", args.time_col)) if v]
+                                      ("--time-col", args.time_col), ("--u-units", args.u_units),
+                                      ("--y-units", args.y_units), ("--format", args.fmt != "auto")) if v]
         if given:
             p.error(f"--rosbag reads the joints' names, stamps and units from the bag: drop {', '.join(given)}")
         if not args.steps:

@@ -221,6 +221,9 @@ def test_door_refuses_with_one_line_and_exit_2(tmp_path, capsys):
         ingest_door.main(["x.csv", "--u-cols", "a", "--y-cols", "b", "--steps", "3", "--dt", "0.1",
                           "--split-gap", "1", "--out", str(tmp_path / "p.zarr")])
     assert exc.value.code == 2 and "only go with --rosbag" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # what the bag says itself is not given twice
+        ingest_door.main(["--rosbag", str(bag), "--steps", "10", "--y-units", "deg", "--out", str(out)])
+    assert exc.value.code == 2 and "drop --y-units" in capsys.readouterr().err
 
 
 def test_zero_stamps_fall_back_to_arrival(tmp_path):
