@@ -83,7 +83,9 @@ class MetaModule(Steps, L.LightningModule):
             extrapolation from the last context sample (``y[-1] + k v`` at query step ``k``, ``v``
             fitted to the last ``velocity_points`` context samples), so an untrained or zeroed
             network predicts what the ``constant_velocity`` baseline does and the first steps start
-            on the arm's motion; ``none`` (default): as ``anchor`` and ``integrate`` say.
+            on the arm's motion; with ``integrate`` the correction is summed twice from per-step
+            accelerations, so the first step's is small whatever the context (the shipped model's form);
+            ``none`` (default): as ``anchor`` and ``integrate`` say.
         velocity_points: context samples the velocity is fitted to with ``extrapolate velocity``
             (2, the default: the last backward difference, the ``constant_velocity`` baseline's;
             up to 6 as :func:`robomorph.core.velocity.estimate_velocity`, a cubic over them).
@@ -299,10 +301,10 @@ def _check_extrapolation(extrapolate: str, velocity_points: int, anchor: bool, i
         check_extrapolation(extrapolate, velocity_points)
     except ValueError as exc:
         raise ModelSettingsError(f"--model.{exc}") from None
-    if extrapolate != "none" and (anchor or integrate or residual):
+    if extrapolate != "none" and (anchor or residual):
         raise ModelSettingsError(f"--model.extrapolate {extrapolate} already starts the prediction from the last context "
-                                 "output: set --model.anchor false and --model.integrate false (and it goes with no "
-                                 "residual model, which corrects its prior instead)")
+                                 "output: set --model.anchor false (and it goes with no residual model, which corrects "
+                                 "its prior instead)")
 
 
 def _check_training(freeze: str, normalization_from: str, lr: float, min_lr_ratio: float,

@@ -11,7 +11,7 @@ import torch
 from robomorph.core.velocity import estimate_velocity, velocity_weights
 from robomorph.data.statistics import Stats
 from robomorph.evaluation.baselines import constant_velocity
-from robomorph.inference.checkpoint import TrainedModel, load_trained
+from robomorph.inference.checkpoint import ACCEL_SCALE, TrainedModel, load_trained
 from robomorph.model.transformer import ModelConfig
 from robomorph.predictor import Predictor
 from robomorph.training.module import MetaModule, ModelSettingsError
@@ -95,7 +95,7 @@ def test_models_written_before_the_option_have_no_kinematic_anchor(tmp_path):
 
 
 @pytest.mark.parametrize("kw,match", [({"anchor": True}, "--model.anchor false"),
-                                      ({"integrate": True}, "--model.integrate false"),
+                                      ({"residual": True}, "no residual model"),
                                       ({"velocity_points": 1}, "--model.velocity_points"),
                                       ({"extrapolate": "acceleration"}, "--model.extrapolate")])
 def test_settings_that_cannot_work_are_refused_naming_the_flag(kw, match):
@@ -126,3 +126,20 @@ def test_an_untrained_velocity_model_predicts_constant_velocity():
     with torch.no_grad():
         pred = model(*(torch.as_tensor(a) for a in (u, y, q))).numpy()
     np.testing.assert_allclose(pred, constant_velocity(u, y, q), rtol=0, atol=1e-6)
+
+
+def test_with_integrate_the_correction_is_summed_twice_from_accelerations():
+    # Zero accelerations: constant velocity; a constant output c: c ACCEL_SCALE k (k + 1) / 2 at step k,
+    # so the first step moves by one ACCEL_SCALE only.
+    torch.manual_seed(0)
+    model = TrainedModel(CFG, extrapolate="velocity", integrate=True).double().eval()
+    model.normalizer.set_stats(STATS)
+    u, y, q = _windows(seed=9)
+    args = [torch.as_tensor(a) for a in (u, y, q)]
+    with torch.no_grad():
+        np.testing.assert_allclose(model(*args).numpy(), constant_velocity(u, y, q), rtol=0, atol=1e-6)
+        model.net.head.bias.fill_(2.0)
+        moved = model(*args).numpy() - constant_velocity(u, y, q)
+    k = np.arange(1, q.shape[1] + 1)[None, :, None]
+    expected = np.broadcast_to(2.0 * ACCEL_SCALE * k * (k + 1) / 2 * STATS.y_std, moved.shape)
+    np.testing.assert_allclose(moved, expected, rtol=1e-6, atol=1e-9)
