@@ -133,15 +133,13 @@ class RollingHybrid:
 def _mixed(backbone, members: np.ndarray, weights: np.ndarray, qvel_end: np.ndarray, q_ctx: np.ndarray,
            uc: np.ndarray, uq: np.ndarray, qvel_start: np.ndarray, quat_last: np.ndarray) -> np.ndarray:
     """(K, H, n_y) the weighted mean over ``members`` (M, P), each from its ``qvel_end`` (M, nj), of the horizons of
-    the K plans ``uq`` on the one context (``q_ctx``, ``uc``: (1, T, nj)); members below 1e-4 of the largest weight
-    are not simulated (as :func:`robomorph.identification.stiction.mixed_horizon`)."""
-    keep = np.flatnonzero(weights >= 1e-4 * weights.max())
-    w = weights[keep] / weights[keep].sum()
-    k, m = len(uq), len(keep)
-    rows = lambda a: np.tile(a, (k,) + (1,) * (a.ndim - 1))  # noqa: E731  (plan-major: plan i, member j at i*m+j)
-    y = backbone.simulate(rows(members[keep]), np.repeat(q_ctx, k * m, axis=0), np.repeat(uc, k * m, axis=0),
-                          np.repeat(uq, m, axis=0), np.repeat(qvel_start, k * m, axis=0),
-                          np.repeat(quat_last, k * m, axis=0), rows(qvel_end[keep]))
-    if not np.all(np.isfinite(y)):
+    the K plans ``uq`` on the one context (``q_ctx``, ``uc``: (1, T, nj)):
+    :func:`robomorph.identification.stiction.mixed_horizon` with the context's mixture for every plan."""
+    from robomorph.identification.stiction import mixed_horizon  # noqa: PLC0415
+
+    k = len(uq)
+    mean, _ = mixed_horizon(backbone, [(members, weights, qvel_end)] * k, *(np.repeat(a, k, axis=0) for a in (
+        q_ctx, uc)), uq, np.repeat(qvel_start, k, axis=0), np.repeat(quat_last, k, axis=0))
+    if not np.all(np.isfinite(mean)):
         raise RollingError("the simulated robot diverged (non-finite outputs): check the torques' units and scale")
-    return np.einsum("kmhy,m->khy", y.reshape(k, m, *y.shape[1:]), w)
+    return mean

@@ -108,3 +108,40 @@ def test_weights_share_alike_members_and_never_rule_out_the_truth(fitted):
         again = mix.weigh(truth, held[b], y[b, :, 7:], u[b], np.zeros(7))
         np.testing.assert_array_equal(again[1], w)
     assert slipped  # some members slipped where the robot held: the weights had something to rule out
+
+
+def test_members_between_alike_extremes_are_not_simulated_and_change_nothing(fitted):
+    """Where the lowest and the highest friction losses re-enact a context (or a horizon) to the bit, every member
+    between does: the shortcut gives the arrays of all members simulated, to the bit, with two simulations; where
+    the extremes differ, all are simulated."""
+    from robomorph.identification.stiction import alike_or_each, mixed_horizon
+
+    y, u, _, bb, est, held = fitted
+    mix, space = FrictionMixture(bb.ident, 9), bb.ident.space
+    simulated = {"alike": 0, "apart": 0}
+    for b in [b for b in range(len(y)) if held[b].any()]:
+        for params in (est[b], bb.catalogue(y[b, 0, 7:])):
+            members = mix.candidates(params, held[b])
+            problem = ContextProblem(bb.ident, params, y[b, :, 7:], u[b], np.zeros(7))
+            count = []
+
+            def simulate(rows):
+                count.append(len(rows))
+                return problem.joint_error(space.to_unit(members[rows][:, space.index])), problem.last_qvel_end.copy()
+
+            err, end = alike_or_each(simulate, len(members))
+            every = problem.joint_error(space.to_unit(members[:, space.index]))
+            np.testing.assert_array_equal(err, every)
+            np.testing.assert_array_equal(end, problem.last_qvel_end)
+            simulated["alike" if sum(count) == 2 else "apart"] += 1
+            # The horizons: the mixture's weighted mean as if every member had been simulated.
+            w = np.full(len(members), 1 / len(members))
+            q, tq = y[b:b + 1, :, 7:], u[b:b + 1]
+            mean, var = mixed_horizon(bb, [(members, w, end)], q, tq, tq[:, -20:], np.zeros((1, 7)), y[b:b + 1, -1, 3:7])
+            each = bb.simulate(members, np.repeat(q, len(members), 0), np.repeat(tq, len(members), 0),
+                               np.repeat(tq[:, -20:], len(members), 0), np.zeros((len(members), 7)),
+                               np.repeat(y[b:b + 1, -1, 3:7], len(members), 0), end)
+            expected = np.tensordot(w, each, axes=1)
+            np.testing.assert_allclose(mean[0], expected, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(var[0], np.tensordot(w, (each - expected) ** 2, axes=1), rtol=0, atol=1e-12)
+    assert simulated["alike"] and simulated["apart"]  # both cases met: the shortcut and the whole mixture
