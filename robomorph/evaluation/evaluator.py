@@ -29,7 +29,10 @@ from __future__ import annotations
 import copy
 import os
 
+import numpy as np
+
 from robomorph.core.atomic import write_json
+from robomorph.core.errors import RoboMorphError
 from robomorph.core.locks import output_folder
 from robomorph.core.normalizations import NormalizationError
 from robomorph.core.progress import Phase, progress
@@ -137,6 +140,7 @@ def _score_and_write(predictor, w: Window, out: str, cfg: EvaluateConfig, steps,
             result["meta"]["baseline_notes"][name].update(in_sample=True, in_sample_store=arx_in_sample)
     result["meta"] = {"ckpt": cfg.model, "data": cfg.data, **result["meta"], "offset": cfg.offset, "seed": cfg.seed,
                       **in_sample(info, cfg.data), **_smoothing(predictor), **_physics(predictor)}  # (before the sweeps)
+    result["meta"]["context_check"] = context_check(predictor, w)
     if cfg.arm:  # what was evaluated, beside the "arm:<name>" that stands for the checkpoint
         result["meta"]["catalogue_arm"] = cfg.arm
     result["meta"]["baseline_notes"].update({name: {"ckpt": path} for name, path in cfg.compare})
@@ -149,6 +153,53 @@ def _score_and_write(predictor, w: Window, out: str, cfg: EvaluateConfig, steps,
                              std=scores.std, steps=result["horizons"]["steps"], y_units=w.attrs.get("y_units"))
     _write_files(out, result)
     return result
+
+
+# Windows whose contexts the evaluation backtests (one extra prediction of the model on each: cheap beside the scoring).
+CHECK_WINDOWS = 16
+
+
+def context_check(predictor, w: Window) -> dict:
+    """The context backtest (:meth:`robomorph.inference.predictor.Predictor.check`) on the first windows' contexts:
+    per step, the model's median backtest error relative to constant velocity's, the winner, and how many contexts the
+    model explains worse than hold at every step (another formulation, other units, another arm)."""
+    import warnings  # noqa: PLC0415
+
+    from robomorph.inference.stacking import StackedPredictor  # noqa: PLC0415
+
+    u_ctx, y_ctx, _, _ = w.split()
+    n = min(CHECK_WINDOWS, len(u_ctx))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # said once, in the summary line, not per window
+            check = StackedPredictor(predictor.simulate, w.dt, patch=predictor.patch).check(u_ctx[:n], y_ctx[:n])
+    except RoboMorphError as exc:
+        return {"windows": 0, "note": f"not run: {exc}"}
+    names = check.names
+    if "model" not in names:
+        return {"windows": n, "note": "; ".join(check.notes) or "the model was not backtested"}
+    steps = sorted({1, max(1, check.reach // 4), max(1, check.reach // 2), check.reach})
+    m, cv = names.index("model"), names.index("constant_velocity")
+    rel = {int(k): float(np.nanmedian(check.rmse[:, m, k - 1] / np.maximum(check.rmse[:, cv, k - 1], 1e-300)))
+           for k in steps}
+    return {"windows": n, "steps": steps, "model_over_constant_velocity": rel,
+            "winner": {int(k): check.winners(k)[0] for k in steps},
+            "unexplained": int((~check.explained["model"]).sum())}
+
+
+def context_check_note(check: dict | None) -> str | None:
+    """The summary's line of :func:`context_check`."""
+    if not check:
+        return None
+    if "note" in check:
+        return f"context check: {check['note']}"
+    rel = ", ".join(f"step {k} {r:.3g}" for k, r in check["model_over_constant_velocity"].items())
+    line = (f"context check ({check['windows']} contexts backtested on themselves): model / constant velocity {rel}; "
+            f"winners {', '.join(f'{k}: {v}' for k, v in check['winner'].items())}")
+    if check["unexplained"]:
+        line += (f". WARNING: the model explains {check['unexplained']} of {check['windows']} contexts worse than hold "
+                 "at every step: another input formulation, other units, or another arm?")
+    return line
 
 
 def check_arm(predictor, attrs: dict, where: str) -> None:
@@ -327,6 +378,8 @@ def summary_text(res: dict, out: str, horizons: bool = True) -> str:
     lines += [f"  {b}: {note}" for b in res["baselines"] if (note := arx_in_sample_note(notes.get(b, {})))]
     lines += [f"  skipped {b}: {why}" for b, why in res["skipped_baselines"].items()]
     if note := smoothing_note(meta.get("smoothing")):
+        lines.append(f"  {note}")
+    if note := context_check_note(meta.get("context_check")):
         lines.append(f"  {note}")
     cal = meta.get("std_calibration")
     if cal:

@@ -435,3 +435,23 @@ def test_a_command_checkpoint_says_to_regenerate_a_store_without_u_cmd(setup, cm
     w.finalize()
     with pytest.raises(InputsError, match="no command inputs.*[Rr]egenerate"):
         evaluate(EvaluateConfig(ckpt=cmd_ckpt, data=old, out=str(tmp_path / "ev"), baselines=()))
+
+
+def test_evaluate_backtests_the_model_on_its_contexts_and_says_so(setup, tmp_path, capsys):
+    from robomorph.evaluation.evaluator import context_check, context_check_note
+    from robomorph.evaluation.windows import load_window
+
+    _, ckpt, test = setup
+    main(["--ckpt", ckpt, "--data", test, "--out", str(tmp_path / "ev"), "--baselines", "hold"])
+    printed = capsys.readouterr().out
+    assert "context check (6 contexts backtested on themselves): model / constant velocity step 1" in printed
+    with open(tmp_path / "ev" / "metrics.json") as f:
+        check = json.load(f)["meta"]["context_check"]
+    assert check["windows"] == 6 and set(check["winner"]) == {str(k) for k in check["steps"]}
+    # Torques 1000 times too large (another formulation or other units): the model no longer explains its contexts.
+    pred = Predictor.from_checkpoint(ckpt, device="cpu")
+    pred.max_input_std = None
+    w = load_window(test, C, H, None, pred.data_info, pred.n_u, pred.n_y)
+    w.u = w.u * 1000.0
+    bad = context_check(pred, w)
+    assert bad["unexplained"] > 0 and "WARNING" in context_check_note(bad)
