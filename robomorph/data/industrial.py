@@ -118,18 +118,19 @@ def load(data: str | None = None, path: str | None = None) -> IndustrialBenchmar
     if path is None:
         if data is None:
             raise IndustrialDataError("give the data folder or the benchmark's .mat file")
-        path, layout = find(data)
+        path, _ = find(data)
     else:
         if not os.path.isfile(path):
             raise MissingInputError(f"{path} not found")
-        layout = "shifted" if "shifted" in os.path.basename(path) else "official"  # the copy names itself
     from scipy.io import loadmat  # noqa: PLC0415
 
     try:
         m = loadmat(path)
     except (ValueError, OSError, NotImplementedError) as exc:
         raise IndustrialDataError(f"{path} is not a readable .mat file: {exc}") from None
-    need = ("u_train", "y_train", "u_test", "y_test") + (("u_val", "y_val") if layout == "shifted" else ())
+    # The copy is told by its content, whatever the file is called: only it holds a validation part.
+    layout = "shifted" if "u_val" in m else "official"
+    need = ("u_train", "y_train", "u_test", "y_test") + (("y_val",) if layout == "shifted" else ())
     missing = [k for k in need if k not in m]
     if missing:
         raise IndustrialDataError(f"{path} lacks the benchmark's {', '.join(missing)}")

@@ -75,6 +75,14 @@ def test_the_official_file_wins_over_the_copy_and_its_validation_is_cut_by_traje
     np.testing.assert_array_equal(b.test[5][0], test[5][0])
 
 
+def test_the_layout_is_told_by_the_files_content_not_its_name(tmp_path):
+    rng = np.random.default_rng(3)
+    _write_official(str(tmp_path / "renamed.mat"), rng)
+    _write_shifted(str(tmp_path / "other.mat"), rng)
+    assert industrial.load(path=str(tmp_path / "renamed.mat")).layout == "official"
+    assert industrial.load(path=str(tmp_path / "other.mat")).layout == "shifted"
+
+
 def test_a_folder_without_the_benchmark_is_one_line_naming_the_clone(tmp_path):
     with pytest.raises(MissingInputError, match="Physics-Guided-Recurrent-State-Space-Neural-Networks"):
         industrial.load(str(tmp_path))
