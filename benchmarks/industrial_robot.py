@@ -27,7 +27,6 @@ Predictors, all free-running from the warm-up alone:
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -116,17 +115,21 @@ def repeated_pairs(test: list, tol: float = REPEAT_TOL) -> list[tuple[int, int]]
 
 
 def repeat_floor(predict, test: list, pairs: list, warmup: int) -> float | None:
-    """Half the spread of a predictor's free runs over the same motion's two torque records, in
-    reading (c)'s units: the two true motions agree within REPEAT_TOL, so one of the two runs is at
-    least this far from its truth (a floor the torques' non-repeatability sets for this predictor)."""
+    """A floor on a predictor's reading (c) over the repeated motions, set by their torques alone.
+
+    For one motion recorded twice (outputs ``y_i``, ``y_j``; free runs ``p_i``, ``p_j``), the triangle
+    inequality gives ``rms(p_i - y_i) + rms(p_j - y_j) >= rms(p_i - p_j) - rms(y_i - y_j)``: half the
+    right side, over the motion's range (``y_i``'s), bounds the pair's mean reading (c) from below.
+    The mean over pairs and joints; None where the test repeats no motion."""
     if not pairs:
         return None
     vals = []
     for i, j in pairs:
         (ui, yi), (uj, yj) = test[i], test[j]
         pi, pj = br.free_run(predict, ui, yi, warmup), br.free_run(predict, uj, yj, warmup)
-        rng = yi[warmup:].max(0) - yi[warmup:].min(0)
-        vals.append(np.sqrt(np.mean((pi[warmup:] - pj[warmup:]) ** 2, axis=0)) / rng / 2)
+        spread = np.sqrt(np.mean((pi[warmup:] - pj[warmup:]) ** 2, axis=0))
+        truth = np.sqrt(np.mean((yi[warmup:] - yj[warmup:]) ** 2, axis=0))
+        vals.append(np.maximum(spread - truth, 0.0) / (yi[warmup:].max(0) - yi[warmup:].min(0)) / 2)
     return float(np.mean(vals))
 
 
@@ -224,8 +227,9 @@ def render(bench, rows, args, use_ib: bool, pairs: list) -> str:
               f"joint agrees within {REPEAT_TOL:g} deg RMS (trajectories "
               + (", ".join(f"{i + 1} and {j + 1}" for i, j in pairs) or "none") + "); their torques differ by "
               "(RMS over the record's std, joints 1-6) " + (torque_repeatability(bench.test, pairs) or "-")
-              + ". Half the spread of a predictor's two free runs over one motion is a floor on its reading (c) "
-              "there. *Train / val MSE*: the free-run loss (normalised units) of the last training windows "
+              + ". Half the spread of a predictor's two free runs over one motion, less the motions' own "
+              "difference, over the motion's range, is a floor on its reading (c) there (the triangle inequality). "
+              "*Train / val MSE*: the free-run loss (normalised units) of the last training windows "
               "against the best validation trajectories' (from rest, whole): a gap is too little data for "
               "the model's size.")
     published = markdown_table(("published (Table VI)", "NRMSE", "reading it matches, and how sure"),

@@ -106,3 +106,21 @@ def test_the_real_shifted_copy_cuts_fall_on_its_rest_to_rest_boundaries():
     assert (len(b.train), len(b.val), len(b.test)) == (60, 6, 6)
     for u, y in b.train + b.val + b.test:  # each trajectory starts and ends at rest at home
         assert np.abs(y[0]).max() < 0.05 and np.abs(y[-1] - y[-2]).max() < 0.05
+
+
+def test_the_benchmark_command_writes_every_reading_with_its_provenance(tmp_path):
+    _write_shifted(str(tmp_path / "clone" / "data" / "IndustRobo" / industrial.SHIFTED), np.random.default_rng(4))
+    md = tmp_path / "industrial_robot.md"
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "industrial_robot.py"), "--data",
+                          str(tmp_path), "--predictors", "hold,arx_ls", "--md", str(md)],
+                         capture_output=True, text=True, cwd=str(tmp_path))
+    assert out.returncode == 0, out.stderr[-2000:]
+    text = md.read_text()
+    assert text.startswith("*Produced by `") and "at commit" in text and "machine:" in text
+    assert "shifted layout, sha256" in text and "(the official file was not found)" in text
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+            for line in text.splitlines() if line.startswith("| hold") or line.startswith("| arx_ls")}
+    assert set(rows) == {"hold", "arx_ls"}
+    for name in rows:  # (a), (b), (c) and both identibench columns are numbers
+        assert all(np.isfinite(float(v)) for v in rows[name][:5])
+    assert "| MA-LSTM-MLP" in text and "(c), likely" in text
