@@ -9,6 +9,9 @@ on windows of a store (context 200 from each trajectory's start):
 - a rolling context (after only): :class:`robomorph.inference.rolling.RollingHybrid`, identified every
   ``--reidentify`` calls, one call per frame over ``--frames`` frames from frame 200: median and p95 per call, and
   the joint RMS at 1 s against the recorded motion beside a fresh identification at the same frames;
+- a model-predictive controller's re-plan (``robomorph control``'s MPPI: the planner's rollout of 128 candidates x
+  20 frames at 2 physics steps, one robot) and the hybrid planner's identification it runs every ``--reidentify``
+  frames;
 - where the time goes: cProfile's largest own times over the single-trajectory calls of the code after.
 
 "Before" and "after" are two commits of this repository (``--before``, default the landed main the issue was
@@ -103,6 +106,39 @@ def _rolling(pred, u, y, frames: int, reidentify: int) -> dict:
             "rms_fresh": float(np.sqrt(np.mean(np.square(fresh)))), "probes": len(errs)}
 
 
+def _planner(pred, u, y, arm: str, repeats: int = 20) -> dict:
+    """A model-predictive controller's work (``robomorph control``'s MPPI: 128 candidates x 20 frames at 2 physics
+    steps each, on one robot): the planner's rollout of the candidates per re-plan (wall, CPU: median and p95), and
+    the hybrid planner's identification from a 200-frame context, which it runs every ``--reidentify`` frames."""
+    import torch  # noqa: PLC0415
+
+    from robomorph.control import dynamics as dyn  # noqa: PLC0415
+    from robomorph.sim.recipe import Recipe  # noqa: PLC0415
+
+    recipe = Recipe(robot=arm)
+    planner = dyn.CataloguePlanner("mpc", recipe.randomization, recipe.dt, 2, robot=arm)
+    nj = u.shape[2]
+    m = dyn.Measured(CONTEXT + 1, nj, y[0, 0, 7:])
+    m.frame, m.qpos[:] = CONTEXT, y[0, CONTEXT, 7:]
+    planner.observe(m, True)
+    plans = np.random.default_rng(0).normal(0.0, 0.5, (128, 20, nj))
+    times = []
+    for _ in range(repeats + 1):
+        t0, c0 = time.perf_counter(), time.process_time()
+        planner.predict(plans)
+        times.append((time.perf_counter() - t0, time.process_time() - c0))
+    times = np.asarray(times[1:])
+    planner.close()
+    ident = []
+    for i in range(len(u)):
+        args = [torch.as_tensor(a[None, :CONTEXT]) for a in (u[i], y[i])]
+        t0, c0 = time.perf_counter(), time.process_time()
+        pred.hybrid().identify(*args, pred.settings.mode, at_rest=True)
+        ident.append((time.perf_counter() - t0, time.process_time() - c0))
+    return {"replan": np.median(times, axis=0).tolist(), "replan_p95": np.percentile(times, 95, axis=0).tolist(),
+            "identify": np.median(ident, axis=0).tolist()}
+
+
 def _profile(pred, u, y) -> str:
     """cProfile's largest own times over the single-trajectory calls (what a flame graph's widest frames show)."""
     import cProfile  # noqa: PLC0415
@@ -139,6 +175,7 @@ def measure(args) -> dict:
     out["single_m1"] = _single(pred, ur, yr, args.repeats)
     out["batch_m1"] = _batch(pred, u, y, args.batch)
     pred.configure(members=Predictor.from_arm(args.arm, args.recipe).settings.members)
+    out["planner"] = _planner(pred, ur, yr, args.arm)
     try:
         import robomorph.inference.rolling  # noqa: F401, PLC0415
     except ImportError:
@@ -198,6 +235,14 @@ def table(before: list[dict], after: list[dict], args) -> str:
         eb, ea = before[-1][key][1], after[-1][key][1]
         rows.append(["its joint RMS at 1 / 13.3 s [mrad] (steps 60 / 799)", f"{eb[0]:.3f} / {eb[1]:.3f}",
                      f"{ea[0]:.3f} / {ea[1]:.3f}", ""])
+    if all("planner" in r for r in before + after):
+        for key, what in (("replan", "MPC re-plan's rollout: 128 candidates x 20 frames x 2 steps, median"),
+                          ("replan_p95", "the same, p95"),
+                          ("identify", "the hybrid planner's identification (every `--reidentify` frames), median")):
+            b = np.median([r["planner"][key] for r in before], axis=0)
+            a = np.median([r["planner"][key] for r in after], axis=0)
+            rows.append([f"{what}: wall / CPU", f"{_ms(b[0])} / {_ms(b[1])}", f"{_ms(a[0])} / {_ms(a[1])}",
+                         f"{b[0] / a[0]:.2f}x / {b[1] / a[1]:.2f}x"])
     roll = [r["rolling"] for r in after if r.get("rolling")]
     if roll:
         get = lambda k: float(np.median([r[k] for r in roll]))  # noqa: E731
