@@ -81,13 +81,6 @@ class ArmRequest:
 
 # --- URDF -------------------------------------------------------------------------------------
 
-def _floats(text: str | None, n: int, default: float = 0.0) -> np.ndarray:
-    vals = np.array([float(v) for v in (text or "").split()] or [default] * n, dtype=float)
-    if vals.shape != (n,):
-        raise ValueError(f"expected {n} numbers, got {text!r}")
-    return vals
-
-
 def _check_inertial(link: ET.Element, moved: bool, path: str) -> None:
     """Refuses a link's ill-posed inertial, naming the link (see the module docstring)."""
     name = link.get("name")
@@ -125,9 +118,13 @@ class _Tree:
         self.links = {link.get("name"): link for link in root.findall("link")}
         self.joints = {j.get("name"): j for j in root.findall("joint")}
         self.parent_joint = {}  # child link -> joint
-        for j in self.joints.values():
-            child = j.find("child").get("link")
-            self.parent_joint[child] = j
+        for name, j in self.joints.items():
+            ends = [j.find(tag).get("link") if j.find(tag) is not None else None for tag in ("parent", "child")]
+            missing = [tag for tag, link in zip(("parent", "child"), ends) if link not in self.links]
+            if missing:
+                raise ArmDescriptionError(f"joint {name!r} in {path}: its <{missing[0]} link=...> names no link of the "
+                                          "URDF; a joint connects two of its links")
+            self.parent_joint[ends[1]] = j
         roots = [name for name in self.links if name not in self.parent_joint]
         if len(roots) != 1:
             raise ArmDescriptionError(f"{path}: a robot has one root link, found {len(roots)} ({', '.join(roots)})")

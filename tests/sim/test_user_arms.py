@@ -134,6 +134,9 @@ def test_other_bad_descriptions(tmp_path, user_folder):
         user_arms.add(ArmRequest("panda", mjcf, "urdf"))
     with pytest.raises(ArmDescriptionError, match="cannot read .* as XML"):
         user_arms.add(ArmRequest("x", write(tmp_path / "broken.urdf", "<robot><link"), "urdf"))
+    broken = serial_arm(3).replace("</robot>", '<joint name="loose" type="fixed"><parent link="link3"/></joint></robot>')
+    with pytest.raises(ArmDescriptionError, match="joint 'loose' .* <child link=...> names no link"):
+        _add(tmp_path, "x", broken)
     assert not user_folder.exists()
     # --torque-limits stands in for missing effort limits.
     arm = _add(tmp_path, "x", serial_arm(3, effort=0.0), torque_limits=(5.0, 4.0, 3.0))
