@@ -279,12 +279,14 @@ def _full_precision(xml: str, model: mujoco.MjModel) -> str:
     """MuJoCo's XML writer keeps six digits: the compiled model's own numbers (frames, inertias,
     joint axes, ranges and dynamics) are written back in full, so the saved arm is the compiled one."""
     root = ET.fromstring(xml)
+    in_frame = {child for frame in root.iter("frame") for child in frame.iter("body")}
     for el in root.iter("body"):
         b = model.body(el.get("name"))
-        for alt in ("euler", "axisangle", "xyaxes", "zaxis"):
-            el.attrib.pop(alt, None)
-        el.set("pos", _numbers(b.pos))
-        el.set("quat", _numbers(b.quat))
+        if el not in in_frame:  # the compiled pose is relative to the parent body, not to a <frame> between them
+            for alt in ("euler", "axisangle", "xyaxes", "zaxis"):
+                el.attrib.pop(alt, None)
+            el.set("pos", _numbers(b.pos))
+            el.set("quat", _numbers(b.quat))
         inertial = el.find("inertial")
         if inertial is not None:
             inertial.attrib.clear()
