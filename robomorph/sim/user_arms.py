@@ -24,13 +24,13 @@ import hashlib
 import json
 import os
 import shutil
-import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
+from robomorph.core.atomic import atomic_folder
 from robomorph.core.errors import MissingInputError, OutputExistsError, RoboMorphError
 from robomorph.core.names import check_plain_name
 from robomorph.sim import arms
@@ -376,25 +376,15 @@ def add(req: ArmRequest, overwrite: bool = False) -> arms.Arm:
     if os.path.exists(target) and not overwrite:
         raise OutputExistsError(f"a user arm {req.name!r} exists ({target}): pass --overwrite to replace it, or "
                                 f"`robomorph arms remove {req.name}` first")
-    os.makedirs(folder, exist_ok=True)
-    staging = tempfile.mkdtemp(prefix=f".{req.name}.", dir=folder)
-    try:
+    # The one atomic folder writer: the arm is built in a hidden folder beside its place and swapped in
+    # whole once its domain builds; a failure leaves the earlier arm (or none) as it was.
+    with atomic_folder(target) as staging:
         with open(os.path.join(staging, MODEL_FILES[req.fmt]), "w", encoding="utf-8") as f:
             f.write(xml)
         with open(os.path.join(staging, RECORD_FILE), "w", encoding="utf-8") as f:
             json.dump(record, f, indent=1)
         arm = arms.read_user_arm(os.path.join(staging, RECORD_FILE), 0)
         arm.build_model(gravity_compensation=False)  # the domain must build before the arm is kept
-        if os.path.exists(target):
-            old = tempfile.mkdtemp(prefix=f".{req.name}.old.", dir=folder)
-            os.rename(target, os.path.join(old, "arm"))
-            os.rename(staging, target)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.rename(staging, target)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
     return arms.get(req.name)
 
 
