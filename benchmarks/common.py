@@ -12,6 +12,7 @@ import os
 
 import yaml
 
+from robomorph.core.config import yaml_value
 from robomorph.core.overrides import merge, unflatten
 from robomorph.core.results import provenance, provenance_markdown
 
@@ -27,7 +28,7 @@ def parse_sets(items: list[str] | None) -> dict:
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise SystemExit(f"error: --set takes KEY=VALUE (e.g. model.d_model=64), got {item!r}")
-        flat[key.strip()] = yaml.safe_load(value)
+        flat[key.strip()] = yaml_value(value, f"--set {key.strip()}")
     return unflatten(flat)
 
 

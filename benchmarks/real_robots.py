@@ -40,7 +40,8 @@ import sys
 import numpy as np
 from common import print_provenance
 
-from robomorph.core.errors import RoboMorphError, run_command
+from robomorph.core.atomic import check_not_input, check_outside_stores, check_replaceable
+from robomorph.core.errors import OutputExistsError, RoboMorphError, run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown
 from robomorph.data import public_logs
 from robomorph.data.store import open_store
@@ -139,7 +140,9 @@ def _models(paths: dict[str, str], store: str) -> tuple[dict, dict]:
         try:
             pred = Predictor.from_checkpoint(path, device="cpu")
             info = pred.data_info
-            if list(info["y_names"]) != list(ds.y_names) or abs(float(info.get("dt", ds.dt)) - ds.dt) > 1e-6 * ds.dt:
+            # A model of several arms carries their union and records each arm's layout: it reads a store of one.
+            names = [list(info["y_names"])] + [list(lay["y_names"]) for lay in info.get("layouts", [])]
+            if list(ds.y_names) not in names or abs(float(info.get("dt", ds.dt)) - ds.dt) > 1e-6 * ds.dt:
                 skipped[name] = "trained on other channels or another rate"
                 continue
             loaded[name] = pred
@@ -257,8 +260,25 @@ def render(res: dict) -> str:
     return head + table + extra
 
 
+def check_outputs(args) -> None:
+    """Refuses, before any store is written or any window scored, outputs that would destroy
+    something: ``--md`` over anything but an earlier result file (a checkpoint, notes) or inside
+    a store, ``--work`` or ``--plots`` that is or lies inside a store, or a ``--work`` that is
+    (or holds) the sources' folder."""
+    if args.md:
+        check_replaceable(args.md, "markdown", "--md")
+        check_not_input(args.md, [args.data, *args.model.values()], "--md")
+    for flag, folder in (("--work", args.work), ("--plots", args.plots)):
+        if folder:
+            check_outside_stores(folder, flag, may_be_store=False)
+            check_not_input(folder, [args.data, *args.model.values()], flag)
+            if os.path.exists(folder) and not os.path.isdir(folder):
+                raise OutputExistsError(f"{flag} {folder} is a file, not a folder; choose another {flag}")
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
+    check_outputs(args)
     print_provenance()
     if args.download_industrial and "industrial_robot" in args.robots and not os.path.isdir(
             os.path.join(args.data, public_logs.SOURCES["industrial_robot"].folders[0])):

@@ -33,6 +33,7 @@ import numpy as np
 import yaml
 from common import print_provenance
 
+from robomorph.core.config import yaml_value
 from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
 from robomorph.evaluation.scoring import score_windows
@@ -136,7 +137,7 @@ def parse_variant(text: str) -> tuple[str, dict]:
         key, sep, value = item.partition("=")
         if not sep:
             raise SystemExit(f"error: --variant takes NAME=VALUE[,NAME=VALUE], got {text!r}")
-        changes[key.strip()] = yaml.safe_load(value)
+        changes[key.strip()] = yaml_value(value, f"--variant {key.strip()}")
     return "hybrid " + text, changes
 
 

@@ -10,8 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-import yaml
-
+from robomorph.core.config import yaml_value
 from robomorph.core.errors import run_command
 from robomorph.core.options import add_alias
 from robomorph.data.priors import PriorError
@@ -45,7 +44,7 @@ def parse_settings(items: list[str]) -> dict:
         name, sep, value = item.partition("=")
         if not sep or not name.strip():
             raise PriorError(f"--set takes NAME=VALUE (a HybridSettings field), got {item!r}")
-        out[name.strip()] = yaml.safe_load(value)
+        out[name.strip()] = yaml_value(value, f"--set {name.strip()}")
     return out
 
 

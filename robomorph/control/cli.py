@@ -53,9 +53,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--uncertainty", default=d.uncertainty, choices=list(UNCERTAINTY),
                    help="wide: masses ±30 %%, damping 3-13, friction ×0.3-1.8 (outside training); training: the "
                         "training ranges")
-    p.add_argument("--warmup", type=number(0, MAX_SECONDS, low_open=True), default=d.warmup,
+    # Both are counted in frames (d.dt): under one frame the episode has no warm-up or no tracking.
+    p.add_argument("--warmup", type=number(d.dt, MAX_SECONDS), default=d.warmup,
                    help="seconds under the catalogue OSC first (≥ the model's context)")
-    p.add_argument("--duration", type=number(0, MAX_SECONDS, low_open=True), default=d.duration,
+    p.add_argument("--duration", type=number(d.dt, MAX_SECONDS), default=d.duration,
                    help="seconds of tracking after the warm-up")
     p.add_argument("--candidates", type=integer(1, 100_000), default=m.samples,
                    help="MPPI candidate command sequences scored per re-plan")

@@ -86,6 +86,11 @@ class ControlConfig:
         if not (0 < self.warmup < np.inf and 0 < self.duration < np.inf):
             raise ControlError(f"--warmup and --duration must be finite and > 0 seconds, got {self.warmup} and "
                                f"{self.duration}")
+        for flag, seconds in (("--warmup", self.warmup), ("--duration", self.duration)):
+            # Both are counted in frames: under one frame the episode has no warm-up or no tracking.
+            if int(round(seconds / self.dt)) < 1:
+                raise ControlError(f"{flag} {seconds:g} s is shorter than one frame ({self.dt:.4g} s): give at "
+                                   f"least {self.dt:.4g} s")
         if self.seed < 0:
             raise ControlError(f"--seed must be >= 0, got {self.seed}")
         if self.plan_substeps < 1 or self.context < 1 or self.reidentify < 0:

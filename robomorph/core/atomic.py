@@ -10,11 +10,21 @@ Before replacing a file a user named (``report --out``, ``calibrate --out``), a 
 :func:`check_replaceable`: it replaces only a file of its own kind, never a checkpoint with a
 page or a page with a checkpoint, and never writes into a Zarr store.
 
+A Markdown result file (``write_markdown``: every benchmark's ``--md``) is replaced the same
+way, only over an earlier result file (one that opens with its provenance line). A store
+(``generate``, ``merge``, ``ingest``, ``priors``) or a scratch folder of a script is never
+written inside another store (:func:`check_outside_stores`), nor over one of the command's own
+inputs (:func:`check_not_input`): the two rules every writer shares, checked before anything is
+created.
+
 A result folder (``evaluate --out``, ``control --out``, ``export --out``) is written the same
 way, whole: :func:`atomic_folder` fills a temporary folder beside the target and swaps it in,
 after :func:`check_folder_replaceable` made sure the target is empty or an earlier result of
 the same kind (recognised by content, as files are), never another command's folder or a
 store. :func:`robomorph.core.locks.output_folder` puts the two under one writer's lock.
+Several folders that stand or fall together (``ingest --source``'s train, val and test stores)
+are built in one :func:`staging_folder` and each moved into place by :func:`replace_folder` once
+all of them were written.
 """
 
 from __future__ import annotations
@@ -90,7 +100,10 @@ def save_figure(fig: Any, path: str | os.PathLike, **savefig_kwargs: Any) -> Non
 
 # What a writer may replace, recognised by content (a name's suffix says little: a user may
 # call a checkpoint anything). torch.save writes a zip archive holding <name>/data.pkl.
-_KIND_NAMES = {"html": "an HTML page", "checkpoint": "a checkpoint"}
+_KIND_NAMES = {"html": "an HTML page", "checkpoint": "a checkpoint",
+               "markdown": "a Markdown result file (robomorph.core.results.write_markdown)"}
+# The first line every Markdown result file opens with (robomorph.core.results.provenance_markdown).
+MARKDOWN_MARK = b"*Produced by `"
 
 
 def _is_html(head: bytes) -> bool:
@@ -107,13 +120,15 @@ def _is_checkpoint(path: str) -> bool:
 
 
 def file_kind(path: str | os.PathLike) -> str | None:
-    """``"html"`` or ``"checkpoint"`` for a file of that kind, ``"empty"``, else None."""
+    """``"html"``, ``"markdown"`` or ``"checkpoint"`` for a file of that kind, ``"empty"``, else None."""
     with open(path, "rb") as f:
         head = f.read(512)
     if not head:
         return "empty"
     if _is_html(head):
         return "html"
+    if head.startswith(MARKDOWN_MARK):
+        return "markdown"
     return "checkpoint" if _is_checkpoint(os.fspath(path)) else None
 
 
@@ -131,6 +146,63 @@ def zarr_store_holding(path: str | os.PathLike) -> str | None:
         folder = parent
 
 
+def store_around(path: str | os.PathLike) -> str | None:
+    """The Zarr store that ``path`` lies strictly inside (``S.zarr/x``, ``S.zarr/u/c``), or None.
+
+    ``path`` itself may be a store (a writer of stores replaces its own kind); a folder above it
+    that holds ``zarr.json`` may not: writing there would add foreign files to that store, which
+    its readers and ``--overwrite`` treat as their own. Links are followed, so a link into a
+    store counts as the store.
+    """
+    for spelled in {os.path.abspath(os.fspath(path)), os.path.realpath(os.fspath(path))}:
+        folder = os.path.dirname(spelled)
+        while True:
+            if os.path.isfile(os.path.join(folder, "zarr.json")):
+                return folder
+            parent = os.path.dirname(folder)
+            if parent == folder:
+                break
+            folder = parent
+    return None
+
+
+def check_outside_stores(path: str | os.PathLike, flag: str = "--out", may_be_store: bool = True) -> None:
+    """Raises unless ``path`` lies outside every Zarr store (it may be a store itself, when
+    ``may_be_store``: a writer of stores; a folder of other files may not).
+
+    Raises:
+        OutputExistsError: the message names the store.
+    """
+    if not may_be_store and os.path.isfile(os.path.join(os.fspath(path), "zarr.json")):
+        raise OutputExistsError(f"{flag} {os.fspath(path)} is a Zarr store, not a folder for other files: choose "
+                                f"another {flag} outside any store")
+    store = store_around(path)
+    if store is not None:
+        raise OutputExistsError(f"{flag} {os.fspath(path)} is inside the Zarr store {store}: writing there would "
+                                "mix foreign files into that store; choose another " + flag + " outside any store")
+
+
+def check_not_input(path: str | os.PathLike, inputs, flag: str = "--out") -> None:
+    """Raises when ``path`` is one of ``inputs`` or a folder around one (links resolved).
+
+    Replacing (``--overwrite``) or filling such a path would destroy an input before, or while,
+    it is read. A path inside an input folder is left to :func:`check_outside_stores` (an input
+    store) or allowed (a folder of logs).
+
+    Raises:
+        OutputExistsError: the message names the input.
+    """
+    out = os.path.realpath(os.fspath(path)).rstrip(os.sep) or os.sep
+    for item in inputs:
+        if item is None:
+            continue
+        given = os.path.realpath(os.fspath(item))
+        if given == out or given.startswith(out.rstrip(os.sep) + os.sep):
+            what = "is the input" if given == out else "is a folder around the input"
+            raise OutputExistsError(f"{flag} {os.fspath(path)} {what} {os.fspath(item)}: writing it would destroy "
+                                    f"what the command reads; choose another {flag}")
+
+
 def check_replaceable(path: str | os.PathLike, kind: str, flag: str = "--out") -> None:
     """Raises unless a writer of ``kind`` files may (re)write ``path``.
 
@@ -139,7 +211,7 @@ def check_replaceable(path: str | os.PathLike, kind: str, flag: str = "--out") -
 
     Args:
         path: the file about to be written.
-        kind: ``"html"`` or ``"checkpoint"``.
+        kind: ``"html"``, ``"markdown"`` or ``"checkpoint"``.
         flag: how the user gave ``path``, for the message.
 
     Raises:
@@ -259,18 +331,69 @@ def atomic_folder(path: str | os.PathLike) -> Iterator[str]:
         raise OSError(code, os.strerror(code) if code != exc.errno else exc.strerror, os.fspath(path)) from None
     try:
         yield tmp
-        moved = os.path.isdir(target)
-        if moved:
-            os.replace(target, old)
-        try:
-            os.replace(tmp, target)
-        except BaseException:
-            if moved:
-                os.replace(old, target)
-            raise
+        _swap(tmp, target, old)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         shutil.rmtree(old, ignore_errors=True)
+
+
+def _swap(new: str, target: str, old: str) -> None:
+    """``new`` renamed to ``target``; a folder there is first renamed to ``old`` (and back if the
+    second rename fails). The caller removes ``old``."""
+    moved = os.path.isdir(target)
+    if moved:
+        os.replace(target, old)
+    try:
+        os.replace(new, target)
+    except BaseException:
+        if moved:
+            os.replace(old, target)
+        raise
+
+
+def replace_folder(new: str | os.PathLike, target: str | os.PathLike) -> None:
+    """Moves the finished folder ``new`` (on ``target``'s file system: built in a
+    :func:`staging_folder` beside it) to ``target``, replacing a folder there whole.
+
+    The caller has checked that ``target`` may be replaced (a store writer: :func:`check_outside_stores`
+    and its own kind); a link at ``target`` is followed, as :func:`atomic_folder` follows it.
+    """
+    target = os.path.realpath(os.fspath(target))
+    parent, name = os.path.split(target)
+    old = os.path.join(parent, f".{name}.{os.getpid()}.old")
+    try:
+        _swap(os.fspath(new), target, old)
+    finally:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def staging_folder(parent: str | os.PathLike, name: str = "staging") -> Iterator[str]:
+    """A hidden folder inside ``parent`` in which several results are built before any of them is
+    moved into place (:func:`replace_folder`), so that a refusal of the last one leaves none of
+    the others behind.
+
+    Removed on exit, whatever happens; on an exception the folders down to it that it made
+    (``parent`` and those above it that did not exist) go too, where nothing else landed in them.
+    """
+    parent = os.path.abspath(os.fspath(parent))
+    made, folder = [], parent
+    while not os.path.exists(folder):
+        made.append(folder)
+        folder = os.path.dirname(folder)
+    path = os.path.join(parent, f".{name}.{os.getpid()}.tmp")
+    shutil.rmtree(path, ignore_errors=True)
+    os.makedirs(path)
+    try:
+        yield path
+    except BaseException:
+        shutil.rmtree(path, ignore_errors=True)
+        for folder in made:  # innermost first
+            with contextlib.suppress(OSError):
+                os.rmdir(folder)
+        raise
+    finally:
+        shutil.rmtree(path, ignore_errors=True)
 
 
 def set_aside(path: str | os.PathLike) -> str:

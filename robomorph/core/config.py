@@ -7,6 +7,7 @@ nested dicts into them, naming the offending key path in every error.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from typing import Any, TypeVar
@@ -128,10 +129,52 @@ def load_yaml(path: str) -> dict[str, Any]:
     return data
 
 
-def check_range(name: str, rng: tuple[float, float], low: float | None = 0.0) -> None:
-    """Validates a (lo, hi) range: ordered and, when ``low`` is given, not below it."""
+def check_range(name: str, rng: tuple[float, float], low: float | None = 0.0, high: float | None = None) -> None:
+    """Validates a (lo, hi) range: finite, ordered and, when ``low`` / ``high`` are given,
+    within them.
+
+    Finite always: a range is drawn from (``uniform(lo, hi)``), and a NaN or an infinity
+    there would pass every comparison below or overflow the draw. ``high`` bounds what the
+    physics or the memory can take (a latency of 10^9 physics steps is a 7 GiB buffer).
+    """
     lo, hi = rng
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ValueError(f"{name}: range ({lo}, {hi}) must hold finite numbers")
     if lo > hi:
         raise ValueError(f"{name}: inverted range ({lo}, {hi}); write it as (low, high)")
     if low is not None and lo < low:
         raise ValueError(f"{name}: range ({lo}, {hi}) goes below {low}")
+    if high is not None and hi > high:
+        raise ValueError(f"{name}: range ({lo}, {hi}) goes above {high:g}, the most it may be")
+
+
+def check_number(name: str, value: float, low: float | None = None, high: float | None = None,
+                 low_open: bool = False, high_open: bool = False) -> None:
+    """Validates one number: finite and within ``low`` / ``high`` (open ends excluded), the
+    scalar counterpart of :func:`check_range`. A NaN fails every comparison, so a check written
+    ``if x < 0: raise`` lets it through; this one does not."""
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value}")
+    if low is not None and (value <= low if low_open else value < low):
+        raise ValueError(f"{name} must be {'>' if low_open else '>='} {low:g}, got {value}")
+    if high is not None and (value >= high if high_open else value > high):
+        raise ValueError(f"{name} must be {'<' if high_open else '<='} {high:g}, got {value}")
+
+
+def yaml_value(text: str, where: str) -> Any:
+    """The value of a ``NAME=VALUE`` option read as plain YAML (``16``, ``[1, 2]``, ``true``).
+
+    Raises:
+        ConfigError: one line naming the option for text that is not YAML (``[1,``) or that
+            asks for a constructor (``!!python/object/apply:...``): safe_load builds plain data
+            only, and its own message spans several lines of markers.
+    """
+    try:
+        return yaml.safe_load(text)
+    except yaml.constructor.ConstructorError as exc:
+        tag = getattr(exc, "problem", "") or ""
+        raise ConfigError(f"{where}: {text!r} uses a YAML tag that builds objects ({tag.strip()}); give a plain "
+                          "value (a number, a string, true/false or a [list])") from None
+    except yaml.YAMLError as exc:
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"{where}: {text!r} is not a YAML value ({problem}); quote a string, close a [list]") from None

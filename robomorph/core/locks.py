@@ -34,8 +34,12 @@ from typing import Any
 
 import filelock
 
-from robomorph.core.atomic import atomic_folder, check_folder_replaceable, write_json
+from robomorph.core.atomic import atomic_folder, check_folder_replaceable, check_outside_stores, write_json
 from robomorph.core.errors import RoboMorphError
+
+
+# How a user names each kind of target, for the message of a refusal.
+_FLAGS = {"store": "--out", "run folder": "--runs_dir/--run", "output folder": "--out"}
 
 
 class LockedError(RoboMorphError, RuntimeError):
@@ -86,6 +90,7 @@ def exclusive(target: str | os.PathLike, what: str = "store") -> Iterator[None]:
         what: what the target is, for the message (``store``, ``run folder``).
 
     Raises:
+        OutputExistsError: the target lies inside a Zarr store.
         LockedError: another process holds the lock (the message names it). Never waits:
             a writer that found its target busy and then wrote would still race.
 
@@ -93,6 +98,9 @@ def exclusive(target: str | os.PathLike, what: str = "store") -> Iterator[None]:
     runs unlocked: no writer can create the target there either, and the writer's own
     check names the problem in its words.
     """
+    # A writer never writes inside another Zarr store, and its lock file beside the target would
+    # already be inside it: refused before the lock, whoever writes (a store, a run folder).
+    check_outside_stores(target, _FLAGS.get(what, "--out"))
     path = lock_path(target)
     lock = filelock.FileLock(path, timeout=0)
     try:

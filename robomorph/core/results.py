@@ -29,7 +29,7 @@ import subprocess
 import sys
 from collections.abc import Iterable, Sequence
 
-from robomorph.core.atomic import write_text
+from robomorph.core.atomic import check_replaceable, write_text
 from robomorph.core.errors import RoboMorphError
 
 COMMENT = "# "
@@ -141,8 +141,14 @@ def _cell(v, floatfmt: str) -> str:
     return text.replace("|", "\\|")
 
 
-def write_markdown(path: str, text: str, prov: dict | None = None) -> None:
-    """Writes a Markdown result file (atomically) that opens with its provenance line."""
+def write_markdown(path: str, text: str, prov: dict | None = None, flag: str = "--md") -> None:
+    """Writes a Markdown result file (atomically) that opens with its provenance line.
+
+    It replaces only an earlier result file (or an empty one), never a checkpoint, a page, a
+    user's notes or anything in a Zarr store (:func:`robomorph.core.atomic.check_replaceable`);
+    a script calls that check itself before its long work too, with its ``flag``.
+    """
+    check_replaceable(path, "markdown", flag)
     prov = prov or provenance()
     write_text(path, f"{provenance_markdown(prov)}\n\n{text.rstrip()}\n")
 

@@ -29,7 +29,7 @@ import warnings
 
 import numpy as np
 
-from robomorph.core.locks import exclusive_on
+from robomorph.core.locks import exclusive, exclusive_on
 from robomorph.data import real_logs, rosbag
 from robomorph.data.log_files import FORMATS, IngestError, read_log
 from robomorph.data.store import Dataset, check_writable, create_store, open_store
@@ -201,7 +201,6 @@ def _common_dt(dts: list[tuple[str, float]], tol: float) -> float:
     return mean
 
 
-@exclusive_on("out")  # one writer per store
 def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, steps: int,
            dt: float | None = None, time_col: str | None = None, stride: int | None = None,
            fmt: str = "auto", overwrite: bool = False, name: str | None = None,
@@ -247,7 +246,7 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
     dt_arg, stride = dt, (steps if stride is None else stride)
     _check_request(files, u_cols, y_cols, steps, dt, time_col, stride, time_tol, u_cmd_cols, u_units, y_units,
                    layout, resample_hz)
-    check_writable(out, overwrite)  # refuse a bad --out before reading large logs
+    check_writable(out, overwrite, inputs=tuple(files))  # refuse a bad --out before reading large logs
     recs, dts, skipped, report = _load_recordings(_file_logs(files, fmt), u_cols, y_cols, steps, stride, time_col,
                                                   time_tol, u_cmd_cols, dt, resample_hz, layout)
     total = sum(len(r[3]) for r in recs)
@@ -260,7 +259,9 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
               "name": name, "time_tol": time_tol, "u_units": u_units, "y_units": y_units, "resample_hz": resample_hz,
               "layout": layout}
     attrs = _store_attrs(config, dt, original_dt, report, skipped, total, y_units_stored or [""] * len(y_names))
-    _write_store(out, recs, steps, (u_names, y_names, cmd_names), attrs, overwrite)
+    # Locked only now, once every log was read and checked: a refusal above leaves nothing, not even a lock file.
+    with exclusive(out):  # one writer per store
+        _write_store(out, recs, steps, (u_names, y_names, cmd_names), attrs, overwrite)
     return open_store(out)
 
 

@@ -25,7 +25,9 @@ from typing import Callable
 
 import numpy as np
 
+from robomorph.core.atomic import replace_folder, staging_folder
 from robomorph.core.errors import MissingInputError, RoboMorphError
+from robomorph.core.locks import exclusive
 
 SPLITS = ("train", "val", "test")
 
@@ -142,10 +144,29 @@ class PublicLog:
 # ---------------------------------------------------------------------------------- readers
 
 
-def _csv_header(path: str) -> tuple[list[str], np.ndarray]:
+def _numbers(path: str, min_cols: int) -> np.ndarray:
+    """(L, k >= ``min_cols``) the rows of a headerless CSV of numbers, or one line naming the file,
+    the line and what is wrong (a truncated last line, a cell that is no number, too few columns)."""
+    from robomorph.data.log_files import IngestError  # noqa: PLC0415
+
+    rows: list[list[float]] = []
     with open(path, encoding="utf-8-sig") as f:
-        names = [h.strip() for h in f.readline().split(",")]
-    return names, np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+        for line_no, line in enumerate(f, start=1):
+            if not line.strip():
+                continue
+            try:
+                row = [float(c) for c in line.split(",")]
+            except ValueError:
+                raise IngestError(f"{path} line {line_no}: {line.strip()[:60]!r} is not a row of numbers (a truncated "
+                                  "or damaged file?); restore the file from its clone") from None
+            if rows and len(row) != len(rows[0]):
+                raise IngestError(f"{path} line {line_no}: {len(row)} values where the lines above hold {len(rows[0])} "
+                                  "(a truncated or damaged file?); restore the file from its clone")
+            rows.append(row)
+    if rows and len(rows[0]) < min_cols:
+        raise IngestError(f"{path}: {len(rows[0])} columns where this source's files hold at least {min_cols}; "
+                          "is this the source's own file? Restore it from its clone")
+    return np.asarray(rows, dtype=np.float64).reshape(len(rows), -1)
 
 
 def _kinova(root: str) -> list[Recording]:
@@ -154,12 +175,14 @@ def _kinova(root: str) -> list[Recording]:
     # columns read exactly 0 over whole files (Trajectory1, four of the joint-wise motions) and
     # on joint 7 in every file, which would hand every predictor a robot with no torque there.
     recs = []
+    from robomorph.data.log_files import read_log  # noqa: PLC0415  (ingest's CSV reader: it names a bad line)
+
     for path in sorted(glob.glob(os.path.join(root, "pyDynaMapp", "data", "kinova", "*", "*.csv"))):
-        names, a = _csv_header(path)
+        cols = read_log(path, "csv")
         try:
-            u = a[:, [names.index(f"TorqueCur{j}") for j in range(1, 8)]]
-            q = a[:, [names.index(f"Position{j}") for j in range(1, 8)]]
-        except ValueError:
+            u = np.stack([cols[f"TorqueCur{j}"] for j in range(1, 8)], axis=1)
+            q = np.stack([cols[f"Position{j}"] for j in range(1, 8)], axis=1)
+        except KeyError:
             raise PublicLogError(f"{path} lacks the TorqueCur1..7 / Position1..7 columns of the Kinova logs") from None
         split = "test" if os.path.basename(os.path.dirname(path)) == "validation_data" else "train"
         recs.append(Recording(os.path.relpath(path, root), u, q, 1e-3, split))
@@ -234,9 +257,9 @@ def _schunk(root: str) -> list[Recording]:
     held_out = set(list(groups.values())[-1]) if groups else set()
     recs = []
     for run in runs:
-        t = np.loadtxt(os.path.join(run, "time.csv"), delimiter=",", ndmin=1)
-        traj = np.loadtxt(os.path.join(run, "trajectory.csv"), delimiter=",", ndmin=2)
-        u = np.loadtxt(os.path.join(run, "input.csv"), delimiter=",", ndmin=2)
+        t = _numbers(os.path.join(run, "time.csv"), 1).reshape(-1)
+        traj = _numbers(os.path.join(run, "trajectory.csv"), 6)  # the six joint angles first
+        u = _numbers(os.path.join(run, "input.csv"), 6)
         n = min(len(t), len(traj), len(u))
         dt = float(np.median(np.diff(t[:n])))
         recs.append(Recording(os.path.relpath(run, root), u[:n], traj[:n, :6], dt,
@@ -260,7 +283,11 @@ def _industrial(root: str) -> list[Recording]:
     path = next((p for p in found if os.path.isfile(p)), None)
     if path is None:
         return []
-    m = loadmat(path)
+    try:
+        m = loadmat(path)
+    except Exception as exc:  # noqa: BLE001  (scipy's errors of a damaged file are of many classes)
+        raise PublicLogError(f"cannot read {path} ({type(exc).__name__}: {exc}): a truncated or damaged download? "
+                             "Fetch it again") from None
     if not all(f"{k}_{split}" in m for k in "uy" for split in ("train", "test")):
         raise PublicLogError(f"{path} lacks the benchmark's u_train / y_train / u_test / y_test variables")
     name = os.path.relpath(path, root)
@@ -336,39 +363,63 @@ def write_stores(source: PublicLog, data: str, out: str, overwrite: bool = False
     for one window are skipped, as ``ingest`` skips them; a split none of whose recordings holds
     a window is not written.
 
+    All or nothing: every split is written into a hidden folder inside ``out`` first and moved
+    into place only when all of them were, so a split that is refused (a NaN in a test log)
+    leaves no store of the others behind and a rerun is not refused for them.
+
     Returns:
         ``{split: store path}`` for the splits that have a window.
     """
     from robomorph.data import ingest  # noqa: PLC0415
+    from robomorph.data.store import check_writable  # noqa: PLC0415
 
     recs = source.recordings(data)
     steps = source.context + source.horizon
-    n = recs[0].u.shape[1]
+    plan = _split_plan(source, recs, steps)
+    targets = {split: os.path.join(out, f"{split}.zarr") for split in plan}
+    for target in targets.values():  # every refusal of an output before anything is made
+        check_writable(target, overwrite, inputs=(source.root(data),))
+    with staging_folder(out, source.name) as staging:
+        with tempfile.TemporaryDirectory(prefix="robomorph-public-") as tmp:
+            for split, chosen in plan.items():
+                _ingest_split(ingest, source, split, chosen, steps, tmp, os.path.join(staging, f"{split}.zarr"))
+        for split, target in targets.items():
+            with exclusive(target):
+                check_writable(target, overwrite)  # what it is now that no one else writes it
+                replace_folder(os.path.join(staging, f"{split}.zarr"), target)
+    return targets
+
+
+def _split_plan(source: PublicLog, recs: list[Recording], steps: int) -> dict[str, list[Recording]]:
+    """``{split: its recordings}`` for the splits that hold a window, in :data:`SPLITS` order."""
+    plan = {}
+    for split in SPLITS:
+        chosen = [r for r in recs if r.split == split]
+        if not chosen:
+            continue
+        dts = {round(r.dt, 9) for r in chosen}
+        if len(dts) > 1:
+            raise PublicLogError(f"{source.name}: the {split} recordings have several sample times {sorted(dts)}")
+        # Samples each recording keeps at the store's rate (resample_poly's output length).
+        kept = [int(np.ceil(len(r.u) * (source.hz * r.dt if source.hz else 1.0))) for r in chosen]
+        if max(kept) >= steps:  # else no recording of this split is long enough for one window
+            plan[split] = chosen
+    return plan
+
+
+def _ingest_split(ingest, source: PublicLog, split: str, chosen: list[Recording], steps: int, tmp: str,
+                  target: str) -> None:
+    """One split's recordings, as NPZ logs in ``tmp``, through ``ingest`` into the store ``target``."""
+    n = chosen[0].u.shape[1]
     cols_u, cols_q = [f"u{j}" for j in range(n)], [f"q{j}" for j in range(n)]
-    stores = {}
-    with tempfile.TemporaryDirectory(prefix="robomorph-public-") as tmp:
-        for split in SPLITS:
-            chosen = [r for r in recs if r.split == split]
-            if not chosen:
-                continue
-            dts = {round(r.dt, 9) for r in chosen}
-            if len(dts) > 1:
-                raise PublicLogError(f"{source.name}: the {split} recordings have several sample times {sorted(dts)}")
-            # Samples each recording keeps at the store's rate (resample_poly's output length).
-            kept = [int(np.ceil(len(r.u) * (source.hz * r.dt if source.hz else 1.0))) for r in chosen]
-            if max(kept) < steps:
-                continue  # no recording of this split is long enough for one window
-            files = []
-            for k, r in enumerate(chosen):
-                path = os.path.join(tmp, f"{split}_{k:03d}_{r.name.replace(os.sep, '_').replace(':', '_')}.npz")
-                np.savez(path, **{c: r.u[:, j] for j, c in enumerate(cols_u)}, **{c: r.q[:, j] for j, c in enumerate(cols_q)})
-                files.append(path)
-            target = os.path.join(out, f"{split}.zarr")
-            with warnings.catch_warnings():  # recordings shorter than a window are skipped, as ingest skips them
-                warnings.simplefilter("ignore", ingest.ShortRecordingWarning)
-                ingest.ingest(files, cols_u, cols_q, target, steps, dt=chosen[0].dt,
-                              stride=source.stride if split == "test" else max(1, steps // 4),
-                              overwrite=overwrite, name=source.name, resample_hz=source.hz,
-                              layout=source.arm or "joints", u_units=["N m"] * n, y_units=["rad"] * n)
-            stores[split] = target
-    return stores
+    files = []
+    for k, r in enumerate(chosen):
+        path = os.path.join(tmp, f"{split}_{k:03d}_{r.name.replace(os.sep, '_').replace(':', '_')}.npz")
+        np.savez(path, **{c: r.u[:, j] for j, c in enumerate(cols_u)}, **{c: r.q[:, j] for j, c in enumerate(cols_q)})
+        files.append(path)
+    with warnings.catch_warnings():  # recordings shorter than a window are skipped, as ingest skips them
+        warnings.simplefilter("ignore", ingest.ShortRecordingWarning)
+        ingest.ingest(files, cols_u, cols_q, target, steps, dt=chosen[0].dt,
+                      stride=source.stride if split == "test" else max(1, steps // 4),
+                      name=source.name, resample_hz=source.hz,
+                      layout=source.arm or "joints", u_units=["N m"] * n, y_units=["rad"] * n)

@@ -33,6 +33,7 @@ from zarr.codecs import BloscCodec, Crc32cCodec
 from zarr.storage import LocalStore
 
 import robomorph.data.chunks as chunks  # not via the package: its __init__ imports this module
+from robomorph.core.atomic import check_not_input, check_outside_stores
 from robomorph.core.errors import MissingInputError, OutputExistsError, RoboMorphError, describe_os_error
 from robomorph.core.inputs import INPUT_ARRAYS, InputsError, check_inputs
 from robomorph.data.chunks import StoreDamagedError  # noqa: F401  (part of this module's API)
@@ -84,13 +85,16 @@ def _check_creatable(path: str) -> None:
                              "or change the folder's permissions")
 
 
-def check_writable(path: str, overwrite: bool) -> None:
+def check_writable(path: str, overwrite: bool, inputs: tuple = (), flag: str = "--out") -> None:
     """Raises unless ``path`` may be (re)created: never a file or a store of another schema,
+    never inside another store, never one of the command's ``inputs`` (or a folder around one),
     and an existing RoboMorph store only with ``overwrite``; its folder must be writable.
     Cheap: call it before long work."""
+    check_not_input(path, inputs, flag)
+    check_outside_stores(path, flag)
     if os.path.islink(path) and not os.path.exists(path):  # a dangling link: "File exists" was all zarr said
-        raise OutputExistsError(f"--out {path} is a link to {os.readlink(path)}, which does not exist: remove the "
-                                "link, or choose another --out")
+        raise OutputExistsError(f"{flag} {path} is a link to {os.readlink(path)}, which does not exist: remove the "
+                                f"link, or choose another {flag}")
     if not os.path.exists(path):
         _check_creatable(path)
         return

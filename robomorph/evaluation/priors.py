@@ -7,6 +7,11 @@ windows with the hybrid's query prediction as a prior store (:mod:`robomorph.dat
 ``robomorph fit`` trains a residual model. The work is resumable: rows are written in batches in a
 fixed order, a store left in progress by an interrupted run is continued where it stopped
 (same source, settings and windows, checked), and a complete store of the same request is left as it is.
+
+Every refusal comes before the store is created: ``out`` is checked first (never the source, a folder
+around it or a path inside any store), and the first batch of priors is computed before the store
+exists, so a setting the hybrid refuses only when it runs (a mode, a member count, a context too short
+to identify from) leaves nothing behind.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import yaml
 
+from robomorph.core.atomic import check_not_input, check_outside_stores
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.names import RECORDED_SWITCHES
 from robomorph.core.progress import progress
@@ -71,6 +77,7 @@ def write_priors(req: PriorRequest) -> dict:
         PriorError: a source without commands or recipe, windows that do not fit, or a store in progress
             at ``out`` that was begun with other arguments.
     """
+    _check_out(req)
     src = open_store(req.source)
     if "u_cmd" not in src.arrays:
         raise PriorError(f"{req.source} has no commands (u_cmd): the hybrid predicts from the command formulation; "
@@ -95,13 +102,26 @@ def write_priors(req: PriorRequest) -> dict:
     rows = [(i, int(o)) for o in req.offsets for i in range(n_src)]  # window order: by offset, then row
     if _done(req, record):
         return record
-    writer = _writer(req, src, record, len(rows), length)
+    writer = _in_progress(req, record)
+    start = writer.n if writer is not None else 0
+    # The first batch before the store exists: whatever the hybrid refuses, it refuses here.
+    first = _batch(req, src, hybrid, rows[start:start + req.batch]) if start < len(rows) else None
+    if writer is None:
+        writer = _new_store(req, src, record, len(rows), length)
+    if first is not None:
+        _append(writer, first)
     for b in progress(range(writer.n, len(rows), req.batch), "priors", unit="batch"):
-        part = rows[b:b + req.batch]
-        _write_batch(writer, req, src, hybrid, part)
+        _write_batch(writer, req, src, hybrid, rows[b:b + req.batch])
     if writer.n == writer.capacity and writer.attrs.get("status") != "complete":
         writer.finalize()
     return record
+
+
+def _check_out(req: PriorRequest) -> None:
+    """Refuses an ``out`` that is the source store, a folder around it, or inside any store, before
+    anything is read or written (``--overwrite`` would wipe the source before it is read)."""
+    check_not_input(req.out, (req.source,))
+    check_outside_stores(req.out)
 
 
 def _window(req: PriorRequest, src, rows: np.ndarray, offset: int, inputs: str):
@@ -112,6 +132,11 @@ def _window(req: PriorRequest, src, rows: np.ndarray, offset: int, inputs: str):
 
 def _write_batch(writer: DatasetWriter, req: PriorRequest, src, hybrid, part: list[tuple[int, int]]) -> None:
     """Windows ``part`` ((row, offset) pairs, grouped by offset) with the hybrid's prior, appended."""
+    _append(writer, _batch(req, src, hybrid, part))
+
+
+def _batch(req: PriorRequest, src, hybrid, part: list[tuple[int, int]]) -> dict[str, np.ndarray]:
+    """The arrays of windows ``part`` ((row, offset) pairs, grouped by offset) with the hybrid's prior."""
     cols: dict[str, list[np.ndarray]] = {k: [] for k in ("u", "u_cmd", "y", "params", PRIOR_ARRAY, "source_row",
                                                          "offset", "y_first")}
     for offset in dict.fromkeys(o for _, o in part):
@@ -125,7 +150,11 @@ def _write_batch(writer: DatasetWriter, req: PriorRequest, src, hybrid, part: li
                      ("params", w.params), (PRIOR_ARRAY, prior), ("source_row", idx),
                      ("offset", np.full(len(idx), offset)), ("y_first", w.y_first)):
             cols[k].append(v)
-    out = {k: np.concatenate(v) for k, v in cols.items()}
+    return {k: np.concatenate(v) for k, v in cols.items()}
+
+
+def _append(writer: DatasetWriter, out: dict[str, np.ndarray]) -> None:
+    """Appends the arrays of :func:`_batch` to the store."""
     extras = {k: out[k].astype(np.int64 if k in ("source_row", "offset") else np.float32)
               for k in ("u_cmd", PRIOR_ARRAY, "source_row", "offset", "y_first")}
     extras[RECORDING_ARRAY] = extras["source_row"]  # a robot's windows stay in one split
@@ -143,26 +172,43 @@ def _done(req: PriorRequest, record: dict) -> bool:
     return done.attrs.get(PRIOR_ATTR) == record
 
 
-def _writer(req: PriorRequest, src, record: dict, n_rows: int, length: int) -> DatasetWriter:
-    """A new store at ``req.out``, or the one in progress there when it was begun with the same record."""
-    if os.path.exists(req.out) and not req.overwrite:
-        try:
-            done = open_store(req.out, allow_incomplete=True)
-        except RoboMorphError:
-            done = None
-        if done is not None and done.attrs.get("status") != "complete":
-            if done.attrs.get(PRIOR_ATTR) != record:
-                raise PriorError(f"{req.out} is a prior store in progress begun with other arguments "
-                                 f"({done.attrs.get(PRIOR_ATTR)}); pass --overwrite to start it again")
-            return DatasetWriter.reopen(req.out)
+def _in_progress(req: PriorRequest, record: dict) -> DatasetWriter | None:
+    """The store in progress at ``req.out`` when it was begun with the same record (None: none to resume)."""
+    if not os.path.exists(req.out) or req.overwrite:
+        return None
+    try:
+        done = open_store(req.out, allow_incomplete=True)
+    except RoboMorphError:
+        return None
+    if done.attrs.get("status") == "complete":
+        return None
+    if done.attrs.get(PRIOR_ATTR) != record:
+        if done.n == 0 and done.attrs.get(PRIOR_ATTR) is not None:
+            return None  # a prior store that holds no window yet: nothing to keep, begun anew
+        raise PriorError(f"{req.out} is a prior store in progress begun with other arguments "
+                         f"({done.attrs.get(PRIOR_ATTR)}); pass --overwrite to start it again")
+    return DatasetWriter.reopen(req.out)
+
+
+def _new_store(req: PriorRequest, src, record: dict, n_rows: int, length: int) -> DatasetWriter:
+    """A new store at ``req.out`` (an empty prior store of an earlier request there is replaced)."""
     n_y = len(src.y_names)
     attrs = {k: v for k, v in src.attrs.items() if k in _KEPT_ATTRS}
     extras = {"u_cmd": ((length, len(src.u_names)), "float32"), PRIOR_ARRAY: ((req.horizon, n_y), "float32"),
               "source_row": ((), "int64"), "offset": ((), "int64"), "y_first": ((n_y,), "float32"),
               RECORDING_ARRAY: ((), "int64")}
     return create_store(req.out, n_rows, length, src.u_names, src.y_names, list(src.attrs.get("param_names", [])),
-                        {**attrs, PRIOR_ATTR: record}, extras, chunk=64, overwrite=req.overwrite,
+                        {**attrs, PRIOR_ATTR: record}, extras, chunk=64, overwrite=req.overwrite or _empty_prior(req.out),
                         u_cmd_names=list(src.attrs.get("u_cmd_names", [f"cmd{i}" for i in range(len(src.u_names))])))
+
+
+def _empty_prior(path: str) -> bool:
+    """Whether ``path`` is a prior store in progress that holds no window (safe to replace)."""
+    try:
+        ds = open_store(path, allow_incomplete=True)
+    except RoboMorphError:
+        return False
+    return ds.n == 0 and ds.attrs.get("status") != "complete" and ds.attrs.get(PRIOR_ATTR) is not None
 
 
 # The source store's attributes a prior store keeps (what its windows are and how they were made).

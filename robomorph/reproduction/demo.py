@@ -33,6 +33,7 @@ import os
 import time
 from dataclasses import dataclass, field
 
+from robomorph.core.atomic import check_outside_stores
 from robomorph.core.errors import UsageError
 from robomorph.core.names import TASKS
 from robomorph.core.progress import Phase
@@ -253,6 +254,8 @@ def run_demo(out_dir: str = "data/demo", robots: int = 16, steps: int = 1000, tr
              minutes: float = 1.5, runs_dir: str = "results/runs", workers: int | None = None,
              identified: bool = False, inputs: str = "command", verbose: bool = False) -> DemoResult:
     """The steps of the module docstring, in order."""
+    for flag, folder in (("--out", out_dir), ("--runs-dir", runs_dir)):  # before any folder is made
+        check_outside_stores(folder, flag, may_be_store=False)
     t0 = time.time()
     paths = make_data(out_dir, robots, steps, workers)
     train_store, test = training_data(out_dir, train_robots)

@@ -59,6 +59,7 @@ import shutil
 import time
 from dataclasses import dataclass
 
+from robomorph.core.atomic import check_outside_stores
 from robomorph.core.errors import MissingInputError, UsageError
 from robomorph.core.names import INPUTS, NORMALIZATIONS
 from robomorph.core.normalizations import leaks_query_statistics
@@ -372,6 +373,8 @@ def reproduce(target: str, scale: Scale, out: str | None = None, work: str | Non
         return {"compare": doc}
     plan = Plan(scale, work or os.path.join("data", "reproduce", scale.name),
                 out or default_out(scale, normalization, inputs), command, workers, device, wandb, normalization, inputs)
+    for flag, folder in (("--out", plan.out), ("--work", plan.work)):  # before any folder is made
+        check_outside_stores(folder, flag, may_be_store=False)
     os.makedirs(plan.out, exist_ok=True)
     if target == "collect":
         from robomorph.reproduction.collect import collect  # noqa: PLC0415

@@ -27,7 +27,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from robomorph.core.config import check_range
+from robomorph.core.config import check_number, check_range
+
+# Upper bounds of the realism terms: far beyond any real arm (the sources in docs/guide/realism.md
+# are a few mrad of encoder noise, a few percent of torque noise, a few kg of payload, a few
+# physics steps of latency), and short of what would overflow a draw, allocate gigabytes or
+# make the physics meaningless. Every number of the section is also checked finite.
+MAX_ENCODER = 1.0  # rad, noise std and quantization step
+MAX_LATENCY = 1000  # physics steps (about 1 s at 1 kHz): the delay buffer holds this many torques
+MAX_PAYLOAD = 100.0  # kg
+MAX_COM = 1.0  # m from the flange
+MAX_FRICTION = 1000.0  # N m (Coulomb) and N m s / rad (viscous), before the per-joint gain
+MAX_STRIBECK_RATIO = 100.0
+MAX_SPEED = 100.0  # rad/s, the Stribeck and smoothing speeds
+MAX_GAIN_SCALE = 100.0
+MAX_AMPLITUDE = 3.2  # rad (about pi): a reference beyond it turns a joint through a whole turn
+MAX_RAMP = 3600.0  # s
+MAX_WIDEN = 100.0
 
 # The Panda's joint impedance gains of libfranka's ``joint_impedance_control`` example
 # [N m / rad] and [N m s / rad]; other arms scale them by Arm.joint_gain (joints matched by role).
@@ -58,8 +74,8 @@ class EncoderConfig:
     pose_from_joints: bool = True
 
     def __post_init__(self):
-        check_range("realism.encoder.noise", self.noise)
-        check_range("realism.encoder.resolution", self.resolution)
+        check_range("realism.encoder.noise", self.noise, 0.0, MAX_ENCODER)
+        check_range("realism.encoder.resolution", self.resolution, 0.0, MAX_ENCODER)
 
     @property
     def active(self) -> bool:
@@ -85,9 +101,9 @@ class TorqueSensorConfig:
     scale: float = 0.0
 
     def __post_init__(self):
-        check_range("realism.torque.noise", self.noise)
-        if not 0 <= self.offset < 1 or not 0 <= self.scale < 1:
-            raise ValueError(f"realism.torque.offset and scale must be in [0, 1), got {self.offset}, {self.scale}")
+        check_range("realism.torque.noise", self.noise, 0.0, 1.0)
+        check_number("realism.torque.offset", self.offset, 0.0, 1.0, high_open=True)
+        check_number("realism.torque.scale", self.scale, 0.0, 1.0, high_open=True)
 
     @property
     def active(self) -> bool:
@@ -111,7 +127,7 @@ class TimingConfig:
     log_physics_rate: bool = False
 
     def __post_init__(self):
-        check_range("realism.timing.latency", self.latency)
+        check_range("realism.timing.latency", self.latency, 0, MAX_LATENCY)
         if any(int(x) != x for x in self.latency):
             raise ValueError(f"realism.timing.latency counts physics steps: give integers, got {self.latency}")
 
@@ -132,9 +148,9 @@ class PayloadConfig:
     configured: float = 1.0
 
     def __post_init__(self):
-        check_range("realism.payload.mass", self.mass)
-        if self.com < 0 or not 0 <= self.configured <= 1:
-            raise ValueError("realism.payload.com must be >= 0 and realism.payload.configured in [0, 1]")
+        check_range("realism.payload.mass", self.mass, 0.0, MAX_PAYLOAD)
+        check_number("realism.payload.com", self.com, 0.0, MAX_COM)
+        check_number("realism.payload.configured", self.configured, 0.0, 1.0)
 
     @property
     def active(self) -> bool:
@@ -168,13 +184,15 @@ class FrictionConfig:
 
     def __post_init__(self):
         for name in ("coulomb", "viscous"):
-            check_range(f"realism.friction.{name}", getattr(self, name))
-        check_range("realism.friction.stribeck_ratio", self.stribeck_ratio, 1.0)
-        check_range("realism.friction.stribeck_velocity", self.stribeck_velocity)
-        if not self.stribeck_velocity[0] > 0 or not self.smoothing_velocity > 0:
-            raise ValueError("realism.friction.stribeck_velocity and smoothing_velocity must be > 0")
-        if not 0 <= self.asymmetry < 1:
-            raise ValueError(f"realism.friction.asymmetry must be in [0, 1), got {self.asymmetry}")
+            check_range(f"realism.friction.{name}", getattr(self, name), 0.0, MAX_FRICTION)
+        check_range("realism.friction.stribeck_ratio", self.stribeck_ratio, 1.0, MAX_STRIBECK_RATIO)
+        check_range("realism.friction.stribeck_velocity", self.stribeck_velocity, 0.0, MAX_SPEED)
+        if not self.stribeck_velocity[0] > 0:
+            raise ValueError("realism.friction.stribeck_velocity must be > 0")
+        # An infinite smoothing speed would make tanh(v / v_smooth) zero: Coulomb friction off
+        # while the store records its drawn levels.
+        check_number("realism.friction.smoothing_velocity", self.smoothing_velocity, 0.0, MAX_SPEED, low_open=True)
+        check_number("realism.friction.asymmetry", self.asymmetry, 0.0, 1.0, high_open=True)
 
     @property
     def active(self) -> bool:
@@ -206,12 +224,14 @@ class FeedbackConfig:
     ramp: float = 1.0
 
     def __post_init__(self):
-        if len(self.kp) != 7 or len(self.kd) != 7 or min(self.kp) <= 0 or min(self.kd) < 0:
-            raise ValueError("realism.feedback.kp and kd need 7 values each (kp > 0, kd >= 0)")
-        check_range("realism.feedback.gain_scale", self.gain_scale)
-        check_range("realism.feedback.amplitude", self.amplitude)
-        if not self.gain_scale[0] > 0 or self.ramp < 0:
-            raise ValueError("realism.feedback.gain_scale must be > 0 and ramp >= 0")
+        if (len(self.kp) != 7 or len(self.kd) != 7 or not all(np.isfinite([*self.kp, *self.kd]))
+                or min(self.kp) <= 0 or min(self.kd) < 0):
+            raise ValueError("realism.feedback.kp and kd need 7 finite values each (kp > 0, kd >= 0)")
+        check_range("realism.feedback.gain_scale", self.gain_scale, 0.0, MAX_GAIN_SCALE)
+        check_range("realism.feedback.amplitude", self.amplitude, 0.0, MAX_AMPLITUDE)
+        if not self.gain_scale[0] > 0:
+            raise ValueError("realism.feedback.gain_scale must be > 0")
+        check_number("realism.feedback.ramp", self.ramp, 0.0, MAX_RAMP)
 
 
 @dataclass(frozen=True)
@@ -234,8 +254,7 @@ class RealismConfig:
     widen: float = 1.0
 
     def __post_init__(self):
-        if not self.widen >= 1:
-            raise ValueError(f"realism.widen must be >= 1 (1 keeps the ranges), got {self.widen}")
+        check_number("realism.widen (1 keeps the ranges)", self.widen, 1.0, MAX_WIDEN)
         if self.timing.log_physics_rate and not self.encoder.pose_from_joints:
             raise ValueError("realism.timing.log_physics_rate computes the EE pose from the resampled joints: "
                              "set realism.encoder.pose_from_joints: true")

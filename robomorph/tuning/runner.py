@@ -28,8 +28,8 @@ import time
 import lightning.pytorch as L
 import numpy as np
 import optuna
-import yaml
 
+from robomorph.core.config import yaml_value
 from robomorph.core.errors import RoboMorphError
 from robomorph.core.overrides import merge, unflatten
 from robomorph.core.rundir import RunDir
@@ -265,7 +265,7 @@ def with_overrides(space: Space, pairs: list[str]) -> Space:
         if not sep or "." not in key:
             raise SpaceError(f"--set takes section.argument=value, got {pair!r}")
         if key.startswith("transfer."):
-            transfer[key.removeprefix("transfer.")] = yaml.safe_load(value)
+            transfer[key.removeprefix("transfer.")] = yaml_value(value, f"--set {key}")
         else:
-            flat[key] = yaml.safe_load(value)
+            flat[key] = yaml_value(value, f"--set {key}")
     return dataclasses.replace(space, overrides=merge(space.overrides, unflatten(flat)), transfer=transfer).check()

@@ -50,25 +50,25 @@ def test_an_interrupted_store_is_resumed_to_the_same_rows(source, tmp_path, monk
     write_priors(PriorRequest(source, whole, CONTEXT, HORIZON, (0,), batch=1))
     part = str(tmp_path / "part.zarr")
     calls = []
-    real = priors._write_batch
+    real = priors._batch  # every batch's priors, the first one's (computed before the store exists) included
 
     def stop_after_one(*args):
         if calls:
             raise KeyboardInterrupt
         calls.append(1)
-        real(*args)
+        return real(*args)
 
-    monkeypatch.setattr(priors, "_write_batch", stop_after_one)
+    monkeypatch.setattr(priors, "_batch", stop_after_one)
     with pytest.raises(KeyboardInterrupt):
         write_priors(PriorRequest(source, part, CONTEXT, HORIZON, (0,), batch=1))
     assert open_store(part, allow_incomplete=True).n == 1
-    monkeypatch.setattr(priors, "_write_batch", real)
+    monkeypatch.setattr(priors, "_batch", real)
     with pytest.raises(PriorError, match="begun with other arguments"):
         write_priors(PriorRequest(source, part, CONTEXT, HORIZON + 1, (0,), batch=1))
     write_priors(PriorRequest(source, part, CONTEXT, HORIZON, (0,), batch=1))
     np.testing.assert_array_equal(open_store(part).read("prior"), open_store(whole).read("prior"))
     # Complete and of the same request: left as it is.
-    monkeypatch.setattr(priors, "_write_batch", stop_after_one)
+    monkeypatch.setattr(priors, "_batch", stop_after_one)
     write_priors(PriorRequest(source, part, CONTEXT, HORIZON, (0,), batch=1))
 
 
