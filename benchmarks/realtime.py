@@ -192,8 +192,8 @@ def _tree(ref: str, root: str, into: str) -> str:
     if ref == ".":
         return root
     archive = subprocess.run(["git", "-C", root, "archive", ref, "robomorph", "datamodules"], capture_output=True)
-    if archive.returncode:
-        raise SystemExit(f"error: git archive {ref}: {archive.stderr.decode().strip()}")
+    if archive.returncode:  # checked in main: a commit that exists archives
+        raise RuntimeError(f"git archive {ref}: {archive.stderr.decode().strip()}")
     subprocess.run(["tar", "-x", "-C", into], input=archive.stdout, check=True)
     return into
 
@@ -303,6 +303,12 @@ def main() -> None:
 
     from robomorph.core.errors import RoboMorphError  # noqa: PLC0415
 
+    for ref in (args.before, args.after):
+        known = subprocess.run(["git", "-C", REPO, "rev-parse", "--verify", "--quiet", f"{ref}^{{commit}}"],
+                               capture_output=True)
+        if ref != "." and known.returncode:
+            p.exit(2, f"error: {ref!r} is not a commit of this repository (--before / --after take a commit, or '.' "
+                      "for the working tree)\n")
     if args.out:
         try:
             check_replaceable(args.out, "markdown", "--out")
