@@ -465,3 +465,16 @@ def test_a_ctrl_c_stops_control_with_two_workers_promptly(tmp_path):
     assert waited < 20, waited  # seconds (a worker's interpreter ends in well under one); episodes last minutes
     assert proc.returncode == 130 and "stopped by Ctrl-C: no episode is kept" in err and "Traceback" not in err, err
     assert _group(proc.pid) == [] and not out.exists()  # no worker left behind, nothing written
+
+
+def test_configure_of_a_trained_hybrid_refuses_a_mode_it_cannot_run(command_hybrid, window):
+    """Defect 20, the general fix: a mode the checkpoint lacks the weights for (``blend`` with no blend fitted) is
+    refused at ``configure``, not at the first ``simulate``, and the settings stay as they were."""
+    from robomorph.inference.hybrid import HybridError
+
+    pred = Predictor.from_checkpoint(command_hybrid, device="cpu").configure(members=1, workers=1)
+    before = pred.settings
+    with pytest.raises(HybridError, match=r"physics mode 'blend' needs the blend's weights"):
+        pred.configure(mode="blend")
+    assert pred.settings == before
+    assert pred.simulate(*window, at_rest=True).shape == (1, H, 14)

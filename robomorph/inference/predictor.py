@@ -153,6 +153,10 @@ class Predictor:
         if new.mode != self._settings.mode:
             _checked_mode(self.physics, new.mode, "mode")
         catalogue.check_network_free(self, new.mode)
+        if new.mode != self._settings.mode and new.mode != "none" and self.physics:
+            from robomorph.inference.hybrid import check_mode  # noqa: PLC0415  (MuJoCo only when used)
+
+            check_mode(self.model, new.mode)  # a parameter head or blend weights the model lacks: refused now
         self._settings = new
         return self
 

@@ -183,10 +183,11 @@ def test_a_head_less_model_refuses_the_head_modes_in_one_line(blended, total_sto
     pred = Predictor.from_checkpoint(blended[0])
     ds = open_store(total_store)
     u, y = ds.read("u")[:1], ds.read("y")[:1]
+    before = pred.settings
     for mode in ("learned", "fused"):
-        pred.configure(mode=mode)
         with pytest.raises(HybridError, match="parameter head"):
-            pred.simulate(u[:, :CKPT_CONTEXT], y[:, :CKPT_CONTEXT], u[:, CKPT_CONTEXT:])
+            pred.configure(mode=mode)  # refused where it is asked for (issue 61), the settings left as they were
+        assert pred.settings == before
     pred.configure(mode="refined")  # starts from the regression: no head needed
     out = pred.simulate(u[:, :CKPT_CONTEXT], y[:, :CKPT_CONTEXT], u[:, CKPT_CONTEXT:], at_rest=True)
     assert out.shape == (1, CKPT_HORIZON, 14) and np.all(np.isfinite(out))
