@@ -29,7 +29,7 @@ import warnings
 
 import numpy as np
 
-from robomorph.core.locks import exclusive, exclusive_on
+from robomorph.core.locks import exclusive
 from robomorph.data import real_logs, rosbag
 from robomorph.data.log_files import FORMATS, IngestError, read_log
 from robomorph.data.store import Dataset, check_writable, create_store, open_store
@@ -265,7 +265,6 @@ def ingest(files: list[str], u_cols: list[str], y_cols: list[str], out: str, ste
     return open_store(out)
 
 
-@exclusive_on("out")  # one writer per store
 def ingest_rosbag(bags: list[str], out: str, steps: int, topic: str = rosbag.DEFAULT_TOPIC,
                   joints: list[str] | None = None, split_gap: float | None = None, stride: int | None = None,
                   overwrite: bool = False, name: str | None = None, resample_hz: float | None = None,
@@ -275,8 +274,8 @@ def ingest_rosbag(bags: list[str], out: str, steps: int, topic: str = rosbag.DEF
     Each bag is one recording, or several with ``split_gap`` (:mod:`robomorph.data.rosbag` says
     how messages become samples on a uniform clock); from there the recordings go the way of
     every log (:func:`ingest`): resampled, cut into windows, written. Effort is the store's
-    ``u`` (the total joint torque), position its ``y``; velocity, where every message holds
-    it, the extra array ``qvel`` (N, T, n).
+    ``u`` (the total joint torque), position its ``y``; velocity, where the messages hold one
+    for every joint, the extra array ``qvel`` (N, T, n).
 
     Args:
         bags: ROS1 ``.bag`` files, ROS2 bag folders, or ROS2 ``.db3`` / ``.mcap`` files.
@@ -299,7 +298,7 @@ def ingest_rosbag(bags: list[str], out: str, steps: int, topic: str = rosbag.DEF
                           f"out to read {', '.join(arm.joint_names)}")
     probe = joints or ["joint"]  # the column checks below need names; the bag gives them otherwise
     _check_request(list(bags), probe, probe, steps, None, "t", stride, time_tol, None, None, None, layout, resample_hz)
-    check_writable(out, overwrite)
+    check_writable(out, overwrite, inputs=tuple(bags))  # refuse a bad --out before reading large bags
     recs_in, bag_reports = [], []
     for path in bags:
         log = rosbag.read_joint_states(path, topic, joints)
@@ -325,7 +324,8 @@ def ingest_rosbag(bags: list[str], out: str, steps: int, topic: str = rosbag.DEF
                                         "longest_gap_s", "decoded_one_by_one")})
     attrs = _store_attrs(config, dt, original_dt, report, skipped, sum(len(r[3]) for r in recs), y_units)
     attrs["velocity"] = "qvel" if velocity else None
-    _write_store(out, recs, steps, (u_names, y_names, None), attrs, overwrite)
+    with exclusive(out):  # locked only to write, as ingest: a refused bag leaves nothing, not even a lock file
+        _write_store(out, recs, steps, (u_names, y_names, None), attrs, overwrite)
     return open_store(out)
 
 

@@ -152,7 +152,7 @@ def _refused(tmp_path, bag, match, **kw):
     out = tmp_path / "out.zarr"
     with pytest.raises((IngestError, MissingInputError), match=match):
         ingest_rosbag([str(bag)], str(out), steps=10, **kw)
-    assert not out.exists()
+    assert not out.exists() and not list(tmp_path.glob(".out.zarr*"))  # not even a lock file
 
 
 def test_missing_bag(tmp_path):
@@ -176,6 +176,15 @@ def test_missing_topic_and_other_message_type(tmp_path, kind):
     _refused(tmp_path, bag, r"no topic '/arm/joint_states'; its topics: /joint_states", topic="/arm/joint_states")
     strings = write_strings(bag_path(tmp_path, kind, "strings"), kind)
     _refused(tmp_path, strings, "carries std_msgs/msg/String, not sensor_msgs/JointState")
+
+
+def test_out_is_never_the_bag(tmp_path):
+    q, qd, tau = _signals(30)
+    bag = write_joint_states(bag_path(tmp_path, "db3"), "db3", _stamps(30), NAMES, q, qd, tau)
+    before = sorted(p.name for p in bag.iterdir())
+    with pytest.raises(Exception, match="is the input"):
+        ingest_rosbag([str(bag)], str(bag), steps=10, overwrite=True)
+    assert sorted(p.name for p in bag.iterdir()) == before
 
 
 def test_joint_absent_throughout_and_without_effort(tmp_path):
