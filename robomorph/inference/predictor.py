@@ -17,6 +17,7 @@ explicitly (``y_query_stats``), which only an evaluation against recorded output
 from __future__ import annotations
 
 import contextlib
+import os
 import warnings
 from collections.abc import Iterator
 
@@ -303,12 +304,20 @@ class Predictor:
     @classmethod
     def from_pretrained(cls, path: str, device: str | torch.device | None = None) -> "Predictor":
         """Loads an inference-only model folder written by ``robomorph export``
-        (``model.safetensors`` + ``config.json``); a training checkpoint is read as well.
+        (``model.safetensors`` + ``config.json``), or a model shipped with the package by its bare name
+        (:mod:`robomorph.model.pretrained`: offline); a training checkpoint is read as well.
 
         Raises:
-            CheckpointError: the folder is missing, incomplete, altered, or of another format.
+            CheckpointError: the folder is missing (a bare name no shipped model has: the shipped ones
+                are named), incomplete, altered, or of another format.
         """
-        return cls.from_checkpoint(path, device)
+        from robomorph.model import pretrained  # noqa: PLC0415
+
+        found = pretrained.resolve(path)
+        if not os.path.exists(found) and found == os.fspath(path) and os.sep not in found and "/" not in found:
+            raise CheckpointError(f"{path} is neither a model folder nor a shipped model; the package ships "
+                                  f"{', '.join(pretrained.available()) or 'none'}")
+        return cls.from_checkpoint(found, device)
 
     def _check_output(self, y: torch.Tensor, inputs: list[torch.Tensor]) -> None:
         """Refuses non-finite predictions instead of handing them on without a word."""
