@@ -85,8 +85,9 @@ def stacked_predictions(arm: str | None, w, train_store: str | None, hybrid: boo
     if with_hybrid:
         nominal = Predictor.from_arm(arm, "multisine", dt=w.dt, gravity_compensation="nominal_model")
         zero_shot["hybrid (nominal commands)"] = (nominal.simulate, 1)
-    stacks = {"stacked (kinematic)": StackedPredictor(None, w.dt, StackConfig()),
-              "stacked (zero-shot)": StackedPredictor(zero_shot, w.dt, StackConfig())}
+    joints = [i for i, n in enumerate(w.y_names) if n.startswith("q")]  # what the weights are decided on
+    stacks = {"stacked (kinematic)": StackedPredictor(None, w.dt, StackConfig(), decide_on=joints),
+              "stacked (zero-shot)": StackedPredictor(zero_shot, w.dt, StackConfig(), decide_on=joints)}
     if train_store:
         train = open_store(train_store)
         tw = load_window(train_store, c, w.horizon, LEARN_WINDOWS, None, len(train.u_names), len(train.y_names))
@@ -103,7 +104,7 @@ def stacked_predictions(arm: str | None, w, train_store: str | None, hybrid: boo
         trained = {"arx_train": (references.fit_arx_train((2, 2), blocks), 8),
                    "accel_arx_train": (references.fit_accel_arx_train(blocks), 8)}
         learner = {**per_context, **trained}  # the hybrid is left out of the learned prior: its windows cost most
-        stack = StackedPredictor({**zero_shot, **trained}, w.dt, StackConfig())
+        stack = StackedPredictor({**zero_shot, **trained}, w.dt, StackConfig(), decide_on=joints)
         stack.learn(tu, ty, c) if not with_hybrid else stack.learn(tu, ty, c, models=learner)
         stacks["stacked (training recordings)"] = stack
     preds = {name: fn(uc, yc, uq) for name, fn in KINEMATIC.items()}
