@@ -21,6 +21,9 @@ Scored on the same test windows, through :func:`robomorph.evaluation.scoring.sco
   robot in each context by its regression solve and simulating it: ``hybrid (total)`` on the
   logged total torque, ``hybrid (nominal commands)`` on the command an arm that compensates its
   gravity with its catalogue model is sent (the logged torque less the catalogue's g(q));
+- ``stacked (kinematic)``, ``stacked (zero-shot)``, ``stacked (training recordings)`` (unless ``--no-stacked``):
+  the context backtest's stacks of :mod:`robomorph.inference.stacking`, as ``benchmarks/stacking.py`` builds them,
+  with each goal of issue 62 and its verdict under the table;
 - any checkpoint given with ``--model NAME=CKPT`` (zero-shot, fine-tuned or trained from
   scratch: the name says which), where its channels and rate match the robot's store.
 
@@ -61,6 +64,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--work", default="data/real", help="where the robots' stores are written (default: data/real)")
     p.add_argument("--windows", type=int, help="score only the first N test windows of each robot")
     p.add_argument("--identified", action="store_true", help="also fit identified_physics to each context (slow)")
+    p.add_argument("--no-stacked", action="store_true",
+                   help="leave out the context backtest's stacks and the goals' verdicts (benchmarks/stacking.py)")
     p.add_argument("--download-industrial", action="store_true",
                    help="have the official loader (pip install nonlinear-benchmarks) download the industrial robot "
                         "benchmark into DATA/nonlinear_benchmarks first, unless a clone of its copy is there")
@@ -207,6 +212,13 @@ def score_robot(source: public_logs.PublicLog, args) -> dict:
             del models[name]
     if source.arm:
         models.update(hybrid_predictions(source.arm, w, args.hybrid))
+    verdicts = []
+    if not args.no_stacked:  # the same stacks and verdicts as benchmarks/stacking.py, on these windows
+        from stacking import stacked_predictions, summarize  # noqa: PLC0415
+
+        stacked, stds = stacked_predictions(source.arm, w, stores["train"])
+        models.update({name: stacked[name] for name in stds})
+        verdicts = summarize(source, w, stacked, stds)["verdicts"]
 
     def train_blocks():
         for s in range(0, train.n, 256):
@@ -234,7 +246,7 @@ def score_robot(source: public_logs.PublicLog, args) -> dict:
             "train_windows": train.n, "skipped": {**scores.result["skipped_baselines"], **skipped_models},
             "notes": scores.result["meta"].get("baseline_notes", {}),
             "recordings": {sp: sum(r.split == sp for r in recs) for sp in public_logs.SPLITS},
-            "protocol": source.name == "industrial_robot"}
+            "protocol": source.name == "industrial_robot", "verdicts": verdicts}
 
 
 def render(res: dict) -> str:
@@ -257,6 +269,9 @@ def render(res: dict) -> str:
         extra += ("\n\nThe benchmark by its published readings (the paper's Eq. 23, per trajectory, range-normalised, "
                   "identibench's specs), with models trained for it: `benchmarks/industrial_robot.py` "
                   "(results/benchmarks/industrial_robot.md).")
+    if res.get("verdicts"):
+        extra += ("\n\nIssue 62's goals (the stacks' rows; ratios to the best kinematic bar and the std's coverage in "
+                  "`benchmarks/stacking.py`):\n\n" + "\n".join(f"- {v}" for v in res["verdicts"]))
     return head + table + extra
 
 
