@@ -184,6 +184,24 @@ def test_a_nan_in_a_source_file_is_named_as_the_user_file_holds_it(tmp_path, cap
     assert not (tmp_path / "out").exists()
 
 
+# --- recipes: a realism scalar that compares false with everything --------------------------------------
+
+@pytest.mark.parametrize("section, key, text", [("feedback", "ramp", ".nan"), ("friction", "smoothing_velocity", ".inf"),
+                                                ("friction", "smoothing_velocity", ".nan")])
+def test_a_realism_number_that_is_not_finite_is_refused(tmp_path, capsys, section, key, text):
+    """Defect 18: ``feedback.ramp: .nan`` and ``friction.smoothing_velocity: .inf`` were accepted; the latter
+    switched Coulomb friction off while the store recorded its drawn levels."""
+    from robomorph import generate
+
+    recipe = tmp_path / "r.yaml"
+    extra = "    coulomb: [0.1, 0.2]\n" if section == "friction" else "    enabled: true\n"
+    recipe.write_text(f"realism:\n  {section}:\n{extra}    {key}: {text}\n")
+    code = generate.main(["--config", str(recipe), "--robots", "1", "--steps", "5", "--workers", "1", "--quiet",
+                          "--out", str(tmp_path / "s.zarr")])
+    _one_error(code, capsys.readouterr().err, f"realism.{section}.{key}", "finite")
+    assert not (tmp_path / "s.zarr").exists()
+
+
 # --- evaluate: a baseline fitted on what it is scored on, or on another arm ------------------------------
 
 def _evaluate(argv, capsys) -> tuple[int, str, str]:
