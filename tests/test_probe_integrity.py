@@ -129,6 +129,32 @@ def test_real_robots_never_replaces_a_checkpoint_with_markdown(tmp_path, capsys,
     assert _files(tmp_path) == before  # the checkpoint, and no store, plot or table written first
 
 
+def test_result_file_writers_replace_only_their_own_kind(tmp_path):
+    """Defect 2's general fix: every benchmark writes its tables through write_markdown, write_rows or
+    ResultsCsv, which replace (or append to) an earlier result file only."""
+    from robomorph.core.errors import OutputExistsError
+    from robomorph.core.results import ResultsCsv, write_markdown, write_rows
+
+    victim, notes = tmp_path / "victim.ckpt", tmp_path / "notes.txt"
+    _checkpoint(victim)
+    notes.write_text("my notes, kept by hand\n")
+    before = _files(tmp_path)
+    for path in (victim, notes):
+        with pytest.raises(OutputExistsError, match="refusing to replace it"):
+            write_markdown(str(path), "# table\n")
+        with pytest.raises(OutputExistsError, match="refusing to replace it"):
+            write_rows(str(path), [{"a": 1}])
+        with pytest.raises(OutputExistsError, match="refusing to replace it"):
+            ResultsCsv(str(path)).append({"a": 1})
+    assert _files(tmp_path) == before
+    md, csv = tmp_path / "t.md", tmp_path / "t.csv"
+    for _ in range(2):  # written, then replaced: an earlier result file is theirs
+        write_markdown(str(md), "# table\n")
+        write_rows(str(csv), [{"a": 1}])
+    ResultsCsv(str(csv)).append({"a": 2})
+    assert md.read_text().startswith("*Produced by") and csv.read_text().count("\n1\n") == 1
+
+
 # --- 3. writes inside another store --------------------------------------------------------------------
 
 def _inside_store_cases(store: str, sources: str) -> dict:

@@ -101,7 +101,8 @@ def save_figure(fig: Any, path: str | os.PathLike, **savefig_kwargs: Any) -> Non
 # What a writer may replace, recognised by content (a name's suffix says little: a user may
 # call a checkpoint anything). torch.save writes a zip archive holding <name>/data.pkl.
 _KIND_NAMES = {"html": "an HTML page", "checkpoint": "a checkpoint",
-               "markdown": "a Markdown result file (robomorph.core.results.write_markdown)"}
+               "markdown": "a Markdown result file (robomorph.core.results.write_markdown)",
+               "csv": "a CSV table"}
 # The first line every Markdown result file opens with (robomorph.core.results.provenance_markdown).
 MARKDOWN_MARK = b"*Produced by `"
 
@@ -109,6 +110,18 @@ MARKDOWN_MARK = b"*Produced by `"
 def _is_html(head: bytes) -> bool:
     start = head.lstrip().lower()
     return start.startswith((b"<!doctype html", b"<html"))
+
+
+def _is_csv(head: bytes) -> bool:
+    """A table of text whose first line is a provenance comment or a header of names (our result
+    CSVs, with or without provenance), not a page, a binary file or a user's prose."""
+    if b"\0" in head or _is_html(head):
+        return False
+    first = head.split(b"\n", 1)[0].rstrip(b"\r")
+    if first.startswith(b"# command: "):
+        return True
+    names = first.split(b",")
+    return len(names) > 1 and all(n.strip() and b" " not in n.strip() for n in names)
 
 
 def _is_checkpoint(path: str) -> bool:
@@ -120,7 +133,7 @@ def _is_checkpoint(path: str) -> bool:
 
 
 def file_kind(path: str | os.PathLike) -> str | None:
-    """``"html"``, ``"markdown"`` or ``"checkpoint"`` for a file of that kind, ``"empty"``, else None."""
+    """``"html"``, ``"markdown"``, ``"csv"`` or ``"checkpoint"`` for a file of that kind, ``"empty"``, else None."""
     with open(path, "rb") as f:
         head = f.read(512)
     if not head:
@@ -129,6 +142,8 @@ def file_kind(path: str | os.PathLike) -> str | None:
         return "html"
     if head.startswith(MARKDOWN_MARK):
         return "markdown"
+    if _is_csv(head):
+        return "csv"
     return "checkpoint" if _is_checkpoint(os.fspath(path)) else None
 
 
@@ -211,7 +226,7 @@ def check_replaceable(path: str | os.PathLike, kind: str, flag: str = "--out") -
 
     Args:
         path: the file about to be written.
-        kind: ``"html"``, ``"markdown"`` or ``"checkpoint"``.
+        kind: ``"html"``, ``"markdown"``, ``"csv"`` or ``"checkpoint"``.
         flag: how the user gave ``path``, for the message.
 
     Raises:

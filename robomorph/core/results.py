@@ -200,6 +200,7 @@ class ResultsCsv:
 
     def __init__(self, path: str, overwrite: bool = False, prov: dict | None = None):
         self.path, self.prov, self.stamped = path, prov or provenance(), False
+        check_replaceable(path, "csv", "--csv")  # never appended to a checkpoint, a page or a store's file
         if overwrite and os.path.exists(path):
             os.remove(path)
 
@@ -244,8 +245,9 @@ def _csv_text(path: str, rows: Sequence[dict], prov: dict | None, header: list[s
 
 
 def write_rows(path: str, rows: Sequence[dict], prov: dict | None = None) -> None:
-    """Writes ``rows`` as a new CSV with its provenance, atomically (replacing any file there;
-    no rows: no file)."""
+    """Writes ``rows`` as a new CSV with its provenance, atomically (replacing an earlier CSV table
+    there, never a checkpoint, a page or anything in a Zarr store; no rows: no file)."""
+    check_replaceable(path, "csv", "--csv")
     if not rows:
         with contextlib.suppress(FileNotFoundError):
             os.remove(path)
