@@ -477,12 +477,19 @@ def test_a_ctrl_c_stops_control_with_two_workers_promptly(tmp_path):
         sent = time.monotonic()
         _, err = proc.communicate(timeout=60)
         waited = time.monotonic() - sent
+        # No worker left behind (multiprocessing's resource tracker, of the group too, ends a moment after the parent).
+        left = time.monotonic() + 10
+        while _group(proc.pid) and time.monotonic() < left:
+            time.sleep(0.2)
+        remaining = _group(proc.pid)
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    assert waited < 20, waited  # seconds (a worker's interpreter ends in well under one); episodes last minutes
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)  # whatever a failed run left, never a stray process
+        except ProcessLookupError:
+            pass
+    assert waited < 20, waited  # seconds (measured: 0.2 s); the episodes last minutes
     assert proc.returncode == 130 and "stopped by Ctrl-C: no episode is kept" in err and "Traceback" not in err, err
-    assert _group(proc.pid) == [] and not out.exists()  # no worker left behind, nothing written
+    assert remaining == [] and not out.exists()
 
 
 def test_configure_of_a_trained_hybrid_refuses_a_mode_it_cannot_run(command_hybrid, window):
