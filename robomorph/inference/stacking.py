@@ -297,8 +297,8 @@ class StackedPredictor:
                     continue
                 try:
                     err = self._fold_errors(fn, u, y, cuts, reach, scale)
-                except RoboMorphError as exc:  # a model that cannot read a shorter context is not stacked
-                    notes.append(f"{name} was not backtested ({exc}); not stacked")
+                except (RoboMorphError, ValueError) as exc:  # one that cannot read a fold's shorter context (an ARX
+                    notes.append(f"{name} was not backtested ({exc}); not stacked")  # with more coefficients)
                     continue
                 # Transferred through its ratio to constant velocity on the model's own folds (the same samples),
                 # the log ratio shrunk toward none by its evidence: n folds reaching a step keep n / (n + evidence)
