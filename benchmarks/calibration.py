@@ -33,7 +33,7 @@ import sys
 import tempfile
 
 import torch
-from common import print_provenance
+from common import check_outputs, print_provenance
 
 from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, write_rows
@@ -81,6 +81,7 @@ def main(argv=None) -> None:
     p.add_argument("--methods", default=",".join(METHODS), help="comma-separated calibration methods")
     p.add_argument("--offsets", default="start,random", help="which test windows: start, random or both")
     a = p.parse_args(argv)
+    check_outputs(csv=a.csv)
     print_provenance()
     torch.set_num_threads(a.threads)
     rows = []

@@ -33,7 +33,7 @@ import argparse
 import time
 
 import numpy as np
-from common import print_provenance
+from common import check_outputs, print_provenance
 
 from robomorph.core.errors import UsageError, run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
@@ -90,6 +90,7 @@ def main(argv=None) -> int:
     p.add_argument("--csv", default=None, help="every robot's row")
     p.add_argument("--md", default=None, help="the printed table, with its provenance")
     args = p.parse_args(argv)
+    check_outputs(csv=args.csv, md=args.md)
     prov = provenance()  # of the code that runs: taken before this run rewrites its own (tracked) result files
     print_provenance()
     ds = open_store(args.test)

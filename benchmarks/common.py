@@ -1,5 +1,5 @@
 """What the benchmark scripts share: the repository's paths, the CPU training recipe with
-``--set`` overrides, and the provenance line of printed results.
+``--set`` overrides, the check of their outputs, and the provenance line of printed results.
 
 The scripts run as ``python benchmarks/<name>.py`` from anywhere (this folder is then on
 ``sys.path``); scoring is :func:`robomorph.evaluation.scoring.score_windows` and result
@@ -12,6 +12,7 @@ import os
 
 import yaml
 
+from robomorph.core.atomic import check_outside_stores, check_replaceable
 from robomorph.core.config import yaml_value
 from robomorph.core.overrides import merge, unflatten
 from robomorph.core.results import provenance, provenance_markdown
@@ -44,3 +45,19 @@ def train_cpu_config(*overrides: dict) -> dict:
 def print_provenance() -> None:
     """The provenance line (command, commit, date, machine) first in a benchmark's printed output."""
     print(provenance_markdown(provenance()), flush=True)
+
+
+def check_outputs(**paths: str | None) -> None:
+    """Refuses, before a script's work, an output that is not its own: a Markdown or CSV file (``md=``, ``csv=``,
+    ``latency_csv=``) that is no earlier result file (a checkpoint, a page, notes) or lies inside a Zarr store, a
+    folder (any other name: ``work=``, ``out=``) that is or lies inside a store. Each name is the option without
+    its dashes; None is skipped. The writers check the files again when they write them."""
+    for name, path in paths.items():
+        if not path:
+            continue
+        # The kind comes from the option, never from the name given: --md victim.ckpt is a Markdown output.
+        flag, kind = "--" + name.replace("_", "-"), name.rsplit("_", 1)[-1]
+        if kind in ("md", "csv"):
+            check_replaceable(path, "markdown" if kind == "md" else "csv", flag)
+        else:
+            check_outside_stores(path, flag, may_be_store=False)

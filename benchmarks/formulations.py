@@ -22,7 +22,7 @@ import sys
 import time
 
 import torch
-from common import MULTISINE, TRAIN_CPU, print_provenance
+from common import MULTISINE, TRAIN_CPU, check_outputs, print_provenance
 
 from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, write_rows
@@ -113,6 +113,7 @@ def main(argv=None) -> None:
     p.add_argument("--out", default="data/formulations")
     p.add_argument("--csv", default="results/benchmarks/formulations.csv")
     args = p.parse_args(argv)
+    check_outputs(out=args.out, csv=args.csv)
     print_provenance()
     torch.set_num_threads(os.cpu_count() or 2)
     os.makedirs(args.out, exist_ok=True)

@@ -43,7 +43,7 @@ import time
 
 import lightning.pytorch as L
 import torch
-from common import MULTISINE, parse_sets, print_provenance, train_cpu_config
+from common import MULTISINE, check_outputs, parse_sets, print_provenance, train_cpu_config
 
 from robomorph.core.errors import run_command
 from robomorph.core.results import ResultsCsv, write_rows
@@ -217,6 +217,7 @@ def parse_args(argv=None):
 
 def main(argv=None) -> None:
     args = parse_args(argv)
+    check_outputs(csv=args.csv)
     print_provenance()
     torch.set_num_threads(args.threads)
     _data(args.train, args.test, args.robots, args.held_out, args.trajectory_steps)

@@ -20,7 +20,7 @@ import copy
 import time
 
 import numpy as np
-from common import print_provenance
+from common import check_outputs, print_provenance
 
 from robomorph.core.errors import UsageError, run_command
 from robomorph.core.results import markdown_table, provenance, write_rows
@@ -47,6 +47,7 @@ def main(argv=None) -> int:
     p.add_argument("--horizon", type=int, default=800)
     p.add_argument("--csv", default=None)
     args = p.parse_args(argv)
+    check_outputs(csv=args.csv)
     print_provenance()
     ds = open_store(args.test)
     c, h = args.context, args.horizon

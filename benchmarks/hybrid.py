@@ -27,7 +27,7 @@ import sys
 import time
 
 import numpy as np
-from common import print_provenance
+from common import check_outputs, print_provenance
 
 from robomorph.core.errors import RoboMorphError, run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
@@ -150,6 +150,7 @@ def main(argv=None) -> int:
                    help="timed passes over the windows per model source; the cost per window is their median")
     p.add_argument("--latency-csv", default=None)
     args = p.parse_args(argv)
+    check_outputs(csv=args.csv, md=args.md, latency_csv=args.latency_csv)
     prov = provenance()  # of the code that runs: taken before this run rewrites its own (tracked) result files
     print_provenance()
     if args.latency:

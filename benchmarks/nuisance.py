@@ -18,7 +18,7 @@ import argparse
 import sys
 
 import numpy as np
-from common import print_provenance
+from common import check_outputs, print_provenance
 
 from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
@@ -41,6 +41,7 @@ def main(argv=None) -> None:
     p.add_argument("--horizon", type=int, default=800)
     p.add_argument("--md", default="results/benchmarks/nuisance.md")
     a = p.parse_args(argv)
+    check_outputs(md=a.md)
     prov = provenance()
     print_provenance()
     ds = open_store(a.data)

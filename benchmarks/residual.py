@@ -28,7 +28,7 @@ import sys
 import time
 
 import numpy as np
-from common import print_provenance
+from common import check_outputs, print_provenance
 
 from robomorph.core.errors import RoboMorphError, run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown
@@ -140,6 +140,7 @@ def main(argv=None) -> int:
     p.add_argument("--work", default="data/residual/bench", help="where the held-out store and its priors go")
     p.add_argument("--md", help="write the table (with provenance) here")
     args = p.parse_args(argv)
+    check_outputs(md=args.md, work=args.work)
     prov = provenance()
     print_provenance()
     text = run(args)

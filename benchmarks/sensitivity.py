@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 import yaml
-from common import print_provenance
+from common import check_outputs, print_provenance
 
 from robomorph.core.config import yaml_value
 from robomorph.core.errors import run_command
@@ -194,6 +194,7 @@ def main(argv=None) -> int:
     p.add_argument("--no-hybrid", action="store_true", help="score the baselines alone (with --identified: its table)")
     p.add_argument("--md", help="write the tables (with provenance) here, and the rows beside it as CSV")
     args = p.parse_args(argv)
+    check_outputs(md=args.md, work=args.work)
     prov = provenance()
     print_provenance()
     only = [c.strip() for c in args.only.split(",")] if args.only else list(CONDITIONS)

@@ -35,7 +35,7 @@ import sys
 
 import numpy as np
 import torch
-from common import print_provenance
+from common import check_outputs, print_provenance
 
 from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
@@ -67,6 +67,7 @@ def main(argv=None) -> None:
     p.add_argument("--md", default="results/benchmarks/smoother_ood.md")
     p.add_argument("--csv", default=None, help="default: --md with .csv")
     a = p.parse_args(argv)
+    check_outputs(md=a.md, csv=a.csv)
     prov = provenance()
     print_provenance()
     pred = Predictor.from_checkpoint(a.ckpt, device="cpu")

@@ -40,7 +40,7 @@ import sys
 
 import numpy as np
 import torch
-from common import print_provenance
+from common import check_outputs, print_provenance
 
 from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
@@ -155,6 +155,7 @@ def main(argv=None) -> None:
     p.add_argument("--md", default="results/benchmarks/spread.md")
     p.add_argument("--csv", default=None, help="default: --md with .csv")
     a = p.parse_args(argv)
+    check_outputs(md=a.md, csv=a.csv)
     if a.knots and set(a.knots.split(",")) - {"log", "end"}:
         p.error(f"--knots takes log and end, got {a.knots!r}")
     prov = provenance()

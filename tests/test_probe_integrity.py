@@ -92,15 +92,19 @@ def _industrial(root, nan_in_test: bool = False) -> str:
     return mat
 
 
-def _real_robots():
-    """benchmarks/real_robots.py as a module (its folder on sys.path, as when it runs)."""
+def _script(name: str):
+    """``main(argv)`` of benchmarks/<name>.py (its folder on sys.path, as when it runs), as its command runs it."""
     folder = os.path.join(ROOT, "benchmarks")
     if folder not in sys.path:
         sys.path.insert(0, folder)
-    spec = importlib.util.spec_from_file_location("real_robots_under_test", os.path.join(folder, "real_robots.py"))
+    spec = importlib.util.spec_from_file_location(f"{name}_under_test", os.path.join(folder, f"{name}.py"))
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return lambda argv: run_command(lambda: module.main(argv))
+
+
+def _real_robots():
+    return _script("real_robots")
 
 
 # --- 1. priors over its own source ----------------------------------------------------------------
@@ -153,6 +157,27 @@ def test_result_file_writers_replace_only_their_own_kind(tmp_path):
         write_rows(str(csv), [{"a": 1}])
     ResultsCsv(str(csv)).append({"a": 2})
     assert md.read_text().startswith("*Produced by") and csv.read_text().count("\n1\n") == 1
+
+
+# The scripts' other options name inputs that need not exist: the outputs are refused before anything is read.
+_SCRIPTS = {"candidates": ["--test", "x.zarr"], "hybrid": ["--ckpt", "x.ckpt", "--test", "x.zarr"],
+            "nuisance": ["--data", "x.zarr"], "smoother_ood": ["--ckpt", "x.ckpt", "--data", "x.zarr"],
+            "spread": ["--ckpt", "x.ckpt", "--cal", "x.zarr", "--test", "x.zarr"], "residual": [],
+            "sensitivity": [], "calibration": ["--ckpt", "x.ckpt", "--test", "x.zarr"], "formulations": [],
+            "horizon_ablation": [], "horizon_step": ["--test", "x.zarr"]}
+
+
+@pytest.mark.parametrize("name", sorted(_SCRIPTS))
+def test_benchmark_scripts_refuse_a_foreign_result_file_before_their_work(tmp_path, capsys, monkeypatch, name):
+    """Defect 2 in the other scripts: their --md / --csv are checked before any store is generated or read."""
+    monkeypatch.chdir(tmp_path)  # their default work folders (data/...) land here if anything is written
+    _checkpoint(tmp_path / "victim.ckpt")
+    flag = "--md" if name in ("candidates", "hybrid", "nuisance", "smoother_ood", "spread", "residual",
+                              "sensitivity") else "--csv"
+    before = _files(tmp_path)
+    code, err = _call(_script(name), [*_SCRIPTS[name], flag, str(tmp_path / "victim.ckpt")], capsys)
+    _one_error(code, err, flag, "checkpoint")
+    assert _files(tmp_path) == before
 
 
 # --- 3. writes inside another store --------------------------------------------------------------------
