@@ -17,8 +17,9 @@ import sys
 import tempfile
 import time
 
-from common import print_provenance
+from common import check_outputs, print_provenance
 
+from robomorph.core.errors import run_command
 from robomorph.core.names import TASKS
 from robomorph.core.results import markdown_table, provenance, write_markdown
 from robomorph.data.generation import GenerationError, generate
@@ -45,6 +46,7 @@ def main() -> None:
     p.add_argument("--robot", nargs="*", default=arms.names(), help="arms to run (the Panda is always run)")
     p.add_argument("--out", default=None, help="Markdown result file (default: print only)")
     args = p.parse_args()
+    check_outputs(out__md=args.out)
     robots = ["panda"] + [r for r in args.robot if r != "panda"]
     prov = provenance()
     print_provenance()
@@ -89,4 +91,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_command(main))

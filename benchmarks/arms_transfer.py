@@ -31,8 +31,9 @@ import sys
 
 import numpy as np
 
-from common import print_provenance
+from common import check_outputs, print_provenance
 
+from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
 
 STEPS = (1, 15, 60, 300, 800)
@@ -142,6 +143,7 @@ def main() -> int:
     p.add_argument("--runs-dir", default="results/runs")
     p.add_argument("--out", default=None, help="Markdown result file (a CSV is written beside it)")
     args = p.parse_args()
+    check_outputs(out__md=args.out, out__csv=args.out and os.path.splitext(args.out)[0] + ".csv")
     prov = provenance()
     print_provenance()
     train = [_store(r, os.path.join(args.data, f"{r}.zarr"), args.robots, 0) for r in args.train.split(",")]
@@ -187,4 +189,4 @@ def _report(args, steps_table: str, goals: str, tables: list[str]) -> str:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -51,12 +51,14 @@ def check_outputs(**paths: str | None) -> None:
     """Refuses, before a script's work, an output that is not its own: a Markdown or CSV file (``md=``, ``csv=``,
     ``latency_csv=``) that is no earlier result file (a checkpoint, a page, notes) or lies inside a Zarr store, a
     folder (any other name: ``work=``, ``out=``) that is or lies inside a store. Each name is the option without
-    its dashes; None is skipped. The writers check the files again when they write them."""
+    its dashes, or ``<option>__md`` / ``<option>__csv`` where the option's name does not say; None is skipped. The writers check the files again when they write them."""
     for name, path in paths.items():
         if not path:
             continue
         # The kind comes from the option, never from the name given: --md victim.ckpt is a Markdown output.
-        flag, kind = "--" + name.replace("_", "-"), name.rsplit("_", 1)[-1]
+        # ``out__md=``: the option --out, a Markdown file (a script whose --out names its table).
+        option, _, kind = name.partition("__")
+        flag, kind = "--" + option.replace("_", "-"), kind or option.rsplit("_", 1)[-1]
         if kind in ("md", "csv"):
             check_replaceable(path, "markdown" if kind == "md" else "csv", flag)
         else:

@@ -18,6 +18,9 @@ from __future__ import annotations
 import argparse
 import sys
 
+from common import check_outputs
+
+from robomorph.core.errors import run_command
 from robomorph.core.results import ResultsError, markdown_table, read_provenance, read_rows, write_markdown
 
 HEAD = ("inputs", "predictor", "2-core min", "steps")
@@ -102,6 +105,7 @@ def main(argv=None) -> None:
     p.add_argument("--out", help="write the table to this Markdown file (with provenance) instead of printing it")
     p.add_argument("--plot", help="also draw the per-step curves into this PNG")
     args = p.parse_args(argv)
+    check_outputs(out__md=args.out)
     try:
         text = table(args.csv)
         if args.out:
@@ -116,4 +120,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_command(main))

@@ -20,9 +20,10 @@ import json
 import os
 import sys
 
-from common import print_provenance
+from common import check_outputs, print_provenance
 
 from robomorph.control.cli import main as control_main
+from robomorph.core.errors import run_command
 from robomorph.core.results import markdown_table, provenance, write_markdown, write_rows
 
 CONTROLLERS = "osc,mpc:model,mpc:nominal_physics,mpc:identified_physics,mpc:true_physics"
@@ -61,6 +62,7 @@ def main() -> None:
     p.add_argument("--out", default="results/benchmarks/control", help="prefix of the .md and .csv result files")
     p.add_argument("--work", default="results/control_bench", help="folder of each task's full control outputs")
     args, extra = p.parse_known_args()
+    check_outputs(out__md=args.out + ".md", out__csv=args.out + ".csv", work=args.work)
     prov = provenance()
     print_provenance()
     rows, sections = [], []
@@ -98,4 +100,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_command(main))

@@ -10,6 +10,7 @@ writes through one such refusal.
 from __future__ import annotations
 
 import importlib.util
+import inspect
 import os
 import shutil
 import sys
@@ -100,7 +101,17 @@ def _script(name: str):
     spec = importlib.util.spec_from_file_location(f"{name}_under_test", os.path.join(folder, f"{name}.py"))
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return lambda argv: run_command(lambda: module.main(argv))
+
+    def run(argv: list[str]) -> int:
+        if inspect.signature(module.main).parameters:
+            return run_command(lambda: module.main(argv))
+        saved, sys.argv = sys.argv, [f"{name}.py", *argv]  # a main() that reads sys.argv itself
+        try:
+            return run_command(module.main)
+        finally:
+            sys.argv = saved
+
+    return run
 
 
 def _real_robots():
@@ -160,22 +171,26 @@ def test_result_file_writers_replace_only_their_own_kind(tmp_path):
 
 
 # The scripts' other options name inputs that need not exist: the outputs are refused before anything is read.
-_SCRIPTS = {"candidates": ["--test", "x.zarr"], "hybrid": ["--ckpt", "x.ckpt", "--test", "x.zarr"],
-            "nuisance": ["--data", "x.zarr"], "smoother_ood": ["--ckpt", "x.ckpt", "--data", "x.zarr"],
-            "spread": ["--ckpt", "x.ckpt", "--cal", "x.zarr", "--test", "x.zarr"], "residual": [],
-            "sensitivity": [], "calibration": ["--ckpt", "x.ckpt", "--test", "x.zarr"], "formulations": [],
-            "horizon_ablation": [], "horizon_step": ["--test", "x.zarr"]}
+# name: (those options, the output option given a checkpoint)
+_SCRIPTS = {"candidates": (["--test", "x.zarr"], "--md"), "hybrid": (["--ckpt", "x.ckpt", "--test", "x.zarr"], "--md"),
+            "nuisance": (["--data", "x.zarr"], "--md"), "smoother_ood": (["--ckpt", "x.ckpt", "--data", "x.zarr"], "--md"),
+            "spread": (["--ckpt", "x.ckpt", "--cal", "x.zarr", "--test", "x.zarr"], "--md"), "residual": ([], "--md"),
+            "sensitivity": ([], "--md"), "calibration": (["--ckpt", "x.ckpt", "--test", "x.zarr"], "--csv"),
+            "formulations": ([], "--csv"), "horizon_ablation": ([], "--csv"), "horizon_step": (["--test", "x.zarr"], "--csv"),
+            "arms": ([], "--out"), "arms_transfer": ([], "--out"), "confirm_table": (["x.csv"], "--out"),
+            "control": (["--ckpt", "x.ckpt"], "--out")}
 
 
 @pytest.mark.parametrize("name", sorted(_SCRIPTS))
 def test_benchmark_scripts_refuse_a_foreign_result_file_before_their_work(tmp_path, capsys, monkeypatch, name):
-    """Defect 2 in the other scripts: their --md / --csv are checked before any store is generated or read."""
+    """Defect 2 in the other scripts: their --md / --csv / --out are checked before any store is generated or read."""
     monkeypatch.chdir(tmp_path)  # their default work folders (data/...) land here if anything is written
-    _checkpoint(tmp_path / "victim.ckpt")
-    flag = "--md" if name in ("candidates", "hybrid", "nuisance", "smoother_ood", "spread", "residual",
-                              "sensitivity") else "--csv"
+    argv, flag = _SCRIPTS[name]
+    victim = tmp_path / ("victim.md" if name == "control" else "victim.ckpt")  # control's --out is a prefix
+    _checkpoint(victim)
     before = _files(tmp_path)
-    code, err = _call(_script(name), [*_SCRIPTS[name], flag, str(tmp_path / "victim.ckpt")], capsys)
+    code, err = _call(_script(name), [*argv, flag, str(victim).removesuffix(".md") if name == "control" else str(victim)],
+                      capsys)
     _one_error(code, err, flag, "checkpoint")
     assert _files(tmp_path) == before
 
