@@ -170,9 +170,12 @@ def context_check(predictor, w: Window) -> dict:
     u_ctx, y_ctx, _, _ = w.split()
     n = min(CHECK_WINDOWS, len(u_ctx))
     try:
-        with warnings.catch_warnings():
+        # A model's fold is one more prediction of it: a phase that reports while it runs, as every other.
+        with warnings.catch_warnings(), Phase("context check", total=None, unit="context"):
             warnings.simplefilter("ignore")  # said once, in the summary line, not per window
-            check = StackedPredictor(predictor.simulate, w.dt, patch=predictor.patch).check(u_ctx[:n], y_ctx[:n])
+            joints = [i for i, name in enumerate(w.y_names) if name.startswith("q")] or None
+            check = StackedPredictor(predictor.simulate, w.dt, patch=predictor.patch,
+                                     decide_on=joints).check(u_ctx[:n], y_ctx[:n])
     except RoboMorphError as exc:
         return {"windows": 0, "note": f"not run: {exc}"}
     names = check.names
