@@ -150,8 +150,11 @@ def file_kind(path: str | os.PathLike) -> str | None:
 def zarr_store_holding(path: str | os.PathLike) -> str | None:
     """The Zarr store (a folder with ``zarr.json``) that ``path`` is or lies inside, or None."""
     folder = os.path.abspath(os.fspath(path))
-    if not os.path.isdir(folder):
-        folder = os.path.dirname(folder)
+    return _store_at_or_above(folder if os.path.isdir(folder) else os.path.dirname(folder))
+
+
+def _store_at_or_above(folder: str) -> str | None:
+    """The first folder from ``folder`` up to the root that holds ``zarr.json``, or None."""
     while True:
         if os.path.isfile(os.path.join(folder, "zarr.json")):
             return folder
@@ -170,14 +173,8 @@ def store_around(path: str | os.PathLike) -> str | None:
     store counts as the store.
     """
     for spelled in {os.path.abspath(os.fspath(path)), os.path.realpath(os.fspath(path))}:
-        folder = os.path.dirname(spelled)
-        while True:
-            if os.path.isfile(os.path.join(folder, "zarr.json")):
-                return folder
-            parent = os.path.dirname(folder)
-            if parent == folder:
-                break
-            folder = parent
+        if (store := _store_at_or_above(os.path.dirname(spelled))) is not None:
+            return store
     return None
 
 
