@@ -24,30 +24,11 @@ from robomorph import generate, ingest, merge, priors
 from robomorph.control import cli as control_cli
 from robomorph.core.errors import run_command
 from robomorph.data import public_logs
+from tests.test_hardening_lost import _files
+from tests.test_probe_new_commands import _call
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CONTEXT, HORIZON = 60, 20
-
-
-def _files(root) -> dict[str, bytes | None]:
-    """Every path under ``root`` (hidden ones too) with its bytes (None for folders)."""
-    seen = {}
-    for folder, dirs, names in os.walk(root):
-        for d in dirs:
-            seen[os.path.join(folder, d)] = None
-        for n in names:
-            p = os.path.join(folder, n)
-            seen[p] = open(p, "rb").read() if os.path.isfile(p) else b"<link>"
-    return seen
-
-
-def _call(main, argv, capsys) -> tuple[int, str]:
-    """``main(argv)``'s exit code (a parser's SystemExit too) and its stderr."""
-    try:
-        code = main(argv)
-    except SystemExit as exc:
-        code = exc.code
-    return int(code or 0), capsys.readouterr().err
 
 
 def _one_error(code: int, err: str, *phrases: str) -> str:
