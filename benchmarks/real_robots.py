@@ -28,8 +28,9 @@ Scored on the same test windows, through :func:`robomorph.evaluation.scoring.sco
   scratch: the name says which), where its channels and rate match the robot's store.
 
 Reported: joint RMS error [mrad] at the first step, 0.25 s, 1 s and 5 s where the horizon
-reaches them, and FIT [%] over the horizon (each joint over all windows, then the joints' mean). The industrial
-robot benchmark by its own published readings is ``benchmarks/industrial_robot.py``.
+reaches them, and FIT [%] over the horizon (each joint over all windows, then the joints' mean). Under the industrial
+robot's table, its benchmark by its own published readings ((a)-(d) of ``benchmarks/industrial_robot.py``) for hold,
+constant velocity and the least-squares ARX; the models trained for that benchmark are in that script.
 
     python benchmarks/real_robots.py --data data/sources --md results/benchmarks/real_robots.md
 """
@@ -246,7 +247,26 @@ def score_robot(source: public_logs.PublicLog, args) -> dict:
             "train_windows": train.n, "skipped": {**scores.result["skipped_baselines"], **skipped_models},
             "notes": scores.result["meta"].get("baseline_notes", {}),
             "recordings": {sp: sum(r.split == sp for r in recs) for sp in public_logs.SPLITS},
-            "protocol": source.name == "industrial_robot", "verdicts": verdicts}
+            "readings": industrial_readings(args.data) if source.name == "industrial_robot" else None,
+            "verdicts": verdicts}
+
+
+def industrial_readings(data: str) -> list:
+    """The industrial robot benchmark's own readings (``benchmarks/industrial_robot.py``'s columns (a)-(d))
+    of the predictors that train nothing or in a second (hold, constant velocity, least-squares ARX), on the
+    benchmark's file under ``data``; (d) by this project's arithmetic (tested against identibench's)."""
+    from industrial_robot import build  # noqa: PLC0415
+
+    from robomorph.data import industrial  # noqa: PLC0415
+    from robomorph.evaluation import benchmark_readings as br  # noqa: PLC0415
+
+    bench = industrial.load(data)
+    rows = []
+    for name in ("hold", "constant_velocity", "arx_ls"):
+        pred = build(name, bench, None)[0]
+        r = br.readings(pred, bench.test, 1, identibench=False)
+        rows.append([name] + [r[k] for k in br.READINGS])
+    return rows
 
 
 def render(res: dict) -> str:
@@ -265,10 +285,17 @@ def render(res: dict) -> str:
     if diverged:
         extra += "\n\nARX simulations that diverged and were held instead: " + ", ".join(
             f"{k} {v} of {res['windows']}" for k, v in diverged.items()) + "."
-    if res["protocol"]:
-        extra += ("\n\nThe benchmark by its published readings (the paper's Eq. 23, per trajectory, range-normalised, "
-                  "identibench's specs), with models trained for it: `benchmarks/industrial_robot.py` "
-                  "(results/benchmarks/industrial_robot.md).")
+    if res.get("readings"):
+        # The benchmark's own readings replace an NRMSE of these windows printed beside figures of another reading.
+        extra += ("\n\nThe benchmark by its published readings, free-run over its test trajectories from their first "
+                  "sample: (a) the whole test as one sequence, the paper's Eq. 23; (b) each trajectory from rest, "
+                  "Eq. 23; (c) range-normalised per trajectory (the authors' code); (d) identibench's specs, RMSE "
+                  "[deg]. Here the predictors that train nothing or in a second; the models trained for the benchmark and an "
+                  "ensemble, beside the goals (c) <= 0.10 and (a) <= 0.45, are in `benchmarks/industrial_robot.py` "
+                  "(results/benchmarks/industrial_robot.md).\n\n"
+                  + markdown_table(["predictor", "(a) whole test, Eq. 23", "(b) per trajectory, Eq. 23",
+                                    "(c) range-normalised", "(d) simulation [deg]", "(d) prediction [deg]"],
+                                   res["readings"], floatfmt=".4g"))
     if res.get("verdicts"):
         extra += ("\n\nIssue 62's goals (the stacks' rows; ratios to the best kinematic bar and the std's coverage in "
                   "`benchmarks/stacking.py`):\n\n" + "\n".join(f"- {v}" for v in res["verdicts"]))

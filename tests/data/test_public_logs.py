@@ -229,6 +229,28 @@ def test_the_industrial_robot_is_read_from_the_official_loaders_download_when_no
         assert "pip install nonlinear-benchmarks" in out.stderr
 
 
+def test_the_industrial_robots_section_reads_the_benchmark_by_its_published_readings(sources, tmp_path):
+    """real_robots.py's KUKA section: the benchmark's own readings (a)-(d) of hold, constant velocity and the
+    least-squares ARX, free-run over the benchmark file's test trajectories, instead of an NRMSE of its windows
+    printed beside figures of another reading; hold's reading (c) is the hand-computed one."""
+    md = tmp_path / "rr.md"
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "real_robots.py"), "--data", sources,
+                          "--robots", "industrial_robot", "--windows", "2", "--no-stacked", "--work",
+                          str(tmp_path / "work"), "--md", str(md)], capture_output=True, text=True, cwd=str(tmp_path))
+    assert out.returncode == 0, out.stderr[-2000:]
+    section = md.read_text().split("## KUKA")[1]
+    rows = {line.split("|")[1].strip(): [float(c) for c in line.split("|")[2:-1]]
+            for line in section.split("(d) prediction [deg]")[1].splitlines()
+            if line.startswith("| ") and line.split("|")[1].strip() in ("hold", "constant_velocity", "arx_ls")}
+    assert set(rows) == {"hold", "constant_velocity", "arx_ls"} and all(len(v) == 5 for v in rows.values())
+    from robomorph.data import industrial
+
+    test = industrial.load(sources).test  # hold from the first sample: RMSE of y - y0 over each range
+    hand = np.mean([np.sqrt(np.mean((y[1:] - y[0]) ** 2, 0)) / (y[1:].max(0) - y[1:].min(0)) for _, y in test])
+    assert rows["hold"][2] == pytest.approx(hand, rel=1e-3)  # printed to 4 significant digits
+    assert "benchmarks/industrial_robot.py" in section and "published" not in section.replace("published readings", "")
+
+
 @pytest.mark.parametrize("name", list(public_logs.SOURCES))
 def test_the_context_backtest_stacks_every_sources_logs(name, sources, tmp_path):
     """The stacks of benchmarks/stacking.py on logs in each source's own format: every candidate backtested on the
