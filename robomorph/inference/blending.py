@@ -21,11 +21,13 @@ of :mod:`robomorph.inference.calibration` and interpolated linearly in log step 
 A few simulations leave the trajectory early (within a second or two), while the weights
 still trust the physics: their errors are small on average and ruinous in those windows (one
 of 16 measured fell to R^2 -68 on a quaternion channel). So each window carries a *gate*:
-from the first step at which its physics departs from its decoder by more than ``gate``
-times the decoder's typical error there (the RMS error of the decoder at that step and
-channel on the fitting windows), or is not finite, the rest of that window is the
-decoder's. ``gate`` is chosen on the fitting windows, from :data:`GATES`, as the one with
-the best mean R^2 (approach 1). A blend of the smoothed physics has none (see :func:`fit_blend`).
+once its physics has departed from its decoder by more than ``gate`` times the decoder's
+typical error there (the RMS error of the decoder at that step and channel on the fitting
+windows), the physics' weight falls, to none at :data:`GATE_RAMP` times that departure, and
+does not come back for the rest of the window; where the physics is not finite the rest of
+the window is the decoder's. ``gate`` is chosen on the fitting windows, from :data:`GATES`, as
+the one with the best mean R^2 (approach 1). A blend of the smoothed physics has none (see
+:func:`fit_blend`).
 
 The blend's standard deviation, for independent errors, is
 ``sqrt(w^2 std_physics^2 + (1 - w)^2 std_decoder^2)``; ``robomorph calibrate`` then rescales it
@@ -46,6 +48,12 @@ from robomorph.inference.calibration import check_knot_table, interp_log_step, k
 BLEND_KEY = "robomorph_physics_blend"
 # The gates tried when fitting (multiples of the decoder's RMS error; inf: no gate).
 GATES = (3.0, 5.0, 10.0, 20.0, 50.0, float("inf"))
+# The physics' share of its weight falls linearly from whole to none while its departure from the decoder grows
+# from ``gate`` to GATE_RAMP times ``gate`` decoder RMS errors (:meth:`HorizonBlend.kept`). A cut at ``gate`` itself
+# handed a window's whole horizon from its physics to its decoder when a nudge of its context carried the departure
+# across: one of the kept test windows sat at 0.977 of its gate, and a 1e-6-relative nudge of the context moved its
+# prediction by 8.5 % (issue 61). Below the gate nothing changed; a simulation that leaves goes far past twice it.
+GATE_RAMP = 2.0
 # The physics predictions a blend can weigh against the decoder (the hybrid's modes of those names).
 PHYSICS_MODES = ("smoothed", "regression")
 
@@ -105,15 +113,27 @@ class HorizonBlend:
         """(horizon, n_y) physics weights at query steps 1..horizon (linear in log step, flat outside)."""
         return interp_log_step(self.knots, np.asarray(self.weight, dtype=np.float64), horizon)
 
-    def gated(self, physics: np.ndarray, decoder: np.ndarray) -> np.ndarray:
-        """(B, H) bools: the steps of each window from which its physics is dropped."""
-        with np.errstate(invalid="ignore", over="ignore"):
-            off = ~np.isfinite(physics)
+    def kept(self, physics: np.ndarray, decoder: np.ndarray) -> np.ndarray:
+        """(B, H) in [0, 1]: the share of its weight each window's physics keeps at each step under the gate.
+
+        1 while the physics has stayed within ``gate`` decoder RMS errors of the decoder on every channel, 0 from
+        :data:`GATE_RAMP` times that on, linear between, in the farthest departure so far (a simulation that left
+        does not come back); 0 from its first step that is not finite. Continuous in both predictions."""
+        physics = np.asarray(physics, dtype=np.float64)
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            ratio = np.zeros(physics.shape[:-1])
             if self.decoder_rms is not None and np.isfinite(self.gate):
                 log_rms = np.log(np.maximum(np.asarray(self.decoder_rms), 1e-12))
                 rms = np.exp(interp_log_step(self.knots, log_rms, physics.shape[-2]))
-                off |= ~(np.abs(physics - decoder) <= self.gate * rms[None])
-        return np.maximum.accumulate(off.any(axis=-1), axis=-1)  # a simulation that left does not come back
+                ratio = (np.abs(physics - decoder) / (self.gate * rms[None])).max(axis=-1)
+            # Not finite (the physics, or the ratio through a decoder that is not): dropped from there on.
+            ratio = np.where(np.isfinite(physics).all(axis=-1) & ~np.isnan(ratio), ratio, np.inf)
+            farthest = np.maximum.accumulate(ratio, axis=-1)
+            return np.clip((GATE_RAMP - farthest) / (GATE_RAMP - 1.0), 0.0, 1.0)
+
+    def gated(self, physics: np.ndarray, decoder: np.ndarray) -> np.ndarray:
+        """(B, H) bools: the steps of each window from which its physics loses weight to the gate (:meth:`kept`)."""
+        return self.kept(physics, decoder) < 1.0
 
     def combine(self, physics: np.ndarray, decoder: np.ndarray, physics_std: np.ndarray | None = None,
                 decoder_std: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -122,7 +142,7 @@ class HorizonBlend:
         if physics.shape != decoder.shape or physics.shape[-1] != self.n_y:
             raise BlendError(f"blend of {self.n_y} channels given physics {physics.shape} and decoder {decoder.shape}")
         ok = np.isfinite(physics)
-        w = np.where(self.gated(physics, decoder)[..., None], 0.0, self.weights(physics.shape[-2])[None])
+        w = self.kept(physics, decoder)[..., None] * self.weights(physics.shape[-2])[None]
         mean = w * np.where(ok, physics, 0.0) + (1 - w) * decoder
         if physics_std is None or decoder_std is None:
             return mean, None
@@ -185,8 +205,11 @@ def fit_blend(y: np.ndarray, physics: np.ndarray, decoder: np.ndarray, knots: np
         # The weights of the windows and steps the gate leaves to physics, then the gate's R^2.
         probe = HorizonBlend(tuple(int(k) for k in knots), tuple((1.0,) * y.shape[-1] for _ in knots),
                              decoder_rms=rms, gate=gate)
-        keep = ~probe.gated(physics, decoder)[..., None] & np.isfinite(physics)
-        gap = np.where(keep, decoder - physics, 0.0)  # d - p; 0 where the decoder stands alone
+        # The blend is d - w k (d - p) with k the share the gate leaves (:meth:`HorizonBlend.kept`): k (d - p), 0 where
+        # the decoder stands alone, is what each band's weight multiplies.
+        keep = probe.kept(physics, decoder)[..., None] * np.isfinite(physics)
+        with np.errstate(invalid="ignore", over="ignore"):  # (a physics that is not finite is left out here)
+            gap = np.where(keep > 0, keep * (decoder - physics), 0.0)
         rows = []
         for band in bands:
             g = gap[:, band].reshape(-1, y.shape[-1])

@@ -62,6 +62,25 @@ def test_a_window_whose_physics_leaves_is_the_decoders_from_there_on_and_the_gat
     assert np.mean((ungated.combine(physics, decoder)[0] - y) ** 2) > np.mean((mixed - y) ** 2)
 
 
+def test_the_gate_is_continuous_a_departure_just_past_it_moves_the_blend_a_little():
+    """A physics that departs from its decoder by just under the gate, then by just over it: the blend moves by about
+    as much as the physics did, where a cut at the gate handed the rest of the horizon to the decoder (issue 61)."""
+    from robomorph.inference.blending import GATE_RAMP
+
+    blend = HorizonBlend((1, 10), ((1.0,), (1.0,)), decoder_rms=((0.1,), (0.1,)), gate=3.0)
+    decoder = np.zeros((1, 10, 1))
+    limit = blend.gate * 0.1  # the departure at the gate
+    inside, past = (np.where(np.arange(10)[None, :, None] >= 4, limit * f, 0.0) for f in (0.99, 1.01))
+    moved = np.abs(blend.combine(past, decoder)[0] - blend.combine(inside, decoder)[0]).max()
+    assert moved < 0.05 * limit, moved  # 0.02 of it here; the cut moved it by 0.99 of it
+    np.testing.assert_array_equal(blend.combine(inside, decoder)[0], inside)  # below the gate: the physics whole
+    np.testing.assert_array_equal(blend.kept(inside, decoder), 1.0)
+    far = np.where(np.arange(10)[None, :, None] == 4, GATE_RAMP * limit, 0.0)  # past the ramp once: gone for good
+    np.testing.assert_array_equal(blend.kept(far, decoder)[0], [1, 1, 1, 1, 0, 0, 0, 0, 0, 0])
+    half = np.where(np.arange(10)[None, :, None] >= 4, (1 + GATE_RAMP) / 2 * limit, 0.0)
+    np.testing.assert_allclose(blend.combine(half, decoder)[0][0, 4:], 0.5 * half[0, 4:], rtol=1e-12)
+
+
 def test_the_blends_std_is_that_of_independent_errors():
     blend = HorizonBlend((1, 10), ((0.25,), (0.25,)))
     p, d = np.zeros((1, 10, 1)), np.ones((1, 10, 1))
@@ -126,8 +145,8 @@ def test_calibrate_blend_gives_a_black_box_model_a_backbone_and_the_blend_by_def
     physics = pred.simulate(u[:, :c], y[:, :c], u[:, c:], at_rest=True)
     blend = pred.model.blend
     w = blend.weights(u.shape[1] - c)[None]
-    gated = blend.gated(physics.astype(np.float64), decoder.astype(np.float64))[..., None]
-    np.testing.assert_allclose(mixed, np.where(gated, decoder, w * physics + (1 - w) * decoder), rtol=1e-4, atol=1e-6)
+    w = w * blend.kept(physics.astype(np.float64), decoder.astype(np.float64))[..., None]  # the gate's share
+    np.testing.assert_allclose(mixed, w * physics + (1 - w) * decoder, rtol=1e-4, atol=1e-6)
     assert np.abs(mixed - decoder).max() > 1e-4  # the physics moved it
     pred.configure(mode="blend")
     from robomorph.inference.hybrid import HybridError
