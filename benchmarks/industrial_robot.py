@@ -18,8 +18,13 @@ Predictors, all free-running from the warm-up alone:
   free-run simulation error (windows growing to whole training trajectories, truncated
   back-propagation, normalisation from the training split, early stopping on the validation
   trajectories), each within ``--budget`` seconds of one CPU thread;
-- ``ensemble``: the mean of the nonlinear trained models' free runs (``narx_sim`` and every
-  ``gru_sim`` seed), when there are two or more.
+- ``meta_finetuned``: the multi-arm meta-model (``--meta``, the shipped ``realistic-arms-60hz`` by
+  default) fine-tuned by the same loop as a free-run simulator (:mod:`robomorph.training.meta_free_run`:
+  the six motor torques on its ``tau0..tau5``, the six angles on ``q0..q5``, one model step per 10 Hz
+  sample); ``meta_scratch``: the same network and output form from random weights, what the
+  pre-training is worth;
+- ``ensemble``: the mean of the trained models' free runs that lower the validation trajectories'
+  free-run error, chosen greedily on them (never on the test), when two or more do.
 
     python benchmarks/industrial_robot.py --data /work/realdata --md results/benchmarks/industrial_robot.md
 """
@@ -34,14 +39,15 @@ import numpy as np
 import torch
 from common import print_provenance
 
-from robomorph.core.errors import run_command
+from robomorph.core.errors import RoboMorphError, run_command
 from robomorph.core.atomic import check_replaceable
 from robomorph.core.results import markdown_table, provenance, write_markdown
 from robomorph.data import industrial
 from robomorph.evaluation import benchmark_readings as br
 from robomorph.training import free_run as fr
+from robomorph.training.meta_free_run import MetaSim
 
-TRAINED = ("arx_sim", "narx_sim", "gru_sim")
+TRAINED = ("arx_sim", "narx_sim", "gru_sim", "meta_finetuned", "meta_scratch")
 PREDICTORS = ("hold", "constant_velocity", "arx_ls") + TRAINED
 # Published figures (Fañanás-Anaya et al., Neural Computing and Applications 2024, Table VI), and
 # which reading each matches, with how sure that is (docs/guide/real-robots.md says why).
@@ -62,8 +68,13 @@ COLUMNS = ("(a) paper: whole test from y0, Eq. 23", "(b) 6 trajectories from res
 # smaller step keeps it near; the GRU, which overfits the 60 training trajectories first, gets
 # weight decay and torque perturbations of the size the repeated test motions show.
 COMMON = dict(batch=64, val_every=10, patience=12)
+# The meta-model predicts a whole chunk in one pass, so its back-propagation runs over whole trajectories.
 TRAIN = {"arx_sim": dict(COMMON, lr=1e-3), "narx_sim": dict(COMMON, lr=3e-3),
-         "gru_sim": dict(COMMON, lr=3e-3, weight_decay=1e-3, input_offset=0.1, input_noise=0.05)}
+         "gru_sim": dict(COMMON, lr=3e-3, weight_decay=1e-3, input_offset=0.1, input_noise=0.05),
+         "meta_finetuned": dict(COMMON, lr=1e-3, tbptt=605), "meta_scratch": dict(COMMON, lr=1e-3, tbptt=605)}
+# Query steps per meta-model pass, chosen on validation: one pass per 605-sample trajectory (fewer, shorter
+# passes feed its own outputs back sooner but trained worse in the same budget: CHANGELOG).
+META_CHUNK = 600
 REPEAT_TOL = 1.0  # deg: test trajectories whose outputs agree this closely are one motion recorded twice
 
 
@@ -77,6 +88,15 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--budget", type=float, default=900.0, help="seconds of training per trained model (default 900)")
     p.add_argument("--iterations", type=int, default=300, help="training iterations per model at most (default 300)")
     p.add_argument("--seeds", type=int, default=1, help="gru_sim seeds (default 1); the ensemble takes them all")
+    p.add_argument("--meta", default="realistic-arms-60hz",
+                   help="the multi-arm meta-model meta_finetuned starts from: a shipped model's name, a model folder "
+                        "or a checkpoint (default realistic-arms-60hz)")
+    p.add_argument("--meta-iterations", type=int, default=900,
+                   help="training iterations of each meta-model at most (default 900: one costs about a fifth of a "
+                        "GRU's, a whole trajectory in one pass)")
+    p.add_argument("--meta-chunk", type=int, default=META_CHUNK,
+                   help=f"query steps the meta-model predicts per pass before its own outputs become its next "
+                        f"context (default {META_CHUNK})")
     p.add_argument("--warmup", type=int, default=1,
                    help="true samples that start each free run of readings (a)-(c) (default 1: from y0, as the paper)")
     p.add_argument("--no-identibench", action="store_true",
@@ -87,8 +107,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     unknown = [s for s in args.predictors if s not in PREDICTORS]
     if unknown or not args.predictors:
         p.error(f"--predictors: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PREDICTORS)}")
-    if args.budget <= 0 or args.iterations < 1 or args.seeds < 1 or args.warmup < 1:
-        p.error("--budget must be > 0, --iterations, --seeds and --warmup >= 1")
+    if args.budget <= 0 or args.iterations < 1 or args.seeds < 1 or args.warmup < 1 or args.meta_chunk < 1 \
+            or args.meta_iterations < 1:
+        p.error("--budget must be > 0, --iterations, --meta-iterations, --seeds, --warmup and --meta-chunk >= 1")
     if args.md:
         check_replaceable(args.md, "markdown", "--md")
     return args
@@ -157,19 +178,47 @@ def build(name: str, bench: industrial.IndustrialBenchmark, args, seed: int = 0)
         model = fr.ARX(6, 6, 2, 2).fit_least_squares(normed)
     elif name == "narx_sim":
         model = fr.NARX(6, 6, 2, 4, hidden=64).fit_least_squares(normed)
+    elif name in ("meta_finetuned", "meta_scratch"):
+        model = MetaSim.from_pretrained(args.meta, 6, 6, chunk=args.meta_chunk, scratch=name == "meta_scratch")
     else:
         model = fr.GRUSim(6, 6, hidden=64)
     if name != "arx_ls":
-        cfg = fr.FreeRunConfig(iterations=args.iterations, time_budget_s=args.budget, seed=seed, **TRAIN[name])
+        iterations = args.meta_iterations if name.startswith("meta_") else args.iterations
+        cfg = fr.FreeRunConfig(iterations=iterations, time_budget_s=args.budget, seed=seed, **TRAIN[name])
         rec = fr.fit(model, bench.train, bench.val, cfg,
                      log=lambda s: print(f"  {name} (seed {seed}): {s}", file=sys.stderr, flush=True))
         norm, losses = rec["normalizer"], f"{rec['last_train']:.3f} / {rec['best_val']:.3f}"
     return fr.predictor(model, norm), time.time() - t0, losses
 
 
+def choose_ensemble(members: list, val: list, norm: fr.Normalizer) -> list:
+    """The members whose mean free run (from rest) lowers the validation trajectories' error, added greedily
+    from the best alone; the error is the mean square in the training split's normalised units (every joint
+    weighs alike). Decided on validation, never on the test."""
+    runs = {label: [norm.y(br.free_run(pred, u, y, 1)) for u, y in val] for label, pred in members}
+    truth = [norm.y(y) for _, y in val]
+
+    def error(labels):
+        return float(np.mean([np.mean((np.mean([runs[k][i] for k in labels], 0) - t)[1:] ** 2)
+                              for i, t in enumerate(truth)]))
+
+    chosen = [min(runs, key=lambda k: error([k]))]
+    while True:
+        rest = [k for k in runs if k not in chosen]
+        best = min(rest, key=lambda k: error(chosen + [k]), default=None)
+        if best is None or error(chosen + [best]) >= error(chosen):
+            return chosen
+        chosen.append(best)
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
     torch.set_num_threads(1)  # a shared machine: one core per run
+    if {"meta_finetuned", "meta_scratch"} & set(args.predictors):  # a bad --meta is refused before any training
+        try:
+            MetaSim.from_pretrained(args.meta, 6, 6, chunk=args.meta_chunk)
+        except RoboMorphError as exc:
+            raise type(exc)(f"--meta {args.meta} (--meta-chunk {args.meta_chunk}): {exc}") from None
     bench = industrial.load(args.data, args.mat)
     print_provenance()
     print(bench.describe(), flush=True)
@@ -180,17 +229,20 @@ def main(argv=None) -> int:
             print(f"{name} (seed {seed}) ...", file=sys.stderr, flush=True)
             pred, secs, losses = build(name, bench, args, seed)
             label = name if seed == 0 else f"{name} seed {seed}"
-            if name in ("narx_sim", "gru_sim"):
+            if name in TRAINED:
                 members.append((label, pred))
             r = br.readings(pred, bench.test, args.warmup, identibench=use_ib)
             rows.append([label] + [r[k] for k in br.READINGS] + [repeat_floor(pred, bench.test, pairs, args.warmup),
                                                                  losses, round(secs)])
             print(markdown_table(("predictor",) + COLUMNS, rows[-1:], floatfmt=".4g"), flush=True)
-    if len(members) > 1:
+    chosen = choose_ensemble(members, bench.val, fr.Normalizer.of(bench.train)) if len(members) > 1 else []
+    if len(chosen) > 1:
+        picked = [pred for label, pred in members if label in chosen]
+
         def ensemble(u, y_init):
-            return np.mean([m(u, y_init) for _, m in members], axis=0)
+            return np.mean([m(u, y_init) for m in picked], axis=0)
         r = br.readings(ensemble, bench.test, args.warmup, identibench=use_ib)
-        rows.append([f"ensemble (mean of {', '.join(n for n, _ in members)})"] + [r[k] for k in br.READINGS]
+        rows.append([f"ensemble (mean of {', '.join(chosen)})"] + [r[k] for k in br.READINGS]
                     + [repeat_floor(ensemble, bench.test, pairs, args.warmup), None, None])
     text = render(bench, rows, args, use_ib, pairs)
     print("\n" + text, flush=True)
@@ -215,13 +267,21 @@ def render(bench, rows, args, use_ib: bool, pairs: list) -> str:
                 "every 100, RMSE over the whole window, warm-up included, as identibench scores it), "
                 + ("through identibench " + _ib_version() + "." if use_ib else "by this project's arithmetic "
                    "(identibench not installed or not asked; the same arithmetic is tested against it)."))
-    train = (f"Training: one CPU thread, at most {args.budget:g} s and {args.iterations} iterations per model; "
+    train = (f"Training: one CPU thread, at most {args.budget:g} s and {args.iterations} iterations per model "
+             f"({args.meta_iterations} for a meta-model); "
              "each iteration 64 segments of the 60 training trajectories (half from the start, at rest), growing "
              "from 100 samples to whole trajectories over the first half, free-run from 3 true samples, truncated "
              "back-propagation every 200 steps; inputs and outputs normalised with the training split's statistics; "
              "early stopping on the 6 validation trajectories' free run from rest. `narx_sim`: ARX(2, 4) plus a "
              "64-64 tanh MLP; `gru_sim`: a 64-unit GRU fed its own outputs, weight decay 1e-3, training torques "
-             "perturbed by a constant 0.1 and white 0.05 (normalised units).")
+             "perturbed by a constant 0.1 and white 0.05 (normalised units). `meta_finetuned`: the multi-arm "
+             f"meta-model `{args.meta}` fine-tuned by the same loop (learning rate 1e-3, back-propagation over whole "
+             "trajectories): the six motor torques on its `tau0..tau5`, the six joint angles on `q0..q5`, its seventh "
+             "joint and end-effector pose absent; one model step per 10 Hz sample, not resampled (it was trained at "
+             "60 Hz: the fine-tuning relearns the time scale); its context the last 20 samples (the warm-up padded "
+             f"at rest), {args.meta_chunk} query steps per pass, its own outputs the next pass's context. "
+             "`meta_scratch`: the same network and output form from random weights. The ensemble: the trained "
+             "models whose mean lowers the validation trajectories' free-run error, added greedily.")
     table = markdown_table(("predictor",) + COLUMNS, rows, floatfmt=".4g")
     limits = ("What limits it, measured. *Repeat floor*: the test holds one motion recorded twice where every "
               f"joint agrees within {REPEAT_TOL:g} deg RMS (trajectories "

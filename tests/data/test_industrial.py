@@ -124,3 +124,56 @@ def test_the_benchmark_command_writes_every_reading_with_its_provenance(tmp_path
     for name in rows:  # (a), (b), (c) and both identibench columns are numbers
         assert all(np.isfinite(float(v)) for v in rows[name][:5])
     assert "| MA-LSTM-MLP" in text and "(c), likely" in text
+
+
+def test_the_meta_model_is_fine_tuned_and_scored_in_every_reading_beside_the_others(tmp_path):
+    _write_shifted(str(tmp_path / "clone" / "data" / "IndustRobo" / industrial.SHIFTED), np.random.default_rng(5))
+    md = tmp_path / "industrial_robot.md"
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "industrial_robot.py"), "--data",
+                          str(tmp_path), "--predictors", "hold,narx_sim,meta_finetuned", "--iterations", "2",
+                          "--meta-iterations", "2", "--no-identibench", "--md", str(md)],
+                         capture_output=True, text=True, cwd=str(tmp_path))
+    assert out.returncode == 0, out.stderr[-2000:]
+    text = md.read_text()
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+            for line in text.splitlines() if line.startswith("| ") and not line.startswith("| predictor")}
+    assert all(np.isfinite(float(v)) for v in rows["meta_finetuned"][:5])
+    assert "`meta_finetuned`: the multi-arm meta-model `realistic-arms-60hz`" in text and "tau0..tau5" in text
+
+
+def test_a_bad_meta_model_is_refused_before_any_training(tmp_path):
+    _write_shifted(str(tmp_path / "clone" / "data" / "IndustRobo" / industrial.SHIFTED), np.random.default_rng(6))
+    for extra, message in ((["--meta", str(tmp_path / "none")], "--meta "), (["--meta-chunk", "5000"], "chunk 5000")):
+        out = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "industrial_robot.py"), "--data",
+                              str(tmp_path), "--predictors", "gru_sim,meta_finetuned", "--md",
+                              str(tmp_path / "t.md")] + extra, capture_output=True, text=True, cwd=str(tmp_path))
+        assert out.returncode == 2 and "Traceback" not in out.stderr and message in out.stderr
+        assert out.stderr.count("\n") == 1 and "gru_sim (seed 0)" not in out.stderr
+        assert not (tmp_path / "t.md").exists()
+
+
+def test_the_ensemble_is_chosen_on_validation_and_keeps_only_members_that_help():
+    sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
+    try:
+        import industrial_robot as ir
+    finally:
+        sys.path.pop(0)
+    from robomorph.training import free_run as fr
+
+    rng = np.random.default_rng(7)
+    val = [(rng.normal(size=(50, 6)), rng.normal(size=(50, 6))) for _ in range(3)]
+    truth = {u.tobytes(): y for u, y in val}
+
+    def biased(b):  # the truth plus a constant bias after the warm-up
+        def predict(u, y_init):
+            out = truth[u.tobytes()] + b
+            out[:len(y_init)] = y_init
+            return out
+        return predict
+
+    norm = fr.Normalizer.of(val)
+    # opposite biases cancel in the mean: both are kept; a far worse third one is left out
+    chosen = ir.choose_ensemble([("plus", biased(0.5)), ("minus", biased(-0.5)), ("far", biased(3.0))], val, norm)
+    assert sorted(chosen) == ["minus", "plus"]
+    # one exact member alone beats any mean with another
+    assert ir.choose_ensemble([("bad", biased(1.0)), ("exact", biased(0.0))], val, norm) == ["exact"]
