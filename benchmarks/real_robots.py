@@ -21,6 +21,10 @@ Scored on the same test windows, through :func:`robomorph.evaluation.scoring.sco
   robot in each context by its regression solve and simulating it: ``hybrid (total)`` on the
   logged total torque, ``hybrid (nominal commands)`` on the command an arm that compensates its
   gravity with its catalogue model is sent (the logged torque less the catalogue's g(q));
+- ``hybrid_train``, ``hybrid_train +offsets``, ``hybrid_train +offsets +residual`` (where the arm is registered): the
+  hybrid identified once over the robot's training recordings, then its offsets adapted per context, then an
+  acceleration-space residual learned on those recordings (``benchmarks/training_recordings.py``), with the goal
+  "with the arm's training recordings" for each and what each term buys under the table;
 - ``stacked (kinematic)``, ``stacked (zero-shot)``, ``stacked (training recordings)`` (unless ``--no-stacked``):
   the context backtest's stacks of :mod:`robomorph.inference.stacking`, as ``benchmarks/stacking.py`` builds them,
   with each goal of issue 62 and its verdict under the table;
@@ -211,8 +215,13 @@ def score_robot(source: public_logs.PublicLog, args) -> dict:
         except RoboMorphError as exc:
             skipped_models[name] = str(exc)
             del models[name]
+    fitted = None  # the hybrid identified over the training recordings (benchmarks/training_recordings.py)
     if source.arm:
         models.update(hybrid_predictions(source.arm, w, args.hybrid))
+        from training_recordings import recordings_predictions  # noqa: PLC0415
+
+        trained, fitted = recordings_predictions(source.arm, w, stores["train"])
+        models.update(trained)
     verdicts = []
     if not args.no_stacked:  # the same stacks and verdicts as benchmarks/stacking.py, on these windows
         from stacking import stacked_predictions, summarize  # noqa: PLC0415
@@ -230,6 +239,11 @@ def score_robot(source: public_logs.PublicLog, args) -> dict:
     scores = score_windows(None, w, baselines=baselines, steps=[k for k, _ in steps], others=models,
                            train_blocks=train_blocks)
     joints = [n for n in w.y_names if n.startswith("q")]
+    if fitted is not None:
+        from training_recordings import recordings_verdicts  # noqa: PLC0415
+
+        verdicts = verdicts + recordings_verdicts(steps, lambda n, k: scores.at(n, "joints", k),
+                                                  lambda n: joint_fit(scores.result, n, joints), fitted)
     if args.plots:
         from robomorph.evaluation.plots import plot_error_growth  # noqa: PLC0415
 

@@ -137,15 +137,20 @@ class RegressorIdentifier:
         self.relinearize_com = bool(relinearize_com)
         self._extra_half = extra_terms.half_ranges(self.extras, recipe.arm.limits)
         self.last_extra = extra_terms.zeros(self._nj)
+        # (pieces,) rows of each piece when each has its own constant torque per joint (a recording's offsets, which
+        # drift from one to the next): every piece's rows are taken less their means, joint by joint, before the
+        # solve, which is the least-squares fit with a free offset per piece and joint (the offsets' own columns
+        # vanish then, pulled to zero); None: one offset over all (the ``offsets`` extra term, where on).
+        self.piece_offsets: np.ndarray | None = None
 
     def fit(self, base: np.ndarray, q: np.ndarray, torque: np.ndarray, prior_mean: np.ndarray | None = None,
-            prior_std: np.ndarray | None = None, noise: float = 0.0) -> np.ndarray:
+            prior_std: np.ndarray | None = None, noise: float = 0.0, piece_offsets: bool = False) -> np.ndarray:
         """The full parameter vector ``base`` with the identified entries solved for.
 
         Args:
             base: (P,) the catalogue vector (springs anchored where the robot started).
-            q: (T, 7) recorded joint positions (T >= 3).
-            torque: (T, 7) the commands (gravity compensated by the arm, with its own model or
+            q: (T, 7) recorded joint positions (T >= 3), or a list of recordings' (:meth:`data`).
+            torque: (T, 7) (or a list, as ``q``) the commands (gravity compensated by the arm, with its own model or
                 with the catalogue's) or total torques.
             prior_mean, prior_std: (n,) a Gaussian prior on the identified entries in unit
                 coordinates (a learned estimate, :mod:`robomorph.inference.hybrid`); the solve is
@@ -154,15 +159,52 @@ class RegressorIdentifier:
             noise: the encoder noise std [rad] measured in the context (:func:`robomorph.identification.noise.encoder_noise`):
                 above :data:`robomorph.identification.noise.NOISE_FLOOR` the joints and torques are smoothed alike
                 before the differences, over a window that grows with it; below, nothing changes.
+            piece_offsets: each piece of a list its own constant torque per joint (:attr:`piece_offsets`), projected
+                out of the solve: recordings whose offsets drift; they are not estimated (the mean residual of each
+                piece under the fit is its offset).
         """
-        if self._catalogue_gravity is not None:
-            torque = np.asarray(torque, dtype=np.float64) + np.stack([self._catalogue_gravity(qt) for qt in q])
-        if noise > encoder.NOISE_FLOOR:
-            q, torque = encoder.smooth_pair(q, torque, noise)
-        return self._fit(base, q, torque, prior_mean, prior_std)
+        data = self.data(q, torque, noise)
+        self.piece_offsets = self.last_pieces if piece_offsets else None
+        try:
+            return self._fit(base, data, prior_mean, prior_std)
+        finally:
+            self.piece_offsets = None
 
-    def _fit(self, base: np.ndarray, q: np.ndarray, torque: np.ndarray, prior_mean, prior_std) -> np.ndarray:
-        data = _differences(q, torque, self.dt)
+    def data(self, q, torque, noise=0.0) -> tuple:
+        """(positions, velocities, accelerations, torques) at the inner samples the solve reads, the catalogue's
+        gravity added where the arm compensates with it and noisy joints smoothed (:meth:`fit`'s ``noise``).
+
+        ``q``, ``torque`` and ``noise`` may also be lists, one entry per recording (each its own trajectory, of any
+        length >= 3): each piece's differences are taken on its own and the rows stacked, so one solve reads them
+        all (an identification over a robot's whole training recordings, :mod:`robomorph.inference.recordings`)."""
+        if not isinstance(q, list):
+            q, torque, noise = [q], [torque], [noise]
+        elif not isinstance(noise, list):
+            noise = [noise] * len(q)
+        if not q or len(q) != len(torque) or len(q) != len(noise):
+            raise ValueError(f"the regressor reads as many torque pieces as joint pieces (one or more), got "
+                             f"{len(q)} and {len(torque)}")
+        pieces = []
+        for qp, tp, n in zip(q, torque, noise):
+            qp, tp = np.asarray(qp, dtype=np.float64), np.asarray(tp, dtype=np.float64)
+            if qp.ndim != 2 or qp.shape != tp.shape[:1] + qp.shape[1:] or len(qp) < 3:
+                raise ValueError(f"each piece is (T, joints) joints and torques with T >= 3, got {qp.shape} and "
+                                 f"{tp.shape}")
+            if self._catalogue_gravity is not None:
+                tp = tp + np.stack([self._catalogue_gravity(qt) for qt in qp])
+            if n > encoder.NOISE_FLOOR:
+                qp, tp = encoder.smooth_pair(qp, tp, n)
+            pieces.append(_differences(qp, tp, self.dt))
+        self.last_pieces = np.array([len(p[0]) for p in pieces])  # each piece's rows (states), in order
+        return pieces[0] if len(pieces) == 1 else tuple(np.concatenate(parts) for parts in zip(*pieces))
+
+    def residual(self, params: np.ndarray, data: tuple) -> np.ndarray:
+        """(T, nj) the torque ``data`` (of :meth:`data`) holds beyond robot ``params``'s inverse dynamics at the
+        recorded motion: what its offsets and any model error must explain."""
+        qs, v, a, tau = data
+        return tau - self._inverse(np.asarray(params, dtype=np.float64), qs, v, a)[0]
+
+    def _fit(self, base: np.ndarray, data: tuple, prior_mean, prior_std) -> np.ndarray:
         base = np.asarray(base, dtype=np.float64)
         z_base = self._unit(base)
         fit = self._solves(base, z_base, data, self.iterations)
@@ -225,7 +267,10 @@ class RegressorIdentifier:
             tau0, bodies, signs = self._inverse(params, qs, v, a, fresh and not self.exact_columns, it < iterations - 1)
             cols = self._columns(params, qs, v, a, tau0, None if fresh else cols, bodies, signs)
             A_z = self._design(cols, extra_cols)
-            x, b_z, gram, atb = _solve(A_z, (tau - tau0).ravel() / self.sigma, z_lin, z_pull, self.prior)
+            resid = (tau - tau0).ravel() / self.sigma
+            if self.piece_offsets is not None:
+                A_z, resid = _within(A_z, resid, self.piece_offsets, self._nj)
+            x, b_z, gram, atb = _solve(A_z, resid, z_lin, z_pull, self.prior)
             params[index] = self._mid + x[:len(index)] * self._half
             z_lin = np.r_[x[:len(index)], np.zeros(e)]
         return _Fit(params, cols, b_z, gram, atb, np.einsum("ij,j->i", A_z, x) - b_z, z_base, x[len(index):])
@@ -390,6 +435,20 @@ def _held(friction: list[tuple[int, int]], cols: np.ndarray, nj: int) -> np.ndar
     for c, j in friction:
         held[j] = bool(np.max(np.abs(cols[:, j, c])) < 0.5)
     return held
+
+
+def _within(A_z: np.ndarray, resid: np.ndarray, pieces: np.ndarray, nj: int) -> tuple[np.ndarray, np.ndarray]:
+    """``A_z`` and ``resid`` (rows state-major, then joint) less each piece's mean per joint: a constant per piece and
+    joint projected out of the solve (``pieces``: each piece's states, in order)."""
+    A_z, resid = A_z.copy(), resid.copy()
+    start = 0
+    for n in pieces:
+        rows = slice(start * nj, (start + n) * nj)
+        a, r = A_z[rows].reshape(n, nj, -1), resid[rows].reshape(n, nj)
+        a -= a.mean(axis=0)
+        r -= r.mean(axis=0)
+        start += n
+    return A_z, resid
 
 
 def _solve(A_z: np.ndarray, resid: np.ndarray, z_lin: np.ndarray, z_base: np.ndarray, prior: float):

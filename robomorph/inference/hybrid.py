@@ -290,8 +290,7 @@ class Hybrid:
         """The catalogue robot's identified entries solved for, window by window (springs anchored at ``anchor``, default
         the first context sample), debiased where the hybrid says so (commands, no prior; ``qvel_start``: (B, 7) the
         velocity at each context's first sample, where its simulation starts)."""
-        from robomorph.identification.identify import GRAVITY_KINDS, KINDS, SPRING_KINDS, ParameterSpace  # noqa: PLC0415
-        from robomorph.identification.regressor import RegressorIdentifier  # noqa: PLC0415
+        from robomorph.identification.identify import GRAVITY_KINDS, KINDS, SPRING_KINDS  # noqa: PLC0415
 
         # Total torques pay gravity in the torque: the centres of mass are solved for as well (a
         # centimetre moves it by ~0.1 N m), except under the head's prior, which does not name them.
@@ -305,21 +304,7 @@ class Hybrid:
         # the friction beyond the box; not under the head's prior, which does not name them.
         extras = ("offsets",) if self.settings.offsets and prior is None else ()
         wide = self.settings.coulomb and prior is None
-        if self._regressor is None or self._regressor_kinds != (kinds, extras, wide, payload):
-            from robomorph.identification.extra_terms import friction_space, payload_space  # noqa: PLC0415
-
-            ident = self.backbone.ident
-            space = ParameterSpace.of(ident.randomizer, self.backbone.recipe.randomization, kinds) \
-                if kinds != KINDS else ident.space
-            if wide:
-                space = friction_space(space, ident.randomizer, self.backbone.recipe.randomization)
-            if payload:
-                space = payload_space(space, ident.randomizer, ident.model)
-            self._regressor = RegressorIdentifier(self.backbone.recipe, space, ident.randomizer, self.inputs,
-                                                    iterations=self.settings.iterations, extras=extras,
-                                                    relinearize_com=payload)
-            self._regressor_kinds = (kinds, extras, wide, payload)
-        self._regressor.iterations = self.settings.iterations
+        self._build_regressor(kinds, extras, wide, payload)
         base = np.stack([self.backbone.catalogue(q) for q in (q_ctx[:, 0] if anchor is None else anchor)])
         out, self._covs, held = [], [], []
         debias = self.settings.debias and prior is None and qvel_start is not None  # (commands only: in effect)
@@ -355,6 +340,91 @@ class Hybrid:
                 torque = corrected(u_ctx[rows], None if self._offsets is None else self._offsets[rows])
                 out[rows] = debiased(self.backbone, self._regressor, out[rows], q_ctx[rows], torque, qvel_start[rows],
                                      [fits[i] for i in rows])
+        return out
+
+    def _build_regressor(self, kinds: tuple, extras: tuple, wide: bool, payload: bool):
+        """The regression's solver for these kinds and terms (kept while they stay the same): the one solver that
+        both a context's identification and one over a robot's training recordings (:meth:`identify_recordings`) run."""
+        from robomorph.identification.identify import KINDS, ParameterSpace  # noqa: PLC0415
+        from robomorph.identification.regressor import RegressorIdentifier  # noqa: PLC0415
+
+        if self._regressor is None or self._regressor_kinds != (kinds, extras, wide, payload):
+            from robomorph.identification.extra_terms import friction_space, payload_space  # noqa: PLC0415
+
+            ident = self.backbone.ident
+            space = ParameterSpace.of(ident.randomizer, self.backbone.recipe.randomization, kinds) \
+                if kinds != KINDS else ident.space
+            if wide:
+                space = friction_space(space, ident.randomizer, self.backbone.recipe.randomization)
+            if payload:
+                space = payload_space(space, ident.randomizer, ident.model)
+            self._regressor = RegressorIdentifier(self.backbone.recipe, space, ident.randomizer, self.inputs,
+                                                    iterations=self.settings.iterations, extras=extras,
+                                                    relinearize_com=payload)
+            self._regressor_kinds = (kinds, extras, wide, payload)
+        self._regressor.iterations = self.settings.iterations
+        return self._regressor
+
+    def identify_recordings(self, q: list[np.ndarray], torque: list[np.ndarray], reference: int | None = None,
+                            drift: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """One robot from many recordings of it: ``(params (P,), offsets (nj,))``, the regression's solve
+        (:meth:`_regress`'s solver, kinds and terms as the settings say, constant torque offsets always) fed with every
+        recording's rows at once, as a robot's identification run is (the Kinova source's own code fits all its
+        trajectories together). ``q``: each recording's joints (T, nj); ``torque``: its torques, in the model's
+        formulation. The springs are left out: they pull toward where one context started, which many do not share.
+        Noisy recordings are smoothed one by one where ``denoise`` is on (:mod:`robomorph.identification.noise`).
+
+        ``reference``: samples of one context. The solve's pull toward the catalogue is per row of data, so it would
+        bias a fit over many recordings as much as one over a context; with ``reference`` it is as strong in all as
+        over that many samples, and more data outweigh it as a prior should be (None: the context's pull per row).
+        ``drift``: each recording has its own offsets (projected out of the solve: one offset for all would leave each
+        recording's departure from it to the robot's entries), and the offsets returned are their mean over the
+        rows; False: one offset for all, solved for with the rest."""
+        from robomorph.identification.identify import GRAVITY_KINDS, KINDS  # noqa: PLC0415
+        from robomorph.identification.noise import encoder_noise  # noqa: PLC0415
+
+        nominal = self.backbone.recipe.gravity_compensation == "nominal_model"
+        payload = self.settings.payload
+        gravity = self.inputs == "total" or (payload and nominal)
+        regressor = self._build_regressor(GRAVITY_KINDS if gravity else KINDS, ("offsets",), self.settings.coulomb,
+                                          payload)
+        q = [np.asarray(p, dtype=np.float64)[:, :self.n_joint] for p in q]
+        noise = [encoder_noise(p) if self.settings.denoise else 0.0 for p in q]
+        kept = regressor.prior
+        if reference is not None:
+            regressor.prior = kept * float(np.sqrt(min(1.0, reference / sum(len(p) for p in q))))
+        try:
+            params = regressor.fit(self.backbone.catalogue(q[0][0]), q, list(torque), noise=noise, piece_offsets=drift)
+        finally:
+            regressor.prior = kept  # the contexts' own solves keep theirs
+        if not drift:
+            return params, regressor.last_extra["offsets"].copy()
+        residual = regressor.residual(params, regressor.data(q, list(torque), noise))
+        return params, residual.mean(axis=0)
+
+    def simulate_identified(self, params: np.ndarray, offsets: np.ndarray | None, u_ctx, y_ctx,
+                            u_query) -> np.ndarray:
+        """(B, H, n_y) robot ``params`` (P,) simulated over each horizon from its context's end, the torques less
+        ``offsets`` ((nj,) or (B, nj); None: none), its velocity observed and its start denoised as :meth:`predict`
+        does: the prediction of a robot identified elsewhere (over its training recordings), nothing fitted here."""
+        from robomorph.core.velocity import estimate_velocity  # noqa: PLC0415
+        from robomorph.identification.noise import encoder_noise  # noqa: PLC0415
+
+        uc, yc, uq = (np.asarray(a.cpu() if isinstance(a, torch.Tensor) else a, dtype=np.float64)
+                      for a in (u_ctx, y_ctx, u_query))
+        q_ctx, quat_last = yc[..., 7:7 + self.n_joint], yc[:, -1, 3:7]
+        B = len(uc)
+        qvel_start = -estimate_velocity(q_ctx[:, ::-1], self.backbone.dt)
+        p = np.repeat(np.asarray(params, dtype=np.float64)[None], B, axis=0)
+        self._offsets = None if offsets is None else np.broadcast_to(np.asarray(offsets, dtype=np.float64),
+                                                                    (B, self.n_joint)).copy()
+        self._noise = np.array([encoder_noise(q) for q in q_ctx]) if self.settings.denoise else None
+        uc, uq, q_ctx = self._as_identified(p, uc, uq, q_ctx, qvel_start, slice(None))
+        qvel_end = self.backbone.context_velocity(p, q_ctx, uc, qvel_start)
+        out = self.backbone.simulate(p, q_ctx, uc, uq, qvel_start, quat_last, qvel_end)
+        if not np.all(np.isfinite(out)):
+            raise HybridError("the identified robot diverged (non-finite outputs): check the torques' units and "
+                              "that the recordings it was identified on are of this arm")
         return out
 
     def record(self) -> tuple:

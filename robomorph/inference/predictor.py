@@ -243,6 +243,16 @@ class Predictor:
 
         return StackedPredictor.of(self, config)
 
+    def identify_from(self, u, y, config=None):
+        """This hybrid identified over the robot's training recordings (a user's identification run), adapted per
+        context and corrected in acceleration space: a :class:`robomorph.inference.recordings.RecordingsPredictor`,
+        whose ``simulate(u_ctx, y_ctx, u_query)`` predicts with that robot. ``u``, ``y``: lists of (T, n_u) and
+        (T, n_y) recordings in this model's formulation (or (N, T, ...) arrays of windows); ``config``: a
+        :class:`robomorph.inference.recordings.RecordingsConfig`. Never give it the windows it will be scored on."""
+        from robomorph.inference.recordings import RecordingsPredictor  # noqa: PLC0415  (MuJoCo only when used)
+
+        return RecordingsPredictor(self, u, y, config)
+
     def check(self, u_ctx, y_ctx, config=None):
         """Backtests this model and the kinematic candidates on the context alone: a
         :class:`robomorph.inference.stacking.ContextCheck` (``print(check.summary())``: per horizon, which won and by
