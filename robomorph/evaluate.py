@@ -14,7 +14,7 @@ from robomorph.core.names import INPUTS, NORMALIZATIONS
 from robomorph.core.options import add_alias
 from robomorph.evaluation import evaluator
 from robomorph.evaluation.baselines import BASELINES, CEILINGS, OPT_IN
-from robomorph.evaluation.requests import PHYSICS_CHOICES, EvaluateConfig
+from robomorph.evaluation.requests import PHYSICS_CHOICES, STACKED_CHOICES, EvaluateConfig
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,6 +57,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "fused then a few Gauss-Newton steps (refined), the regression's simulation and the decoder "
                         "weighted by step (blend: fitted by calibrate --blend, the default for total torques "
                         "once fitted), or its black-box decoder (none)")
+    p.add_argument("--stacked", choices=STACKED_CHOICES, default="auto",
+                   help="stack the model with hold, constant velocity and constant acceleration by the backtest on "
+                        "each window's own context: auto (on for recordings of a real robot, an ingested store, off "
+                        "on simulated stores), on or off")
     p.add_argument("--arx-train-data", help="comma list of stores to fit arx_train on, whole (default: the "
                                             "checkpoint's training split, read back from its stores)")
     # The names before every command agreed on one name per meaning (core.options.VOCABULARY): kept one release.
@@ -89,7 +93,7 @@ def config(a: argparse.Namespace) -> EvaluateConfig:
         batch_size=a.batch_size, device=a.device, samples=a.plot_trajectories, arx_orders=_orders(a.arx_orders), seed=a.seed,
         normalization=a.normalization, horizons_spec=a.horizons, offset=a.offset, inputs=a.inputs,
         arx_train_data=tuple(s.strip() for s in (a.arx_train_data or "").split(",") if s.strip()),
-        compare=tuple(_compare(a.compare).items()), physics=a.physics)
+        compare=tuple(_compare(a.compare).items()), physics=a.physics, stacked=a.stacked)
 
 
 def run(a: argparse.Namespace) -> int:

@@ -27,6 +27,8 @@ from robomorph.evaluation.windows import EvaluationError, WindowError, check_cou
 
 # ``--physics``: a hybrid mode, or ``none`` (the decoder alone); None keeps the model's default.
 PHYSICS_CHOICES = (*PHYSICS_MODES, "none")
+# When evaluate stacks the model with kinematics (EvaluateConfig.stacked).
+STACKED_CHOICES = ("auto", "on", "off")
 
 
 def _choice(error: type[Exception], option: str, value, choices) -> None:
@@ -53,6 +55,7 @@ def _window(error: type[Exception], cfg) -> None:
     except (EvaluationError, WindowError) as exc:
         raise error(str(exc)) from None
     _whole(error, "--seed", cfg.seed, 0)
+
 
 
 @dataclass(frozen=True)
@@ -86,6 +89,10 @@ class EvaluateConfig:
         arx_train_data: stores ``arx_train`` is fitted on, whole (empty: the checkpoint's training split).
         compare: ``(name, checkpoint)`` pairs scored beside the baselines (a mapping is accepted too).
         physics: a hybrid's physics mode (None: the model's default).
+        stacked: ``auto`` (the default): the model's predictions stacked with kinematic extrapolation by the context
+            backtest on recordings of a real robot (an ingested store), where that wins, and the model alone on
+            simulated stores; ``on`` or ``off``: always or never
+            (:attr:`robomorph.inference.predictor.Predictor.stack`).
     """
 
     data: str
@@ -110,6 +117,7 @@ class EvaluateConfig:
     arx_train_data: tuple[str, ...] = ()
     compare: tuple[tuple[str, str], ...] = ()
     physics: str | None = None
+    stacked: str = "auto"
 
     def __post_init__(self):
         if (self.ckpt is None) == (self.arm is None):
@@ -131,6 +139,7 @@ class EvaluateConfig:
         _choice(EvaluationError, "--normalization", self.normalization, NORMALIZATIONS)
         _choice(EvaluationError, "--inputs", self.inputs, INPUTS)
         _choice(EvaluationError, "--physics", self.physics, PHYSICS_CHOICES)
+        _choice(EvaluationError, "--stacked", self.stacked, STACKED_CHOICES)
         names = [name for name, _ in self.compare]
         if len(set(names)) != len(names):
             raise EvaluationError(f"--compare names {sorted({x for x in names if names.count(x) > 1})} more than "

@@ -118,6 +118,7 @@ class Predictor:
         self._prior_predictor = None
         self._settings = HybridSettings.of_record(self.physics, self.inputs, getattr(model, "blend", None))
         self._pool = None  # the hybrids (robomorph.inference.hybrid_split.HybridPool), built on first use
+        self._stack = None  # a StackConfig: simulate stacks the model with kinematics (the ``stack`` setting)
         if self.physics:
             self.has_std = True  # the spread over robots around the estimate
 
@@ -234,6 +235,45 @@ class Predictor:
         finally:
             self.model.calibrations, self._settings = kept, settings
 
+    @property
+    def stack(self):
+        """The stacking setting: a :class:`robomorph.inference.stacking.StackConfig` under which :meth:`simulate`
+        returns this model stacked with kinematic extrapolation by the context backtest (its std measured on the
+        robot's own record), or None (the default): the model's own prediction. Set it to a ``StackConfig``, True
+        (the default config) or False/None. ``robomorph evaluate --stacked auto`` turns it on for recordings of a real
+        robot, where it wins (``results/benchmarks/stacking.md``), and off on simulated stores, where the model
+        predicts 10-30 times better than kinematics beyond the backtest's reach and the stack cannot know it."""
+        return self._stack
+
+    @stack.setter
+    def stack(self, value) -> None:
+        from robomorph.inference.stacking import StackConfig  # noqa: PLC0415
+
+        if value is True:
+            value = StackConfig()
+        elif value is False:
+            value = None
+        if value is not None and not isinstance(value, StackConfig):
+            raise PredictionError(f"stack takes a StackConfig, True, False or None, got {type(value).__name__}")
+        self._stack = value
+
+    def _simulate_stacked(self, u_ctx, y_ctx, u_query, inputs, return_std: bool, at_rest, anchor):
+        """:meth:`simulate` under the ``stack`` setting: the model (its plain prediction, on every fold's context and
+        the whole one) stacked with the kinematic candidates; a trajectory's start (``at_rest``, ``anchor``) is every
+        fold's too, since the folds keep the context's first samples."""
+        from robomorph.inference.stacking import StackedPredictor  # noqa: PLC0415
+
+        self.check_inputs(inputs)
+
+        def plain(u, y, uq):
+            return np.asarray(self.simulate(u, y, uq, inputs=inputs, at_rest=at_rest, anchor=anchor, stacked=False),
+                              dtype=np.float64)
+
+        stack = StackedPredictor.of(self, self._stack, model=plain)
+        out = stack.simulate(u_ctx, y_ctx, u_query, return_std=return_std)
+        out = [torch.as_tensor(np.asarray(t)) for t in (out if return_std else (out,))]
+        return _outputs(u_query, out, return_std)
+
     def stacked(self, config=None):
         """This model stacked with kinematic extrapolation by the context backtest
         (:class:`robomorph.inference.stacking.StackedPredictor`): its ``simulate(u_ctx, y_ctx, u_query,
@@ -343,7 +383,7 @@ class Predictor:
 
     @torch.no_grad()
     def simulate(self, u_ctx, y_ctx, u_query, y_query_stats=None, inputs: str | None = None,
-                 return_std: bool = False, at_rest=None, anchor=None, prior=None):
+                 return_std: bool = False, at_rest=None, anchor=None, prior=None, stacked: bool | None = None):
         """Predicts the outputs over the query horizon.
 
         Args:
@@ -363,6 +403,8 @@ class Predictor:
                 A residual model hands them to its hybrid.
             prior: residual models only: the hybrid's prediction (Th, n_y) or (B, Th, n_y) made already (that of
                 :attr:`prior_predictor` on the same arrays); default: computed here.
+            stacked: stack the model with kinematic extrapolation by the context backtest (True), or predict with the
+                model alone (False); default: the :attr:`stack` setting. Stacked, the std comes from the backtest.
 
         Returns:
             y_query (Th, n_y) or (B, Th, n_y), the same kind (numpy/torch) as ``u_query``;
@@ -378,6 +420,10 @@ class Predictor:
                 deviations from the training mean, or non-finite predictions.
             CheckpointError: ``return_std`` for a model without a Gaussian head.
         """
+        if (self._stack is not None) if stacked is None else stacked:
+            if y_query_stats is not None or prior is not None:
+                raise PredictionError("a stacked prediction takes neither y_query_stats nor prior: pass stacked=False")
+            return self._simulate_stacked(u_ctx, y_ctx, u_query, inputs, return_std, at_rest, anchor)
         self.check_inputs(inputs)
         hybrid = bool(self.physics) and self._settings.mode != "none"
         if return_std and not (self.has_std if hybrid else getattr(self.model, "gaussian", False)):

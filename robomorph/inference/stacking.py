@@ -205,15 +205,21 @@ class StackedPredictor:
         self.learned_mse: dict | None = None
 
     @classmethod
-    def of(cls, predictor, config: StackConfig | None = None) -> "StackedPredictor":
-        """A :class:`robomorph.inference.predictor.Predictor` stacked: its ``simulate``, rate and patch."""
+    def of(cls, predictor, config: StackConfig | None = None, model: Model | None = None) -> "StackedPredictor":
+        """A :class:`robomorph.inference.predictor.Predictor` stacked: its plain ``simulate`` (never its stacked one,
+        whatever its ``stack`` setting), or ``model`` in its place, with its rate, patch and joint channels."""
         dt = float((predictor.data_info or {}).get("dt", 0) or 0)
         if not dt > 0:
             raise StackingError("this model records no sample time (data_info dt): build "
                                 "StackedPredictor(predictor.simulate, dt=...) with the logs' rate")
-        names = list((predictor.data_info or {}).get("y_names") or [])
+        # The channels it predicts: an arm's own where a model of several arms was given fewer (``channels``).
+        names = list((getattr(predictor, "channels", None) or (None, None))[1]
+                     or (predictor.data_info or {}).get("y_names") or [])
         joints = [i for i, n in enumerate(names) if n.startswith("q")] or None
-        return cls(predictor.simulate, dt, config, getattr(predictor, "patch", 1), decide_on=joints)
+        if model is None:
+            def model(u, y, uq):
+                return predictor.simulate(u, y, uq, stacked=False)
+        return cls(model, dt, config, getattr(predictor, "patch", 1), decide_on=joints)
 
     @property
     def names(self) -> list[str]:

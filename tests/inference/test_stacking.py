@@ -211,3 +211,45 @@ def test_training_recordings_teach_the_prior_that_long_horizons_fade_into():
     assert taught.last_check.weights[:, 3, -1].mean() > 0.9 > plain.last_check.weights[:, 3, -1].mean()
     with pytest.raises(StackingError, match="context_len"):
         StackedPredictor(None, DT).learn(u, y, 400)
+
+
+def test_the_stack_setting_makes_simulate_the_stacked_prediction_and_off_gives_the_model_back():
+    from robomorph import Predictor
+    from robomorph.inference.predictor_checks import PredictionError
+    from tests.inference.kept_predictions import KEPT
+
+    pred = Predictor.from_pretrained(str(KEPT / "total_forward"))
+    pred.use_physics("none")
+    w = np.load(KEPT / "windows.npz")
+    u, y = w["total_u"], w["total_y"]
+    ctx = (u[:, :30], y[:, :30], u[:, 30:])
+    plain = pred.simulate(*ctx)
+    assert pred.stack is None
+    stacked_once = pred.simulate(*ctx, stacked=True)  # one call stacked, the setting untouched
+    assert pred.stack is None
+    pred.stack = True
+    assert pred.stack == StackConfig()
+    mean, std = pred.simulate(*ctx, return_std=True)
+    expected = pred.stacked().simulate(*ctx)  # the stack of the model's own (plain) prediction, not of itself
+    np.testing.assert_allclose(mean, expected, rtol=0, atol=1e-5 * np.abs(expected).max())
+    np.testing.assert_allclose(stacked_once, mean, rtol=0, atol=1e-5 * np.abs(expected).max())
+    assert mean.dtype == plain.dtype and std.shape == mean.shape and (std > 0).all()
+    assert np.abs(mean - plain).max() > 1e-6  # stacked is not the model alone here
+    np.testing.assert_array_equal(pred.simulate(*ctx, stacked=False), plain)
+    with pytest.raises(PredictionError, match="stack takes a StackConfig"):
+        pred.stack = "yes"
+    assert pred.stack == StackConfig()  # a refused value changes nothing
+    pred.stack = False
+    np.testing.assert_array_equal(pred.simulate(*ctx), plain)
+
+
+def test_evaluate_stacks_on_recordings_of_a_real_robot_and_not_on_simulated_stores_by_default():
+    from robomorph.evaluation.evaluator import stacks
+    from robomorph.evaluation.requests import EvaluateConfig
+    from robomorph.evaluation.windows import EvaluationError
+
+    assert stacks("auto", {"task": "ingested"}) and not stacks("auto", {"task": "multisine"})
+    assert stacks("on", {"task": "multisine"}) and not stacks("off", {"task": "ingested"})
+    assert EvaluateConfig(data="x.zarr", ckpt="c.ckpt").stacked == "auto"
+    with pytest.raises(EvaluationError, match="--stacked"):
+        EvaluateConfig(data="x.zarr", ckpt="c.ckpt", stacked="always")
