@@ -24,7 +24,9 @@ Scored on the same test windows, through :func:`robomorph.evaluation.scoring.sco
 - ``hybrid_train``, ``hybrid_train +offsets``, ``hybrid_train +offsets +residual`` (where the arm is registered): the
   hybrid identified once over the robot's training recordings, then its offsets adapted per context, then an
   acceleration-space residual learned on those recordings (``benchmarks/training_recordings.py``), with the goal
-  "with the arm's training recordings" for each and what each term buys under the table;
+  "with the arm's training recordings" for each and what each term buys under the table; on every arm,
+  ``constant_velocity +residual``: constant velocity corrected by the same residual, learned on the training
+  recordings;
 - ``stacked (kinematic)``, ``stacked (zero-shot)``, ``stacked (training recordings)`` (unless ``--no-stacked``):
   the context backtest's stacks of :mod:`robomorph.inference.stacking`, as ``benchmarks/stacking.py`` builds them,
   with each goal of issue 62 and its verdict under the table;
@@ -222,6 +224,10 @@ def score_robot(source: public_logs.PublicLog, args) -> dict:
 
         trained, fitted = recordings_predictions(source.arm, w, stores["train"])
         models.update(trained)
+    from training_recordings import kinematic_predictions  # noqa: PLC0415
+
+    trained, kinematic = kinematic_predictions(w, stores["train"])  # every arm: constant velocity + the residual
+    models.update(trained)
     verdicts = []
     if not args.no_stacked:  # the same stacks and verdicts as benchmarks/stacking.py, on these windows
         from stacking import stacked_predictions, summarize  # noqa: PLC0415
@@ -239,11 +245,10 @@ def score_robot(source: public_logs.PublicLog, args) -> dict:
     scores = score_windows(None, w, baselines=baselines, steps=[k for k, _ in steps], others=models,
                            train_blocks=train_blocks)
     joints = [n for n in w.y_names if n.startswith("q")]
-    if fitted is not None:
-        from training_recordings import recordings_verdicts  # noqa: PLC0415
+    from training_recordings import recordings_verdicts  # noqa: PLC0415
 
-        verdicts = verdicts + recordings_verdicts(steps, lambda n, k: scores.at(n, "joints", k),
-                                                  lambda n: joint_fit(scores.result, n, joints), fitted)
+    verdicts = verdicts + recordings_verdicts(steps, lambda n, k: scores.at(n, "joints", k),
+                                              lambda n: joint_fit(scores.result, n, joints), fitted, kinematic)
     if args.plots:
         from robomorph.evaluation.plots import plot_error_growth  # noqa: PLC0415
 

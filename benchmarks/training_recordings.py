@@ -8,6 +8,9 @@ compensating its gravity with its catalogue model, as ``hybrid (nominal commands
 - ``hybrid_train +offsets``: the offsets re-fitted on each context, the training value as prior;
 - ``hybrid_train +offsets +residual``: the acceleration-space residual learned on the training windows.
 
+On every arm, MJCF or not, the same residual on top of constant velocity (``constant_velocity +residual``:
+:class:`~robomorph.inference.recordings.KinematicResidual`, on the logged torques).
+
 Then, under the table, the goal "with the arm's training recordings" (at 0.25 s and 1 s at most 0.5x the best
 kinematic bar, FIT above the best kinematic's) for each row, and what each term bought at each reported step.
 Nothing here reads a test window beyond its context: the training store alone is identified and learned on.
@@ -20,6 +23,7 @@ import numpy as np
 from robomorph.data.store import open_store
 
 ROWS = ("hybrid_train", "hybrid_train +offsets", "hybrid_train +offsets +residual")
+KINEMATIC_ROW = "constant_velocity +residual"
 KINEMATIC = ("hold", "constant_velocity", "constant_acceleration")
 
 
@@ -44,26 +48,51 @@ def recordings_predictions(arm: str, w, train_store: str) -> tuple[dict[str, np.
     return out, fitted
 
 
-def recordings_verdicts(steps: list[tuple[int, str]], rms, fit, fitted) -> list[str]:
+def kinematic_predictions(w, train_store: str) -> tuple[dict[str, np.ndarray], object]:
+    """``constant_velocity +residual`` on windows ``w`` and its fitted
+    :class:`~robomorph.inference.recordings.KinematicResidual` (learned on the training store's windows alone)."""
+    from robomorph.inference.recordings import KinematicResidual, RecordingsConfig  # noqa: PLC0415
+
+    train = open_store(train_store)
+    joints = [i for i, n in enumerate(w.y_names) if n.startswith("q")]
+    c = w.context_len
+    fitted = KinematicResidual(train.read("u", slice(0, train.n)), train.read("y", slice(0, train.n)), joints, w.dt,
+                               RecordingsConfig(context=c, horizon=w.horizon))
+    u, y = w.u.astype(np.float64), w.y.astype(np.float64)
+    return {KINEMATIC_ROW: fitted.simulate(u[:, :c], y[:, :c], u[:, c:])}, fitted
+
+
+def recordings_verdicts(steps: list[tuple[int, str]], rms, fit, fitted=None, kinematic=None) -> list[str]:
     """Issue 62's goal with the training recordings for each row, and what each term buys, in lines.
 
     ``steps``: the table's (step, label) pairs; ``rms(name, step)`` the joint RMS [mrad]; ``fit(name)`` the FIT [%];
-    ``fitted``: the :class:`~robomorph.inference.recordings.RecordingsPredictor`."""
+    ``fitted``: the :class:`~robomorph.inference.recordings.RecordingsPredictor` (None: no hybrid rows);
+    ``kinematic``: the :class:`~robomorph.inference.recordings.KinematicResidual` (None: no such row)."""
     best = {k: min(rms(n, k) for n in KINEMATIC) for k, _ in steps}
     best_fit = max(fit(n) for n in KINEMATIC)
     picked = [(k, label) for k, label in steps if label in ("0.25 s", "1 s")]
     out = []
-    for name in ROWS:
+    rows = (ROWS if fitted is not None else ()) + ((KINEMATIC_ROW,) if kinematic is not None else ())
+    for name in rows:
         ratios = [(label, rms(name, k) / best[k]) for k, label in picked]
         ok = all(r <= 0.5 for _, r in ratios) and fit(name) > best_fit
         out.append(f"{name}, with the training recordings at most 0.5x the best kinematic at 0.25 s and 1 s, FIT "
                    f"above the best kinematic's: {'**met**' if ok else '**missed**'} ("
                    + ", ".join(f"{label} {r:.2f}" for label, r in ratios)
                    + f"; FIT {fit(name):.1f} against {best_fit:.1f})")
-    for before, after, term in ((ROWS[0], ROWS[1], "the per-context offsets"), (ROWS[1], ROWS[2], "the acceleration residual")):
+    terms = (((ROWS[0], ROWS[1], "the per-context offsets"), (ROWS[1], ROWS[2], "the acceleration residual"))
+             if fitted is not None else ())
+    if kinematic is not None:
+        terms += (("constant_velocity", KINEMATIC_ROW, "the acceleration residual on constant velocity"),)
+    for before, after, term in terms:
         out.append(f"what {term} add: " + ", ".join(
             f"{label} {rms(before, k):.3g} -> {rms(after, k):.3g} mrad ({100 * (rms(after, k) / rms(before, k) - 1):+.0f} %)"
             for (k, label) in steps) + f"; FIT {fit(before):.1f} -> {fit(after):.1f}")
+    if kinematic is not None:
+        out.append(f"the residual on constant velocity: ridge {kinematic.residual.ridge:g}, chosen by cross-validation "
+                   "over the training windows")
+    if fitted is None:
+        return out
     res = fitted.residual
     out.append(f"identified over {fitted.recordings} training windows ({fitted.samples} samples); offsets' per-context "
                f"gain {', '.join(f'{g:.2f}' for g in fitted.gain)}; the residual's ridge chosen by cross-validation "

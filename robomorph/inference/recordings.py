@@ -150,6 +150,71 @@ def _integrated(phi: np.ndarray, dt: float) -> np.ndarray:
     return np.cumsum(np.cumsum(phi, axis=1), axis=1) * dt * dt
 
 
+def horizon_features(q_ctx: np.ndarray, q_pred: np.ndarray, uq: np.ndarray, dt: float) -> np.ndarray:
+    """(B, H, F) :func:`features` along predicted horizons ``q_pred`` (B, H, nj) after contexts ``q_ctx`` (B, T, nj):
+    at the state before each step (velocities by central differences), the torque ``uq`` over it."""
+    q = np.concatenate([q_ctx[:, -2:], q_pred], axis=1)  # two context samples, the horizon
+    v = (q[:, 2:] - q[:, :-2]) / (2 * dt)  # at the last context sample and every step but the last
+    return features(q[:, 1:-1], v, uq)
+
+
+def windows_of(us: list[np.ndarray], ys: list[np.ndarray], context: int, horizon: int
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Recordings cut into non-overlapping windows of ``context + horizon`` samples: ``(u, y, recording)`` (B, ...)."""
+    cut = [(i, s) for i, a in enumerate(us) for s in range(0, len(a) - context - horizon + 1, context + horizon)]
+    if not cut:
+        raise RecordingsError(f"no recording holds one window of context {context} + horizon {horizon} samples for "
+                              "the residual: give longer recordings, or RecordingsConfig(residual=False)")
+    n = context + horizon
+    return (np.stack([us[i][s:s + n] for i, s in cut]), np.stack([ys[i][s:s + n] for i, s in cut]),
+            np.array([i for i, _ in cut]))
+
+
+class KinematicResidual:
+    """Constant-velocity extrapolation corrected by the acceleration residual, learned on the training recordings:
+    the residual term for any arm, with no MJCF (``constant_velocity +residual`` in ``benchmarks/real_robots.py``).
+
+    ``u``, ``y``: the recordings (lists of (T, n) arrays or (N, T, n) windows); ``joints``: the output columns the
+    residual corrects (joint angles; the others are extrapolated alone); ``dt``: the sample time [s]; ``config``: a
+    :class:`RecordingsConfig` (its ``context``, ``horizon`` and ``folds``)."""
+
+    def __init__(self, u, y, joints: list[int], dt: float, config: RecordingsConfig | None = None):
+        config = RecordingsConfig() if config is None else config
+        if not isinstance(config, RecordingsConfig):
+            raise RecordingsError(f"config must be a RecordingsConfig, got {type(config).__name__}")
+        try:
+            n_u, n_y = (np.shape(a[0])[-1] for a in (u, y))
+        except (IndexError, TypeError, KeyError):
+            raise RecordingsError("the residual takes the recordings' torques and outputs as two lists of (T, channels) "
+                                  "arrays (or two (N, T, channels) arrays), at least one recording") from None
+        us, ys = _pieces(u, y, n_u, n_y)
+        if not joints or any(not 0 <= j < ys[0].shape[1] for j in joints):
+            raise RecordingsError(f"joints must name output columns 0..{ys[0].shape[1] - 1}, got {joints!r}")
+        if not dt > 0:
+            raise RecordingsError(f"dt must be > 0 seconds, got {dt!r}")
+        self.joints, self.dt, self.config = list(joints), float(dt), config
+        wu, wy, groups = windows_of(us, ys, config.context, config.horizon)
+        c = config.context
+        base = self.simulate(wu[:, :c], wy[:, :c], wu[:, c:], residual=False)
+        err = wy[:, c:, self.joints] - base[..., self.joints]
+        self.residual = AccelResidual.fit(self._features(wy[:, :c], base, wu[:, c:]), err, groups, self.dt,
+                                          config.folds)
+
+    def _features(self, yc: np.ndarray, pred: np.ndarray, uq: np.ndarray) -> np.ndarray:
+        return horizon_features(yc[..., self.joints], pred[..., self.joints], uq, self.dt)
+
+    def simulate(self, u_ctx, y_ctx, u_query, residual: bool = True) -> np.ndarray:
+        """(B, H, n_y) constant velocity from each context's last two samples, its joints corrected (``residual``)."""
+        from robomorph.inference.kinematics import KINEMATIC  # noqa: PLC0415
+
+        uc, yc, uq = (np.asarray(a, dtype=np.float64) for a in (u_ctx, y_ctx, u_query))
+        out = np.asarray(KINEMATIC["constant_velocity"](uc, yc, uq), dtype=np.float64)
+        if residual:
+            out = out.copy()
+            out[..., self.joints] += self.residual.shift(self._features(yc, out, uq), self.dt)
+        return out
+
+
 def _ridge(z: np.ndarray, y: np.ndarray, ridge: float) -> np.ndarray:
     """Ridge solution, its pull per row scaled by the columns' mean square (the integrated features' size grows
     with the horizon: a ridge of 1 weighs the pull as much as the data)."""
@@ -235,25 +300,17 @@ class RecordingsPredictor:
     def _learn_residual(self, us: list[np.ndarray], ys: list[np.ndarray], dt: float) -> None:
         """The residual fitted on the recordings cut into windows of ``context + horizon`` samples, each predicted
         with the terms before it (the identified robot, the per-context offsets where on)."""
-        c, h = self.config.context, self.config.horizon
-        cut = [(i, s) for i, a in enumerate(us) for s in range(0, len(a) - c - h + 1, c + h)]
-        if not cut:
-            raise RecordingsError(f"no recording holds one window of context {c} + horizon {h} samples for the "
-                                  "residual: give longer recordings, or RecordingsConfig(residual=False)")
-        u = np.stack([us[i][s:s + c + h] for i, s in cut])
-        y = np.stack([ys[i][s:s + c + h] for i, s in cut])
+        c = self.config.context
+        u, y, groups = windows_of(us, ys, c, self.config.horizon)
         pred = self.simulate(u[:, :c], y[:, :c], u[:, c:], residual=False)
         nj = self.n_joint
         err = y[:, c:, 7:7 + nj] - pred[..., 7:7 + nj]
-        self.residual = AccelResidual.fit(self._features(pred, y[:, :c], u[:, c:], dt), err,
-                                          np.array([i for i, _ in cut]), dt, self.config.folds)
+        self.residual = AccelResidual.fit(self._features(pred, y[:, :c], u[:, c:], dt), err, groups, dt,
+                                          self.config.folds)
 
     def _features(self, pred: np.ndarray, yc: np.ndarray, uq: np.ndarray, dt: float) -> np.ndarray:
-        """(B, H, F) :func:`features` along predicted horizons: at the state before each step, the torque over it."""
-        nj = self.n_joint
-        q = np.concatenate([yc[:, -2:, 7:7 + nj], pred[..., 7:7 + nj]], axis=1)  # two context samples, the horizon
-        v = (q[:, 2:] - q[:, :-2]) / (2 * dt)  # at the last context sample and every step but the last
-        return features(q[:, 1:-1], v, uq)
+        cols = slice(7, 7 + self.n_joint)
+        return horizon_features(yc[..., cols], pred[..., cols], uq, dt)
 
     @staticmethod
     def _noise(hybrid, q: np.ndarray) -> float:

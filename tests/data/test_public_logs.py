@@ -170,7 +170,8 @@ def test_benchmark_scores_every_predictor_on_every_robot_and_physics_wins_on_its
     assert set(rows) == {"hold", "constant_velocity", "constant_acceleration", "arx", "arx_train", "accel_arx",
                          "accel_arx_train", "nominal_physics", "identified_physics", "hybrid (total)",
                          "hybrid (nominal commands)", "stacked (kinematic)", "stacked (zero-shot)",
-                         "stacked (training recordings)"}
+                         "stacked (training recordings)", "hybrid_train", "hybrid_train +offsets",
+                         "hybrid_train +offsets +residual", "constant_velocity +residual"}
     assert "Issue 62's goals" in kinova and "zero-shot at most 1.05x the best kinematic at every step: **" in kinova
     # The logs were made by the catalogue arm itself: its physics beats hold at 0.25 s (step 50 at 200 Hz).
     assert float(rows["nominal_physics"][1]) < 0.5 * float(rows["hold"][1])
@@ -178,7 +179,11 @@ def test_benchmark_scores_every_predictor_on_every_robot_and_physics_wins_on_its
     # its published readings live in their own benchmark, named here instead of an NRMSE beside them
     assert "arx_train" in industrial and "benchmarks/industrial_robot.py" in industrial
     assert "published" not in industrial.replace("published readings", "")
-    assert "nominal_physics" not in text.split("## Schunk")[1].split("\n## ")[0]  # no MJCF: not run
+    schunk = text.split("## Schunk")[1].split("\n## ")[0]
+    assert "nominal_physics" not in schunk and "hybrid_train" not in schunk  # no MJCF: not run
+    assert "| constant_velocity +residual" in schunk  # the residual on constant velocity: every arm
+    assert "hybrid_train +offsets, with the training recordings at most 0.5x the best kinematic" in kinova
+    assert "what the per-context offsets add:" in kinova
 
 
 def test_ingest_source_writes_the_split_stores_and_refuses_mixed_requests(sources, tmp_path, capsys):

@@ -155,3 +155,50 @@ def test_bad_recordings_and_settings_are_refused_in_one_line(robots):
     with pytest.raises(RecordingsError, match="learned no residual"):
         fitted.simulate(u[0, :CONTEXT], y[0, :CONTEXT], u[0, CONTEXT:PIECE], residual=True)
     assert fitted.simulate(u[0, :CONTEXT], y[0, :CONTEXT], u[0, CONTEXT:PIECE]).shape == (PIECE - CONTEXT, 14)
+
+
+def _pendulums(recordings: int, seed: int, steps: int = 300, dt: float = 0.01):
+    """Three damped pendulums driven by smooth torques (a = 0.5 tau - 2 sin q - 0.3 v), logged every dt: (u, y)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(steps) * dt
+    us, ys = [], []
+    for _ in range(recordings):
+        freq, phase = rng.uniform(0.2, 1.0, (3, 3)), rng.uniform(0, 2 * np.pi, (3, 3))
+        u = sum(np.sin(2 * np.pi * freq[k] * t[:, None] + phase[k]) for k in range(3))
+        q, v, y = rng.uniform(-0.5, 0.5, 3), np.zeros(3), []
+        for k in range(steps):
+            y.append(q.copy())
+            for _ in range(10):  # finer physics steps than the log
+                v = v + (0.5 * u[k] - 2 * np.sin(q) - 0.3 * v) * dt / 10
+                q = q + v * dt / 10
+        us.append(u)
+        ys.append(np.array(y))
+    return np.stack(us), np.stack(ys)
+
+
+def test_the_residual_on_constant_velocity_learns_an_arm_without_a_model():
+    """KinematicResidual (every arm, no MJCF): on held-out recordings of pendulums it never saw, constant velocity
+    corrected by the residual learned on the training recordings is far nearer the truth at the horizon's end than
+    constant velocity (measured: 86 against 329 mrad at 1 s), and the same under the same data (deterministic); bad
+    input is refused in one line."""
+    from robomorph.inference.recordings import KinematicResidual, RecordingsConfig, RecordingsError
+
+    u, y = _pendulums(12, seed=0)
+    config = RecordingsConfig(context=100, horizon=100)
+    fitted = KinematicResidual(u, y, [0, 1, 2], 0.01, config)
+    assert fitted.residual.ridge < max(fitted.residual.cv_error)  # the cross-validation keeps a correction
+    tu, ty = _pendulums(4, seed=1)
+    uc, yc, uq, yq = tu[:, :100], ty[:, :100], tu[:, 100:200], ty[:, 100:200]
+    err = {r: float(np.sqrt(((fitted.simulate(uc, yc, uq, residual=r)[:, -1] - yq[:, -1]) ** 2).mean()))
+           for r in (False, True)}
+    assert err[True] < 0.35 * err[False], err
+    again = KinematicResidual(u, y, [0, 1, 2], 0.01, config)
+    np.testing.assert_array_equal(again.residual.weights, fitted.residual.weights)
+    with pytest.raises(RecordingsError, match="joints must name output columns 0..2"):
+        KinematicResidual(u, y, [3], 0.01, config)
+    with pytest.raises(RecordingsError, match="dt must be > 0"):
+        KinematicResidual(u, y, [0], 0.0, config)
+    with pytest.raises(RecordingsError, match="at least one recording"):
+        KinematicResidual([], [], [0], 0.01, config)
+    with pytest.raises(RecordingsError, match="no recording holds one window"):
+        KinematicResidual(u[:, :150], y[:, :150], [0], 0.01, config)
