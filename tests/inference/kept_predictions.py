@@ -6,6 +6,10 @@ Rewrite the fixtures (only when the predictions are meant to change, saying why 
     python -m tests.inference.kept_predictions                      # models, windows and predictions
     python -m tests.inference.kept_predictions --predictions-only   # the kept models' predictions alone
 
+What a 1e-6-relative nudge of every context sample moves, case by case and mode by mode (nothing written):
+
+    python -m tests.inference.kept_predictions --continuity
+
 It trains three tiny models on freshly simulated stores (a command hybrid with a parameter head, a
 total-torque Gaussian decoder given a smoothed blend, a total-torque decoder given a forward blend),
 exports them as model folders, keeps three held-out windows of each formulation, and records every
@@ -77,6 +81,44 @@ def predictions(folder: Path = KEPT) -> dict[str, np.ndarray]:
     return out
 
 
+# The continuity check's nudge (issue 61): every context sample of every kept window, inputs and outputs, times
+# 1 + NUDGE or 1 - NUDGE (signs drawn with NUDGE_SEED), then rounded to the stored float32.
+NUDGE, NUDGE_SEED = 1e-6, 0
+
+
+def nudge_windows(out: Path, rel: float = NUDGE, seed: int = NUDGE_SEED, folder: Path = KEPT) -> Path:
+    """``out`` made a fixtures folder like ``folder`` (its models linked) whose windows' contexts are nudged by ``rel``
+    relative, each sample and channel up or down at random (``seed``); the queries as they were."""
+    windows = dict(np.load(folder / "windows.npz"))
+    rng = np.random.default_rng(seed)
+    for name in sorted(windows):
+        ctx = windows[name][:, :CONTEXT].astype(np.float64)
+        windows[name][:, :CONTEXT] = (ctx * (1 + rel * rng.choice([-1.0, 1.0], size=ctx.shape))).astype(np.float32)
+    out.mkdir(parents=True, exist_ok=True)
+    for item in folder.iterdir():
+        if item.name != "windows.npz":
+            (out / item.name).symlink_to(item.resolve())
+    np.savez(out / "windows.npz", **windows)
+    return out
+
+
+def moved(got: dict, ref: dict) -> dict[str, float]:
+    """Each entry's largest change from ``ref`` to ``got``, relative to ``ref``'s largest magnitude."""
+    out = {}
+    for key, value in ref.items():
+        r = np.asarray(value, dtype=np.float64)
+        out[key] = float(np.abs(np.asarray(got[key], dtype=np.float64) - r).max() / max(np.abs(r).max(), 1e-300))
+    return out
+
+
+def continuity(rel: float = NUDGE, seed: int = NUDGE_SEED, base: dict | None = None) -> dict[str, float]:
+    """How far every case's and mode's mean and std move (:func:`moved`) when the kept windows' contexts are
+    nudged by ``rel`` (:func:`nudge_windows`); ``base``: :func:`predictions` of the kept windows, if at hand."""
+    base = predictions() if base is None else base
+    with tempfile.TemporaryDirectory(prefix="nudged_") as tmp:
+        return moved(predictions(nudge_windows(Path(tmp) / "kept", rel, seed)), base)
+
+
 def build(folder: Path = KEPT) -> None:
     """Trains, exports and records everything :func:`predictions` reads, then the predictions themselves."""
     from robomorph.data.generation import generate
@@ -127,6 +169,12 @@ if __name__ == "__main__":
     import sys
 
     os.environ.setdefault("WANDB_MODE", "disabled")
+    if "--continuity" in sys.argv[1:]:
+        # What a 1e-6-relative nudge of every context sample moves, per case and mode (relative to each array's
+        # largest magnitude): the figures test_predictions_kept.py's continuity bounds were set from.
+        for key, value in sorted(continuity().items()):
+            print(f"{value:10.3g}  {key}")
+        raise SystemExit(0)
     if "--predictions-only" in sys.argv[1:]:
         # The kept models and windows as they are, their predictions recorded anew: a change meant to move
         # predictions (a new default of a catalogue arm's record, a new variant), not the models.
