@@ -131,13 +131,15 @@ class AccelResidual:
         # interleaved folds chose the weakest ridge, and the test windows' error at 1 s doubled).
         fold = np.searchsorted(ids, rows) * max(k, 1) // len(ids)
         errors = {}
-        for ridge in RIDGES if k >= 2 else RIDGES[-1:]:
+        if k < 2:  # one recording: nothing to validate a correction on, so none (the strongest ridge)
+            errors[RIDGES[-1]] = float("nan")
+        for ridge in RIDGES if k >= 2 else ():
             sq = 0.0
             for f in range(k):
                 tr = fold != f
                 sq += float(((z[~tr] @ _ridge(z[tr], target[tr], ridge) - target[~tr]) ** 2).sum())
             errors[ridge] = sq / target.size
-        best = min(errors, key=errors.get)
+        best = min(errors, key=errors.get) if k >= 2 else RIDGES[-1]
         return cls(mean, scale, _ridge(z, target, best), best, errors)
 
     def shift(self, phi: np.ndarray, dt: float) -> np.ndarray:
@@ -219,7 +221,7 @@ def _ridge(z: np.ndarray, y: np.ndarray, ridge: float) -> np.ndarray:
     """Ridge solution, its pull per row scaled by the columns' mean square (the integrated features' size grows
     with the horizon: a ridge of 1 weighs the pull as much as the data)."""
     gram = z.T @ z
-    pull = ridge * np.trace(gram) / z.shape[1] * np.eye(z.shape[1])
+    pull = ridge * max(np.trace(gram) / z.shape[1], 1e-12) * np.eye(z.shape[1])
     return np.linalg.solve(gram + pull, z.T @ y)
 
 

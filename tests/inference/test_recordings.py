@@ -194,6 +194,12 @@ def test_the_residual_on_constant_velocity_learns_an_arm_without_a_model():
     assert err[True] < 0.35 * err[False], err
     again = KinematicResidual(u, y, [0, 1, 2], 0.01, config)
     np.testing.assert_array_equal(again.residual.weights, fitted.residual.weights)
+    # One recording: nothing to cross-validate on, so no correction (the strongest ridge), not a singular solve
+    # (seen failing: numpy's LinAlgError from the end-to-end benchmark on one training window).
+    from robomorph.inference.recordings import RIDGES
+
+    alone = KinematicResidual(u[:1], y[:1], [0, 1, 2], 0.01, config)
+    assert alone.residual.ridge == RIDGES[-1] and np.isfinite(alone.simulate(uc, yc, uq)).all()
     with pytest.raises(RecordingsError, match="joints must name output columns 0..2"):
         KinematicResidual(u, y, [3], 0.01, config)
     with pytest.raises(RecordingsError, match="dt must be > 0"):
