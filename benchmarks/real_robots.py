@@ -316,8 +316,9 @@ def render(res: dict) -> str:
                                     "(c) range-normalised", "(d) simulation [deg]", "(d) prediction [deg]"],
                                    res["readings"], floatfmt=".4g"))
     if res.get("verdicts"):
-        extra += ("\n\nIssue 62's goals (the stacks' rows; ratios to the best kinematic bar and the std's coverage in "
-                  "`benchmarks/stacking.py`):\n\n" + "\n".join(f"- {v}" for v in res["verdicts"]))
+        extra += ("\n\nIssue 62's goals (the stacks' rows, their ratios to the best kinematic bar and the std's coverage "
+                  "in `benchmarks/stacking.py`; the training recordings' rows, `benchmarks/training_recordings.py`):\n\n"
+                  + "\n".join(f"- {v}" for v in res["verdicts"]))
     return head + table + extra
 
 

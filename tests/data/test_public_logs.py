@@ -183,7 +183,7 @@ def test_benchmark_scores_every_predictor_on_every_robot_and_physics_wins_on_its
     assert "nominal_physics" not in schunk and "hybrid_train" not in schunk  # no MJCF: not run
     assert "| constant_velocity +residual" in schunk  # the residual on constant velocity: every arm
     assert "hybrid_train +offsets, with the training recordings at most 0.5x the best kinematic" in kinova
-    assert "what the per-context offsets add:" in kinova
+    assert "effect of the per-context offsets:" in kinova
 
 
 def test_ingest_source_writes_the_split_stores_and_refuses_mixed_requests(sources, tmp_path, capsys):
