@@ -32,6 +32,7 @@ Predictors, all free-running from the warm-up alone:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 
@@ -90,7 +91,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help=f"comma list from {', '.join(PREDICTORS)} (default: all)")
     p.add_argument("--budget", type=float, default=900.0, help="seconds of training per trained model (default 900)")
     p.add_argument("--iterations", type=int, default=300, help="training iterations per model at most (default 300)")
-    p.add_argument("--seeds", type=int, default=1, help="gru_sim seeds (default 1); the ensemble takes them all")
+    p.add_argument("--seeds", type=int, default=1,
+                   help="gru_sim seeds (default 1); the ensemble chooses among them on validation")
+    p.add_argument("--train-trajectories", type=int,
+                   help="train on this many of the training trajectories (a choice seeded 0; default all): the "
+                        "learning curve, what more data of the same kind would buy")
     p.add_argument("--meta", default="realistic-arms-60hz",
                    help="the multi-arm meta-model meta_finetuned starts from: a shipped model's name, a model folder "
                         "or a checkpoint (default realistic-arms-60hz)")
@@ -111,8 +116,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     if unknown or not args.predictors:
         p.error(f"--predictors: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PREDICTORS)}")
     if args.budget <= 0 or args.iterations < 1 or args.seeds < 1 or args.warmup < 1 or args.meta_chunk < 1 \
-            or args.meta_iterations < 1:
-        p.error("--budget must be > 0, --iterations, --meta-iterations, --seeds, --warmup and --meta-chunk >= 1")
+            or args.meta_iterations < 1 or (args.train_trajectories is not None and args.train_trajectories < 2):
+        p.error("--budget must be > 0, --iterations, --meta-iterations, --seeds, --warmup and --meta-chunk >= 1, "
+                "--train-trajectories >= 2")
     if args.md:
         check_replaceable(args.md, "markdown", "--md")
     return args
@@ -194,6 +200,17 @@ def build(name: str, bench: industrial.IndustrialBenchmark, args, seed: int = 0)
     return fr.predictor(model, norm), time.time() - t0, losses
 
 
+def subset(bench: industrial.IndustrialBenchmark, n: int | None) -> industrial.IndustrialBenchmark:
+    """``bench`` with ``n`` of its training trajectories (a choice seeded 0, kept in order); all where None."""
+    if n is None:
+        return bench
+    if n > len(bench.train):
+        raise industrial.IndustrialDataError(f"--train-trajectories {n}: the file holds {len(bench.train)} training "
+                                             "trajectories; ask for at most that many")
+    keep = sorted(np.random.default_rng(0).choice(len(bench.train), n, replace=False))
+    return dataclasses.replace(bench, train=[bench.train[i] for i in keep])
+
+
 def choose_ensemble(members: list, val: list, norm: fr.Normalizer) -> list:
     """The members whose mean free run (from rest) lowers the validation trajectories' error, added greedily
     from the best alone; the error is the mean square in the training split's normalised units (every joint
@@ -222,7 +239,7 @@ def main(argv=None) -> int:
             MetaSim.from_pretrained(args.meta, 6, 6, chunk=args.meta_chunk)
         except RoboMorphError as exc:
             raise type(exc)(f"--meta {args.meta} (--meta-chunk {args.meta_chunk}): {exc}") from None
-    bench = industrial.load(args.data, args.mat)
+    bench = subset(industrial.load(args.data, args.mat), args.train_trajectories)
     print_provenance()
     print(bench.describe(), flush=True)
     use_ib = not args.no_identibench and br.identibench_installed()
@@ -257,7 +274,9 @@ def main(argv=None) -> int:
 
 def render(bench, rows, args, use_ib: bool, pairs: list) -> str:
     warm = "its first sample" if args.warmup == 1 else f"its first {args.warmup} samples"
-    data = (f"Data: `{bench.describe()}`. "
+    data = (f"Data: `{bench.describe()}`"
+            + (f", training on {args.train_trajectories} of the training trajectories (a choice seeded 0)"
+               if args.train_trajectories else "") + ". "
             + ("The official file." if bench.layout == "official" else
                "The shifted copy (the official file was not found): each trajectory is 605 samples, u[t] beside "
                "y[t + 1], so every figure is on 3,630 test samples, not the official 3,636."))

@@ -177,3 +177,20 @@ def test_the_ensemble_is_chosen_on_validation_and_keeps_only_members_that_help()
     assert sorted(chosen) == ["minus", "plus"]
     # one exact member alone beats any mean with another
     assert ir.choose_ensemble([("bad", biased(1.0)), ("exact", biased(0.0))], val, norm) == ["exact"]
+
+
+def test_a_share_of_the_training_trajectories_is_a_seeded_choice_and_too_many_is_refused(tmp_path):
+    sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
+    try:
+        import industrial_robot as ir
+    finally:
+        sys.path.pop(0)
+    _write_shifted(str(tmp_path / "clone" / "data" / "IndustRobo" / industrial.SHIFTED), np.random.default_rng(8),
+                   n_train=5)
+    b = industrial.load(str(tmp_path))
+    a, again = ir.subset(b, 3), ir.subset(b, 3)
+    assert len(a.train) == 3 and all(np.array_equal(x[0], y[0]) for x, y in zip(a.train, again.train))
+    assert all(any(np.array_equal(t[0], s[0]) for s in b.train) for t in a.train)  # whole trajectories, uncut
+    assert a.val is b.val and a.test is b.test and ir.subset(b, None) is b
+    with pytest.raises(industrial.IndustrialDataError, match="holds 5 training trajectories"):
+        ir.subset(b, 6)
