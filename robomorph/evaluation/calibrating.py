@@ -323,7 +323,7 @@ def blend_text(report: dict) -> str:
         f"physics/decoder blend fitted on {src['n']} windows of {', '.join(src['data'])} "
         f"({'validation split' if src['split'] == 'val' else 'whole store'}), context {src['context_len']}, "
         f"horizon {src['horizon']}; gate {report['blend']['gate']:g} x the decoder's RMS error "
-        f"({src['gated_windows']} of {src['n']} windows left to the decoder before the end)",
+        f"({src['gated_windows']} of {src['n']} windows gated before the end: their physics' weight lowered or gone)",
         markdown_table(["step", "seconds", "physics weight (joints)", "physics [mrad]", "decoder [mrad]",
                         "blend [mrad]"], rows),
         "(joint RMS error on the fitting windows themselves; score it on a test store with robomorph evaluate; "
