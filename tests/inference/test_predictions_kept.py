@@ -128,3 +128,20 @@ def test_a_1e_6_relative_nudge_of_every_context_sample_moves_each_mode_within_it
     met = [k for k in moved if _continuity_bound(k) == CONTINUITY_GOAL]
     assert any(k.startswith("command/none/") for k in met) and any(k.startswith("command/learned/") for k in met)
     assert min(moved[k] for k in moved if "/none/" in k and k.endswith("/mean")) > 0, "the nudge reached no decoder"
+
+
+def test_the_nudge_moves_every_context_sample_by_1e_6_relative_the_same_each_time_and_no_query(tmp_path):
+    from tests.inference.kept_predictions import CONTEXT, NUDGE, nudge_windows
+
+    kept = np.load(KEPT / "windows.npz")
+    nudged = np.load(nudge_windows(tmp_path / "a") / "windows.npz")
+    again = np.load(nudge_windows(tmp_path / "b") / "windows.npz")
+    assert sorted(nudged.files) == sorted(kept.files)
+    for name in kept.files:
+        x, y = kept[name].astype(np.float64), nudged[name].astype(np.float64)
+        np.testing.assert_array_equal(again[name], nudged[name])  # seeded: the same nudge every time
+        np.testing.assert_array_equal(y[:, CONTEXT:], x[:, CONTEXT:])  # the queries untouched
+        ctx = x[:, :CONTEXT]
+        rel = np.abs(y[:, :CONTEXT] - ctx)[ctx != 0] / np.abs(ctx[ctx != 0])
+        assert rel.max() <= NUDGE + 2.0 ** -24, name  # the nudge, and float32's rounding of it (half an ulp)
+        assert np.median(rel) > 0.5 * NUDGE, name  # every sample moved, not a few
