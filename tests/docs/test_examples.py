@@ -185,9 +185,12 @@ def test_readme_is_the_front_door():
 @pytest.mark.parametrize("section", ["## Headline result", "## Model-predictive control"])
 def test_readme_headline_numbers_are_those_of_its_results_file(section):
     text = README.read_text().split(section, 1)[1].split("\n## ", 1)[0]
-    source = re.search(r"From `(results/[^`]+\.md)`", text).group(1)
-    cells = set(re.findall(r"\|\s*([^|\n]*?)\s*(?=\|)", (ROOT / source).read_text()))
+    # The sentence that introduces a table names its results file, and may name a second one for a row
+    # measured on fewer windows (the headline's identified physics, 15 s a window on a busy machine).
+    intro = re.search(r"From `results/.*?:\n", text, re.S).group(0)
+    sources = re.findall(r"`(results/[^`]+\.md)`", intro)
+    cells = {c for s in sources for c in re.findall(r"\|\s*([^|\n]*?)\s*(?=\|)", (ROOT / s).read_text())}
     numbers = re.findall(r"\|\s*(-?\d+(?:\.\d+)?)\s*(?=\|)", text)
     assert len(numbers) >= 20
     missing = [n for n in numbers if n not in cells]
-    assert not missing, f"README numbers not in {source}: {missing}"
+    assert not missing, f"README numbers not in {sources}: {missing}"
