@@ -112,6 +112,8 @@ def evaluate(config: EvaluateConfig, *args, **kwargs) -> dict:
     check_patch(predictor.patch, [w.context_len, *contexts])
     # Checked before the output folder is made: a refused --compare leaves nothing behind.
     others = {name: references.load_other(name, other, w, cfg.device) for name, other in cfg.compare}
+    for other in others.values():  # compared like for like: stacked when the evaluated model is
+        other.stack = predictor.stack
     train_blocks = training_data.reader(record, list(cfg.arx_train_data) or None, predictor.inputs,
                                         "a catalogue arm's hybrid" if cfg.arm else "the checkpoint")
     # Another arm's stores refused here, and the evaluated store itself noted: an ARX fitted on the robots it

@@ -365,6 +365,13 @@ class Hybrid:
         self._regressor.iterations = self.settings.iterations
         return self._regressor
 
+    @property
+    def regressor(self):
+        """The regression solver the last identification ran (its data, inverse dynamics and residuals), or None
+        before any: what :class:`robomorph.inference.recordings.RecordingsPredictor` keeps after
+        :meth:`identify_recordings`."""
+        return self._regressor
+
     def identify_recordings(self, q: list[np.ndarray], torque: list[np.ndarray], reference: int | None = None,
                             drift: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """One robot from many recordings of it: ``(params (P,), offsets (nj,))``, the regression's solve

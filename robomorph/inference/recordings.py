@@ -284,7 +284,7 @@ class RecordingsPredictor:
         self.recordings, self.samples = len(us), int(sum(len(a) for a in us))
         # The solver identify_recordings just ran, kept: its data and inverse dynamics give the residuals, here and on
         # each context (a later context identification may build the hybrid another).
-        self._regressor = reg = hybrid._regressor
+        self._regressor = reg = hybrid.regressor
         rows = []  # per recording: the torque its inner samples hold beyond the identified robot's
         for q, a in zip(qs, us):
             rows.append(reg.residual(self.params, reg.data(q, a, self._noise(hybrid, q))))

@@ -97,11 +97,15 @@ def test_evaluate_robot_on_the_bag_store_scores_as_on_the_generated_store(genera
         results = [evaluate(EvaluateConfig(data=data, arm="bagarm", out=str(tmp_path / name), context_len=CONTEXT,
                                            horizon=STEPS - CONTEXT, baselines=("hold", "constant_velocity",
                                                                                "nominal_physics"),
-                                           device="cpu", samples=0, inputs=inputs))
-                   for data, name, inputs in ((store, "eval_bag", None), (direct.path, "eval_direct", "total"))]
+                                           device="cpu", samples=0, inputs=inputs, stacked=stacked))
+                   for data, name, inputs, stacked in ((store, "eval_bag", None, "auto"),
+                                                       (direct.path, "eval_direct", "total", "on"))]
     for rows in (lambda r: r["approach1"]["channels"], lambda r: r["baselines"]["nominal_physics"]["approach1"]["channels"],
                  lambda r: r["baselines"]["hold"]["approach1"]["channels"]):
         bag_rows, direct_rows = rows(results[0]), rows(results[1])
         for ch in ("q0", "q1", "q2"):
             assert bag_rows[ch]["rmse"]["mean"] == pytest.approx(direct_rows[ch]["rmse"]["mean"], abs=1e-6), ch
     assert results[0]["meta"]["inputs"] == "total"  # a log's torque is the total one, without being told
+    # The bag is a recording: evaluate stacks its model there by default (--stacked auto), as asked on the store
+    # generated directly.
+    assert results[0]["meta"]["stacked"] and results[1]["meta"]["stacked"]
