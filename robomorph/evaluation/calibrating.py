@@ -175,7 +175,7 @@ def dense_at_end(predictor) -> bool:
     later torque pins its last steps); a forward simulation's keep growing. Measured on the command hybrid
     (``regression+obs``, ``power`` fitted on 768 robots, scored on 1,024 others): the joints' ±2σ coverage at the
     last step rose from 92.0 to 92.8 % from random offsets and from 91.6 to 91.9 % from the start, the earlier
-    steps within 0.3 points (``results/benchmarks/spread_knots_{random,start}.md``)."""
+    steps within 0.3 points (a screening: ``results/benchmarks/spread_knots_{random,start}.md`` at commit 3704ae7, CHANGELOG)."""
     return bool(getattr(predictor, "physics", None))
 
 
