@@ -11,13 +11,7 @@ import torch
 from robomorph.training import free_run as fr
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    # Tiny recurrent steps: a second thread only adds contention on a shared machine.
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _toy(n, length=80, seed=0):

@@ -14,12 +14,7 @@ from robomorph.training.meta_free_run import ChannelMap, MetaSim
 SHIPPED = "realistic-arms-60hz"
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _toy(n, length=60, seed=0):
