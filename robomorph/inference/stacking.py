@@ -213,8 +213,8 @@ class StackedPredictor:
             raise StackingError("this model records no sample time (data_info dt): build "
                                 "StackedPredictor(predictor.simulate, dt=...) with the logs' rate")
         # The channels it predicts: an arm's own where a model of several arms was given fewer (``channels``).
-        names = list((getattr(predictor, "channels", None) or (None, None))[1]
-                     or (predictor.data_info or {}).get("y_names") or [])
+        channels = getattr(predictor, "channels", None)
+        names = list((channels[1] if channels else None) or (predictor.data_info or {}).get("y_names") or [])
         joints = [i for i, n in enumerate(names) if n.startswith("q")] or None
         if model is None:
             def model(u, y, uq):
