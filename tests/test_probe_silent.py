@@ -15,6 +15,7 @@ from robomorph import Predictor
 from robomorph.core.config import ConfigError
 from robomorph.inference.catalogue import LimitsError, NoNetworkError
 from robomorph.inference.settings import SettingsError
+from tests.test_probe_new_commands import _one_error
 
 C, H = 40, 20  # a context and a horizon of a few hundred milliseconds: from_arm predicts in well under a second
 
@@ -138,9 +139,8 @@ def _tiny_sources(root, length: int, nan_in: str | None = None) -> None:
     scipy.io.savemat(mat, arrays)
 
 
-def _ingest(argv, capsys) -> tuple[int, str, str]:
-    from robomorph.ingest import main
-
+def _run(main, argv, capsys) -> tuple[int, str, str]:
+    """``main(argv)``'s exit code (a parser's SystemExit too), its stdout and its stderr."""
     try:
         code = main(argv)
     except SystemExit as exc:
@@ -149,13 +149,10 @@ def _ingest(argv, capsys) -> tuple[int, str, str]:
     return int(code or 0), out.out, out.err
 
 
-def _one_error(code: int, err: str, *phrases: str) -> str:
-    assert code == 2 and "Traceback" not in err, (code, err)
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: "), err
-    for phrase in phrases:
-        assert phrase in lines[0], (phrase, lines[0])
-    return lines[0]
+def _ingest(argv, capsys) -> tuple[int, str, str]:
+    from robomorph.ingest import main
+
+    return _run(main, argv, capsys)
 
 
 @pytest.mark.parametrize("source", ["kinova_gen3", "ur5", "schunk", "industrial_robot"])
@@ -207,12 +204,7 @@ def test_a_realism_number_that_is_not_finite_is_refused(tmp_path, capsys, sectio
 def _evaluate(argv, capsys) -> tuple[int, str, str]:
     from robomorph import evaluate
 
-    try:
-        code = evaluate.main(argv)
-    except SystemExit as exc:
-        code = exc.code
-    out = capsys.readouterr()
-    return int(code or 0), out.out, out.err
+    return _run(evaluate.main, argv, capsys)
 
 
 def _catalogue_eval(store, out, *extra) -> list[str]:
@@ -262,12 +254,7 @@ def command_hybrid(simulated_store, tmp_path_factory) -> str:
 def _calibrate(argv, capsys) -> tuple[int, str, str]:
     from robomorph import calibrate
 
-    try:
-        code = calibrate.main(argv)
-    except SystemExit as exc:
-        code = exc.code
-    out = capsys.readouterr()
-    return int(code or 0), out.out, out.err
+    return _run(calibrate.main, argv, capsys)
 
 
 def test_calibrate_refuses_a_switch_the_calibrated_mode_does_not_use(command_hybrid, tmp_path, capsys):
@@ -361,11 +348,8 @@ def test_a_residual_run_over_two_arms_names_the_arms(tmp_path, capsys):
             "--data.batch_size", "4", "--data.inputs", "total", "--model.d_model", "16", "--model.n_head", "2",
             "--model.n_layer", "1", "--model.patch", "5", "--trainer.max_steps", "1", "--trainer.accelerator", "cpu",
             "--runs_dir", str(tmp_path / "runs"), "--run", "r", "--wandb", "disabled"]
-    try:
-        code = fit.main(argv)
-    except SystemExit as exc:
-        code = exc.code
-    line = _one_error(int(code or 0), capsys.readouterr().err, "b.zarr holds priors of the ur5e", "a.zarr of the panda",
+    code, _, err = _run(fit.main, argv, capsys)
+    line = _one_error(code, err, "b.zarr holds priors of the ur5e", "a.zarr of the panda",
                       "one residual model per arm")
     assert "channel_mask" not in line
 
@@ -375,11 +359,8 @@ def test_a_residual_run_over_two_arms_names_the_arms(tmp_path, capsys):
 def _priors(argv, capsys) -> tuple[int, str]:
     from robomorph import priors
 
-    try:
-        code = priors.main(argv)
-    except SystemExit as exc:
-        code = exc.code
-    return int(code or 0), capsys.readouterr().err
+    code, _, err = _run(priors.main, argv, capsys)
+    return code, err
 
 
 def test_priors_out_on_a_dangling_link_says_so(simulated_store, tmp_path, capsys):
