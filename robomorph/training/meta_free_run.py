@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import torch
 
 from robomorph.inference.checkpoint import TrainedModel, load_trained
+from robomorph.model.channels import pad, select
 from robomorph.model.pretrained import resolve
 from robomorph.training.free_run import FreeRunError, FreeRunModel
 
@@ -87,6 +88,7 @@ class MetaSim(FreeRunModel):
             raise FreeRunError("the model has no channel mask, so it cannot read a robot with fewer channels")
         self.model, self.channels, self.lag, self.chunk = model, channels, context, chunk
         self.n_u, self.n_y = cfg.n_u, cfg.n_y
+        self.columns = (list(channels.u_channels), list(channels.y_channels))  # model.channels.Columns: pad and select
         with torch.no_grad():  # the data arrive z-scored by the robot's own training split
             for name in ("u_mean", "y_mean"):
                 getattr(model.normalizer, name).zero_()
@@ -107,12 +109,6 @@ class MetaSim(FreeRunModel):
         y_names = (info or {}).get("y_names") or []
         return cls(model, ChannelMap.joints(model, y_names, n_u, n_y), context, chunk)
 
-    def _pad(self, x: torch.Tensor, index: tuple[int, ...], width: int) -> torch.Tensor:
-        """(B, T, k) into the model's (B, T, width), NaN (absent) where the robot has no channel."""
-        out = torch.full((*x.shape[:2], width), float("nan"), dtype=x.dtype, device=x.device)
-        out[..., list(index)] = x
-        return out
-
     def start(self, y_hist, u_hist):  # (B, context, n_y), (B, context, n_u): the robot's channels
         return y_hist, u_hist
 
@@ -121,10 +117,9 @@ class MetaSim(FreeRunModel):
         outs = []
         for c0 in range(0, u.shape[1], self.chunk):
             uq = u[:, c0:c0 + self.chunk]
-            mean, _ = self.model.forward_dist_raw(self._pad(u_ctx, self.channels.u_channels, self.n_u),
-                                                  self._pad(y_ctx, self.channels.y_channels, self.n_y),
-                                                  self._pad(uq, self.channels.u_channels, self.n_u))
-            y = mean[..., list(self.channels.y_channels)]  # (B, Lc, n_y)
+            # The robot's channels spread over the model's, NaN (absent) where it has none, and its outputs read back.
+            mean, _ = self.model.forward_dist_raw(*pad([u_ctx, y_ctx, uq], self.columns, self.n_u, self.n_y))
+            y = select(mean, self.columns)  # (B, Lc, n_y)
             outs.append(y)
             # the next context: the inputs and the model's own outputs, never a true output
             u_ctx = torch.cat([u_ctx, uq], 1)[:, -self.lag:]

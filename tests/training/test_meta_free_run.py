@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from robomorph.model.channels import pad
 from robomorph.training import free_run as fr
 from robomorph.training.meta_free_run import ChannelMap, MetaSim
 
@@ -33,7 +34,7 @@ def _toy(n, length=60, seed=0):
 def test_a_six_joint_robot_fills_tau0_to_5_and_q0_to_5_the_rest_absent():
     sim = MetaSim.from_pretrained(SHIPPED, 6, 6)
     assert sim.channels == ChannelMap(tuple(range(6)), tuple(range(7, 13)))  # outputs: 7 EE pose channels, q0..q6
-    padded = sim._pad(torch.ones(1, 3, 6), sim.channels.y_channels, 14)
+    _, padded, _ = pad([torch.ones(1, 3, 6)] * 3, sim.columns, sim.n_u, sim.n_y)  # what each pass feeds the model
     assert torch.isnan(padded[..., :7]).all() and torch.isnan(padded[..., 13]).all()
     assert torch.equal(padded[..., 7:13], torch.ones(1, 3, 6))
     # the data arrive z-scored by the robot's training split: the model's own normalizer is the identity
